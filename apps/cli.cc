@@ -1,0 +1,80 @@
+#include "cli.h"
+
+#include <cmath>
+#include <cstdlib>
+#include <iostream>
+#include <sstream>
+
+#include <boost/program_options.hpp>
+
+#include "pk/error.h"
+
+namespace pk {
+namespace cli {
+namespace {
+
+double ToNumber(const std::string& text, const std::string& option, const std::string& item) {
+  char* end = nullptr;
+  const double v = std::strtod(text.c_str(), &end);
+  if (text.empty() || *end != '\0' || !std::isfinite(v)) {
+    throw InputError("", 0, 0, option + ": '" + item + "': '" + text + "' is not a number");
+  }
+  return v;
+}
+
+}  // namespace
+
+ParameterValues ParseAssignments(const std::vector<std::string>& items, const std::string& option) {
+  ParameterValues values;
+  for (const std::string& item : items) {
+    const size_t eq = item.find('=');
+    if (eq == std::string::npos || eq == 0) {
+      throw InputError("", 0, 0, option + ": expected NAME=VALUE, got '" + item + "'");
+    }
+    values[item.substr(0, eq)] = ToNumber(item.substr(eq + 1), option, item);
+  }
+  return values;
+}
+
+std::vector<double> ParseTimes(const std::vector<std::string>& specs) {
+  std::vector<double> times;
+  for (const std::string& spec : specs) {
+    std::stringstream list(spec);
+    std::string part;
+    while (std::getline(list, part, ',')) {
+      const size_t c1 = part.find(':');
+      if (c1 == std::string::npos) {
+        times.push_back(ToNumber(part, "--times", spec));
+        continue;
+      }
+      const size_t c2 = part.find(':', c1 + 1);
+      if (c2 == std::string::npos) throw InputError("", 0, 0, "--times: expected FROM:STEP:TO, got '" + part + "'");
+      const double from = ToNumber(part.substr(0, c1), "--times", spec);
+      const double step = ToNumber(part.substr(c1 + 1, c2 - c1 - 1), "--times", spec);
+      const double to = ToNumber(part.substr(c2 + 1), "--times", spec);
+      if (step <= 0 || to < from) throw InputError("", 0, 0, "--times: '" + part + "' needs STEP > 0 and TO >= FROM");
+      const long count = std::lround(std::floor((to - from) / step + 1e-9));
+      if (count > 10000000) throw InputError("", 0, 0, "--times: '" + part + "' asks for too many times");
+      for (long k = 0; k <= count; ++k) times.push_back(from + static_cast<double>(k) * step);
+    }
+  }
+  return times;
+}
+
+int Run(const std::string& program, const std::function<int()>& body) {
+  try {
+    return body();
+  } catch (const InputError& e) {
+    std::cerr << program << ": error: " << e.what() << "\n";
+    return 2;
+  } catch (const boost::program_options::error& e) {
+    std::cerr << program << ": error: " << e.what() << " (see --help)\n";
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << program << ": error: " << e.what() << "\n";
+    return 3;
+  }
+}
+
+}  // namespace cli
+}  // namespace pk

@@ -1,0 +1,32 @@
+// libpk: the model catalogue.
+//
+// Catalogue names and parameter names are part of the interface:
+//
+//   1cmt_iv    (CL, V)                    1cmt_oral  (KA, CL, V)
+//   2cmt_iv    (CL, V1, Q, V2)            2cmt_oral  (KA, CL, V1, Q, V2)
+//   3cmt_iv    (CL, V1, Q2, V2, Q3, V3)   3cmt_oral  (KA, CL, V1, Q2, V2, Q3, V3)
+//
+// Oral models number the depot 1 and the central compartment 2; IV models
+// number the central compartment 1; peripherals follow. The default output is
+// the central concentration A_central / V_central.
+#ifndef PK_CATALOGUE_H_
+#define PK_CATALOGUE_H_
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "pk/model.h"
+
+namespace pk {
+
+/// Names of every catalogue model, in catalogue order.
+std::vector<std::string> CatalogueModelNames();
+
+/// The catalogue model with this name (case-insensitive). Throws
+/// pk::InputError listing the catalogue when there is none.
+std::shared_ptr<const Model> MakeModel(const std::string& name);
+
+}  // namespace pk
+
+#endif  // PK_CATALOGUE_H_

@@ -1,0 +1,79 @@
+// libpk: NONMEM-style event datasets.
+//
+// A dataset is a CSV file whose header names the columns. The PREDPP data
+// items are recognised case-insensitively:
+//
+//   ID, TIME, AMT, RATE, II, ADDL, SS, EVID, CMT, MDV, DV
+//
+// Only TIME is required. Missing optional columns take NM-TRAN's defaults:
+// AMT, RATE, II, ADDL, SS = 0; EVID = 1 when AMT > 0, else 0 when MDV = 0 or
+// absent, else 2; MDV = 1 on non-observation records and on observations whose
+// DV is missing; CMT = 0 (the model's default dose or observation compartment);
+// ID = 1. A field holding "." is missing. Every other column is kept by name
+// (upper-cased) so that covariates, time-varying model parameters (CL, V, ...)
+// and dose modifiers (F1, ALAG1, R1, D1, ...) can be read from it.
+//
+// Records are grouped into subjects in file order: a new subject starts
+// whenever ID changes, as in NONMEM. Lines starting with '#' and blank lines
+// are ignored. Every violation throws pk::InputError naming file, line and
+// column.
+#ifndef PK_DATASET_H_
+#define PK_DATASET_H_
+
+#include <string>
+#include <vector>
+
+namespace pk {
+
+/// PREDPP event types.
+enum class Evid { kObservation = 0, kDose = 1, kOther = 2, kReset = 3, kResetDose = 4 };
+
+/// One data record (one line of the file).
+struct Record {
+  double id = 1;
+  double time = 0;
+  double amt = 0;
+  double rate = 0;   ///< > 0 rate; -1 rate modelled (R<n>); -2 duration modelled (D<n>)
+  double ii = 0;     ///< interdose interval
+  int addl = 0;      ///< additional doses
+  int ss = 0;        ///< 0, 1 (reset to steady state) or 2 (add steady state)
+  Evid evid = Evid::kObservation;
+  int cmt = 0;       ///< 1-based compartment; 0 = the model's default
+  int mdv = 0;
+  double dv = 0;
+  bool dv_missing = true;
+  int line = 0;      ///< line number in the source file (1-based)
+  std::vector<double> extra;  ///< other columns, NaN where missing
+
+  bool IsDose() const { return evid == Evid::kDose || evid == Evid::kResetDose; }
+  /// A measured sample that enters a loss: an observation record with MDV=0 and a DV.
+  bool IsSample() const { return evid == Evid::kObservation && mdv == 0 && !dv_missing; }
+};
+
+struct Subject {
+  double id = 1;
+  std::vector<Record> records;
+};
+
+struct Dataset {
+  std::string source;                      ///< file name, for error messages
+  std::vector<std::string> columns;        ///< upper-cased header, in file order
+  std::vector<std::string> extra_columns;  ///< upper-cased names of the non-PREDPP columns
+  std::vector<Subject> subjects;
+
+  /// Index into Record::extra of a non-PREDPP column, or -1 (case-insensitive).
+  int ExtraColumn(const std::string& name) const;
+  /// 1-based position of any column in the file, or 0 when absent (case-insensitive).
+  int ColumnNumber(const std::string& name) const;
+  int NumRecords() const;
+};
+
+/// Reads a dataset file. Throws pk::InputError on any malformed input.
+Dataset ReadDataset(const std::string& path);
+
+/// Parses dataset text; `source` names it in error messages.
+Dataset ParseDataset(const std::string& text, const std::string& source);
+
+}  // namespace pk
+
+#endif  // PK_DATASET_H_

@@ -1,0 +1,61 @@
+// libpk: the runtime interface every compartment model implements.
+//
+// A model has n compartments (states), numbered 1..n as in NONMEM's CMT, and
+// a vector θ of named parameters. Its prediction for an observation in
+// compartment c is the amount in c divided by c's volume when the compartment
+// has one (the central compartment always does), and the amount otherwise.
+#ifndef PK_MODEL_H_
+#define PK_MODEL_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace pk {
+
+class Model {
+ public:
+  virtual ~Model() = default;
+
+  const std::string& name() const { return name_; }
+  const std::string& description() const { return description_; }
+  int num_compartments() const { return static_cast<int>(compartment_names_.size()); }
+  const std::vector<std::string>& compartment_names() const { return compartment_names_; }
+  int num_parameters() const { return static_cast<int>(parameter_names_.size()); }
+  const std::vector<std::string>& parameter_names() const { return parameter_names_; }
+  /// Sensible starting values for the catalogue (also the values pksim uses
+  /// when neither --param nor the data supplies one).
+  const Eigen::VectorXd& default_parameters() const { return default_parameters_; }
+  /// 1-based compartment whose concentration is the default output (CP).
+  int central_compartment() const { return central_; }
+  /// 1-based compartment that receives a dose with CMT=0 or absent.
+  int default_dose_compartment() const { return default_dose_; }
+  /// Index of a parameter by name (case-insensitive), or -1.
+  int ParameterIndex(const std::string& name) const;
+
+  /// True when dx/dt = A(θ)x + u; such a model can use the exact propagator.
+  virtual bool is_linear() const = 0;
+
+  /// Prediction for an observation in compartment `cmt` (1-based) given the
+  /// amounts x and parameters θ.
+  virtual double Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const = 0;
+
+ protected:
+  Model(std::string name, std::string description, std::vector<std::string> compartment_names,
+        std::vector<std::string> parameter_names, Eigen::VectorXd default_parameters, int central,
+        int default_dose);
+
+ private:
+  std::string name_;
+  std::string description_;
+  std::vector<std::string> compartment_names_;
+  std::vector<std::string> parameter_names_;
+  Eigen::VectorXd default_parameters_;
+  int central_;
+  int default_dose_;
+};
+
+}  // namespace pk
+
+#endif  // PK_MODEL_H_

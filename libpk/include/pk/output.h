@@ -1,0 +1,19 @@
+// libpk: writing results whole or not at all.
+#ifndef PK_OUTPUT_H_
+#define PK_OUTPUT_H_
+
+#include <string>
+
+namespace pk {
+
+/// Writes `contents` to a temporary file beside `path`, then renames it over
+/// `path`, so a reader never sees a partial file. Throws std::runtime_error
+/// naming the path on failure.
+void WriteFileAtomically(const std::string& path, const std::string& contents);
+
+/// Shortest decimal text that reads back as the same double ("%.17g" trimmed).
+std::string FormatNumber(double value);
+
+}  // namespace pk
+
+#endif  // PK_OUTPUT_H_

@@ -1,0 +1,64 @@
+// libpk: the full parameter vector of a model, with its dose modifiers.
+//
+// Besides the model's own parameters θ, NONMEM's PREDPP lets every dose
+// compartment n carry modifiers, and libpk treats them as parameters like any
+// other (they can be given with --param, read from a data column, or
+// estimated):
+//
+//   F<n>     bioavailability: scales the bolus amount, or the infusion amount
+//            (with RATE>0 the rate is kept and the duration scales)   default 1
+//   ALAG<n>  absorption lag: the dose enters ALAG<n> after its time    default 0
+//   R<n>     infusion rate, used by doses with RATE=-1                 no default
+//   D<n>     infusion duration, used by doses with RATE=-2             no default
+//
+// The layout is θ followed by F1..Fn, ALAG1..ALAGn, R1..Rn, D1..Dn.
+#ifndef PK_PARAMETERS_H_
+#define PK_PARAMETERS_H_
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/model.h"
+
+namespace pk {
+
+/// Parameter values by name, e.g. {"CL", 2.5}, {"F1", 0.8}. Names are case-insensitive.
+using ParameterValues = std::map<std::string, double>;
+
+class ParameterLayout {
+ public:
+  explicit ParameterLayout(const Model& model);
+
+  int size() const { return static_cast<int>(names_.size()); }
+  int num_model_parameters() const { return num_model_; }
+  int num_compartments() const { return n_; }
+  const std::vector<std::string>& names() const { return names_; }
+  const std::string& name(int i) const { return names_[i]; }
+  /// Index of a name (case-insensitive) or -1.
+  int Index(const std::string& name) const;
+
+  // Indices of the modifiers of compartment `cmt` (0-based).
+  int F(int cmt) const { return num_model_ + cmt; }
+  int Alag(int cmt) const { return num_model_ + n_ + cmt; }
+  int Rate(int cmt) const { return num_model_ + 2 * n_ + cmt; }
+  int Duration(int cmt) const { return num_model_ + 3 * n_ + cmt; }
+
+  /// Model defaults, F=1, ALAG=0, and NaN (unset) for R and D.
+  Eigen::VectorXd Defaults() const;
+  /// Defaults overridden by `values`; throws pk::InputError for an unknown name,
+  /// listing the valid ones.
+  Eigen::VectorXd Resolve(const ParameterValues& values) const;
+
+ private:
+  int num_model_;
+  int n_;
+  std::vector<std::string> names_;
+  Eigen::VectorXd defaults_;
+};
+
+}  // namespace pk
+
+#endif  // PK_PARAMETERS_H_

@@ -1,0 +1,85 @@
+#include "events.h"
+
+#include <cmath>
+
+#include "internal_text.h"
+#include "pk/error.h"
+
+namespace pk {
+namespace internal {
+namespace {
+
+std::string CompartmentList(const Model& model) {
+  std::vector<std::string> items;
+  for (int c = 0; c < model.num_compartments(); ++c) {
+    items.push_back(std::to_string(c + 1) + "=" + model.compartment_names()[c]);
+  }
+  return Join(items, ", ");
+}
+
+}  // namespace
+
+void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base, PreparedSubject* s) {
+  const std::vector<Record>& records = s->records();
+  s->sets.clear();
+  s->set_of_record.assign(records.size(), 0);
+  for (size_t r = 0; r < records.size(); ++r) {
+    Eigen::VectorXd v = base;
+    for (int i = 0; i < layout.size(); ++i) {
+      const int col = s->column_of_parameter[i];
+      if (col >= 0 && !std::isnan(records[r].extra[col])) v(i) = records[r].extra[col];
+    }
+    if (s->sets.empty() || !(s->sets.back().array() == v.array()).all()) s->sets.push_back(v);
+    s->set_of_record[r] = static_cast<int>(s->sets.size()) - 1;
+  }
+}
+
+PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
+                               int subject, const Eigen::VectorXd& base) {
+  PreparedSubject s;
+  s.data = &data;
+  s.subject = subject;
+  s.column_of_parameter.resize(layout.size());
+  for (int i = 0; i < layout.size(); ++i) s.column_of_parameter[i] = data.ExtraColumn(layout.name(i));
+  RebindParameters(layout, base, &s);
+
+  const std::vector<Record>& records = s.records();
+  const int n = model.num_compartments();
+  s.cmt.resize(records.size());
+  for (size_t r = 0; r < records.size(); ++r) {
+    const Record& rec = records[r];
+    if (rec.cmt > n) {
+      throw InputError(data.source, rec.line, data.ColumnNumber("CMT"),
+                       "CMT " + std::to_string(rec.cmt) + " is out of range for model " + model.name() + " (" +
+                           CompartmentList(model) + ")");
+    }
+    const int c = rec.cmt > 0 ? rec.cmt - 1 : (rec.IsDose() ? model.default_dose_compartment() - 1
+                                                            : model.central_compartment() - 1);
+    s.cmt[r] = c;
+    if (!rec.IsDose()) continue;
+    const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
+    // A modifier the dose needs must be a finite value in range; name where it came from.
+    auto check = [&](int index, bool positive, const char* what) {
+      const double v = p(index);
+      const bool ok = std::isfinite(v) && (positive ? v > 0 : v >= 0);
+      if (ok) return;
+      const int col = s.column_of_parameter[index];
+      const bool from_data = col >= 0 && !std::isnan(rec.extra[col]);
+      const std::string name = layout.name(index);
+      throw InputError(data.source, rec.line,
+                       from_data ? data.ColumnNumber(name) : data.ColumnNumber("RATE"),
+                       std::string(what) + " needs " + name + (positive ? " > 0" : " >= 0") +
+                           (std::isnan(v) ? ", but no value is given (use --param " + name +
+                                                "=... or a data column " + name + ")"
+                                          : ", but it is " + std::to_string(v)));
+    };
+    check(layout.F(c), false, "a dose");
+    check(layout.Alag(c), false, "a dose");
+    if (rec.rate == -1) check(layout.Rate(c), true, "a dose with RATE=-1");
+    if (rec.rate == -2) check(layout.Duration(c), true, "a dose with RATE=-2");
+  }
+  return s;
+}
+
+}  // namespace internal
+}  // namespace pk

@@ -1,0 +1,99 @@
+#include "exact_propagator.h"
+
+#include <cmath>
+
+#include <Eigen/LU>
+#include <unsupported/Eigen/MatrixFunctions>
+
+namespace pk {
+namespace internal {
+
+ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eigen::VectorXd>& sets,
+                                 bool track_auc)
+    : model_(model), n_(model.num_compartments()), track_auc_(track_auc) {
+  const int big_n = n_ + (track_auc ? 1 : 0);
+  cache_.resize(sets.size());
+  for (size_t s = 0; s < sets.size(); ++s) {
+    const Eigen::VectorXd theta = sets[s].head(model.num_parameters());
+    if (!theta.allFinite()) throw NumericalFailure("a model parameter is not finite");
+    Eigen::MatrixXd a = Eigen::MatrixXd::Zero(big_n, big_n);
+    a.topLeftCorner(n_, n_) = model.SystemMatrix<double>(theta);
+    if (track_auc) a.row(n_).head(n_) = model.OutputRow<double>(model.central_compartment(), theta);
+    cache_[s].a = a;
+  }
+  x_ = Eigen::VectorXd::Zero(big_n);
+}
+
+const ExactPropagator::Discretization& ExactPropagator::Get(int set, double h) {
+  SetCache& c = cache_[set];
+  auto it = c.by_h.find(h);
+  if (it != c.by_h.end()) return it->second;
+  const int big_n = static_cast<int>(c.a.rows());
+  // Van Loan: exp([[A, B],[0, 0]] h) = [[Φ, Γ],[0, I]], with B = [I; 0].
+  Eigen::MatrixXd m = Eigen::MatrixXd::Zero(big_n + n_, big_n + n_);
+  m.topLeftCorner(big_n, big_n) = c.a * h;
+  m.block(0, big_n, n_, n_) = Eigen::MatrixXd::Identity(n_, n_) * h;
+  const Eigen::MatrixXd e = m.exp();
+  ++exponentials_;
+  if (!e.allFinite()) throw NumericalFailure("the matrix exponential overflowed (h = " + std::to_string(h) + ")");
+  Discretization d{e.topLeftCorner(big_n, big_n), e.topRightCorner(big_n, n_)};
+  return c.by_h.emplace(h, std::move(d)).first->second;
+}
+
+void ExactPropagator::Advance(double h, const Eigen::VectorXd& rate, int set) {
+  const Discretization& d = Get(set, h);
+  x_ = d.phi * x_ + d.gamma * rate;
+}
+
+void ExactPropagator::Bolus(int cmt, double amount, int /*set*/) { x_(cmt) += amount; }
+
+void ExactPropagator::Reset() { x_.head(n_).setZero(); }
+
+void ExactPropagator::SteadyState(const SteadyStateCycle<double>& cycle, int set, bool add) {
+  // One period is the affine map P(x) = M (x + b) + w; the steady state
+  // before a dose solves (I − M) x = M b + w.
+  Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n_, n_);
+  Eigen::VectorXd w = Eigen::VectorXd::Zero(n_);
+  for (const Segment<double>& seg : cycle.period) {
+    const Discretization& d = Get(set, seg.duration);
+    const Eigen::MatrixXd phi = d.phi.topLeftCorner(n_, n_);
+    m = phi * m;
+    w = phi * w + d.gamma.topRows(n_) * seg.rate;
+  }
+  Eigen::VectorXd b = Eigen::VectorXd::Zero(n_);
+  b(cycle.cmt) = cycle.bolus;
+  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n_, n_) - m);
+  if (!(lu.rcond() > 1e-13)) {
+    throw NumericalFailure(
+        "no steady state: the dosing-interval map has an eigenvalue at 1 (is drug eliminated from every "
+        "compartment it reaches?)");
+  }
+  Eigen::VectorXd z = lu.solve(m * b + w) + b;
+  for (const Segment<double>& seg : cycle.to_record) {
+    const Discretization& d = Get(set, seg.duration);
+    z = d.phi.topLeftCorner(n_, n_) * z + d.gamma.topRows(n_) * seg.rate;
+  }
+  if (add) {
+    x_.head(n_) += z;
+  } else {
+    x_.head(n_) = z;
+  }
+}
+
+void ExactPropagator::SteadyInfusion(const Eigen::VectorXd& rate, int set, bool add) {
+  // Constant rates u: 0 = A x + u.
+  const Eigen::MatrixXd a = cache_[set].a.topLeftCorner(n_, n_);
+  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(a);
+  if (!(lu.rcond() > 1e-13)) {
+    throw NumericalFailure("no steady state for a constant infusion: some compartment has no elimination");
+  }
+  const Eigen::VectorXd z = lu.solve(-rate);
+  if (add) {
+    x_.head(n_) += z;
+  } else {
+    x_.head(n_) = z;
+  }
+}
+
+}  // namespace internal
+}  // namespace pk

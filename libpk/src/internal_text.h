@@ -1,0 +1,20 @@
+// Small text helpers shared by the library's sources (not installed).
+#ifndef PK_SRC_INTERNAL_TEXT_H_
+#define PK_SRC_INTERNAL_TEXT_H_
+
+#include <string>
+#include <vector>
+
+namespace pk {
+namespace internal {
+
+std::string ToUpper(std::string s);
+std::string Trim(const std::string& s);
+/// Parses the whole of `text` as a finite double; false if it is not one.
+bool ParseDouble(const std::string& text, double* value);
+std::string Join(const std::vector<std::string>& items, const std::string& separator);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_INTERNAL_TEXT_H_

@@ -1,0 +1,293 @@
+// Reading NONMEM-style CSV datasets (see pk/dataset.h for the rules).
+#include <cmath>
+#include <limits>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+// fccp copies file names with strncpy; GCC 12 flags that at inlining time.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wstringop-truncation"
+#include <libfccp/csv.h>
+#pragma GCC diagnostic pop
+
+#include "../internal_text.h"
+#include "pk/dataset.h"
+#include "pk/error.h"
+
+namespace pk {
+namespace {
+
+using internal::ParseDouble;
+using internal::ToUpper;
+using internal::Trim;
+
+constexpr double kMissing = std::numeric_limits<double>::quiet_NaN();
+
+// The PREDPP data items, in the order of Item.
+const char* const kItemNames[] = {"ID", "TIME", "AMT", "RATE", "II", "ADDL",
+                                  "SS", "EVID", "CMT", "MDV", "DV"};
+enum Item { kId, kTime, kAmt, kRate, kIi, kAddl, kSs, kEvid, kCmt, kMdv, kDv, kNumItems };
+
+// Splits one CSV line. Fields may be wrapped in double quotes ("" inside is a quote).
+std::vector<std::string> SplitLine(const std::string& line) {
+  std::vector<std::string> fields;
+  std::string field;
+  bool quoted = false;
+  for (size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted) {
+      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+        field += '"';
+        ++i;
+      } else if (c == '"') {
+        quoted = false;
+      } else {
+        field += c;
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      fields.push_back(Trim(field));
+      field.clear();
+    } else {
+      field += c;
+    }
+  }
+  fields.push_back(Trim(field));
+  return fields;
+}
+
+bool IsSkipped(const std::string& line) {
+  const std::string t = Trim(line);
+  return t.empty() || t[0] == '#';
+}
+
+class Parser {
+ public:
+  Parser(std::string source) : source_(std::move(source)) {}
+
+  Dataset Parse(std::vector<std::pair<int, std::string>> lines) {
+    Dataset data;
+    data.source = source_;
+    size_t first = 0;
+    while (first < lines.size() && IsSkipped(lines[first].second)) ++first;
+    if (first == lines.size()) Fail(0, 0, "the file has no header line");
+    ReadHeader(lines[first].first, lines[first].second, &data);
+    for (size_t i = first + 1; i < lines.size(); ++i) {
+      if (IsSkipped(lines[i].second)) continue;
+      ReadRecord(lines[i].first, lines[i].second, &data);
+    }
+    if (data.subjects.empty()) Fail(lines[first].first, 0, "the file has no data records");
+    return data;
+  }
+
+ private:
+  [[noreturn]] void Fail(int line, int column, const std::string& message) const {
+    throw InputError(source_, line, column, message);
+  }
+  int Col(Item item) const { return item_column_[item] + 1; }
+  std::string Label(Item item) const { return kItemNames[item]; }
+
+  void ReadHeader(int line_number, const std::string& line, Dataset* data) {
+    header_ = SplitLine(line);
+    for (int k = 0; k < kNumItems; ++k) item_column_[k] = -1;
+    std::map<std::string, int> seen;
+    for (size_t c = 0; c < header_.size(); ++c) {
+      const std::string name = ToUpper(header_[c]);
+      const int column = static_cast<int>(c) + 1;
+      if (name.empty()) Fail(line_number, column, "empty column name in the header");
+      if (seen.count(name)) {
+        Fail(line_number, column,
+             "duplicate column " + name + " (also column " + std::to_string(seen[name]) + ")");
+      }
+      seen[name] = column;
+      data->columns.push_back(name);
+      bool is_item = false;
+      for (int k = 0; k < kNumItems; ++k) {
+        if (name == kItemNames[k]) {
+          item_column_[k] = static_cast<int>(c);
+          is_item = true;
+        }
+      }
+      if (!is_item) {
+        extra_positions_.push_back(static_cast<int>(c));
+        data->extra_columns.push_back(name);
+      }
+    }
+    if (item_column_[kTime] < 0) {
+      Fail(line_number, 0, "missing required column TIME (the header has: " +
+                               internal::Join(data->columns, ",") + ")");
+    }
+  }
+
+  // Parses a numeric field; returns NaN for a missing field ("." or empty).
+  double Number(int line, const std::vector<std::string>& fields, int c) const {
+    const std::string& text = fields[c];
+    if (text.empty() || text == ".") return kMissing;
+    double v = 0;
+    if (!ParseDouble(text, &v)) {
+      Fail(line, c + 1, "column " + ToUpper(header_[c]) + ": '" + text + "' is not a number");
+    }
+    return v;
+  }
+
+
+  double Value(int line, const std::vector<std::string>& fields, enum Item item, double absent) const {
+    if (item_column_[item] < 0) return absent;
+    const double v = Number(line, fields, item_column_[item]);
+    return std::isnan(v) ? absent : v;
+  }
+
+  int Integer(int line, const std::vector<std::string>& fields, enum Item item, int absent) const {
+    const double v = Value(line, fields, item, absent);
+    if (v != std::floor(v) || std::fabs(v) > 1e9) {
+      Fail(line, Col(item), Label(item) + " must be a whole number, not " + fields[item_column_[item]]);
+    }
+    return static_cast<int>(v);
+  }
+
+  void ReadRecord(int line, const std::string& text, Dataset* data) {
+    const std::vector<std::string> fields = SplitLine(text);
+    if (fields.size() != header_.size()) {
+      Fail(line, static_cast<int>(std::min(fields.size(), header_.size())) + 1,
+           "expected " + std::to_string(header_.size()) + " fields as in the header, found " +
+               std::to_string(fields.size()));
+    }
+    Record r;
+    r.line = line;
+    r.id = Value(line, fields, kId, 1.0);
+    const double time = Value(line, fields, kTime, kMissing);
+    if (std::isnan(time)) Fail(line, Col(kTime), "TIME is missing");
+    r.time = time;
+    r.amt = Value(line, fields, kAmt, 0.0);
+    r.rate = Value(line, fields, kRate, 0.0);
+    r.ii = Value(line, fields, kIi, 0.0);
+    r.addl = Integer(line, fields, kAddl, 0);
+    r.ss = Integer(line, fields, kSs, 0);
+    r.cmt = Integer(line, fields, kCmt, 0);
+    if (item_column_[kDv] >= 0) {
+      const double dv = Number(line, fields, item_column_[kDv]);
+      r.dv_missing = std::isnan(dv);
+      r.dv = r.dv_missing ? 0.0 : dv;
+    }
+    const bool has_mdv = item_column_[kMdv] >= 0 && fields[item_column_[kMdv]] != "." &&
+                         !fields[item_column_[kMdv]].empty();
+    const int mdv = Integer(line, fields, kMdv, 0);
+    if (has_mdv && mdv != 0 && mdv != 1) Fail(line, Col(kMdv), "MDV must be 0 or 1, not " + std::to_string(mdv));
+    const bool has_evid = item_column_[kEvid] >= 0 && fields[item_column_[kEvid]] != "." &&
+                          !fields[item_column_[kEvid]].empty();
+    int evid = 0;
+    if (has_evid) {
+      evid = Integer(line, fields, kEvid, 0);
+      if (evid < 0 || evid > 4) Fail(line, Col(kEvid), "EVID must be 0, 1, 2, 3 or 4, not " + std::to_string(evid));
+    } else {
+      evid = r.amt > 0 || (r.ss > 0 && r.rate != 0) ? 1 : (has_mdv && mdv == 1 ? 2 : 0);
+    }
+    r.evid = static_cast<Evid>(evid);
+    r.mdv = has_mdv ? mdv : (evid == 0 && !r.dv_missing ? 0 : 1);
+    if (evid == 0 && r.dv_missing) r.mdv = 1;
+
+    Validate(line, r);
+
+    r.extra.reserve(extra_positions_.size());
+    for (int c : extra_positions_) r.extra.push_back(Number(line, fields, c));
+
+    if (data->subjects.empty() || data->subjects.back().id != r.id) {
+      data->subjects.push_back(Subject());
+      data->subjects.back().id = r.id;
+    } else {
+      const Record& prev = data->subjects.back().records.back();
+      const bool reset = r.evid == Evid::kReset || r.evid == Evid::kResetDose;
+      if (r.time < prev.time && !reset) {
+        Fail(line, Col(kTime), "TIME decreases within ID " + internal::Trim(fields[std::max(item_column_[kId], 0)]) +
+                                   " (" + std::to_string(r.time) + " after " + std::to_string(prev.time) +
+                                   ") on a record that is not a reset (EVID 3 or 4)");
+      }
+    }
+    data->subjects.back().records.push_back(std::move(r));
+  }
+
+  void Validate(int line, const Record& r) const {
+    if (r.amt < 0) Fail(line, Col(kAmt), "AMT must not be negative");
+    if (r.rate < 0 && r.rate != -1 && r.rate != -2) {
+      Fail(line, Col(kRate), "RATE must be positive, 0, -1 (modelled rate) or -2 (modelled duration)");
+    }
+    if (r.ii < 0) Fail(line, Col(kIi), "II must not be negative");
+    if (r.addl < 0) Fail(line, Col(kAddl), "ADDL must not be negative");
+    if (r.ss < 0 || r.ss > 2) Fail(line, Col(kSs), "SS must be 0, 1 or 2, not " + std::to_string(r.ss));
+    if (r.cmt < 0) Fail(line, Col(kCmt), "a negative CMT (turning a compartment off) is not supported");
+    if (!r.IsDose()) {
+      if (r.amt != 0) Fail(line, Col(kAmt), "AMT must be 0 on a record that is not a dose (EVID 0, 2 or 3)");
+      if (r.rate != 0) Fail(line, Col(kRate), "RATE must be 0 on a record that is not a dose");
+      if (r.ss != 0) Fail(line, Col(kSs), "SS must be 0 on a record that is not a dose");
+      if (r.addl != 0) Fail(line, Col(kAddl), "ADDL must be 0 on a record that is not a dose");
+      return;
+    }
+    const bool constant_infusion = r.ss > 0 && r.amt == 0 && r.rate != 0 && r.ii == 0;
+    if (constant_infusion) {
+      if (r.rate == -2) Fail(line, Col(kRate), "a steady-state constant infusion (AMT=0, II=0) cannot have a modelled duration (RATE=-2)");
+      if (r.addl != 0) Fail(line, Col(kAddl), "ADDL must be 0 on a steady-state constant infusion (AMT=0, II=0)");
+      return;
+    }
+    if (r.amt == 0) Fail(line, Col(kAmt), "AMT must be positive on a dose record");
+    if (r.addl > 0 && r.ii <= 0) Fail(line, Col(kIi), "ADDL>0 needs II>0");
+    if (r.ss > 0 && r.ii <= 0) {
+      Fail(line, Col(kIi), "a steady-state dose needs II>0 (or AMT=0, RATE>0, II=0 for a constant infusion)");
+    }
+  }
+
+  std::string source_;
+  std::vector<std::string> header_;
+  int item_column_[kNumItems];
+  std::vector<int> extra_positions_;
+};
+
+}  // namespace
+
+int Dataset::ExtraColumn(const std::string& name) const {
+  const std::string upper = ToUpper(name);
+  for (size_t i = 0; i < extra_columns.size(); ++i) {
+    if (extra_columns[i] == upper) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+int Dataset::ColumnNumber(const std::string& name) const {
+  const std::string upper = ToUpper(name);
+  for (size_t i = 0; i < columns.size(); ++i) {
+    if (columns[i] == upper) return static_cast<int>(i) + 1;
+  }
+  return 0;
+}
+
+int Dataset::NumRecords() const {
+  int n = 0;
+  for (const Subject& s : subjects) n += static_cast<int>(s.records.size());
+  return n;
+}
+
+Dataset ParseDataset(const std::string& text, const std::string& source) {
+  std::vector<std::pair<int, std::string>> lines;
+  io::LineReader reader(source, text.data(), text.data() + text.size());
+  int number = 0;
+  while (char* line = reader.next_line()) lines.emplace_back(++number, line);
+  return Parser(source).Parse(std::move(lines));
+}
+
+Dataset ReadDataset(const std::string& path) {
+  std::vector<std::pair<int, std::string>> lines;
+  try {
+    io::LineReader reader(path);
+    int number = 0;
+    while (char* line = reader.next_line()) lines.emplace_back(++number, line);
+  } catch (const io::error::can_not_open_file&) {
+    throw InputError(path, 0, 0, "cannot open the file");
+  } catch (const io::error::base& e) {
+    throw InputError(path, 0, 0, e.what());
+  }
+  return Parser(path).Parse(std::move(lines));
+}
+
+}  // namespace pk

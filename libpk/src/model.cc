@@ -1,0 +1,28 @@
+#include "pk/model.h"
+
+#include <utility>
+
+#include "internal_text.h"
+
+namespace pk {
+
+Model::Model(std::string name, std::string description, std::vector<std::string> compartment_names,
+             std::vector<std::string> parameter_names, Eigen::VectorXd default_parameters, int central,
+             int default_dose)
+    : name_(std::move(name)),
+      description_(std::move(description)),
+      compartment_names_(std::move(compartment_names)),
+      parameter_names_(std::move(parameter_names)),
+      default_parameters_(std::move(default_parameters)),
+      central_(central),
+      default_dose_(default_dose) {}
+
+int Model::ParameterIndex(const std::string& name) const {
+  const std::string upper = internal::ToUpper(name);
+  for (size_t i = 0; i < parameter_names_.size(); ++i) {
+    if (parameter_names_[i] == upper) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+}  // namespace pk

@@ -1,0 +1,68 @@
+#include "pk/regimen.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace pk {
+
+Dataset RegimenToDataset(const Regimen& regimen) {
+  Dataset data;
+  data.source = "regimen";
+  data.columns = {"ID", "TIME", "AMT", "RATE", "II", "ADDL", "SS", "EVID", "CMT", "MDV", "DV"};
+  Subject s;
+  s.id = regimen.id;
+  std::vector<Dose> doses = regimen.doses;
+  std::stable_sort(doses.begin(), doses.end(), [](const Dose& a, const Dose& b) { return a.time < b.time; });
+  for (const Dose& d : doses) {
+    Record r;
+    r.id = regimen.id;
+    r.time = d.time;
+    r.amt = d.amount;
+    r.rate = d.duration > 0 ? d.amount / d.duration : d.rate;
+    r.ii = d.ii;
+    r.addl = d.addl;
+    r.ss = d.ss;
+    r.evid = Evid::kDose;
+    r.cmt = d.cmt;
+    r.mdv = 1;
+    s.records.push_back(r);
+  }
+  Dataset with_doses = data;
+  with_doses.subjects.push_back(s);
+  return AddOutputTimes(with_doses, regimen.times);
+}
+
+Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times) {
+  std::vector<double> sorted = times;
+  std::sort(sorted.begin(), sorted.end());
+  Dataset out = data;
+  const size_t n_extra = data.extra_columns.size();
+  for (Subject& subject : out.subjects) {
+    std::vector<Record> merged;
+    const std::vector<Record>& old = subject.records;
+    size_t k = 0;
+    auto make = [&](double t, const Record* next) {
+      Record r;
+      r.id = subject.id;
+      r.time = t;
+      r.evid = Evid::kOther;
+      r.mdv = 1;
+      r.extra = next ? next->extra
+                     : (old.empty() ? std::vector<double>(n_extra, std::numeric_limits<double>::quiet_NaN())
+                                    : old.back().extra);
+      return r;
+    };
+    for (size_t i = 0; i < old.size(); ++i) {
+      // Output times before this record (strictly) come first; those at the
+      // same time follow it (they see the post-record state).
+      while (k < sorted.size() && sorted[k] < old[i].time) merged.push_back(make(sorted[k++], &old[i]));
+      merged.push_back(old[i]);
+    }
+    while (k < sorted.size()) merged.push_back(make(sorted[k++], nullptr));
+    subject.records = std::move(merged);
+  }
+  return out;
+}
+
+}  // namespace pk

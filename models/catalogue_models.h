@@ -1,0 +1,22 @@
+// The catalogue's linear models, one short file each (not installed).
+#ifndef PK_MODELS_CATALOGUE_MODELS_H_
+#define PK_MODELS_CATALOGUE_MODELS_H_
+
+#include <memory>
+
+#include "pk/linear_model.h"
+
+namespace pk {
+namespace models {
+
+std::shared_ptr<const LinearModel> OneCmtIv();
+std::shared_ptr<const LinearModel> OneCmtOral();
+std::shared_ptr<const LinearModel> TwoCmtIv();
+std::shared_ptr<const LinearModel> TwoCmtOral();
+std::shared_ptr<const LinearModel> ThreeCmtIv();
+std::shared_ptr<const LinearModel> ThreeCmtOral();
+
+}  // namespace models
+}  // namespace pk
+
+#endif  // PK_MODELS_CATALOGUE_MODELS_H_
