@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Installs what is missing, builds, and runs the main job on bundled data.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/install-deps.sh
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build build -j "$(nproc 2>/dev/null || echo 2)" --target pksim >/dev/null
+mkdir -p out
+
+echo "== pksim: 2cmt_oral, 1000 mg loading dose then 500 mg every 12 h for a week =="
+cat > out/regimen.csv <<'CSV'
+ID,TIME,AMT,II,ADDL,EVID,CMT
+1,0,1000,0,0,1,1
+1,12,500,12,12,1,1
+CSV
+build/apps/pksim --model 2cmt_oral --data out/regimen.csv --param KA=1.2 --param CL=4 --param V1=25 \
+  --param Q=6 --param V2=60 --times 0:0.25:168 --out out/regimen_sim.csv --summary \
+  --summary-csv out/regimen_summary.csv --plot out/regimen.svg
+echo "wrote out/regimen_sim.csv, out/regimen_summary.csv and out/regimen.svg"

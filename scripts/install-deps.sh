@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Installs, with apt-get, only the Debian 12 packages libpk needs that are missing.
+set -euo pipefail
+
+packages=(
+  g++ cmake make                    # toolchain
+  libeigen3-dev                     # linear algebra, matrix exponential, AutoDiff, Levenberg-Marquardt
+  libsundials-dev                   # CVODES (ODE propagator)
+  libnlopt-cxx-dev                  # NLopt optimisers
+  libboost-program-options-dev      # command-line parsing in the apps
+  libfccp-dev                       # CSV line reading
+  catch2                            # unit tests (Catch2 v2)
+  libbenchmark-dev                  # benchmarks
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+echo "install-deps: installing ${missing[*]}"
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+  command -v sudo >/dev/null || { echo "install-deps: need root (or sudo) to install ${missing[*]}" >&2; exit 1; }
+  SUDO=sudo
+fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# Command-line tests of pksim: bundled data, regimens from flags, outputs, and error exits.
+set -uo pipefail
+pksim=$1; root=$2; work=$3
+rm -rf "$work"; mkdir -p "$work"
+failures=0
+fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+
+# The catalogue.
+n=$("$pksim" --list-models | wc -l)
+[ "$n" -eq 6 ] || fail "--list-models printed $n models, expected 6"
+
+# A regimen from flags: 1cmt_iv bolus, CP(t) = 100/30 exp(-0.1 t).
+"$pksim" --model 1cmt_iv --dose 100 --param CL=3 --param V=30 --times 0:1:10 --out "$work/bolus.csv" ||
+  fail "regimen run exited non-zero"
+head -1 "$work/bolus.csv" | grep -qx "ID,TIME,EVID,CP,A1" || fail "bad header: $(head -1 "$work/bolus.csv")"
+[ "$(tail -n +2 "$work/bolus.csv" | wc -l)" -eq 11 ] || fail "expected 11 rows"
+awk -F, 'NR>1 { e = 100/30*exp(-0.1*$2); d = $4 - e; if (d < 0) d = -d; if (d > 1e-12*e) { print "row " NR ": " $4 " vs " e; bad = 1 } }
+         END { exit bad }' "$work/bolus.csv" || fail "bolus concentrations differ from the closed form"
+
+# An infusion given by duration, and a repeated oral regimen with a summary.
+"$pksim" --model 1cmt_iv --dose 100 --duration 2 --times 0:0.5:12 >"$work/inf.csv" || fail "infusion run failed"
+[ "$(tail -n +2 "$work/inf.csv" | wc -l)" -eq 25 ] || fail "infusion: expected 25 rows"
+"$pksim" --model 2cmt_oral --dose 500 --ii 12 --doses 14 --times 0:0.5:168 --summary --summary-csv "$work/sum.csv" \
+  --plot "$work/plot.svg" --log >"$work/summary.txt" || fail "summary run failed"
+grep -q "Cmax" "$work/summary.txt" || fail "summary lacks Cmax"
+[ "$(grep -c '^1,[0-9]' "$work/sum.csv")" -eq 14 ] || fail "summary CSV should have 14 dosing intervals"
+grep -q "^<svg" "$work/plot.svg" || fail "plot is not SVG"
+
+# Bundled data: theophylline has 132 observation records.
+"$pksim" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --out "$work/theo.csv" || fail "theophylline run failed"
+[ "$(tail -n +2 "$work/theo.csv" | wc -l)" -eq 132 ] || fail "theophylline: expected 132 rows"
+head -1 "$work/theo.csv" | grep -qx "ID,TIME,EVID,CP,A1,A2" || fail "theophylline header"
+for f in quinidine phenobarbital remifentanil; do
+  model=1cmt_iv; [ $f = quinidine ] && model=1cmt_oral
+  "$pksim" --model $model --data "$root/datasets/$f.csv" --out "$work/$f.csv" || fail "$f run failed"
+done
+
+# Bad input: a malformed number exits 2 naming file, line and column, and writes no output.
+printf 'ID,TIME,AMT\n1,0,100\n1,x1,0\n' >"$work/bad.csv"
+msg=$("$pksim" --model 1cmt_iv --data "$work/bad.csv" --out "$work/never.csv" 2>&1); rc=$?
+[ $rc -eq 2 ] || fail "malformed data exited $rc, expected 2"
+echo "$msg" | grep -q "bad.csv:3:2: column TIME: 'x1' is not a number" || fail "message was: $msg"
+[ ! -e "$work/never.csv" ] || fail "an output file was written despite the error"
+"$pksim" --model nosuch --dose 1 --times 0 >/dev/null 2>&1; [ $? -eq 2 ] || fail "unknown model should exit 2"
+"$pksim" --model 1cmt_iv --dose 1 --times 0 --param CL=abc >/dev/null 2>&1; [ $? -eq 2 ] || fail "bad --param should exit 2"
+"$pksim" --model 1cmt_iv --bogus >/dev/null 2>&1; [ $? -eq 2 ] || fail "unknown option should exit 2"
+
+# One failing subject does not stop the others; the exit code says some failed.
+printf 'ID,TIME,AMT,EVID,V\n1,0,100,1,0\n1,1,0,0,0\n2,0,100,1,10\n2,1,0,0,10\n' >"$work/partial.csv"
+"$pksim" --model 1cmt_iv --data "$work/partial.csv" --out "$work/partial_out.csv" 2>"$work/partial.err"; rc=$?
+[ $rc -eq 1 ] || fail "a failed subject should exit 1, got $rc"
+grep -q "ID 1: simulation failed" "$work/partial.err" || fail "failed subject not reported"
+grep -q "^2,1," "$work/partial_out.csv" || fail "the other subject's rows are missing"
+
+if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi

@@ -1,0 +1,223 @@
+// NONMEM/PREDPP event semantics: steady state, record order, resets, modifiers.
+#include <cmath>
+#include <sstream>
+
+#include <catch2/catch.hpp>
+
+#include "pk/exposure.h"
+#include "test_util.h"
+
+using pk_test::RelDiff;
+using pk_test::SimulateText;
+
+namespace {
+
+const pk::ParameterValues k2cmtOral{{"KA", 1.1}, {"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}};
+
+// CSV with a long transient regimen of `n` doses (interval ii) and EVID 2
+// records over the last interval, at offsets `offsets` after the last dose time.
+std::string LongRegimen(const std::string& dose_cols, const std::string& dose_vals, int n, double ii,
+                        const std::vector<double>& offsets, double last = -1) {
+  std::ostringstream csv;
+  csv << "ID,TIME,EVID,II,ADDL" << dose_cols << "\n";
+  csv << "1,0,1," << ii << "," << n - 1 << dose_vals << "\n";
+  const double t_last = last >= 0 ? last : (n - 1) * ii;
+  std::string zeros;
+  for (long i = 0; i < std::count(dose_cols.begin(), dose_cols.end(), ','); ++i) zeros += ",0";
+  for (double o : offsets) csv << "1," << t_last + o << ",2,0,0" << zeros << "\n";
+  return csv.str();
+}
+
+std::string SteadyStateRecord(const std::string& dose_cols, const std::string& dose_vals, double ii, int ss,
+                              const std::vector<double>& offsets) {
+  std::ostringstream csv;
+  csv << "ID,TIME,EVID,II,SS" << dose_cols << "\n";
+  csv << "1,0,1," << ii << "," << ss << dose_vals << "\n";
+  std::string zeros;
+  for (long i = 0; i < std::count(dose_cols.begin(), dose_cols.end(), ','); ++i) zeros += ",0";
+  for (double o : offsets) csv << "1," << o << ",2,0,0" << zeros << "\n";
+  return csv.str();
+}
+
+void CheckSame(const pk::SubjectSimulation& a, const pk::SubjectSimulation& b, double tol) {
+  REQUIRE(a.ok);
+  REQUIRE(b.ok);
+  REQUIRE(a.rows.size() == b.rows.size());
+  for (size_t i = 0; i < a.rows.size(); ++i) {
+    INFO("row " << i << " time " << a.rows[i].time);
+    for (int c = 0; c < a.rows[i].amounts.size(); ++c) {
+      CHECK(RelDiff(a.rows[i].amounts(c), b.rows[i].amounts(c), 1e-9) < tol);
+    }
+  }
+}
+
+}  // namespace
+
+TEST_CASE("SS=1 bolus equals the closed form and the limit of a long regimen", "[events][ss]") {
+  const double cl = 3, v = 30, k = cl / v, tau = 12;
+  const auto ss = SimulateText("1cmt_iv", "ID,TIME,AMT,II,SS,EVID\n1,0,100,12,1,1\n1,0,0,0,0,0\n1,5,0,0,0,0\n",
+                               {{"CL", cl}, {"V", v}});
+  REQUIRE(ss.ok);
+  CHECK(RelDiff(ss.rows[0].cp, 100 / v / (1 - std::exp(-k * tau))) < 1e-13);
+  CHECK(RelDiff(ss.rows[1].cp, 100 / v * std::exp(-k * 5) / (1 - std::exp(-k * tau))) < 1e-13);
+
+  const std::vector<double> offsets{0.5, 3, 7.25, 11.9};
+  const auto ss2 = SimulateText("2cmt_oral", SteadyStateRecord(",AMT", ",200", 12, 1, offsets), k2cmtOral);
+  const auto longr = SimulateText("2cmt_oral", LongRegimen(",AMT", ",200", 400, 12, offsets), k2cmtOral);
+  CheckSame(ss2, longr, 1e-10);
+}
+
+TEST_CASE("SS=1 infusions, shorter and longer than II, match a long regimen", "[events][ss]") {
+  const std::vector<double> offsets{0.5, 3, 7.25, 11.9, 20, 31};
+  for (double rate : {100.0, 25.0, 10.0}) {  // durations 2, 8 and 20 h with AMT 200, II 6
+    INFO("rate " << rate);
+    const std::string vals = ",200," + std::to_string(rate);
+    const auto ss = SimulateText("2cmt_iv", SteadyStateRecord(",AMT,RATE", vals, 6, 1, offsets),
+                                 {{"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}});
+    // The long regimen's last dose at 599*6; infusions started earlier still run then, as in SS.
+    const auto longr = SimulateText("2cmt_iv", LongRegimen(",AMT,RATE", vals, 600, 6, offsets),
+                                    {{"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}});
+    // After the last dose the long regimen stops, so compare only within one interval... unless
+    // the SS record also stops: it does (no ADDL), and infusions still running run to their end.
+    CheckSame(ss, longr, 1e-9);
+  }
+}
+
+TEST_CASE("SS with ALAG advances to the right point of the cycle", "[events][ss]") {
+  const std::vector<double> offsets{0.25, 1, 2.9, 3.1, 8, 11.5, 15, 30};
+  for (double lag : {0.0, 1.5, 3.0, 12.0, 14.0}) {
+    INFO("lag " << lag);
+    pk::ParameterValues p = k2cmtOral;
+    p["ALAG1"] = lag;
+    const auto ss = SimulateText("2cmt_oral", SteadyStateRecord(",AMT", ",200", 12, 1, offsets), p);
+    const auto longr = SimulateText("2cmt_oral", LongRegimen(",AMT", ",200", 400, 12, offsets), p);
+    CheckSame(ss, longr, 1e-9);
+  }
+  // Lagged infusion longer than II.
+  pk::ParameterValues p{{"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}, {"ALAG1", 2.5}};
+  const auto ss = SimulateText("2cmt_iv", SteadyStateRecord(",AMT,RATE", ",200,15", 6, 1, offsets), p);
+  const auto longr = SimulateText("2cmt_iv", LongRegimen(",AMT,RATE", ",200,15", 600, 6, offsets), p);
+  CheckSame(ss, longr, 1e-9);
+}
+
+TEST_CASE("SS=2 adds the steady state to the current state; SS=1 resets it", "[events][ss]") {
+  const pk::ParameterValues p{{"CL", 3}, {"V", 30}};
+  const auto only_ss = SimulateText("1cmt_iv", "ID,TIME,AMT,II,SS,EVID\n1,10,100,12,1,1\n1,15,0,0,0,0\n", p);
+  const auto single = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID\n1,0,50,1\n1,15,0,0\n", p);
+  const auto ss2 = SimulateText("1cmt_iv", "ID,TIME,AMT,II,SS,EVID\n1,0,50,0,0,1\n1,10,100,12,2,1\n1,15,0,0,0,0\n", p);
+  const auto ss1 = SimulateText("1cmt_iv", "ID,TIME,AMT,II,SS,EVID\n1,0,50,0,0,1\n1,10,100,12,1,1\n1,15,0,0,0,0\n", p);
+  CHECK(RelDiff(ss2.rows[0].cp, only_ss.rows[0].cp + single.rows[0].cp) < 1e-13);
+  CHECK(RelDiff(ss1.rows[0].cp, only_ss.rows[0].cp) < 1e-13);
+}
+
+TEST_CASE("SS=1 cancels pending additional doses", "[events][ss]") {
+  const pk::ParameterValues p{{"CL", 3}, {"V", 30}};
+  const auto with_addl =
+      SimulateText("1cmt_iv", "ID,TIME,AMT,II,ADDL,SS,EVID\n1,0,50,4,10,0,1\n1,10,100,12,0,1,1\n1,15,0,0,0,0,0\n", p);
+  const auto only_ss = SimulateText("1cmt_iv", "ID,TIME,AMT,II,SS,EVID\n1,10,100,12,1,1\n1,15,0,0,0,0\n", p);
+  CHECK(RelDiff(with_addl.rows[0].cp, only_ss.rows[0].cp) < 1e-13);
+}
+
+TEST_CASE("steady-state constant infusion gives R/CL and keeps running", "[events][ss]") {
+  const auto sim = SimulateText("2cmt_iv", "ID,TIME,AMT,RATE,II,SS,EVID\n1,0,0,12,0,1,1\n1,0,0,0,0,0,0\n1,50,0,0,0,0,0\n",
+                                {{"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}});
+  REQUIRE(sim.ok);
+  CHECK(RelDiff(sim.rows[0].cp, 12.0 / 4) < 1e-12);
+  CHECK(RelDiff(sim.rows[1].cp, 12.0 / 4) < 1e-12);
+  CHECK(RelDiff(sim.rows[1].amounts(1), 12.0 / 4 * 60) < 1e-12);  // peripheral at equilibrium
+  // An EVID 3 reset stops it.
+  const auto reset = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,II,SS,EVID\n1,0,0,12,0,1,1\n1,5,0,0,0,0,3\n1,6,0,0,0,0,0\n",
+                                  {{"CL", 4}, {"V", 25}});
+  CHECK(reset.rows[0].cp == 0);
+}
+
+TEST_CASE("record order at equal times", "[events][order]") {
+  const pk::ParameterValues p{{"CL", 3}, {"V", 30}};
+  SECTION("an observation before a same-time dose sees the pre-dose state, after it the post-dose state") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID\n1,0,0,0\n1,0,100,1\n1,0,0,0\n", p);
+    CHECK(sim.rows[0].cp == 0);
+    CHECK(RelDiff(sim.rows[1].cp, 100.0 / 30) < 1e-15);
+  }
+  SECTION("an ADDL dose falling on an observation time enters before it") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,II,ADDL,EVID\n1,0,100,12,1,1\n1,12,0,0,0,0\n", p);
+    CHECK(RelDiff(sim.rows[0].cp, 100.0 / 30 * (1 + std::exp(-0.1 * 12))) < 1e-13);
+  }
+  SECTION("a lagged dose falling on an observation time enters before it") {
+    pk::ParameterValues q = p;
+    q["ALAG1"] = 2;
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID\n1,0,100,1\n1,1.999,0,0\n1,2,0,0\n1,5,0,0\n", q);
+    CHECK(sim.rows[0].cp == 0);
+    CHECK(RelDiff(sim.rows[1].cp, 100.0 / 30) < 1e-15);
+    CHECK(RelDiff(sim.rows[2].cp, 100.0 / 30 * std::exp(-0.3)) < 1e-13);
+  }
+  SECTION("an infusion ending at an observation time has ended by then") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,EVID\n1,0,100,50,1\n1,2,0,0,0\n1,2,0,0,2\n", p);
+    CHECK(RelDiff(sim.rows[0].cp, sim.rows[1].cp) < 1e-15);
+  }
+}
+
+TEST_CASE("resets, new subjects and time-varying parameters", "[events]") {
+  const pk::ParameterValues p{{"CL", 3}, {"V", 30}};
+  SECTION("EVID 3 zeroes amounts and cancels infusions and pending doses") {
+    const auto sim = SimulateText(
+        "1cmt_iv", "ID,TIME,AMT,RATE,II,ADDL,EVID\n1,0,100,10,6,3,1\n1,4,0,0,0,0,3\n1,4,0,0,0,0,0\n1,30,0,0,0,0,0\n", p);
+    CHECK(sim.rows[0].cp == 0);
+    CHECK(sim.rows[1].cp == 0);
+  }
+  SECTION("EVID 4 resets then doses, and time may go back") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID\n1,0,100,1\n1,5,0,0\n1,0,60,4\n1,5,0,0\n", p);
+    CHECK(RelDiff(sim.rows[0].cp, 100.0 / 30 * std::exp(-0.5)) < 1e-13);
+    CHECK(RelDiff(sim.rows[1].cp, 60.0 / 30 * std::exp(-0.5)) < 1e-13);
+  }
+  SECTION("a new ID starts from zero") {
+    const pk::Dataset data = pk::ParseDataset("ID,TIME,AMT,EVID\n1,0,100,1\n1,5,0,0\n2,5,0,0\n", "t.csv");
+    const auto sims = pk::Simulate(*pk::MakeModel("1cmt_iv"), data, p);
+    REQUIRE(sims.size() == 2);
+    CHECK(sims[1].rows[0].cp == 0);
+  }
+  SECTION("the value on record i governs the interval ending at record i") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID,CL\n1,0,100,1,1\n1,2,0,0,1\n1,4,0,0,2\n1,4,0,2,9\n",
+                                  {{"V", 10}});
+    CHECK(RelDiff(sim.rows[1].cp, 10 * std::exp(-0.1 * 2) * std::exp(-0.2 * 2)) < 1e-13);
+    CHECK(RelDiff(sim.rows[2].cp, sim.rows[1].cp) < 1e-15);  // zero-length interval
+  }
+}
+
+TEST_CASE("dose modifiers F, R and D", "[events]") {
+  const double cl = 3, v = 30, k = cl / v;
+  auto infusion_end_conc = [&](double rate, double dur) { return rate / cl * (1 - std::exp(-k * dur)); };
+  SECTION("F scales a bolus") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID\n1,0,100,1\n1,0,0,0\n", {{"CL", cl}, {"V", v}, {"F1", 0.6}});
+    CHECK(RelDiff(sim.rows[0].cp, 2.0) < 1e-15);
+  }
+  SECTION("RATE>0: F keeps the rate and scales the duration") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,EVID\n1,0,100,25,1\n1,2,0,0,0\n",
+                                  {{"CL", cl}, {"V", v}, {"F1", 0.5}});
+    CHECK(RelDiff(sim.rows[0].cp, infusion_end_conc(25, 2)) < 1e-13);
+  }
+  SECTION("RATE=-1 takes the rate from R<n>") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,EVID\n1,0,100,-1,1\n1,4,0,0,0\n",
+                                  {{"CL", cl}, {"V", v}, {"R1", 25}});
+    CHECK(RelDiff(sim.rows[0].cp, infusion_end_conc(25, 4)) < 1e-13);
+  }
+  SECTION("RATE=-2 takes the duration from D<n>, and F scales the rate") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,EVID\n1,0,100,-2,1\n1,5,0,0,0\n",
+                                  {{"CL", cl}, {"V", v}, {"D1", 5}, {"F1", 0.5}});
+    CHECK(RelDiff(sim.rows[0].cp, infusion_end_conc(10, 5)) < 1e-13);
+  }
+  SECTION("modifiers may come from data columns") {
+    const auto sim = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID,F1\n1,0,100,1,0.25\n1,0,0,0,.\n", {{"CL", cl}, {"V", v}});
+    CHECK(RelDiff(sim.rows[0].cp, 25.0 / 30) < 1e-15);
+  }
+}
+
+TEST_CASE("exposure per dosing interval at steady state", "[exposure]") {
+  // A regimen long enough to be at steady state: AUC over an interval = F·D/CL.
+  const auto sim = SimulateText("1cmt_oral", LongRegimen(",AMT", ",100", 60, 12, {0, 1, 2, 3, 6, 12}),
+                                {{"KA", 1}, {"CL", 5}, {"V", 40}, {"F1", 0.8}});
+  const pk::Exposure e = pk::ComputeExposure(sim);
+  REQUIRE(e.intervals.size() == 60);
+  CHECK(RelDiff(e.intervals[58].auc, 0.8 * 100 / 5) < 1e-9);
+  CHECK(e.intervals[58].ctrough == Approx(sim.doses[59].cp_before));
+  CHECK(RelDiff(e.auc, sim.rows.back().auc) < 1e-15);
+}

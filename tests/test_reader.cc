@@ -1,0 +1,126 @@
+// The dataset reader: NM-TRAN defaults and every error path, each naming file, line and column.
+#include <cmath>
+#include <fstream>
+
+#include <catch2/catch.hpp>
+
+#include "pk/catalogue.h"
+#include "pk/dataset.h"
+#include "pk/error.h"
+#include "pk/simulate.h"
+
+namespace {
+
+// Parses `csv` expecting an InputError at (line, column) whose message contains `text`.
+void ExpectError(const std::string& csv, int line, int column, const std::string& text) {
+  INFO(csv);
+  try {
+    pk::ParseDataset(csv, "bad.csv");
+    FAIL("no error raised");
+  } catch (const pk::InputError& e) {
+    CHECK(e.file() == "bad.csv");
+    CHECK(e.line() == line);
+    CHECK(e.column() == column);
+    CHECK_THAT(e.what(), Catch::Contains(text));
+    CHECK_THAT(e.what(), Catch::StartsWith(line > 0 ? "bad.csv:" + std::to_string(line) + ":" : "bad.csv: "));
+  }
+}
+
+void ExpectSimulationError(const std::string& model, const std::string& csv, const pk::ParameterValues& values,
+                           int line, int column, const std::string& text) {
+  INFO(csv);
+  const pk::Dataset data = pk::ParseDataset(csv, "bad.csv");
+  try {
+    pk::Simulate(*pk::MakeModel(model), data, values);
+    FAIL("no error raised");
+  } catch (const pk::InputError& e) {
+    CHECK(e.line() == line);
+    CHECK(e.column() == column);
+    CHECK_THAT(e.what(), Catch::Contains(text));
+  }
+}
+
+}  // namespace
+
+TEST_CASE("optional columns take NM-TRAN defaults", "[reader]") {
+  const pk::Dataset d = pk::ParseDataset("time,amt,dv,wt\n0,100,.,70\n1,0,5.5,70\n2,0,.,71\n", "x.csv");
+  REQUIRE(d.subjects.size() == 1);
+  const auto& r = d.subjects[0].records;
+  REQUIRE(r.size() == 3);
+  CHECK(r[0].evid == pk::Evid::kDose);
+  CHECK(r[0].mdv == 1);
+  CHECK(r[1].evid == pk::Evid::kObservation);
+  CHECK(r[1].IsSample());
+  CHECK(r[1].dv == 5.5);
+  CHECK(!r[2].IsSample());  // DV missing: not a sample
+  CHECK(r[2].mdv == 1);
+  CHECK(d.extra_columns == std::vector<std::string>{"WT"});
+  CHECK(r[2].extra[0] == 71);
+  CHECK(r[0].cmt == 0);
+  CHECK(d.ColumnNumber("dv") == 3);
+}
+
+TEST_CASE("subjects split on ID changes; comments, blank lines, quotes and CRLF are handled", "[reader]") {
+  const pk::Dataset d = pk::ParseDataset(
+      "# a comment\r\n\"ID\",TIME,AMT,EVID,MDV\r\n1,0,10,1,1\r\n\r\n1,1,0,0,0\r\n2,0,10,1,1\r\n1,0,5,1,1\r\n", "x.csv");
+  REQUIRE(d.subjects.size() == 3);
+  CHECK(d.subjects[0].records.size() == 2);
+  CHECK(d.subjects[0].records[1].line == 5);
+  CHECK(d.subjects[2].id == 1);
+}
+
+TEST_CASE("reader errors name file, line and column", "[reader]") {
+  ExpectError("ID,TIME,AMT\n1,0,abc\n", 2, 3, "'abc' is not a number");
+  ExpectError("ID,AMT\n1,0\n", 1, 0, "missing required column TIME");
+  ExpectError("ID,TIME,AMT\n1,0,-5\n", 2, 3, "AMT must not be negative");
+  ExpectError("ID,TIME,AMT,EVID\n1,5,0,0\n1,3,0,0\n", 3, 2, "TIME decreases within ID 1");
+  ExpectError("ID,TIME,AMT,II,ADDL\n1,0,10,0,3\n", 2, 4, "ADDL>0 needs II>0");
+  ExpectError("ID,TIME,AMT\n1,0\n", 2, 3, "expected 3 fields");
+  ExpectError("ID,TIME,AMT\n1,0,1,2\n", 2, 4, "expected 3 fields");
+  ExpectError("ID,TIME,time\n1,0,1\n", 1, 3, "duplicate column TIME");
+  ExpectError("ID,TIME,EVID\n1,0,7\n", 2, 3, "EVID must be 0, 1, 2, 3 or 4");
+  ExpectError("ID,TIME,AMT,SS,II\n1,0,10,3,12\n", 2, 4, "SS must be 0, 1 or 2");
+  ExpectError("ID,TIME,AMT,RATE\n1,0,10,-3\n", 2, 4, "RATE must be positive, 0, -1");
+  ExpectError("ID,TIME,AMT,SS\n1,0,10,1\n", 2, 0, "a steady-state dose needs II>0");
+  ExpectError("ID,TIME,AMT,SS,II\n1,0,10,1,.\n", 2, 5, "a steady-state dose needs II>0");
+  ExpectError("ID,TIME,MDV\n1,0,2\n", 2, 3, "MDV must be 0 or 1");
+  ExpectError("ID,TIME,AMT,ADDL,II\n1,0,10,1.5,12\n", 2, 4, "ADDL must be a whole number");
+  ExpectError("ID,TIME,AMT,EVID\n1,0,10,0\n", 2, 3, "AMT must be 0 on a record that is not a dose");
+  ExpectError("ID,TIME,AMT,EVID\n1,0,0,1\n", 2, 3, "AMT must be positive on a dose record");
+  ExpectError("ID,TIME,CMT\n1,0,-1\n", 2, 3, "negative CMT");
+  ExpectError("ID,TIME,II\n1,0,-1\n", 2, 3, "II must not be negative");
+  ExpectError("ID,TIME,AMT,RATE,SS,II,ADDL\n1,0,0,5,1,0,2\n", 2, 7, "ADDL must be 0 on a steady-state constant infusion");
+  ExpectError("", 0, 0, "no header line");
+  ExpectError("ID,TIME\n", 1, 0, "no data records");
+  ExpectError("ID,,TIME\n1,2,3\n", 1, 2, "empty column name");
+  ExpectError("ID,TIME\n1,1e999\n", 2, 2, "is not a number");
+  ExpectError("ID,TIME\n1,.\n", 2, 2, "TIME is missing");
+}
+
+TEST_CASE("model-dependent errors are raised when a dataset meets a model", "[reader]") {
+  ExpectSimulationError("1cmt_iv", "ID,TIME,AMT,CMT\n1,0,100,2\n", {}, 2, 4, "CMT 2 is out of range for model 1cmt_iv");
+  ExpectSimulationError("1cmt_iv", "ID,TIME,AMT,RATE\n1,0,100,-1\n", {}, 2, 4, "needs R1 > 0, but no value is given");
+  ExpectSimulationError("1cmt_iv", "ID,TIME,AMT,RATE\n1,0,100,-2\n", {}, 2, 4, "needs D1 > 0");
+  ExpectSimulationError("1cmt_iv", "ID,TIME,AMT,F1\n1,0,100,-0.5\n", {}, 2, 4, "needs F1 >= 0, but it is -0.5");
+  try {
+    pk::Simulate(*pk::MakeModel("1cmt_iv"), pk::ParseDataset("TIME,AMT\n0,1\n", "x.csv"), {{"KA", 1}});
+    FAIL("no error raised");
+  } catch (const pk::InputError& e) {
+    CHECK_THAT(e.what(), Catch::Contains("unknown parameter 'KA'"));
+  }
+  CHECK_THROWS_WITH(pk::MakeModel("4cmt"), Catch::Contains("unknown model '4cmt'"));
+}
+
+TEST_CASE("a file that cannot be opened is an input error naming it", "[reader]") {
+  CHECK_THROWS_WITH(pk::ReadDataset("/nonexistent/data.csv"), Catch::Contains("/nonexistent/data.csv: cannot open"));
+}
+
+TEST_CASE("numerical failure of one subject is reported, not thrown", "[simulate]") {
+  // V = 0 makes CL/V infinite: the propagator reports it for that subject only.
+  const pk::Dataset d = pk::ParseDataset("ID,TIME,AMT,EVID,V\n1,0,100,1,0\n1,1,0,0,0\n2,0,100,1,10\n2,1,0,0,10\n", "x.csv");
+  const auto sims = pk::Simulate(*pk::MakeModel("1cmt_iv"), d, {});
+  REQUIRE(sims.size() == 2);
+  CHECK(!sims[0].ok);
+  CHECK(!sims[0].message.empty());
+  CHECK(sims[1].ok);
+}
