@@ -22,20 +22,28 @@ std::string CompartmentList(const Model& model) {
 void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base, PreparedSubject* s) {
   const std::vector<Record>& records = s->records();
   s->sets.clear();
+  s->from_data.clear();
   s->set_of_record.assign(records.size(), 0);
   for (size_t r = 0; r < records.size(); ++r) {
     Eigen::VectorXd v = base;
+    std::vector<char> data_flags(layout.size(), 0);
     for (int i = 0; i < layout.size(); ++i) {
       const int col = s->column_of_parameter[i];
-      if (col >= 0 && !std::isnan(records[r].extra[col])) v(i) = records[r].extra[col];
+      if (col >= 0 && !std::isnan(records[r].extra[col])) {
+        v(i) = records[r].extra[col];
+        data_flags[i] = 1;
+      }
     }
-    if (s->sets.empty() || !(s->sets.back().array() == v.array()).all()) s->sets.push_back(v);
+    if (s->sets.empty() || !(s->sets.back().array() == v.array()).all() || s->from_data.back() != data_flags) {
+      s->sets.push_back(v);
+      s->from_data.push_back(std::move(data_flags));
+    }
     s->set_of_record[r] = static_cast<int>(s->sets.size()) - 1;
   }
 }
 
 PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
-                               int subject, const Eigen::VectorXd& base) {
+                               int subject, const Eigen::VectorXd& base, bool check_modifiers) {
   PreparedSubject s;
   s.data = &data;
   s.subject = subject;
@@ -56,7 +64,7 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
     const int c = rec.cmt > 0 ? rec.cmt - 1 : (rec.IsDose() ? model.default_dose_compartment() - 1
                                                             : model.central_compartment() - 1);
     s.cmt[r] = c;
-    if (!rec.IsDose()) continue;
+    if (!rec.IsDose() || !check_modifiers) continue;
     const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
     // A modifier the dose needs must be a finite value in range; name where it came from.
     auto check = [&](int index, bool positive, const char* what) {

@@ -31,6 +31,7 @@
 
 #include <Eigen/Core>
 
+#include "autodiff.h"
 #include "pk/dataset.h"
 #include "pk/model.h"
 #include "pk/parameters.h"
@@ -72,6 +73,8 @@ struct PreparedSubject {
   std::vector<int> cmt;            ///< 0-based compartment of each record
   std::vector<int> set_of_record;  ///< which parameter set governs the interval ending at each record
   std::vector<Eigen::VectorXd> sets;
+  /// Per set, which layout entries come from a data column (those carry no derivative).
+  std::vector<std::vector<char>> from_data;
   /// For each layout entry, the dataset column supplying it (index into Record::extra), or -1.
   std::vector<int> column_of_parameter;
 
@@ -82,7 +85,7 @@ struct PreparedSubject {
 /// data column supplies a value. Throws pk::InputError (file, line, column)
 /// for CMT out of range and for modifiers a dose needs but nobody supplies.
 PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
-                               int subject, const Eigen::VectorXd& base);
+                               int subject, const Eigen::VectorXd& base, bool check_modifiers = true);
 
 /// Replaces the base values of a prepared subject (the data columns still override).
 void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base, PreparedSubject* s);
@@ -257,6 +260,8 @@ class EventEngine {
     }
     const T start = t_ + lag;
     if (Value(lag) == 0) {
+      // A zero lag that carries a derivative still moves the dose time.
+      AdvanceTo(start, set);
       Give(dose, set);
     } else {
       Schedule(start, dose);

@@ -48,6 +48,7 @@ Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times) {
       r.time = t;
       r.evid = Evid::kOther;
       r.mdv = 1;
+      r.line = -1;  // marks an added output record
       r.extra = next ? next->extra
                      : (old.empty() ? std::vector<double>(n_extra, std::numeric_limits<double>::quiet_NaN())
                                     : old.back().extra);

@@ -36,7 +36,7 @@ Dataset RegimenToDataset(const Regimen& regimen);
 /// Adds an EVID 2 record at each of `times` to every subject of `data`. An added
 /// record sits after the records of the same time and takes its other columns
 /// (covariates, time-varying parameters) from the next record, so the value in
-/// force over each interval is unchanged.
+/// force over each interval is unchanged. Added records have Record::line = -1.
 Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times);
 
 }  // namespace pk

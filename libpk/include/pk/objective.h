@@ -1,0 +1,128 @@
+// libpk: the loss V(θ) of one subject and its gradient.
+//
+// Following the seed, V(θ) = ½∫(y − ŷ)ᵀ dF (y − ŷ): sampled measurements are
+// jumps of F with weights W_k, so V is a sum of per-sample terms ℓ_k(ŷ_k, θ),
+// plus optional prior terms in θ alone:
+//
+//   least squares (default)   ℓ_k = ½ W_k (y_k − ŷ_k)²
+//                             W_k = 1, 1/DV², 1/DV, or a data column
+//   maximum likelihood        ℓ_k = ½ [log(2π σ_k²) + (y_k − ŷ_k)²/σ_k²]
+//                             σ_k² = SIGMA_ADD² + (SIGMA_PROP·ŷ_k)²  (additive,
+//                             proportional or combined), the σ estimated jointly
+//   prior (optional)          ½ ((log θ − log median) / sd)²
+//
+// The gradient routes need only ∂ℓ_k/∂ŷ_k and ∂ℓ_k/∂θ, so adding a loss never
+// touches them (docs/gradients.md). Records with MDV=1 or without a DV are not
+// samples.
+#ifndef PK_OBJECTIVE_H_
+#define PK_OBJECTIVE_H_
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/dataset.h"
+#include "pk/model.h"
+
+namespace pk {
+
+enum class Weighting { kUniform, kInverseDvSquared, kInverseDv, kColumn };
+enum class ErrorModel { kLeastSquares, kAdditive, kProportional, kCombined };
+/// How the gradient (or residual Jacobian) is computed.
+enum class GradientRoute {
+  kAuto,              ///< forward when a Jacobian is needed, else the adjoint
+  kForward,           ///< block-exponential sensitivities (full Jacobian)
+  kAdjoint,           ///< discrete adjoint (gradient only; cost independent of the parameter count)
+  kFiniteDifference,  ///< central differences
+};
+
+const char* ToString(Weighting w);
+const char* ToString(ErrorModel e);
+const char* ToString(GradientRoute r);
+
+struct ObjectiveOptions {
+  Weighting weighting = Weighting::kUniform;  ///< least squares only
+  std::string weight_column;                  ///< the data column for Weighting::kColumn
+  ErrorModel error_model = ErrorModel::kLeastSquares;
+  GradientRoute gradient = GradientRoute::kAuto;
+  double fd_relative_step = 1e-5;             ///< central-difference step, relative to |θ| (floor 1e-8)
+
+  bool IsValid(std::string* error) const;
+};
+
+/// A normal prior on log θ: adds ½((log θ − log median)/sd_log)² to V.
+struct LogNormalPrior {
+  std::string parameter;
+  double median = 1;
+  double sd_log = 1;
+};
+
+class Objective {
+ public:
+  /// What an evaluation must produce.
+  enum class Need { kValue, kGradient, kJacobian };
+
+  struct Evaluation {
+    bool ok = true;
+    std::string message;          ///< why the evaluation failed, when !ok
+    double value = 0;             ///< V(θ)
+    Eigen::VectorXd gradient;     ///< ∂V/∂θ over the free parameters (Need::kGradient and above)
+    Eigen::VectorXd predictions;  ///< ŷ_k
+    /// Least squares: r_k = √W_k (y_k − ŷ_k) and ∂r/∂θ (Need::kJacobian).
+    Eigen::VectorXd residuals;
+    Eigen::MatrixXd jacobian;
+    /// Gauss–Newton matrix (least squares) or expected Fisher information (ML),
+    /// plus the prior's Hessian, over the free parameters (Need::kJacobian).
+    Eigen::MatrixXd information;
+    const char* route = "";       ///< the route that computed the derivatives
+  };
+
+  /// Binds subject `subject` of `data` to `model`. Throws pk::InputError for a
+  /// dataset the model cannot take, an unknown weight column or prior parameter,
+  /// or a non-positive weight.
+  Objective(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data, int subject,
+            const ObjectiveOptions& options, std::vector<LogNormalPrior> priors = {});
+  ~Objective();
+  Objective(Objective&&) noexcept;
+
+  /// The model's layout names (parameters, then F/ALAG/R/D per compartment),
+  /// then SIGMA_ADD and/or SIGMA_PROP for maximum likelihood.
+  const std::vector<std::string>& parameter_names() const;
+  int ParameterIndex(const std::string& name) const;
+  /// Catalogue defaults, F=1, ALAG=0, and σ starting values from the data.
+  Eigen::VectorXd DefaultValues() const;
+
+  int num_samples() const;
+  const Eigen::VectorXd& observations() const;
+  const Eigen::VectorXd& weights() const;
+  std::vector<double> sample_times() const;
+  double subject_id() const;
+  const Model& model() const;
+  const ObjectiveOptions& options() const;
+
+  /// Evaluates at `values` (natural scale, one per parameter_names()),
+  /// differentiating with respect to the parameters listed in `free`.
+  /// Numerical failure is reported in the result, never thrown.
+  Evaluation Evaluate(const Eigen::VectorXd& values, const std::vector<int>& free, Need need) const;
+  /// The same with an explicit route (overriding options().gradient).
+  Evaluation Evaluate(const Eigen::VectorXd& values, const std::vector<int>& free, Need need,
+                      GradientRoute route) const;
+
+  /// Throws pk::InputError (file, line, column) when a dose needs a modifier
+  /// these values do not supply or supply out of range (R<n>, D<n>, F<n>, ALAG<n>).
+  void CheckValues(const Eigen::VectorXd& values) const;
+
+  /// Predictions at arbitrary times (for plots): the subject's records with
+  /// EVID 2 records added at `times`; returns the central concentration.
+  std::vector<double> PredictAt(const Eigen::VectorXd& values, const std::vector<double>& times) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace pk
+
+#endif  // PK_OBJECTIVE_H_

@@ -1,0 +1,456 @@
+#include "exact_routes.h"
+
+#include <Eigen/LU>
+
+#include "exact_propagator.h"
+#include "linear_derivatives.h"
+
+namespace pk {
+namespace internal {
+
+std::vector<int> SampleIndex(const PreparedSubject& subject, int* count) {
+  std::vector<int> index(subject.records().size(), -1);
+  int k = 0;
+  for (size_t r = 0; r < index.size(); ++r) {
+    if (subject.records()[r].IsSample()) index[r] = k++;
+  }
+  *count = k;
+  return index;
+}
+
+namespace {
+
+// ---------------------------------------------------------------------------
+// Route (a): forward sensitivities.
+
+class ForwardVisitor {
+ public:
+  ForwardVisitor(LinearDerivatives* sys, const PreparedSubject& s, int num_free, Eigen::VectorXd* yhat,
+                 Eigen::MatrixXd* jac)
+      : sys_(*sys), s_(s), p_(num_free), yhat_(yhat), jac_(jac) {
+    int count = 0;
+    sample_ = SampleIndex(s, &count);
+    yhat->setZero(count);
+    jac->setZero(count, num_free);
+    x_ = Eigen::VectorXd::Zero(sys_.n());
+    sens_ = Eigen::MatrixXd::Zero(sys_.n(), p_);
+  }
+
+  void Advance(const Dual& h, const DualVector& u, int set) {
+    Propagate(set, h.value(), Values(u), DerivativeMatrix(u, p_), Derivatives(h, p_), &x_, &sens_);
+  }
+  void Bolus(int cmt, const Dual& amount, int /*set*/) {
+    x_(cmt) += amount.value();
+    sens_.row(cmt) += Derivatives(amount, p_).transpose();
+  }
+  void Reset() {
+    x_.setZero();
+    sens_.setZero();
+  }
+  void DoseEntered(const Dual&, int) {}
+
+  void SteadyState(const SteadyStateCycle<Dual>& cycle, int set, bool add) {
+    const int n = sys_.n();
+    // Fixed point value: (I − M) x* = M b + w.
+    Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
+    b(cycle.cmt) = cycle.bolus.value();
+    Eigen::VectorXd pb = b;  // P(0) = M b + w
+    for (const Segment<Dual>& seg : cycle.period) {
+      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value());
+      m = st.phi * m;
+      pb = st.phi * pb + st.gamma * Values(seg.rate);
+    }
+    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n, n) - m);
+    if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state: the dosing-interval map has an eigenvalue at 1");
+    const Eigen::VectorXd x_star = lu.solve(pb);
+    // ∂_p P at x*, by propagating (x*, S = 0) through one period.
+    Eigen::MatrixXd db = Eigen::MatrixXd::Zero(n, p_);
+    db.row(cycle.cmt) = Derivatives(cycle.bolus, p_).transpose();
+    Eigen::VectorXd x = x_star + b;
+    Eigen::MatrixXd sens = db;
+    RunSegments(cycle.period, set, &x, &sens);
+    // Implicit function theorem: S* = (I − M)⁻¹ ∂_p P.
+    Eigen::MatrixXd s_star = lu.solve(sens);
+    Eigen::VectorXd z = x_star + b;
+    Eigen::MatrixXd sz = s_star + db;
+    RunSegments(cycle.to_record, set, &z, &sz);
+    if (add) {
+      x_ += z;
+      sens_ += sz;
+    } else {
+      x_ = z;
+      sens_ = sz;
+    }
+  }
+
+  void SteadyInfusion(const DualVector& u, int set, bool add) {
+    // 0 = A z + u  ⇒  ∂z = −A⁻¹ (Σ_j ∂A/∂θ_j z ∂θ_j/∂p + ∂u/∂p).
+    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(sys_.A(set));
+    if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state for a constant infusion");
+    const Eigen::VectorXd z = lu.solve(-Values(u));
+    Eigen::MatrixXd rhs = DerivativeMatrix(u, p_);
+    for (int j : sys_.active(set)) rhs += (sys_.dA(set, j) * z) * sys_.dtheta(set).row(j);
+    const Eigen::MatrixXd sz = -lu.solve(rhs);
+    if (add) {
+      x_ += z;
+      sens_ += sz;
+    } else {
+      x_ = z;
+      sens_ = sz;
+    }
+  }
+
+  void RecordDone(int r, int set) {
+    const int k = sample_[r];
+    if (k < 0) return;
+    const int cmt = s_.cmt[r] + 1;
+    const Eigen::RowVectorXd& c = sys_.C(set, cmt);
+    (*yhat_)(k) = c * x_;
+    jac_->row(k) = c * sens_ + x_.transpose() * sys_.dCdp(set, cmt);
+  }
+
+ private:
+  void RunSegments(const std::vector<Segment<Dual>>& segments, int set, Eigen::VectorXd* x, Eigen::MatrixXd* sens) {
+    for (const Segment<Dual>& seg : segments) {
+      Propagate(set, seg.duration.value(), Values(seg.rate), DerivativeMatrix(seg.rate, p_),
+                Derivatives(seg.duration, p_), x, sens);
+    }
+  }
+
+  // x⁺ = Φx + Γu and its sensitivity (see the header).
+  void Propagate(int set, double h, const Eigen::VectorXd& u, const Eigen::MatrixXd& du, const Eigen::VectorXd& dh,
+                 Eigen::VectorXd* x, Eigen::MatrixXd* sens) {
+    if (h == 0 && dh.isZero(0.0)) return;
+    const LinearDerivatives::Step& st = sys_.Get(set, h);
+    Eigen::VectorXd xn = st.phi * *x + st.gamma * u;
+    Eigen::MatrixXd sn = st.phi * *sens + st.gamma * du;
+    const std::vector<int>& active = sys_.active(set);
+    if (!active.empty()) {
+      const LinearDerivatives::StepSensitivity& ss = sys_.GetSensitivity(set, h);
+      for (size_t a = 0; a < active.size(); ++a) {
+        sn += (ss.dphi[a] * *x + ss.dgamma[a] * u) * sys_.dtheta(set).row(active[a]);
+      }
+    }
+    if (!dh.isZero(0.0)) sn += (sys_.A(set) * xn + u) * dh.transpose();
+    *x = std::move(xn);
+    *sens = std::move(sn);
+  }
+
+  LinearDerivatives& sys_;
+  const PreparedSubject& s_;
+  int p_;
+  Eigen::VectorXd* yhat_;
+  Eigen::MatrixXd* jac_;
+  std::vector<int> sample_;
+  Eigen::VectorXd x_;
+  Eigen::MatrixXd sens_;
+};
+
+}  // namespace
+
+void ForwardSensitivities(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
+                          const std::vector<DualVector>& sets, int num_free, Eigen::VectorXd* yhat,
+                          Eigen::MatrixXd* jacobian) {
+  LinearDerivatives sys(model, sets, num_free);
+  ForwardVisitor visitor(&sys, subject, num_free, yhat, jacobian);
+  EventEngine<Dual, ForwardVisitor> engine(subject, layout, sets, &visitor);
+  engine.Run();
+}
+
+// ---------------------------------------------------------------------------
+// Route (b): the discrete adjoint.
+
+namespace {
+
+struct SegmentTape {
+  int set = 0;
+  double h = 0;
+  Eigen::VectorXd dh;
+  Eigen::VectorXd u;
+  Eigen::MatrixXd du;
+  Eigen::VectorXd x_before;
+  Eigen::VectorXd x_after;
+};
+
+struct SteadyTape {
+  bool add = false;
+  int cmt = 0;
+  Eigen::VectorXd db;
+  Eigen::MatrixXd m;  // period map
+  std::vector<SegmentTape> period;
+  std::vector<SegmentTape> to_record;
+};
+
+struct TapeOp {
+  enum Kind { kAdvance, kBolus, kReset, kSteadyState, kSteadyInfusion, kOutput } kind;
+  int set = 0;
+  SegmentTape step;                 // kAdvance
+  int cmt = 0;                      // kBolus, kOutput (1-based for outputs)
+  Eigen::VectorXd d_amount;         // kBolus
+  int sample = -1;                  // kOutput
+  Eigen::VectorXd x;                // kOutput: state; kSteadyInfusion: z
+  Eigen::MatrixXd du;               // kSteadyInfusion
+  bool add = false;                 // kSteadyInfusion
+  std::shared_ptr<SteadyTape> ss;   // kSteadyState
+};
+
+class AdjointRecorder {
+ public:
+  AdjointRecorder(LinearDerivatives* sys, const PreparedSubject& s, int num_free, Eigen::VectorXd* yhat,
+                  std::vector<TapeOp>* tape)
+      : sys_(*sys), s_(s), p_(num_free), yhat_(yhat), tape_(*tape) {
+    int count = 0;
+    sample_ = SampleIndex(s, &count);
+    yhat->setZero(count);
+    x_ = Eigen::VectorXd::Zero(sys_.n());
+  }
+
+  void Advance(const Dual& h, const DualVector& u, int set) {
+    TapeOp op;
+    op.kind = TapeOp::kAdvance;
+    op.set = set;
+    op.step = Step(set, h, u, &x_);
+    tape_.push_back(std::move(op));
+  }
+  void Bolus(int cmt, const Dual& amount, int /*set*/) {
+    x_(cmt) += amount.value();
+    TapeOp op;
+    op.kind = TapeOp::kBolus;
+    op.cmt = cmt;
+    op.d_amount = Derivatives(amount, p_);
+    tape_.push_back(std::move(op));
+  }
+  void Reset() {
+    x_.setZero();
+    TapeOp op;
+    op.kind = TapeOp::kReset;
+    tape_.push_back(std::move(op));
+  }
+  void DoseEntered(const Dual&, int) {}
+
+  void SteadyState(const SteadyStateCycle<Dual>& cycle, int set, bool add) {
+    const int n = sys_.n();
+    auto tape = std::make_shared<SteadyTape>();
+    tape->add = add;
+    tape->cmt = cycle.cmt;
+    tape->db = Derivatives(cycle.bolus, p_);
+    Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
+    Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
+    b(cycle.cmt) = cycle.bolus.value();
+    Eigen::VectorXd pb = b;
+    for (const Segment<Dual>& seg : cycle.period) {
+      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value());
+      m = st.phi * m;
+      pb = st.phi * pb + st.gamma * Values(seg.rate);
+    }
+    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n, n) - m);
+    if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state: the dosing-interval map has an eigenvalue at 1");
+    const Eigen::VectorXd x_star = lu.solve(pb);
+    tape->m = m;
+    Eigen::VectorXd x = x_star + b;
+    for (const Segment<Dual>& seg : cycle.period) tape->period.push_back(Step(set, seg.duration, seg.rate, &x));
+    Eigen::VectorXd z = x_star + b;
+    for (const Segment<Dual>& seg : cycle.to_record) tape->to_record.push_back(Step(set, seg.duration, seg.rate, &z));
+    x_ = add ? Eigen::VectorXd(x_ + z) : z;
+    TapeOp op;
+    op.kind = TapeOp::kSteadyState;
+    op.set = set;
+    op.ss = tape;
+    tape_.push_back(std::move(op));
+  }
+
+  void SteadyInfusion(const DualVector& u, int set, bool add) {
+    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(sys_.A(set));
+    if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state for a constant infusion");
+    TapeOp op;
+    op.kind = TapeOp::kSteadyInfusion;
+    op.set = set;
+    op.x = lu.solve(-Values(u));
+    op.du = DerivativeMatrix(u, p_);
+    op.add = add;
+    x_ = add ? Eigen::VectorXd(x_ + op.x) : op.x;
+    tape_.push_back(std::move(op));
+  }
+
+  void RecordDone(int r, int set) {
+    const int k = sample_[r];
+    if (k < 0) return;
+    TapeOp op;
+    op.kind = TapeOp::kOutput;
+    op.set = set;
+    op.cmt = s_.cmt[r] + 1;
+    op.sample = k;
+    op.x = x_;
+    (*yhat_)(k) = sys_.C(set, op.cmt) * x_;
+    tape_.push_back(std::move(op));
+  }
+
+ private:
+  SegmentTape Step(int set, const Dual& h, const DualVector& u, Eigen::VectorXd* x) {
+    SegmentTape t;
+    t.set = set;
+    t.h = h.value();
+    t.dh = Derivatives(h, p_);
+    t.u = Values(u);
+    t.du = DerivativeMatrix(u, p_);
+    t.x_before = *x;
+    if (t.h != 0) {
+      const LinearDerivatives::Step& st = sys_.Get(set, t.h);
+      *x = st.phi * *x + st.gamma * t.u;
+    }
+    t.x_after = *x;
+    return t;
+  }
+
+  LinearDerivatives& sys_;
+  const PreparedSubject& s_;
+  int p_;
+  Eigen::VectorXd* yhat_;
+  std::vector<TapeOp>& tape_;
+  std::vector<int> sample_;
+  Eigen::VectorXd x_;
+};
+
+}  // namespace
+
+struct DiscreteAdjoint::Impl {
+  const LinearModel& model;
+  const ParameterLayout& layout;
+  const PreparedSubject& subject;
+  const std::vector<DualVector> sets;  // owned: the event engine and sys refer to it
+  int p;
+  LinearDerivatives sys;
+  std::vector<TapeOp> tape;
+  std::vector<Eigen::VectorXd> theta_grad;
+  Eigen::VectorXd grad;
+
+  Impl(const LinearModel& m, const ParameterLayout& l, const PreparedSubject& s, const std::vector<DualVector>& st,
+       int num_free)
+      : model(m), layout(l), subject(s), sets(st), p(num_free), sys(m, sets, num_free) {}
+
+  // One step x⁺ = Φx + Γu backwards: λ ← Φᵀλ, with the h, u and θ terms.
+  void BackStep(const SegmentTape& t, Eigen::VectorXd* lambda) {
+    if (t.h == 0 && t.dh.isZero(0.0)) return;
+    const Eigen::VectorXd& lam = *lambda;
+    if (!t.dh.isZero(0.0)) grad += lam.dot(sys.A(t.set) * t.x_after + t.u) * t.dh;
+    if (t.h == 0) return;
+    const LinearDerivatives::Step& st = sys.Get(t.set, t.h);
+    if (!t.du.isZero(0.0)) grad += t.du.transpose() * (st.gamma.transpose() * lam);
+    sys.AccumulateFrechet(t.set, t.h, lam, t.x_before, t.u);
+    *lambda = st.phi.transpose() * lam;
+  }
+
+  Eigen::VectorXd Backward(const Eigen::VectorXd& dl_dy) {
+    const int n = sys.n();
+    grad = Eigen::VectorXd::Zero(p);
+    theta_grad.assign(sets.size(), Eigen::VectorXd::Zero(model.num_parameters()));
+    Eigen::VectorXd lambda = Eigen::VectorXd::Zero(n);
+    for (auto it = tape.rbegin(); it != tape.rend(); ++it) {
+      const TapeOp& op = *it;
+      switch (op.kind) {
+        case TapeOp::kOutput: {
+          const double g = dl_dy(op.sample);
+          if (g == 0) break;
+          lambda += g * sys.C(op.set, op.cmt).transpose();
+          grad += g * (sys.dCdp(op.set, op.cmt).transpose() * op.x);
+          break;
+        }
+        case TapeOp::kAdvance:
+          BackStep(op.step, &lambda);
+          break;
+        case TapeOp::kBolus:
+          grad += lambda(op.cmt) * op.d_amount;
+          break;
+        case TapeOp::kReset:
+          lambda.setZero();
+          break;
+        case TapeOp::kSteadyInfusion: {
+          // z = −A⁻¹u: ν = −A⁻ᵀλ, ∂/∂θ_j = νᵀ ∂A/∂θ_j z, ∂/∂u = ν.
+          const Eigen::PartialPivLU<Eigen::MatrixXd> lu(sys.A(op.set).transpose());
+          const Eigen::VectorXd nu = -lu.solve(lambda);
+          for (int j : sys.active(op.set)) theta_grad[op.set](j) += nu.dot(sys.dA(op.set, j) * op.x);
+          grad += op.du.transpose() * nu;
+          if (!op.add) lambda.setZero();
+          break;
+        }
+        case TapeOp::kSteadyState: {
+          const SteadyTape& ss = *op.ss;
+          // Back through the advance to the record time: μ is the adjoint of z₀ = x* + b.
+          Eigen::VectorXd mu = lambda;
+          for (auto s = ss.to_record.rbegin(); s != ss.to_record.rend(); ++s) BackStep(*s, &mu);
+          grad += mu(ss.cmt) * ss.db;
+          // Implicit function theorem on x* = P(x*): ν = (I − M)⁻ᵀ μ, then νᵀ ∂_p P.
+          const Eigen::PartialPivLU<Eigen::MatrixXd> lu(
+              (Eigen::MatrixXd::Identity(n, n) - ss.m).transpose());
+          Eigen::VectorXd rho = lu.solve(mu);
+          for (auto s = ss.period.rbegin(); s != ss.period.rend(); ++s) BackStep(*s, &rho);
+          grad += rho(ss.cmt) * ss.db;
+          if (!ss.add) lambda.setZero();
+          break;
+        }
+      }
+    }
+    sys.FinishAdjoint(theta_grad, &grad);
+    return grad;
+  }
+};
+
+DiscreteAdjoint::DiscreteAdjoint(const LinearModel& model, const ParameterLayout& layout,
+                                 const PreparedSubject& subject, const std::vector<DualVector>& sets, int num_free)
+    : impl_(new Impl(model, layout, subject, sets, num_free)) {}
+
+DiscreteAdjoint::~DiscreteAdjoint() = default;
+
+void DiscreteAdjoint::Forward(Eigen::VectorXd* yhat) {
+  impl_->tape.clear();
+  AdjointRecorder recorder(&impl_->sys, impl_->subject, impl_->p, yhat, &impl_->tape);
+  EventEngine<Dual, AdjointRecorder> engine(impl_->subject, impl_->layout, impl_->sets, &recorder);
+  engine.Run();
+}
+
+Eigen::VectorXd DiscreteAdjoint::Gradient(const Eigen::VectorXd& dl_dyhat) { return impl_->Backward(dl_dyhat); }
+
+// ---------------------------------------------------------------------------
+
+namespace {
+
+class PredictVisitor {
+ public:
+  PredictVisitor(const LinearModel& model, const PreparedSubject& s, Eigen::VectorXd* yhat)
+      : model_(model), s_(s), prop_(model, s.sets, false), yhat_(yhat) {
+    int count = 0;
+    sample_ = SampleIndex(s, &count);
+    yhat->setZero(count);
+  }
+  void Advance(double h, const Eigen::VectorXd& u, int set) { prop_.Advance(h, u, set); }
+  void Bolus(int cmt, double amount, int set) { prop_.Bolus(cmt, amount, set); }
+  void Reset() { prop_.Reset(); }
+  void SteadyState(const SteadyStateCycle<double>& c, int set, bool add) { prop_.SteadyState(c, set, add); }
+  void SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) { prop_.SteadyInfusion(u, set, add); }
+  void DoseEntered(double, int) {}
+  void RecordDone(int r, int set) {
+    const int k = sample_[r];
+    if (k < 0) return;
+    (*yhat_)(k) = model_.Output(s_.cmt[r] + 1, prop_.state(), s_.sets[set].head(model_.num_parameters()));
+  }
+
+ private:
+  const LinearModel& model_;
+  const PreparedSubject& s_;
+  ExactPropagator prop_;
+  Eigen::VectorXd* yhat_;
+  std::vector<int> sample_;
+};
+
+}  // namespace
+
+void Predict(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
+             Eigen::VectorXd* yhat) {
+  PredictVisitor visitor(model, subject, yhat);
+  EventEngine<double, PredictVisitor> engine(subject, layout, subject.sets, &visitor);
+  engine.Run();
+}
+
+}  // namespace internal
+}  // namespace pk

@@ -1,0 +1,398 @@
+#include "pk/objective.h"
+
+#include <cmath>
+#include <limits>
+
+#include "autodiff.h"
+#include "events.h"
+#include "exact/exact_propagator.h"
+#include "exact/exact_routes.h"
+#include "internal_text.h"
+#include "pk/error.h"
+#include "pk/linear_model.h"
+#include "pk/parameters.h"
+#include "pk/regimen.h"
+#include "pk/simulate.h"
+
+namespace pk {
+
+const char* ToString(Weighting w) {
+  switch (w) {
+    case Weighting::kUniform: return "uniform";
+    case Weighting::kInverseDvSquared: return "dv2";
+    case Weighting::kInverseDv: return "dv";
+    case Weighting::kColumn: return "column";
+  }
+  return "?";
+}
+
+const char* ToString(ErrorModel e) {
+  switch (e) {
+    case ErrorModel::kLeastSquares: return "least-squares";
+    case ErrorModel::kAdditive: return "additive";
+    case ErrorModel::kProportional: return "proportional";
+    case ErrorModel::kCombined: return "combined";
+  }
+  return "?";
+}
+
+const char* ToString(GradientRoute r) {
+  switch (r) {
+    case GradientRoute::kAuto: return "auto";
+    case GradientRoute::kForward: return "forward";
+    case GradientRoute::kAdjoint: return "adjoint";
+    case GradientRoute::kFiniteDifference: return "fd";
+  }
+  return "?";
+}
+
+bool ObjectiveOptions::IsValid(std::string* error) const {
+  auto fail = [&](const std::string& why) {
+    if (error) *error = why;
+    return false;
+  };
+  if (weighting == Weighting::kColumn && weight_column.empty()) return fail("column weighting needs a column name");
+  if (error_model != ErrorModel::kLeastSquares && weighting != Weighting::kUniform) {
+    return fail("weights apply to least squares; maximum likelihood weights samples by its error model");
+  }
+  if (!(fd_relative_step > 0 && fd_relative_step < 0.1)) return fail("fd_relative_step must be in (0, 0.1)");
+  return true;
+}
+
+struct Objective::Impl {
+  std::shared_ptr<const Model> model;
+  const LinearModel* linear = nullptr;
+  std::shared_ptr<const Dataset> data;
+  int subject = 0;
+  ObjectiveOptions options;
+  ParameterLayout layout;
+  internal::PreparedSubject prepared;
+  std::vector<std::string> names;
+  int sigma_add = -1, sigma_prop = -1;
+  Eigen::VectorXd y, w;
+  std::vector<double> times;
+  struct Prior {
+    int index;
+    double log_median, sd;
+  };
+  std::vector<Prior> priors;
+  double default_sigma_add = 1;
+
+  Impl(std::shared_ptr<const Model> m, std::shared_ptr<const Dataset> d, int subj, const ObjectiveOptions& o)
+      : model(std::move(m)), data(std::move(d)), subject(subj), options(o), layout(*model) {}
+
+  int L() const { return layout.size(); }
+};
+
+Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data, int subject,
+                     const ObjectiveOptions& options, std::vector<LogNormalPrior> priors)
+    : impl_(new Impl(std::move(model), std::move(data), subject, options)) {
+  Impl& d = *impl_;
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("", 0, 0, why);
+  d.linear = dynamic_cast<const LinearModel*>(d.model.get());
+  if (d.linear == nullptr) throw InputError("", 0, 0, "model " + d.model->name() + " has no propagator yet");
+  // Dose modifiers (R, D, ...) are checked when values are given (CheckValues).
+  d.prepared = internal::PrepareSubject(*d.model, d.layout, *d.data, subject, d.layout.Defaults(), false);
+  d.names = d.layout.names();
+  if (options.error_model == ErrorModel::kAdditive || options.error_model == ErrorModel::kCombined) {
+    d.sigma_add = static_cast<int>(d.names.size());
+    d.names.push_back("SIGMA_ADD");
+  }
+  if (options.error_model == ErrorModel::kProportional || options.error_model == ErrorModel::kCombined) {
+    d.sigma_prop = static_cast<int>(d.names.size());
+    d.names.push_back("SIGMA_PROP");
+  }
+  const int weight_col = options.weighting == Weighting::kColumn ? d.data->ExtraColumn(options.weight_column) : -1;
+  if (options.weighting == Weighting::kColumn && weight_col < 0) {
+    throw InputError(d.data->source, 0, 0, "no weight column '" + options.weight_column + "'");
+  }
+  std::vector<double> ys, ws;
+  double sum_abs = 0;
+  for (const Record& r : d.prepared.records()) {
+    if (!r.IsSample()) continue;
+    double w = 1;
+    const auto bad = [&](const std::string& what) {
+      throw InputError(d.data->source, r.line, d.data->ColumnNumber(what == "weight" ? options.weight_column : "DV"),
+                       std::string("weighting ") + ToString(options.weighting) + " needs " +
+                           (what == "weight" ? "a finite weight >= 0" : "DV != 0") + " on every sample");
+    };
+    switch (options.weighting) {
+      case Weighting::kUniform: break;
+      case Weighting::kInverseDvSquared:
+        if (r.dv == 0) bad("DV");
+        w = 1 / (r.dv * r.dv);
+        break;
+      case Weighting::kInverseDv:
+        if (r.dv == 0) bad("DV");
+        w = 1 / std::fabs(r.dv);
+        break;
+      case Weighting::kColumn:
+        w = r.extra[weight_col];
+        if (!std::isfinite(w) || w < 0) bad("weight");
+        break;
+    }
+    ys.push_back(r.dv);
+    ws.push_back(w);
+    d.times.push_back(r.time);
+    sum_abs += std::fabs(r.dv);
+  }
+  d.y = Eigen::Map<Eigen::VectorXd>(ys.data(), static_cast<Eigen::Index>(ys.size()));
+  d.w = Eigen::Map<Eigen::VectorXd>(ws.data(), static_cast<Eigen::Index>(ws.size()));
+  d.default_sigma_add = ys.empty() || sum_abs == 0 ? 1.0 : 0.1 * sum_abs / static_cast<double>(ys.size());
+  for (const LogNormalPrior& p : priors) {
+    const int i = ParameterIndex(p.parameter);
+    if (i < 0) throw InputError("", 0, 0, "prior on unknown parameter '" + p.parameter + "'");
+    if (!(p.median > 0) || !(p.sd_log > 0)) throw InputError("", 0, 0, "prior on " + p.parameter + " needs median > 0 and sd > 0");
+    d.priors.push_back({i, std::log(p.median), p.sd_log});
+  }
+}
+
+Objective::~Objective() = default;
+Objective::Objective(Objective&&) noexcept = default;
+
+const std::vector<std::string>& Objective::parameter_names() const { return impl_->names; }
+
+int Objective::ParameterIndex(const std::string& name) const {
+  const std::string upper = internal::ToUpper(name);
+  for (size_t i = 0; i < impl_->names.size(); ++i) {
+    if (impl_->names[i] == upper) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+Eigen::VectorXd Objective::DefaultValues() const {
+  Eigen::VectorXd v(impl_->names.size());
+  v.head(impl_->L()) = impl_->layout.Defaults();
+  if (impl_->sigma_add >= 0) v(impl_->sigma_add) = impl_->default_sigma_add;
+  if (impl_->sigma_prop >= 0) v(impl_->sigma_prop) = 0.1;
+  return v;
+}
+
+int Objective::num_samples() const { return static_cast<int>(impl_->y.size()); }
+const Eigen::VectorXd& Objective::observations() const { return impl_->y; }
+const Eigen::VectorXd& Objective::weights() const { return impl_->w; }
+std::vector<double> Objective::sample_times() const { return impl_->times; }
+double Objective::subject_id() const { return impl_->data->subjects[impl_->subject].id; }
+const Model& Objective::model() const { return *impl_->model; }
+const ObjectiveOptions& Objective::options() const { return impl_->options; }
+
+Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const std::vector<int>& free,
+                                          Need need) const {
+  return Evaluate(values, free, need, impl_->options.gradient);
+}
+
+Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const std::vector<int>& free, Need need,
+                                          GradientRoute route) const {
+  const Impl& d = *impl_;
+  const int L = d.L();
+  const int N = num_samples();
+  const int P = static_cast<int>(free.size());
+  Evaluation ev;
+  // Free layout parameters get dual-number seeds; σ are handled analytically.
+  std::vector<int> model_free;          // layout indices
+  std::vector<int> model_pos;           // their positions in `free`
+  for (int k = 0; k < P; ++k) {
+    if (free[k] < L) {
+      model_free.push_back(free[k]);
+      model_pos.push_back(k);
+    }
+  }
+  const int pm = static_cast<int>(model_free.size());
+  if (route == GradientRoute::kAuto) route = need == Need::kJacobian ? GradientRoute::kForward : GradientRoute::kAdjoint;
+  if (need == Need::kJacobian && route == GradientRoute::kAdjoint) route = GradientRoute::kForward;
+  if (need == Need::kValue) route = GradientRoute::kAuto;
+  ev.route = need == Need::kValue ? "none" : ToString(route);
+
+  internal::PreparedSubject s = d.prepared;
+  Eigen::VectorXd yhat;
+  Eigen::MatrixXd jm;  // N × pm, ∂ŷ/∂(free model parameters)
+  std::unique_ptr<internal::DiscreteAdjoint> adjoint;
+  try {
+    internal::RebindParameters(d.layout, values.head(L), &s);
+    auto dual_sets = [&]() {
+      std::vector<internal::DualVector> sets(s.sets.size());
+      for (size_t k = 0; k < s.sets.size(); ++k) {
+        sets[k].resize(L);
+        for (int i = 0; i < L; ++i) sets[k](i) = internal::Dual(s.sets[k](i));
+        for (int a = 0; a < pm; ++a) {
+          if (!s.from_data[k][model_free[a]]) sets[k](model_free[a]) = internal::Dual(s.sets[k](model_free[a]), pm, a);
+        }
+      }
+      return sets;
+    };
+    if (route == GradientRoute::kForward && pm > 0) {
+      const auto sets = dual_sets();
+      internal::ForwardSensitivities(*d.linear, d.layout, s, sets, pm, &yhat, &jm);
+    } else if (route == GradientRoute::kAdjoint && pm > 0) {
+      adjoint.reset(new internal::DiscreteAdjoint(*d.linear, d.layout, s, dual_sets(), pm));
+      adjoint->Forward(&yhat);
+    } else {
+      internal::Predict(*d.linear, d.layout, s, &yhat);
+      jm = Eigen::MatrixXd::Zero(N, pm);
+    }
+    if (route == GradientRoute::kFiniteDifference && need == Need::kJacobian) {
+      for (int a = 0; a < pm; ++a) {
+        const int i = model_free[a];
+        const double h = std::max(std::fabs(values(i)), 1e-8) * d.options.fd_relative_step;
+        Eigen::VectorXd vp = values, vm = values, yp, ym;
+        vp(i) += h;
+        vm(i) -= h;
+        internal::PreparedSubject sp = d.prepared, sm = d.prepared;
+        internal::RebindParameters(d.layout, vp.head(L), &sp);
+        internal::RebindParameters(d.layout, vm.head(L), &sm);
+        internal::Predict(*d.linear, d.layout, sp, &yp);
+        internal::Predict(*d.linear, d.layout, sm, &ym);
+        jm.col(a) = (yp - ym) / (2 * h);
+      }
+    }
+  } catch (const internal::NumericalFailure& e) {
+    ev.ok = false;
+    ev.message = e.what();
+    return ev;
+  }
+  if (!yhat.allFinite()) {
+    ev.ok = false;
+    ev.message = "a prediction is not finite";
+    return ev;
+  }
+  ev.predictions = yhat;
+
+  // Per-sample loss terms: value, ∂ℓ/∂ŷ, and ∂ℓ/∂σ for ML.
+  const Eigen::VectorXd r = d.y - yhat;
+  Eigen::VectorXd dl_dy(N);
+  Eigen::VectorXd sigma2(N), ds2_dy(N);
+  double value = 0;
+  const double a = d.sigma_add >= 0 ? values(d.sigma_add) : 0.0;
+  const double b = d.sigma_prop >= 0 ? values(d.sigma_prop) : 0.0;
+  const bool ml = d.options.error_model != ErrorModel::kLeastSquares;
+  if (!ml) {
+    value = 0.5 * (d.w.array() * r.array().square()).sum();
+    dl_dy = -(d.w.array() * r.array()).matrix();
+  } else {
+    for (int k = 0; k < N; ++k) {
+      sigma2(k) = a * a + b * b * yhat(k) * yhat(k);
+      ds2_dy(k) = 2 * b * b * yhat(k);
+      if (!(sigma2(k) > 0)) {
+        ev.ok = false;
+        ev.message = "the residual variance is zero (a σ of 0?)";
+        return ev;
+      }
+      value += 0.5 * (std::log(2 * M_PI * sigma2(k)) + r(k) * r(k) / sigma2(k));
+      const double dl_ds2 = 0.5 * (1 / sigma2(k) - r(k) * r(k) / (sigma2(k) * sigma2(k)));
+      dl_dy(k) = -r(k) / sigma2(k) + dl_ds2 * ds2_dy(k);
+    }
+  }
+  for (const Impl::Prior& p : d.priors) {
+    const double z = (std::log(values(p.index)) - p.log_median) / p.sd;
+    value += 0.5 * z * z;
+  }
+  ev.value = value;
+  if (!std::isfinite(value)) {
+    ev.ok = false;
+    ev.message = "the objective is not finite";
+    return ev;
+  }
+  if (need == Need::kValue) return ev;
+
+  ev.gradient = Eigen::VectorXd::Zero(P);
+  if (route == GradientRoute::kFiniteDifference && need == Need::kGradient) {
+    for (int k = 0; k < P; ++k) {
+      const int i = free[k];
+      const double h = std::max(std::fabs(values(i)), 1e-8) * d.options.fd_relative_step;
+      Eigen::VectorXd vp = values, vm = values;
+      vp(i) += h;
+      vm(i) -= h;
+      const Evaluation ep = Evaluate(vp, free, Need::kValue), em = Evaluate(vm, free, Need::kValue);
+      if (!ep.ok || !em.ok) {
+        ev.ok = false;
+        ev.message = "finite differences: " + (ep.ok ? em.message : ep.message);
+        return ev;
+      }
+      ev.gradient(k) = (ep.value - em.value) / (2 * h);
+    }
+    return ev;
+  }
+  // ∂V/∂θ for the model parameters: the adjoint gives Σ ∂ℓ/∂ŷ ∂ŷ/∂θ directly.
+  Eigen::VectorXd gm = Eigen::VectorXd::Zero(pm);
+  if (adjoint) {
+    gm = adjoint->Gradient(dl_dy);
+  } else if (pm > 0) {
+    gm = jm.transpose() * dl_dy;
+  }
+  for (int a2 = 0; a2 < pm; ++a2) ev.gradient(model_pos[a2]) = gm(a2);
+  // σ and the priors.
+  Eigen::VectorXd ds2_dsigma_add(N), ds2_dsigma_prop(N);
+  if (ml) {
+    for (int k = 0; k < N; ++k) {
+      ds2_dsigma_add(k) = 2 * a;
+      ds2_dsigma_prop(k) = 2 * b * yhat(k) * yhat(k);
+    }
+  }
+  for (int k = 0; k < P; ++k) {
+    if (free[k] != d.sigma_add && free[k] != d.sigma_prop) continue;
+    const Eigen::VectorXd& ds2 = free[k] == d.sigma_add ? ds2_dsigma_add : ds2_dsigma_prop;
+    for (int j = 0; j < N; ++j) {
+      ev.gradient(k) += 0.5 * (1 / sigma2(j) - r(j) * r(j) / (sigma2(j) * sigma2(j))) * ds2(j);
+    }
+  }
+  Eigen::VectorXd prior_hess = Eigen::VectorXd::Zero(P);
+  for (const Impl::Prior& p : d.priors) {
+    for (int k = 0; k < P; ++k) {
+      if (free[k] != p.index) continue;
+      const double th = values(p.index);
+      ev.gradient(k) += (std::log(th) - p.log_median) / (p.sd * p.sd * th);
+      prior_hess(k) += 1 / (p.sd * p.sd * th * th);
+    }
+  }
+  if (need != Need::kJacobian) return ev;
+
+  // The full ∂ŷ/∂θ over all free parameters (σ columns are zero).
+  Eigen::MatrixXd jy = Eigen::MatrixXd::Zero(N, P);
+  for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos[a2]) = jm.col(a2);
+  if (!ml) {
+    const Eigen::ArrayXd sw = d.w.array().sqrt();
+    ev.residuals = (sw * r.array()).matrix();
+    ev.jacobian = -(jy.array().colwise() * sw).matrix();
+    ev.information = ev.jacobian.transpose() * ev.jacobian;
+  } else {
+    // Expected information: Σ ∇ŷ∇ŷᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴).
+    ev.information = Eigen::MatrixXd::Zero(P, P);
+    for (int k = 0; k < N; ++k) {
+      Eigen::VectorXd gs = ds2_dy(k) * jy.row(k).transpose();
+      for (int j = 0; j < P; ++j) {
+        if (free[j] == d.sigma_add) gs(j) += ds2_dsigma_add(k);
+        if (free[j] == d.sigma_prop) gs(j) += ds2_dsigma_prop(k);
+      }
+      ev.information += jy.row(k).transpose() * jy.row(k) / sigma2(k) + gs * gs.transpose() / (2 * sigma2(k) * sigma2(k));
+    }
+  }
+  ev.information.diagonal() += prior_hess;
+  return ev;
+}
+
+void Objective::CheckValues(const Eigen::VectorXd& values) const {
+  internal::PrepareSubject(*impl_->model, impl_->layout, *impl_->data, impl_->subject, values.head(impl_->L()), true);
+}
+
+std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const std::vector<double>& times) const {
+  const Impl& d = *impl_;
+  Dataset one = *d.data;
+  one.subjects = {d.data->subjects[d.subject]};
+  one = AddOutputTimes(one, times);
+  ParameterValues named;
+  for (int i = 0; i < d.L(); ++i) {
+    if (std::isfinite(values(i))) named[d.names[i]] = values(i);
+  }
+  SimulationOptions opts;
+  opts.track_auc = false;
+  const SubjectSimulation sim = SimulateSubject(*d.model, one, 0, named, opts);
+  std::vector<double> out;
+  if (!sim.ok) return std::vector<double>(times.size(), std::numeric_limits<double>::quiet_NaN());
+  for (const SimulatedRecord& row : sim.rows) {
+    if (one.subjects[0].records[row.record].line == -1) out.push_back(row.cp);
+  }
+  return out;
+}
+
+}  // namespace pk

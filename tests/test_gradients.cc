@@ -1,0 +1,103 @@
+// Every gradient route against central finite differences and against each
+// other, on every catalogue model × every event type.
+#include <sstream>
+
+#include <catch2/catch.hpp>
+
+#include "pk/catalogue.h"
+#include "pk/objective.h"
+
+namespace {
+
+struct Scenario {
+  const char* name;
+  const char* doses;  // CSV rows (ID,TIME,AMT,RATE,II,ADDL,SS,EVID,DV) before the samples
+  std::vector<std::string> extra_free;  // dose modifiers to estimate, with their values
+  std::vector<double> extra_values;
+};
+
+const std::vector<Scenario>& Scenarios() {
+  static const std::vector<Scenario> s = {
+      {"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}},
+      {"infusion", "1,0,100,40,0,0,0,1,.\n", {}, {}},
+      {"addl", "1,0,100,0,6,3,0,1,.\n", {}, {}},
+      {"ss1 bolus", "1,0,100,0,12,0,1,1,.\n", {}, {}},
+      {"ss2 on a dose", "1,0,50,0,0,0,0,1,.\n1,0.2,100,0,12,0,2,1,.\n", {}, {}},
+      {"ss1 infusion longer than II", "1,0,100,5,8,0,1,1,.\n", {}, {}},
+      {"ss constant infusion", "1,0,0,10,0,0,1,1,.\n", {}, {}},
+      {"lag", "1,0,100,0,6,2,0,1,.\n", {"ALAG1"}, {0.7}},
+      {"F bolus", "1,0,100,0,0,0,0,1,.\n", {"F1"}, {0.8}},
+      {"F infusion", "1,0,100,30,0,0,0,1,.\n", {"F1"}, {0.8}},
+      {"R", "1,0,100,-1,0,0,0,1,.\n", {"R1"}, {35}},
+      {"D and F", "1,0,100,-2,0,0,0,1,.\n", {"D1", "F1"}, {2.2, 0.9}},
+      {"ss1 with lag", "1,0,100,0,12,0,1,1,.\n", {"ALAG1"}, {1.3}},
+      {"ss1 infusion with lag and D", "1,0,100,-2,8,0,1,1,.\n", {"ALAG1", "D1"}, {0.6, 11.0}},
+  };
+  return s;
+}
+
+std::shared_ptr<pk::Dataset> MakeData(const Scenario& sc) {
+  std::ostringstream csv;
+  csv << "ID,TIME,AMT,RATE,II,ADDL,SS,EVID,DV\n" << sc.doses;
+  const double times[] = {0.25, 0.9, 1.7, 3.1, 5.3, 7.9, 11.2, 15.5, 23.6};
+  for (int k = 0; k < 9; ++k) csv << "1," << times[k] << ",0,0,0,0,0,0," << 0.5 + 0.4 * k * (k % 3) << "\n";
+  return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), sc.name));
+}
+
+double MaxAbs(const Eigen::VectorXd& v) { return v.cwiseAbs().maxCoeff(); }
+
+}  // namespace
+
+TEST_CASE("gradient routes agree: forward, adjoint and finite differences", "[gradient]") {
+  const auto model_name = GENERATE(as<std::string>{}, "1cmt_iv", "1cmt_oral", "2cmt_iv", "2cmt_oral", "3cmt_iv",
+                                   "3cmt_oral");
+  const auto model = pk::MakeModel(model_name);
+  for (const Scenario& sc : Scenarios()) {
+    const auto error_model = GENERATE(pk::ErrorModel::kLeastSquares, pk::ErrorModel::kCombined);
+    INFO(model_name << " / " << sc.name << " / " << pk::ToString(error_model));
+    pk::ObjectiveOptions options;
+    options.error_model = error_model;
+    const pk::Objective objective(model, MakeData(sc), 0, options);
+    Eigen::VectorXd values = objective.DefaultValues();
+    std::vector<int> free;
+    for (int i = 0; i < model->num_parameters(); ++i) {
+      values(i) *= 1.0 + 0.1 * i;  // away from the catalogue's round numbers
+      free.push_back(i);
+    }
+    for (size_t e = 0; e < sc.extra_free.size(); ++e) {
+      const int i = objective.ParameterIndex(sc.extra_free[e]);
+      REQUIRE(i >= 0);
+      values(i) = sc.extra_values[e];
+      free.push_back(i);
+    }
+    if (error_model != pk::ErrorModel::kLeastSquares) {
+      free.push_back(objective.ParameterIndex("SIGMA_ADD"));
+      free.push_back(objective.ParameterIndex("SIGMA_PROP"));
+    }
+    using Need = pk::Objective::Need;
+    const auto fwd = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+    const auto adj = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+    const auto fd = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kFiniteDifference);
+    REQUIRE(fwd.ok);
+    REQUIRE(adj.ok);
+    REQUIRE(fd.ok);
+    CHECK(fwd.value == Approx(adj.value).epsilon(1e-13));
+    const double scale = MaxAbs(fd.gradient);
+    REQUIRE(scale > 0);
+    INFO("forward " << fwd.gradient.transpose() << "\nadjoint " << adj.gradient.transpose() << "\nfd      "
+                    << fd.gradient.transpose());
+    CHECK(MaxAbs(fwd.gradient - fd.gradient) / scale < 1e-6);
+    CHECK(MaxAbs(adj.gradient - fd.gradient) / scale < 1e-6);
+    CHECK(MaxAbs(fwd.gradient - adj.gradient) / scale < 1e-9);
+    // The residual Jacobian by the forward route against finite differences.
+    if (error_model == pk::ErrorModel::kLeastSquares) {
+      const auto jf = objective.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kForward);
+      const auto jd = objective.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kFiniteDifference);
+      REQUIRE(jf.ok);
+      REQUIRE(jd.ok);
+      const double jscale = jd.jacobian.cwiseAbs().maxCoeff();
+      CHECK((jf.jacobian - jd.jacobian).cwiseAbs().maxCoeff() / jscale < 1e-6);
+      CHECK((jf.jacobian.transpose() * jf.residuals - fwd.gradient).cwiseAbs().maxCoeff() / scale < 1e-12);
+    }
+  }
+}
