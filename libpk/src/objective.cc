@@ -351,10 +351,23 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::MatrixXd jy = Eigen::MatrixXd::Zero(N, P);
   for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos[a2]) = jm.col(a2);
   if (!ml) {
+    // Samples first, then one row per prior, so that ½‖r‖² = V exactly.
+    const int np = static_cast<int>(d.priors.size());
     const Eigen::ArrayXd sw = d.w.array().sqrt();
-    ev.residuals = (sw * r.array()).matrix();
-    ev.jacobian = -(jy.array().colwise() * sw).matrix();
+    ev.residuals.resize(N + np);
+    ev.jacobian = Eigen::MatrixXd::Zero(N + np, P);
+    ev.residuals.head(N) = (sw * r.array()).matrix();
+    ev.jacobian.topRows(N) = -(jy.array().colwise() * sw).matrix();
+    for (int q = 0; q < np; ++q) {
+      const Impl::Prior& p = d.priors[q];
+      const double th = values(p.index);
+      ev.residuals(N + q) = (std::log(th) - p.log_median) / p.sd;
+      for (int k = 0; k < P; ++k) {
+        if (free[k] == p.index) ev.jacobian(N + q, k) = 1 / (p.sd * th);
+      }
+    }
     ev.information = ev.jacobian.transpose() * ev.jacobian;
+    return ev;
   } else {
     // Expected information: Σ ∇ŷ∇ŷᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴).
     ev.information = Eigen::MatrixXd::Zero(P, P);

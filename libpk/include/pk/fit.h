@@ -1,0 +1,118 @@
+// libpk: fitting one subject's parameters (the seed's §3).
+//
+//   pk::Objective objective(model, data, subject, objective_options);
+//   std::vector<pk::ParameterSpec> params = {{"KA", 1.5}, {"CL", 3}, {"V", 30}};
+//   pk::FitOptions options;                       // Levenberg–Marquardt, log scale
+//   pk::FitSummary summary = pk::Fit(objective, params, options);
+//   std::cout << summary.FullReport();
+//
+// Parameters are estimated on the log scale by default. A parameter with
+// bounds is mapped onto an unbounded scale (a logistic map between the bounds,
+// on the log scale when log_scale is on), so every optimiser works unbounded.
+// Parameters not listed in `params` keep the objective's default values.
+//
+// Optimisers:
+//   kLevenbergMarquardt  MINPACK's lmder, as ported in Eigen's unsupported
+//                        NonLinearOptimization module; least squares only
+//   kBfgs                NLopt's LD_LBFGS (limited-memory BFGS)
+//   kNewton              damped Newton with the Gauss–Newton matrix (least
+//                        squares) or the expected Fisher information (ML)
+//   kNlopt               any NLopt algorithm by name, e.g. LN_BOBYQA, LD_MMA
+//
+// Numerical failure never throws: the summary says what happened.
+#ifndef PK_FIT_H_
+#define PK_FIT_H_
+
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/objective.h"
+
+namespace pk {
+
+enum class OptimizerType { kLevenbergMarquardt, kBfgs, kNewton, kNlopt };
+
+const char* ToString(OptimizerType o);
+
+struct FitOptions {
+  OptimizerType optimizer = OptimizerType::kLevenbergMarquardt;  ///< the optimiser
+  std::string nlopt_algorithm;     ///< for kNlopt: an NLopt name such as "LN_BOBYQA"
+  int max_iterations = 1000;       ///< iterations (LM, Newton) or evaluations (NLopt)
+  double function_tolerance = 1e-12;   ///< relative change of V that ends the search
+  double parameter_tolerance = 1e-10;  ///< relative change of the parameters that ends it
+  double gradient_tolerance = 1e-10;   ///< max |∂V/∂φ| that ends it (Newton)
+  bool log_scale = true;           ///< estimate log θ (θ > 0)
+  int starts = 1;                  ///< starts spread around the initial values; the best is kept
+  double start_spread = 0.5;       ///< SD of the spread, on the log scale
+  unsigned seed = 20261121;        ///< for the spread of the starts (reproducible)
+
+  bool IsValid(std::string* error) const;
+};
+
+/// One parameter to estimate (or to hold fixed).
+struct ParameterSpec {
+  std::string name;
+  double initial = 1;
+  bool fixed = false;
+  double lower = -std::numeric_limits<double>::infinity();
+  double upper = std::numeric_limits<double>::infinity();
+};
+
+struct ParameterEstimate {
+  std::string name;
+  double estimate = 0;
+  double se = std::numeric_limits<double>::quiet_NaN();       ///< standard error
+  double rse_pct = std::numeric_limits<double>::quiet_NaN();  ///< 100·SE/|estimate|
+  bool fixed = false;
+};
+
+enum class TerminationType {
+  kConvergence,    ///< a convergence test was met
+  kNoConvergence,  ///< the iteration or evaluation limit was reached
+  kFailure,        ///< the objective could not be evaluated, or the optimiser failed
+};
+
+struct FitSummary {
+  TerminationType termination = TerminationType::kFailure;
+  std::string message;           ///< the optimiser's reason for stopping, or what failed
+  bool converged() const { return termination == TerminationType::kConvergence; }
+
+  double initial_objective = std::numeric_limits<double>::quiet_NaN();
+  double objective = std::numeric_limits<double>::quiet_NaN();  ///< the minimised V
+  int iterations = 0;
+  int evaluations = 0;
+  int best_start = 0;            ///< which start gave the result (0 = the initial values)
+  int num_samples = 0;
+  double seconds = 0;            ///< wall time of the whole fit
+  std::string optimizer;
+  std::string gradient;          ///< the route that computed the derivatives
+
+  std::vector<ParameterEstimate> estimates;  ///< every ParameterSpec, in order (fixed included)
+  std::vector<std::string> estimated;        ///< the names of the estimated ones
+  Eigen::MatrixXd covariance;                ///< of the estimated ones, natural scale
+  Eigen::MatrixXd correlation;
+  std::string covariance_message;            ///< why SEs are missing, if they are
+
+  /// −2 log-likelihood: exact for ML; for least squares, the Gaussian
+  /// likelihood with the residual variance profiled out (weights known up to scale).
+  double minus2ll = std::numeric_limits<double>::quiet_NaN();
+  double aic = std::numeric_limits<double>::quiet_NaN();
+  double bic = std::numeric_limits<double>::quiet_NaN();
+
+  Eigen::VectorXd values;        ///< the objective's full parameter vector at the estimate
+
+  std::string BriefReport() const;
+  std::string FullReport() const;
+};
+
+/// Fits `params` (names from objective.parameter_names()). Throws
+/// pk::InputError for an unknown parameter name, invalid options, or an
+/// initial value outside its bounds or not positive on the log scale.
+FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& params, const FitOptions& options);
+
+}  // namespace pk
+
+#endif  // PK_FIT_H_

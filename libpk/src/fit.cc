@@ -1,0 +1,612 @@
+#include "pk/fit.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <random>
+#include <sstream>
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <nlopt.hpp>
+#include <unsupported/Eigen/NonLinearOptimization>
+
+#include "internal_text.h"
+#include "pk/error.h"
+
+namespace pk {
+
+const char* ToString(OptimizerType o) {
+  switch (o) {
+    case OptimizerType::kLevenbergMarquardt: return "lm";
+    case OptimizerType::kBfgs: return "bfgs";
+    case OptimizerType::kNewton: return "newton";
+    case OptimizerType::kNlopt: return "nlopt";
+  }
+  return "?";
+}
+
+bool FitOptions::IsValid(std::string* error) const {
+  auto fail = [&](const std::string& why) {
+    if (error) *error = why;
+    return false;
+  };
+  if (max_iterations < 1) return fail("max_iterations must be at least 1");
+  if (!(function_tolerance >= 0) || !(parameter_tolerance >= 0) || !(gradient_tolerance >= 0)) {
+    return fail("tolerances must not be negative");
+  }
+  if (starts < 1) return fail("starts must be at least 1");
+  if (!(start_spread >= 0)) return fail("start_spread must not be negative");
+  if (optimizer == OptimizerType::kNlopt) {
+    if (nlopt_algorithm_from_string(nlopt_algorithm.c_str()) < 0) {
+      return fail("unknown NLopt algorithm '" + nlopt_algorithm + "' (for example LD_LBFGS, LN_BOBYQA, LD_MMA)");
+    }
+  }
+  return true;
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using Need = Objective::Need;
+
+// Maps an unbounded φ to θ: first to the scale s (log θ or θ), bounded by the
+// bounds' images, then θ = exp(s) or s.
+struct Transform {
+  bool log = true;
+  double sl = -INFINITY, su = INFINITY;
+
+  double S(double phi) const {
+    const bool lo = std::isfinite(sl), hi = std::isfinite(su);
+    if (lo && hi) return sl + (su - sl) / (1 + std::exp(-phi));
+    if (lo) return sl + std::exp(phi);
+    if (hi) return su - std::exp(phi);
+    return phi;
+  }
+  double DsDphi(double phi) const {
+    const bool lo = std::isfinite(sl), hi = std::isfinite(su);
+    if (lo && hi) {
+      const double sig = 1 / (1 + std::exp(-phi));
+      return (su - sl) * sig * (1 - sig);
+    }
+    if (lo) return std::exp(phi);
+    if (hi) return -std::exp(phi);
+    return 1;
+  }
+  double Theta(double phi) const { return log ? std::exp(S(phi)) : S(phi); }
+  double DthetaDphi(double phi) const { return (log ? Theta(phi) : 1.0) * DsDphi(phi); }
+  double Phi(double theta) const {
+    const double s = log ? std::log(theta) : theta;
+    const bool lo = std::isfinite(sl), hi = std::isfinite(su);
+    if (lo && hi) {
+      const double f = (s - sl) / (su - sl);
+      return std::log(f / (1 - f));
+    }
+    if (lo) return std::log(s - sl);
+    if (hi) return std::log(su - s);
+    return s;
+  }
+};
+
+class Problem {
+ public:
+  Problem(const Objective& obj, std::vector<int> free, std::vector<Transform> tr, Eigen::VectorXd base)
+      : obj_(obj), free_(std::move(free)), tr_(std::move(tr)), base_(std::move(base)) {}
+
+  int n() const { return static_cast<int>(free_.size()); }
+  const std::vector<int>& free() const { return free_; }
+
+  Eigen::VectorXd Values(const Eigen::VectorXd& phi) const {
+    Eigen::VectorXd v = base_;
+    for (int k = 0; k < n(); ++k) v(free_[k]) = tr_[k].Theta(phi(k));
+    return v;
+  }
+  Eigen::VectorXd Dtheta(const Eigen::VectorXd& phi) const {
+    Eigen::VectorXd d(n());
+    for (int k = 0; k < n(); ++k) d(k) = tr_[k].DthetaDphi(phi(k));
+    return d;
+  }
+  Eigen::VectorXd PhiOf(const Eigen::VectorXd& values) const {
+    Eigen::VectorXd phi(n());
+    for (int k = 0; k < n(); ++k) phi(k) = tr_[k].Phi(values(free_[k]));
+    return phi;
+  }
+
+  // Evaluates on the φ scale: chain rule with D = diag(dθ/dφ).
+  Objective::Evaluation Eval(const Eigen::VectorXd& phi, Need need) {
+    ++evaluations_;
+    Objective::Evaluation ev = obj_.Evaluate(Values(phi), free_, need);
+    if (!ev.ok || need == Need::kValue) return ev;
+    const Eigen::VectorXd d = Dtheta(phi);
+    route_ = ev.route;
+    ev.gradient = ev.gradient.cwiseProduct(d);
+    if (need == Need::kJacobian) {
+      if (ev.jacobian.size()) ev.jacobian = ev.jacobian * d.asDiagonal();
+      ev.information = d.asDiagonal() * ev.information * d.asDiagonal();
+    }
+    return ev;
+  }
+
+  int evaluations() const { return evaluations_; }
+  const std::string& route() const { return route_; }
+
+ private:
+  const Objective& obj_;
+  std::vector<int> free_;
+  std::vector<Transform> tr_;
+  Eigen::VectorXd base_;
+  int evaluations_ = 0;
+  std::string route_ = "none";
+};
+
+struct RunResult {
+  Eigen::VectorXd phi;
+  double value = NAN;
+  int iterations = 0;
+  TerminationType termination = TerminationType::kFailure;
+  std::string message;
+};
+
+// ---- Levenberg–Marquardt (Eigen's MINPACK port). Chosen over a hand-written
+// LM because lmder's trust-region logic and scaling are decades-tested.
+struct LmFunctor {
+  Problem* pb;
+  int m;
+  int inputs() const { return pb->n(); }
+  int values() const { return m; }
+  int operator()(const Eigen::VectorXd& phi, Eigen::VectorXd& fvec) {
+    const Objective::Evaluation ev = pb->Eval(phi, Need::kJacobian);
+    if (!ev.ok) {
+      fvec.setConstant(1e100);  // rejects the step; LM shrinks its trust region
+      return 0;
+    }
+    fvec = ev.residuals;
+    cached_phi = phi;
+    cached_jac = ev.jacobian;
+    return 0;
+  }
+  int df(const Eigen::VectorXd& phi, Eigen::MatrixXd& fjac) {
+    if (cached_phi.size() == phi.size() && cached_phi == phi) {
+      fjac = cached_jac;
+      return 0;
+    }
+    const Objective::Evaluation ev = pb->Eval(phi, Need::kJacobian);
+    if (!ev.ok) return -1;
+    fjac = ev.jacobian;
+    return 0;
+  }
+  Eigen::VectorXd cached_phi;
+  Eigen::MatrixXd cached_jac;
+};
+
+RunResult RunLm(Problem* pb, int m, const Eigen::VectorXd& phi0, const FitOptions& o) {
+  RunResult r;
+  LmFunctor f{pb, m, {}, {}};
+  Eigen::LevenbergMarquardt<LmFunctor> lm(f);
+  lm.parameters.ftol = std::max(o.function_tolerance, 1e-15);
+  lm.parameters.xtol = std::max(o.parameter_tolerance, 1e-15);
+  lm.parameters.gtol = 0;
+  lm.parameters.maxfev = o.max_iterations;
+  Eigen::VectorXd phi = phi0;
+  const auto status = lm.minimize(phi);
+  r.phi = phi;
+  r.iterations = static_cast<int>(lm.iter);
+  using namespace Eigen::LevenbergMarquardtSpace;
+  switch (status) {
+    case RelativeReductionTooSmall:
+      r.termination = TerminationType::kConvergence;
+      r.message = "relative reduction of the sum of squares below ftol";
+      break;
+    case RelativeErrorTooSmall:
+      r.termination = TerminationType::kConvergence;
+      r.message = "relative change of the parameters below xtol";
+      break;
+    case RelativeErrorAndReductionTooSmall:
+      r.termination = TerminationType::kConvergence;
+      r.message = "relative reduction and parameter change below tolerance";
+      break;
+    case CosinusTooSmall:
+      r.termination = TerminationType::kConvergence;
+      r.message = "residuals orthogonal to the Jacobian columns";
+      break;
+    case FtolTooSmall:
+    case XtolTooSmall:
+    case GtolTooSmall:
+      r.termination = TerminationType::kConvergence;
+      r.message = "no further reduction possible at machine precision";
+      break;
+    case TooManyFunctionEvaluation:
+      r.termination = TerminationType::kNoConvergence;
+      r.message = "evaluation limit reached";
+      break;
+    case UserAsked:
+      r.termination = TerminationType::kFailure;
+      r.message = "the Jacobian could not be evaluated";
+      break;
+    default:
+      r.termination = TerminationType::kFailure;
+      r.message = "improper input to Levenberg-Marquardt";
+  }
+  return r;
+}
+
+// ---- NLopt (BFGS is LD_LBFGS).
+struct NloptData {
+  Problem* pb;
+  bool failed_last = false;
+};
+
+double NloptObjective(const std::vector<double>& x, std::vector<double>& grad, void* data) {
+  auto* d = static_cast<NloptData*>(data);
+  const Eigen::VectorXd phi = Eigen::Map<const Eigen::VectorXd>(x.data(), static_cast<Eigen::Index>(x.size()));
+  const Objective::Evaluation ev = d->pb->Eval(phi, grad.empty() ? Need::kValue : Need::kGradient);
+  if (!ev.ok) {
+    std::fill(grad.begin(), grad.end(), 0.0);
+    return 1e300;
+  }
+  for (size_t k = 0; k < grad.size(); ++k) grad[k] = ev.gradient(static_cast<Eigen::Index>(k));
+  return ev.value;
+}
+
+RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::VectorXd& phi0, const FitOptions& o) {
+  RunResult r;
+  const int n = pb->n();
+  nlopt::opt opt(algorithm.c_str(), static_cast<unsigned>(n));
+  NloptData data{pb};
+  opt.set_min_objective(NloptObjective, &data);
+  opt.set_ftol_rel(o.function_tolerance);
+  opt.set_xtol_rel(o.parameter_tolerance);
+  opt.set_maxeval(o.max_iterations);
+  std::vector<double> x(phi0.data(), phi0.data() + n);
+  if (algorithm.rfind("G", 0) == 0) {
+    // Global algorithms need a finite box: e^±5 around the start on the unbounded scale.
+    std::vector<double> lo(n), hi(n);
+    for (int k = 0; k < n; ++k) {
+      lo[k] = x[k] - 5;
+      hi[k] = x[k] + 5;
+    }
+    opt.set_lower_bounds(lo);
+    opt.set_upper_bounds(hi);
+  }
+  double fval = NAN;
+  try {
+    const nlopt::result res = opt.optimize(x, fval);
+    switch (res) {
+      case nlopt::SUCCESS:
+      case nlopt::STOPVAL_REACHED:
+      case nlopt::FTOL_REACHED:
+      case nlopt::XTOL_REACHED:
+        r.termination = TerminationType::kConvergence;
+        break;
+      case nlopt::MAXEVAL_REACHED:
+      case nlopt::MAXTIME_REACHED:
+        r.termination = TerminationType::kNoConvergence;
+        break;
+      default:
+        r.termination = TerminationType::kFailure;
+    }
+    r.message = std::string("NLopt ") + opt.get_algorithm_name() + ": " +
+                nlopt_result_to_string(static_cast<nlopt_result>(res));
+  } catch (const nlopt::roundoff_limited&) {
+    r.termination = TerminationType::kConvergence;
+    r.message = "NLopt stopped: roundoff-limited (the optimum is resolved to machine precision)";
+  } catch (const std::exception& e) {
+    r.termination = TerminationType::kFailure;
+    r.message = std::string("NLopt failed: ") + e.what();
+  }
+  r.phi = Eigen::Map<Eigen::VectorXd>(x.data(), n);
+  r.iterations = opt.get_numevals();
+  return r;
+}
+
+// ---- Damped Newton with the Gauss–Newton matrix or the Fisher information.
+RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& o) {
+  RunResult r;
+  const int n = pb->n();
+  Eigen::VectorXd phi = phi0;
+  Objective::Evaluation ev = pb->Eval(phi, Need::kJacobian);
+  if (!ev.ok) {
+    r.phi = phi;
+    r.message = "the objective could not be evaluated at the start: " + ev.message;
+    return r;
+  }
+  double mu = 0;
+  for (int it = 1; it <= o.max_iterations; ++it) {
+    r.iterations = it;
+    if (ev.gradient.cwiseAbs().maxCoeff() <= o.gradient_tolerance) {
+      r.termination = TerminationType::kConvergence;
+      r.message = "gradient below tolerance";
+      break;
+    }
+    bool accepted = false;
+    Objective::Evaluation trial;
+    Eigen::VectorXd next;
+    for (int damp = 0; damp < 30 && !accepted; ++damp) {
+      Eigen::MatrixXd h = ev.information;
+      const double scale = std::max(h.diagonal().cwiseAbs().maxCoeff(), 1e-300);
+      h.diagonal().array() += mu * scale;
+      const Eigen::LDLT<Eigen::MatrixXd> ldlt(h);
+      Eigen::VectorXd step = ldlt.info() == Eigen::Success ? Eigen::VectorXd(-ldlt.solve(ev.gradient))
+                                                           : Eigen::VectorXd(-ev.gradient / scale);
+      if (!step.allFinite() || step.dot(ev.gradient) >= 0) {
+        mu = std::max(mu * 10, 1e-8);
+        continue;
+      }
+      // Backtracking (Armijo) line search.
+      double alpha = 1;
+      for (int ls = 0; ls < 12; ++ls, alpha *= 0.25) {
+        next = phi + alpha * step;
+        trial = pb->Eval(next, Need::kValue);
+        if (trial.ok && trial.value <= ev.value + 1e-4 * alpha * step.dot(ev.gradient)) {
+          accepted = true;
+          break;
+        }
+      }
+      if (!accepted) mu = std::max(mu * 10, 1e-8);
+    }
+    if (!accepted) {
+      r.termination = TerminationType::kConvergence;
+      r.message = "no descent step found: the objective is minimal to machine precision";
+      break;
+    }
+    const double decrease = ev.value - trial.value;
+    const double step_size = (next - phi).cwiseAbs().maxCoeff();
+    phi = next;
+    ev = pb->Eval(phi, Need::kJacobian);
+    if (!ev.ok) {
+      r.message = "the Jacobian could not be evaluated: " + ev.message;
+      r.termination = TerminationType::kFailure;
+      break;
+    }
+    mu = mu / 10 < 1e-10 ? 0 : mu / 10;
+    if (decrease <= o.function_tolerance * (std::fabs(ev.value) + o.function_tolerance) &&
+        step_size <= std::sqrt(o.parameter_tolerance) * (1 + phi.cwiseAbs().maxCoeff())) {
+      r.termination = TerminationType::kConvergence;
+      r.message = "relative reduction and parameter change below tolerance";
+      break;
+    }
+    if (it == o.max_iterations) {
+      r.termination = TerminationType::kNoConvergence;
+      r.message = "iteration limit reached";
+    }
+  }
+  (void)n;
+  r.phi = phi;
+  return r;
+}
+
+std::string Num(double v, const char* fmt = "%.6g") {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, fmt, v);
+  return buf;
+}
+
+}  // namespace
+
+FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& params, const FitOptions& options) {
+  const auto t0 = Clock::now();
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("", 0, 0, why);
+  FitSummary summary;
+  summary.optimizer = options.optimizer == OptimizerType::kNlopt ? "nlopt:" + options.nlopt_algorithm
+                                                                 : ToString(options.optimizer);
+  summary.num_samples = objective.num_samples();
+  const bool ml = objective.options().error_model != ErrorModel::kLeastSquares;
+  if (ml && options.optimizer == OptimizerType::kLevenbergMarquardt) {
+    throw InputError("", 0, 0,
+                     "Levenberg-Marquardt minimises a sum of squares; for maximum likelihood use bfgs, newton or "
+                     "nlopt:NAME");
+  }
+  const GradientRoute route = objective.options().gradient;
+  if (route == GradientRoute::kAdjoint &&
+      (options.optimizer == OptimizerType::kLevenbergMarquardt || options.optimizer == OptimizerType::kNewton)) {
+    throw InputError("", 0, 0,
+                     std::string(ToString(options.optimizer)) +
+                         " needs the residual Jacobian, which the adjoint route does not give; use --gradient "
+                         "forward or fd, or a gradient-only optimizer (bfgs, nlopt:NAME)");
+  }
+
+  Eigen::VectorXd base = objective.DefaultValues();
+  std::vector<int> free;
+  std::vector<Transform> tr;
+  for (const ParameterSpec& p : params) {
+    const int i = objective.ParameterIndex(p.name);
+    if (i < 0) {
+      throw InputError("", 0, 0, "unknown parameter '" + p.name + "'; this model has " +
+                                     internal::Join(objective.parameter_names(), ", "));
+    }
+    base(i) = p.initial;
+    ParameterEstimate est;
+    est.name = objective.parameter_names()[i];
+    est.estimate = p.initial;
+    est.fixed = p.fixed;
+    summary.estimates.push_back(est);
+    if (p.fixed) continue;
+    if (!(p.lower < p.upper) || !(p.initial > p.lower) || !(p.initial < p.upper)) {
+      throw InputError("", 0, 0, "initial value of " + est.name + " (" + Num(p.initial) + ") must lie strictly within its bounds");
+    }
+    Transform t;
+    t.log = options.log_scale;
+    if (t.log && !(p.initial > 0)) {
+      throw InputError("", 0, 0, est.name + " is estimated on the log scale, so its initial value must be positive");
+    }
+    if (t.log) {
+      t.sl = p.lower > 0 ? std::log(p.lower) : -INFINITY;
+      t.su = std::isfinite(p.upper) ? std::log(p.upper) : INFINITY;
+    } else {
+      t.sl = p.lower;
+      t.su = p.upper;
+    }
+    free.push_back(i);
+    tr.push_back(t);
+    summary.estimated.push_back(est.name);
+  }
+  objective.CheckValues(base);
+  Problem pb(objective, free, tr, base);
+  const int n = pb.n();
+  const Eigen::VectorXd phi0 = pb.PhiOf(base);
+
+  const Objective::Evaluation first = pb.Eval(phi0, Need::kValue);
+  summary.initial_objective = first.ok ? first.value : NAN;
+  const int m = first.ok ? static_cast<int>(objective.Evaluate(base, free, Need::kValue).predictions.size()) : 0;
+  int residuals = 0;
+  if (!ml) {
+    const Objective::Evaluation j = objective.Evaluate(base, free, Need::kJacobian);
+    residuals = j.ok ? static_cast<int>(j.residuals.size()) : m;
+  }
+
+  RunResult best;
+  if (n == 0) {
+    best.phi = phi0;
+    best.value = summary.initial_objective;
+    best.termination = first.ok ? TerminationType::kConvergence : TerminationType::kFailure;
+    best.message = first.ok ? "nothing to estimate" : first.message;
+  } else if (!ml && options.optimizer == OptimizerType::kLevenbergMarquardt && residuals < n) {
+    best.phi = phi0;
+    best.message = "fewer samples (" + std::to_string(residuals) + ") than estimated parameters (" +
+                   std::to_string(n) + ")";
+  } else {
+    std::mt19937 rng(options.seed);
+    std::normal_distribution<double> normal(0.0, 1.0);
+    for (int s = 0; s < options.starts; ++s) {
+      Eigen::VectorXd start = phi0;
+      if (s > 0) {
+        for (int k = 0; k < n; ++k) start(k) += options.start_spread * normal(rng);
+      }
+      RunResult r;
+      const Objective::Evaluation e0 = pb.Eval(start, Need::kValue);
+      if (!e0.ok) {
+        r.phi = start;
+        r.message = "the objective could not be evaluated at the start: " + e0.message;
+      } else {
+        switch (options.optimizer) {
+          case OptimizerType::kLevenbergMarquardt: r = RunLm(&pb, residuals, start, options); break;
+          case OptimizerType::kBfgs: r = RunNlopt(&pb, "LD_LBFGS", start, options); break;
+          case OptimizerType::kNlopt: r = RunNlopt(&pb, options.nlopt_algorithm, start, options); break;
+          case OptimizerType::kNewton: r = RunNewton(&pb, start, options); break;
+        }
+      }
+      const Objective::Evaluation end = pb.Eval(r.phi, Need::kValue);
+      r.value = end.ok ? end.value : NAN;
+      if (!end.ok) {
+        r.termination = TerminationType::kFailure;
+        if (r.message.empty()) r.message = end.message;
+      }
+      const bool better = std::isfinite(r.value) && (!std::isfinite(best.value) || r.value < best.value);
+      if (s == 0 || better) {
+        if (better || !std::isfinite(best.value)) summary.best_start = s;
+        best = r;
+      }
+    }
+  }
+
+  summary.termination = best.termination;
+  summary.message = best.message;
+  summary.iterations = best.iterations;
+  summary.objective = best.value;
+  summary.values = pb.Values(best.phi);
+  summary.gradient = pb.route();
+
+  // Estimates, and the covariance at the optimum from the Jacobian or information.
+  for (ParameterEstimate& est : summary.estimates) est.estimate = summary.values(objective.ParameterIndex(est.name));
+  if (n > 0 && std::isfinite(best.value)) {
+    const Objective::Evaluation ev = pb.Eval(best.phi, Need::kJacobian);
+    summary.gradient = pb.route();
+    const int nobs = objective.num_samples();
+    if (!ev.ok) {
+      summary.covariance_message = "the Jacobian could not be evaluated at the estimate: " + ev.message;
+    } else if (!ml && nobs <= n) {
+      summary.covariance_message = "no degrees of freedom left for the residual variance";
+    } else {
+      Eigen::FullPivLU<Eigen::MatrixXd> lu(ev.information);
+      lu.setThreshold(1e-12);
+      if (lu.rank() < n) {
+        summary.covariance_message = "the information matrix is singular: some parameters are not identifiable";
+      } else {
+        Eigen::MatrixXd cov_phi = lu.inverse();
+        if (!ml) {
+          double v_data = 0.5 * ev.residuals.head(nobs).squaredNorm();
+          cov_phi *= 2 * v_data / (nobs - n);
+        }
+        const Eigen::VectorXd d = pb.Dtheta(best.phi);
+        summary.covariance = d.asDiagonal() * cov_phi * d.asDiagonal();
+        const Eigen::VectorXd sd = summary.covariance.diagonal().cwiseMax(0).cwiseSqrt();
+        summary.correlation = sd.cwiseInverse().asDiagonal() * summary.covariance * sd.cwiseInverse().asDiagonal();
+        int k = 0;
+        for (ParameterEstimate& est : summary.estimates) {
+          if (est.fixed) continue;
+          est.se = sd(k++);
+          est.rse_pct = 100 * est.se / std::fabs(est.estimate);
+        }
+      }
+    }
+    // −2LL, AIC, BIC.
+    if (ev.ok) {
+      double m2ll = 0;
+      int k = n;
+      if (ml) {
+        m2ll = 2 * best.value;
+      } else {
+        const double rss = ev.residuals.head(nobs).squaredNorm();
+        double sum_log_w = 0;
+        for (int j = 0; j < nobs; ++j) {
+          if (objective.weights()(j) > 0) sum_log_w += std::log(objective.weights()(j));
+        }
+        m2ll = nobs * (std::log(2 * M_PI * rss / nobs) + 1) - sum_log_w;
+        k = n + 1;  // the residual variance
+      }
+      summary.minus2ll = m2ll;
+      summary.aic = m2ll + 2 * k;
+      summary.bic = m2ll + k * std::log(static_cast<double>(nobs));
+    }
+  }
+  summary.evaluations = pb.evaluations();
+  summary.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return summary;
+}
+
+std::string FitSummary::BriefReport() const {
+  std::ostringstream out;
+  const char* status = termination == TerminationType::kConvergence
+                           ? "converged"
+                           : (termination == TerminationType::kNoConvergence ? "did not converge" : "failed");
+  out << optimizer << " (" << gradient << " gradient): " << status << " after " << iterations
+      << " iterations, objective " << Num(initial_objective) << " -> " << Num(objective) << ", "
+      << Num(seconds * 1e3, "%.3g") << " ms (" << message << ")";
+  return out.str();
+}
+
+std::string FitSummary::FullReport() const {
+  std::ostringstream out;
+  out << BriefReport() << "\n\n";
+  char line[256];
+  std::snprintf(line, sizeof line, "  %-12s %14s %14s %9s\n", "parameter", "estimate", "SE", "RSE%");
+  out << line;
+  for (const ParameterEstimate& e : estimates) {
+    if (e.fixed) {
+      std::snprintf(line, sizeof line, "  %-12s %14.6g %14s %9s\n", e.name.c_str(), e.estimate, "(fixed)", "");
+    } else {
+      std::snprintf(line, sizeof line, "  %-12s %14.6g %14.4g %9.3g\n", e.name.c_str(), e.estimate, e.se, e.rse_pct);
+    }
+    out << line;
+  }
+  if (!covariance_message.empty()) out << "  (no standard errors: " << covariance_message << ")\n";
+  if (correlation.size() > 0 && estimated.size() > 1) {
+    out << "\n  correlation\n";
+    for (size_t i = 0; i < estimated.size(); ++i) {
+      std::snprintf(line, sizeof line, "  %-12s", estimated[i].c_str());
+      out << line;
+      for (size_t j = 0; j <= i; ++j) {
+        std::snprintf(line, sizeof line, " %7.3f", correlation(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)));
+        out << line;
+      }
+      out << "\n";
+    }
+  }
+  out << "\n  samples " << num_samples << ", evaluations " << evaluations << ", best start " << best_start
+      << "\n  -2LL " << Num(minus2ll) << ", AIC " << Num(aic) << ", BIC " << Num(bic) << "\n";
+  return out.str();
+}
+
+}  // namespace pk
