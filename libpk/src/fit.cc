@@ -416,19 +416,20 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
       throw InputError("", 0, 0, "unknown parameter '" + p.name + "'; this model has " +
                                      internal::Join(objective.parameter_names(), ", "));
     }
-    base(i) = p.initial;
+    if (!std::isnan(p.initial)) base(i) = p.initial;  // NaN: the objective's default
     ParameterEstimate est;
     est.name = objective.parameter_names()[i];
-    est.estimate = p.initial;
+    const double initial = base(i);
+    est.estimate = initial;
     est.fixed = p.fixed;
     summary.estimates.push_back(est);
     if (p.fixed) continue;
-    if (!(p.lower < p.upper) || !(p.initial > p.lower) || !(p.initial < p.upper)) {
-      throw InputError("", 0, 0, "initial value of " + est.name + " (" + Num(p.initial) + ") must lie strictly within its bounds");
+    if (!(p.lower < p.upper) || !(initial > p.lower) || !(initial < p.upper)) {
+      throw InputError("", 0, 0, "initial value of " + est.name + " (" + Num(initial) + ") must lie strictly within its bounds");
     }
     Transform t;
     t.log = options.log_scale;
-    if (t.log && !(p.initial > 0)) {
+    if (t.log && !(initial > 0)) {
       throw InputError("", 0, 0, est.name + " is estimated on the log scale, so its initial value must be positive");
     }
     if (t.log) {

@@ -55,7 +55,7 @@ struct FitOptions {
 /// One parameter to estimate (or to hold fixed).
 struct ParameterSpec {
   std::string name;
-  double initial = 1;
+  double initial = 1;  ///< NaN: the objective's default (catalogue value, or σ from the data)
   bool fixed = false;
   double lower = -std::numeric_limits<double>::infinity();
   double upper = std::numeric_limits<double>::infinity();

@@ -1,0 +1,187 @@
+#include "fit_report.h"
+
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+#include <sys/stat.h>
+
+#include "pk/output.h"
+#include "pk/plot.h"
+
+namespace pk {
+namespace cli {
+namespace {
+
+std::string Csv(double v) { return std::isfinite(v) ? FormatNumber(v) : ""; }
+
+std::string Fmt(double v, const char* f = "%.4g") {
+  if (!std::isfinite(v)) return "–";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+
+std::string Status(const SubjectFit& f) {
+  if (!f.ok) return "failed";
+  switch (f.summary.termination) {
+    case TerminationType::kConvergence: return "converged";
+    case TerminationType::kNoConvergence: return "not converged";
+    case TerminationType::kFailure: return "failed";
+  }
+  return "?";
+}
+
+std::string Escape(const std::string& s) {
+  std::string out;
+  for (char c : s) {
+    if (c == '<') out += "&lt;";
+    else if (c == '>') out += "&gt;";
+    else if (c == '&') out += "&amp;";
+    else out += c;
+  }
+  return out;
+}
+
+std::string Quote(const std::string& s) {
+  if (s.find_first_of(",\"\n") == std::string::npos) return s;
+  std::string out = "\"";
+  for (char c : s) out += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return out + "\"";
+}
+
+std::string SubjectSvg(const SubjectFit& f, bool log) {
+  PlotSeries data{"observed", f.times, std::vector<double>(f.dv.data(), f.dv.data() + f.dv.size()), true};
+  PlotSeries curve{"fitted", f.curve_times, f.curve, false};
+  PlotOptions o;
+  o.title = "ID " + FormatNumber(f.id) + (f.ok ? "" : " (fit failed)");
+  o.log_y = log;
+  return RenderSvg({curve, data}, o);
+}
+
+}  // namespace
+
+std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
+  std::ostringstream out;
+  const SubjectFit* first = nullptr;
+  for (const SubjectFit& f : fits) {
+    if (f.ok) {
+      first = &f;
+      break;
+    }
+  }
+  char buf[128];
+  std::snprintf(buf, sizeof buf, "%-6s %5s %12s  %-13s", "ID", "NOBS", "OBJECTIVE", "STATUS");
+  out << buf;
+  if (first) {
+    for (const ParameterEstimate& e : first->summary.estimates) {
+      std::snprintf(buf, sizeof buf, " %20s", (e.name + (e.fixed ? " (fixed)" : " (RSE%)")).c_str());
+      out << buf;
+    }
+  }
+  out << "\n";
+  for (const SubjectFit& f : fits) {
+    std::snprintf(buf, sizeof buf, "%-6s %5d %12s  %-13s", FormatNumber(f.id).c_str(), static_cast<int>(f.dv.size()),
+                  f.ok ? Fmt(f.summary.objective, "%.6g").c_str() : "–", Status(f).c_str());
+    out << buf;
+    if (!f.ok) {
+      out << " " << f.error << "\n";
+      continue;
+    }
+    for (const ParameterEstimate& e : f.summary.estimates) {
+      const std::string cell = e.fixed ? Fmt(e.estimate) : Fmt(e.estimate) + " (" + Fmt(e.rse_pct, "%.3g") + ")";
+      std::snprintf(buf, sizeof buf, " %20s", cell.c_str());
+      out << buf;
+    }
+    out << "\n";
+  }
+  return out.str();
+}
+
+void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits, const ReportContext& context) {
+  ::mkdir(dir.c_str(), 0777);
+  struct stat st;
+  if (::stat(dir.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) throw std::runtime_error(dir + ": cannot create the output directory");
+
+  std::ostringstream est, sum, pred, det;
+  est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
+  sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS\n";
+  pred << "ID,TIME,DV,PRED,RES,WRES\n";
+  det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC\n";
+  for (const SubjectFit& f : fits) {
+    const std::string id = FormatNumber(f.id);
+    const FitSummary& s = f.summary;
+    det << id << "," << Quote(Status(f)) << "," << Quote(f.ok ? s.message : f.error) << "," << Csv(s.initial_objective)
+        << "," << s.evaluations << "," << s.best_start << "," << Csv(s.minus2ll) << "," << Csv(s.aic) << ","
+        << Csv(s.bic) << "\n";
+    sum << id << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations << ","
+        << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "\n";
+    if (!f.ok) continue;
+    for (const ParameterEstimate& e : s.estimates) {
+      est << id << "," << e.name << "," << Csv(e.estimate) << "," << (e.fixed ? "" : Csv(e.se)) << ","
+          << (e.fixed ? "" : Csv(e.rse_pct)) << "\n";
+    }
+    for (int k = 0; k < f.pred.size(); ++k) {
+      pred << id << "," << Csv(f.times[k]) << "," << Csv(f.dv(k)) << "," << Csv(f.pred(k)) << ","
+           << Csv(f.dv(k) - f.pred(k)) << "," << (k < f.wres.size() ? Csv(f.wres(k)) : "") << "\n";
+    }
+  }
+
+  // The report: a run header, the summary and estimates tables, and one section per subject.
+  std::ostringstream html;
+  html << "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>pkfit report</title>\n"
+       << "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse;margin:1em 0}"
+       << "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}th{background:#f3f3f3}"
+       << "td.l,th.l{text-align:left}.bad{color:#b00}</style></head><body>\n"
+       << "<h1>pkfit report</h1>\n<p>Model <b>" << Escape(context.model) << "</b>, data <code>" << Escape(context.data)
+       << "</code>.<br>Command: <code>" << Escape(context.command_line) << "</code></p>\n";
+  int failed = 0;
+  for (const SubjectFit& f : fits) failed += f.ok && f.summary.converged() ? 0 : 1;
+  html << "<p>" << fits.size() << " subjects, " << fits.size() - failed << " converged";
+  if (failed) html << ", <span class=\"bad\">" << failed << " failed or not converged</span>";
+  html << ".</p>\n<h2>Estimates</h2>\n<table><tr><th class=\"l\">ID</th><th>NOBS</th><th>objective</th><th class=\"l\">status</th>";
+  const SubjectFit* first = nullptr;
+  for (const SubjectFit& f : fits) {
+    if (f.ok && !first) first = &f;
+  }
+  if (first) {
+    for (const ParameterEstimate& e : first->summary.estimates) html << "<th>" << Escape(e.name) << " (RSE%)</th>";
+  }
+  html << "<th>-2LL</th><th>AIC</th><th>time (ms)</th></tr>\n";
+  for (const SubjectFit& f : fits) {
+    html << "<tr><td class=\"l\"><a href=\"#id" << FormatNumber(f.id) << "\">" << FormatNumber(f.id) << "</a></td><td>"
+         << f.dv.size() << "</td><td>" << (f.ok ? Fmt(f.summary.objective, "%.6g") : "–") << "</td><td class=\"l"
+         << (f.ok && f.summary.converged() ? "" : " bad") << "\">" << Status(f) << "</td>";
+    if (f.ok) {
+      for (const ParameterEstimate& e : f.summary.estimates) {
+        html << "<td>" << Fmt(e.estimate) << (e.fixed ? " (fixed)" : " (" + Fmt(e.rse_pct, "%.3g") + ")") << "</td>";
+      }
+      html << "<td>" << Fmt(f.summary.minus2ll) << "</td><td>" << Fmt(f.summary.aic) << "</td><td>"
+           << Fmt(f.summary.seconds * 1e3, "%.3g") << "</td>";
+    } else {
+      html << "<td class=\"l bad\" colspan=\"99\">" << Escape(f.error) << "</td>";
+    }
+    html << "</tr>\n";
+  }
+  html << "</table>\n<h2>Subjects</h2>\n";
+  for (const SubjectFit& f : fits) {
+    html << "<h3 id=\"id" << FormatNumber(f.id) << "\">ID " << FormatNumber(f.id) << "</h3>\n";
+    if (!f.ok) {
+      html << "<p class=\"bad\">" << Escape(f.error) << "</p>\n";
+      continue;
+    }
+    html << "<pre>" << Escape(f.summary.FullReport()) << "</pre>\n" << SubjectSvg(f, context.log_plots) << "\n";
+  }
+  html << "</body></html>\n";
+
+  WriteFileAtomically(dir + "/estimates.csv", est.str());
+  WriteFileAtomically(dir + "/summary.csv", sum.str());
+  WriteFileAtomically(dir + "/predictions.csv", pred.str());
+  WriteFileAtomically(dir + "/fit_details.csv", det.str());
+  for (const SubjectFit& f : fits) {
+    WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + ".svg", SubjectSvg(f, context.log_plots));
+  }
+  WriteFileAtomically(dir + "/report.html", html.str());
+}
+
+}  // namespace cli
+}  // namespace pk

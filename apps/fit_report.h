@@ -1,0 +1,30 @@
+// pkfit's output files (I/O only).
+#ifndef PK_APPS_FIT_REPORT_H_
+#define PK_APPS_FIT_REPORT_H_
+
+#include <string>
+#include <vector>
+
+#include "pk/fit_subjects.h"
+
+namespace pk {
+namespace cli {
+
+struct ReportContext {
+  std::string model;
+  std::string data;
+  std::string command_line;
+  bool log_plots = false;
+};
+
+/// Writes estimates.csv, summary.csv, predictions.csv, fit_details.csv, one
+/// SVG per subject and report.html into `dir` (each file whole or not at all).
+void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits, const ReportContext& context);
+
+/// The estimates as a fixed-width table for the terminal.
+std::string EstimatesTable(const std::vector<SubjectFit>& fits);
+
+}  // namespace cli
+}  // namespace pk
+
+#endif  // PK_APPS_FIT_REPORT_H_

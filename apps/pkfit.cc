@@ -1,0 +1,306 @@
+// pkfit: fit a compartment model to each subject of a NONMEM-style dataset.
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+#include <map>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <boost/program_options.hpp>
+
+#include "cli.h"
+#include "fit_report.h"
+#include "pk/catalogue.h"
+#include "pk/dataset.h"
+#include "pk/error.h"
+#include "pk/fit_subjects.h"
+#include "pk/output.h"
+
+namespace po = boost::program_options;
+
+namespace {
+
+const char* const kUsage =
+    "Usage: pkfit --model NAME --data FILE [options]\n"
+    "Fits each subject independently, by least squares (default) or maximum likelihood.\n\n"
+    "Examples:\n"
+    "  pkfit --model 1cmt_oral --data datasets/theophylline.csv\n"
+    "  pkfit --model 2cmt_iv --data datasets/indomethacin.csv --starts 8 --output-dir indo\n"
+    "  pkfit --model 1cmt_oral --data d.csv --init ALAG1=0.5 --error combined --optimizer newton\n"
+    "  pkfit --model 1cmt_oral --data d.csv --evaluate --init KA=1.2 --gradient adjoint\n";
+
+pk::GradientRoute ParseRoute(const std::string& s) {
+  if (s == "auto") return pk::GradientRoute::kAuto;
+  if (s == "forward") return pk::GradientRoute::kForward;
+  if (s == "adjoint") return pk::GradientRoute::kAdjoint;
+  if (s == "fd") return pk::GradientRoute::kFiniteDifference;
+  throw pk::InputError("", 0, 0, "--gradient: expected auto, forward, adjoint or fd, got '" + s + "'");
+}
+
+void ParseOptimizer(const std::string& s, pk::FitOptions* o) {
+  if (s == "lm") {
+    o->optimizer = pk::OptimizerType::kLevenbergMarquardt;
+  } else if (s == "bfgs") {
+    o->optimizer = pk::OptimizerType::kBfgs;
+  } else if (s == "newton") {
+    o->optimizer = pk::OptimizerType::kNewton;
+  } else if (s.rfind("nlopt:", 0) == 0) {
+    o->optimizer = pk::OptimizerType::kNlopt;
+    o->nlopt_algorithm = s.substr(6);
+  } else {
+    throw pk::InputError("", 0, 0, "--optimizer: expected lm, bfgs, newton or nlopt:NAME, got '" + s + "'");
+  }
+}
+
+void ParseWeighting(const std::string& s, pk::ObjectiveOptions* o) {
+  if (s == "uniform") {
+    o->weighting = pk::Weighting::kUniform;
+  } else if (s == "dv2") {
+    o->weighting = pk::Weighting::kInverseDvSquared;
+  } else if (s == "dv") {
+    o->weighting = pk::Weighting::kInverseDv;
+  } else if (s.rfind("column:", 0) == 0 && s.size() > 7) {
+    o->weighting = pk::Weighting::kColumn;
+    o->weight_column = s.substr(7);
+  } else {
+    throw pk::InputError("", 0, 0, "--weighting: expected uniform, dv2, dv or column:NAME, got '" + s + "'");
+  }
+}
+
+pk::ErrorModel ParseError(const std::string& s) {
+  if (s == "none" || s == "ls") return pk::ErrorModel::kLeastSquares;
+  if (s == "additive") return pk::ErrorModel::kAdditive;
+  if (s == "proportional") return pk::ErrorModel::kProportional;
+  if (s == "combined") return pk::ErrorModel::kCombined;
+  throw pk::InputError("", 0, 0, "--error: expected additive, proportional or combined, got '" + s + "'");
+}
+
+std::vector<pk::LogNormalPrior> ParsePriors(const std::vector<std::string>& items) {
+  std::vector<pk::LogNormalPrior> priors;
+  for (const std::string& item : items) {
+    const size_t eq = item.find('='), comma = item.find(',');
+    if (eq == std::string::npos || comma == std::string::npos || comma < eq) {
+      throw pk::InputError("", 0, 0, "--prior: expected NAME=MEDIAN,SD_LOG, got '" + item + "'");
+    }
+    const pk::ParameterValues v = pk::cli::ParseAssignments(
+        {"m=" + item.substr(eq + 1, comma - eq - 1), "s=" + item.substr(comma + 1)}, "--prior");
+    priors.push_back({item.substr(0, eq), v.at("m"), v.at("s")});
+  }
+  return priors;
+}
+
+std::string Upper(std::string s) {
+  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return s;
+}
+
+int Main(int argc, char** argv) {
+  po::options_description desc("Options");
+  std::vector<std::string> init, fix, lower, upper, params, priors, subject_ids;
+  desc.add_options()("help,h", "show this help")("model,m", po::value<std::string>(), "catalogue model")(
+      "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
+      "init", po::value<std::vector<std::string>>(&init)->composing(),
+      "NAME=VALUE: initial value; the parameter is estimated (also F1, ALAG1, R1, D1)")(
+      "fix", po::value<std::vector<std::string>>(&fix)->composing(), "NAME=VALUE: hold at this value")(
+      "param", po::value<std::vector<std::string>>(&params)->composing(), "same as --fix")(
+      "lower", po::value<std::vector<std::string>>(&lower)->composing(), "NAME=VALUE: lower bound")(
+      "upper", po::value<std::vector<std::string>>(&upper)->composing(), "NAME=VALUE: upper bound")(
+      "prior", po::value<std::vector<std::string>>(&priors)->composing(),
+      "NAME=MEDIAN,SD: log-normal prior (SD on the log scale)")(
+      "gradient", po::value<std::string>()->default_value("auto"), "auto, forward, adjoint or fd")(
+      "propagator", po::value<std::string>()->default_value("exact"), "exact (the Φ/Γ recursion)")(
+      "optimizer", po::value<std::string>()->default_value("lm"), "lm, bfgs, newton or nlopt:NAME")(
+      "weighting", po::value<std::string>()->default_value("uniform"), "uniform, dv2, dv or column:NAME")(
+      "error", po::value<std::string>(), "maximum likelihood: additive, proportional or combined")(
+      "subject", po::value<std::vector<std::string>>(&subject_ids)->composing(), "fit only this ID (repeatable)")(
+      "starts", po::value<int>()->default_value(1), "starts spread around the initial values; the best is kept")(
+      "jobs,j", po::value<int>()->default_value(0), "parallel fits (0 = all cores)")(
+      "max-iterations", po::value<int>()->default_value(1000), "iteration / evaluation limit")(
+      "linear-scale", "estimate on the natural scale instead of the log scale")(
+      "output-dir,o", po::value<std::string>()->default_value("pkfit_out"), "where the results go")(
+      "log", "logarithmic concentration axis in the plots")(
+      "evaluate", "no fit: print objective and gradient at the given values as CSV")(
+      "quiet,q", "no progress bar and no table on stdout");
+  po::variables_map vm;
+  po::store(po::parse_command_line(argc, argv, desc), vm);
+  po::notify(vm);
+  if (vm.count("help")) {
+    std::cout << kUsage << "\n" << desc << "\n";
+    return 0;
+  }
+  if (!vm.count("model") || !vm.count("data")) throw pk::InputError("", 0, 0, "--model and --data are required");
+  const std::string propagator = vm["propagator"].as<std::string>();
+  if (propagator != "exact") {
+    throw pk::InputError("", 0, 0, "--propagator: only 'exact' (the Φ/Γ recursion for linear models) is available");
+  }
+
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel(vm["model"].as<std::string>());
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(vm["data"].as<std::string>()));
+  req.objective.gradient = ParseRoute(vm["gradient"].as<std::string>());
+  ParseWeighting(vm["weighting"].as<std::string>(), &req.objective);
+  if (vm.count("error")) req.objective.error_model = ParseError(vm["error"].as<std::string>());
+  req.priors = ParsePriors(priors);
+  ParseOptimizer(vm["optimizer"].as<std::string>(), &req.fit);
+  req.fit.starts = vm["starts"].as<int>();
+  req.fit.max_iterations = vm["max-iterations"].as<int>();
+  req.fit.log_scale = vm.count("linear-scale") == 0;
+  req.jobs = vm["jobs"].as<int>();
+  std::string why;
+  if (!req.objective.IsValid(&why) || !req.fit.IsValid(&why)) throw pk::InputError("", 0, 0, why);
+  if (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt &&
+      req.objective.error_model != pk::ErrorModel::kLeastSquares && !vm["optimizer"].defaulted()) {
+    throw pk::InputError("", 0, 0, "--optimizer lm minimises a sum of squares; with --error use bfgs, newton or nlopt:NAME");
+  }
+  if (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt &&
+      req.objective.error_model != pk::ErrorModel::kLeastSquares) {
+    req.fit.optimizer = pk::OptimizerType::kNewton;  // the default optimiser for maximum likelihood
+  }
+
+  // Subjects.
+  if (!subject_ids.empty()) {
+    for (const std::string& text : subject_ids) {
+      const double id = pk::cli::ParseAssignments({"id=" + text}, "--subject").at("id");
+      bool found = false;
+      for (int i = 0; i < static_cast<int>(req.data->subjects.size()); ++i) {
+        if (req.data->subjects[i].id == id) {
+          req.subjects.push_back(i);
+          found = true;
+        }
+      }
+      if (!found) throw pk::InputError("", 0, 0, "--subject: no ID " + text + " in " + req.data->source);
+    }
+  }
+
+  // Parameters: every model parameter not supplied by a data column, plus σ for ML, plus --init.
+  const pk::Objective probe(req.model, req.data, req.subjects.empty() ? 0 : req.subjects[0], req.objective, req.priors);
+  const pk::ParameterValues inits = pk::cli::ParseAssignments(init, "--init");
+  pk::ParameterValues fixes = pk::cli::ParseAssignments(fix, "--fix");
+  for (const auto& kv : pk::cli::ParseAssignments(params, "--param")) fixes[kv.first] = kv.second;
+  const pk::ParameterValues lows = pk::cli::ParseAssignments(lower, "--lower");
+  const pk::ParameterValues highs = pk::cli::ParseAssignments(upper, "--upper");
+  for (const pk::ParameterValues* group : {&inits, static_cast<const pk::ParameterValues*>(&fixes), &lows, &highs}) {
+    for (const auto& kv : *group) {
+      if (probe.ParameterIndex(kv.first) < 0) {
+        std::string names;
+        for (const std::string& n : probe.parameter_names()) names += (names.empty() ? "" : ", ") + n;
+        throw pk::InputError("", 0, 0, "unknown parameter '" + kv.first + "'; this model has " + names);
+      }
+    }
+  }
+  std::map<std::string, pk::ParameterSpec> specs;
+  std::vector<std::string> order;
+  auto add = [&](const std::string& name) {
+    if (!specs.count(name)) {
+      pk::ParameterSpec s;
+      s.name = name;
+      s.initial = NAN;
+      specs[name] = s;
+      order.push_back(name);
+    }
+    return &specs[name];
+  };
+  for (int i = 0; i < req.model->num_parameters(); ++i) {
+    const std::string& name = probe.parameter_names()[i];
+    if (req.data->ExtraColumn(name) >= 0) continue;  // the data supplies it
+    add(name);
+  }
+  for (const char* name : {"SIGMA_ADD", "SIGMA_PROP"}) {
+    if (probe.ParameterIndex(name) >= 0) add(name);
+  }
+  for (const auto& kv : inits) add(Upper(kv.first))->initial = kv.second;
+  for (const auto& kv : fixes) {
+    pk::ParameterSpec* s = add(Upper(kv.first));
+    s->initial = kv.second;
+    s->fixed = true;
+  }
+  for (const auto& kv : lows) add(Upper(kv.first))->lower = kv.second;
+  for (const auto& kv : highs) add(Upper(kv.first))->upper = kv.second;
+  for (const std::string& name : order) req.parameters.push_back(specs[name]);
+
+  // Every selected subject must be usable with this model before anything runs.
+  std::vector<int> all = req.subjects;
+  if (all.empty()) {
+    for (int i = 0; i < static_cast<int>(req.data->subjects.size()); ++i) all.push_back(i);
+  }
+  for (int i : all) pk::Objective(req.model, req.data, i, req.objective, req.priors);
+
+  if (vm.count("evaluate")) {
+    std::ostringstream out;
+    out << "ID,PARAMETER,VALUE,OBJECTIVE,GRADIENT\n";
+    int failed = 0;
+    for (int i : all) {
+      const pk::Objective objective(req.model, req.data, i, req.objective, req.priors);
+      Eigen::VectorXd values = objective.DefaultValues();
+      std::vector<int> free;
+      for (const pk::ParameterSpec& s : req.parameters) {
+        const int k = objective.ParameterIndex(s.name);
+        if (!std::isnan(s.initial)) values(k) = s.initial;
+        free.push_back(k);
+      }
+      objective.CheckValues(values);
+      const auto ev = objective.Evaluate(values, free, pk::Objective::Need::kGradient);
+      const std::string id = pk::FormatNumber(objective.subject_id());
+      if (!ev.ok) {
+        ++failed;
+        std::cerr << "pkfit: ID " << id << ": evaluation failed: " << ev.message << "\n";
+        continue;
+      }
+      for (size_t k = 0; k < free.size(); ++k) {
+        out << id << "," << objective.parameter_names()[free[k]] << "," << pk::FormatNumber(values(free[k])) << ","
+            << pk::FormatNumber(ev.value) << "," << pk::FormatNumber(ev.gradient(static_cast<Eigen::Index>(k)))
+            << "\n";
+      }
+    }
+    std::cout << out.str();
+    return failed ? 1 : 0;
+  }
+
+  const bool quiet = vm.count("quiet") > 0;
+  const bool bar = !quiet && all.size() >= 8 && ::isatty(2);
+  auto progress = [&](int done, int total) {
+    if (!bar) return;
+    const int width = 30, filled = width * done / total;
+    std::fprintf(stderr, "\rfitting [%s%s] %d/%d", std::string(filled, '#').c_str(),
+                 std::string(width - filled, ' ').c_str(), done, total);
+    if (done == total) std::fprintf(stderr, "\n");
+  };
+  const std::vector<pk::SubjectFit> fits = pk::FitSubjects(req, progress);
+
+  pk::cli::ReportContext context;
+  context.model = req.model->name();
+  context.data = req.data->source;
+  for (int a = 0; a < argc; ++a) context.command_line += (a ? " " : "") + std::string(argv[a]);
+  context.log_plots = vm.count("log") > 0;
+  const std::string dir = vm["output-dir"].as<std::string>();
+  pk::cli::WriteFitOutputs(dir, fits, context);
+
+  int bad = 0;
+  for (const pk::SubjectFit& f : fits) {
+    if (!f.ok) {
+      ++bad;
+      std::cerr << "pkfit: ID " << pk::FormatNumber(f.id) << ": " << f.error << "\n";
+    } else if (!f.summary.converged()) {
+      ++bad;
+      std::cerr << "pkfit: ID " << pk::FormatNumber(f.id) << ": " << f.summary.message << "\n";
+    }
+  }
+  if (!quiet) {
+    std::cout << pk::cli::EstimatesTable(fits);
+    const std::string route = fits.empty() ? "" : fits.front().summary.gradient;
+    std::cout << "\npropagator exact, gradient " << route << ", optimizer " << fits.front().summary.optimizer
+              << "; results in " << dir << "/ (report.html, estimates.csv, summary.csv, predictions.csv)\n";
+  }
+  if (bad) std::cerr << "pkfit: " << bad << " of " << fits.size() << " subjects failed or did not converge\n";
+  return bad ? 1 : 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  return pk::cli::Run("pkfit", [&] { return Main(argc, argv); });
+}

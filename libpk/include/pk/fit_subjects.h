@@ -1,0 +1,55 @@
+// libpk: fitting every subject of a dataset independently, in parallel.
+#ifndef PK_FIT_SUBJECTS_H_
+#define PK_FIT_SUBJECTS_H_
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/fit.h"
+#include "pk/objective.h"
+
+namespace pk {
+
+struct SubjectFit {
+  double id = 0;
+  int subject = 0;             ///< index into Dataset::subjects
+  bool ok = false;             ///< the fit ran (it may still not have converged)
+  std::string error;           ///< why the subject could not be fitted, when !ok
+  FitSummary summary;
+  std::vector<double> times;   ///< sample times
+  Eigen::VectorXd dv;          ///< observations
+  Eigen::VectorXd pred;        ///< predictions at the estimate
+  /// Weighted residuals: least squares √W(DV − PRED)/σ̂ with σ̂² = 2V/(N − p);
+  /// maximum likelihood (DV − PRED)/σ_k.
+  Eigen::VectorXd wres;
+  /// The fitted curve on a fine grid (for plots): times and central concentrations.
+  std::vector<double> curve_times;
+  std::vector<double> curve;
+};
+
+/// Specification shared by all subjects.
+struct FitSubjectsRequest {
+  std::shared_ptr<const Model> model;
+  std::shared_ptr<const Dataset> data;
+  std::vector<int> subjects;           ///< indices into data->subjects; empty = all
+  ObjectiveOptions objective;
+  std::vector<LogNormalPrior> priors;
+  std::vector<ParameterSpec> parameters;  ///< an empty name list is not allowed
+  FitOptions fit;
+  int jobs = 0;                        ///< worker threads; 0 = all cores
+  int curve_points = 400;              ///< grid size of the fitted curve
+};
+
+/// Fits each subject on its own. A subject that cannot be fitted is reported
+/// in its SubjectFit; the others still run. `progress(done, total)` is called
+/// from the worker threads (serialised) as subjects finish.
+std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request,
+                                    const std::function<void(int, int)>& progress = nullptr);
+
+}  // namespace pk
+
+#endif  // PK_FIT_SUBJECTS_H_

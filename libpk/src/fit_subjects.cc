@@ -1,0 +1,93 @@
+#include "pk/fit_subjects.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <mutex>
+#include <thread>
+
+#include "pk/error.h"
+
+namespace pk {
+namespace {
+
+void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
+  out->subject = subject;
+  out->id = req.data->subjects[subject].id;
+  try {
+    const Objective objective(req.model, req.data, subject, req.objective, req.priors);
+    out->times = objective.sample_times();
+    out->dv = objective.observations();
+    if (objective.num_samples() == 0) {
+      out->error = "no samples (every observation has MDV=1 or no DV)";
+      return;
+    }
+    out->summary = Fit(objective, req.parameters, req.fit);
+    out->ok = true;
+    const Objective::Evaluation ev = objective.Evaluate(out->summary.values, {}, Objective::Need::kValue);
+    if (ev.ok) {
+      out->pred = ev.predictions;
+      const Eigen::VectorXd r = out->dv - out->pred;
+      const int n = objective.num_samples();
+      const int p = static_cast<int>(out->summary.estimated.size());
+      if (objective.options().error_model == ErrorModel::kLeastSquares) {
+        const double v = 0.5 * (objective.weights().array() * r.array().square()).sum();
+        const double sigma = n > p ? std::sqrt(2 * v / (n - p)) : NAN;
+        out->wres = (objective.weights().array().sqrt() * r.array() / sigma).matrix();
+      } else {
+        const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
+        const double a = ia >= 0 ? out->summary.values(ia) : 0, b = ip >= 0 ? out->summary.values(ip) : 0;
+        out->wres.resize(n);
+        for (int k = 0; k < n; ++k) out->wres(k) = r(k) / std::sqrt(a * a + b * b * out->pred(k) * out->pred(k));
+      }
+    }
+    // The fitted curve from the first record to a little past the last sample.
+    const auto& records = req.data->subjects[subject].records;
+    double t0 = records.front().time, t1 = t0;
+    for (const Record& rec : records) t1 = std::max(t1, rec.time);
+    if (t1 <= t0) t1 = t0 + 1;
+    const int m = std::max(2, req.curve_points);
+    for (int k = 0; k < m; ++k) out->curve_times.push_back(t0 + (t1 - t0) * k / (m - 1));
+    out->curve = objective.PredictAt(out->summary.values, out->curve_times);
+  } catch (const InputError& e) {
+    out->ok = false;
+    out->error = e.what();
+  } catch (const std::exception& e) {
+    out->ok = false;
+    out->error = std::string("unexpected error: ") + e.what();
+  }
+}
+
+}  // namespace
+
+std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request, const std::function<void(int, int)>& progress) {
+  std::vector<int> subjects = request.subjects;
+  if (subjects.empty()) {
+    for (int i = 0; i < static_cast<int>(request.data->subjects.size()); ++i) subjects.push_back(i);
+  }
+  std::vector<SubjectFit> out(subjects.size());
+  int jobs = request.jobs > 0 ? request.jobs : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  jobs = std::min<int>(jobs, static_cast<int>(subjects.size()));
+  std::atomic<int> next{0};
+  std::mutex mutex;
+  int done = 0;
+  auto worker = [&]() {
+    for (int k = next++; k < static_cast<int>(subjects.size()); k = next++) {
+      FitOne(request, subjects[k], &out[k]);
+      if (progress) {
+        std::lock_guard<std::mutex> lock(mutex);
+        progress(++done, static_cast<int>(subjects.size()));
+      }
+    }
+  };
+  if (jobs <= 1) {
+    worker();
+  } else {
+    std::vector<std::thread> threads;
+    for (int j = 0; j < jobs; ++j) threads.emplace_back(worker);
+    for (std::thread& t : threads) t.join();
+  }
+  return out;
+}
+
+}  // namespace pk
