@@ -46,6 +46,23 @@ bool FitOptions::IsValid(std::string* error) const {
   return true;
 }
 
+bool IsCompatible(const FitOptions& fit, const ObjectiveOptions& objective, std::string* why) {
+  if (objective.error_model != ErrorModel::kLeastSquares && fit.optimizer == OptimizerType::kLevenbergMarquardt) {
+    if (why) *why = "Levenberg-Marquardt minimises a sum of squares; for maximum likelihood use bfgs, newton or nlopt:NAME";
+    return false;
+  }
+  if (objective.gradient == GradientRoute::kAdjoint &&
+      (fit.optimizer == OptimizerType::kLevenbergMarquardt || fit.optimizer == OptimizerType::kNewton)) {
+    if (why) {
+      *why = std::string(ToString(fit.optimizer)) +
+             " needs the residual Jacobian, which the adjoint route does not give; use --gradient forward or fd, "
+             "or a gradient-only optimizer (bfgs, nlopt:NAME)";
+    }
+    return false;
+  }
+  return true;
+}
+
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -393,19 +410,7 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
                                                                  : ToString(options.optimizer);
   summary.num_samples = objective.num_samples();
   const bool ml = objective.options().error_model != ErrorModel::kLeastSquares;
-  if (ml && options.optimizer == OptimizerType::kLevenbergMarquardt) {
-    throw InputError("", 0, 0,
-                     "Levenberg-Marquardt minimises a sum of squares; for maximum likelihood use bfgs, newton or "
-                     "nlopt:NAME");
-  }
-  const GradientRoute route = objective.options().gradient;
-  if (route == GradientRoute::kAdjoint &&
-      (options.optimizer == OptimizerType::kLevenbergMarquardt || options.optimizer == OptimizerType::kNewton)) {
-    throw InputError("", 0, 0,
-                     std::string(ToString(options.optimizer)) +
-                         " needs the residual Jacobian, which the adjoint route does not give; use --gradient "
-                         "forward or fd, or a gradient-only optimizer (bfgs, nlopt:NAME)");
-  }
+  if (!IsCompatible(options, objective.options(), &why)) throw InputError("", 0, 0, why);
 
   Eigen::VectorXd base = objective.DefaultValues();
   std::vector<int> free;

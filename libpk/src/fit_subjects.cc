@@ -61,6 +61,11 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
 }  // namespace
 
 std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request, const std::function<void(int, int)>& progress) {
+  std::string why;
+  if (!request.objective.IsValid(&why) || !request.fit.IsValid(&why) ||
+      !IsCompatible(request.fit, request.objective, &why)) {
+    throw InputError("", 0, 0, why);
+  }
   std::vector<int> subjects = request.subjects;
   if (subjects.empty()) {
     for (int i = 0; i < static_cast<int>(request.data->subjects.size()); ++i) subjects.push_back(i);

@@ -108,6 +108,11 @@ struct FitSummary {
   std::string FullReport() const;
 };
 
+/// Whether an optimiser can work with an objective's settings: Levenberg–Marquardt
+/// needs least squares; LM and Newton need the residual Jacobian, which the
+/// adjoint route does not give. Sets `why` when not.
+bool IsCompatible(const FitOptions& fit, const ObjectiveOptions& objective, std::string* why);
+
 /// Fits `params` (names from objective.parameter_names()). Throws
 /// pk::InputError for an unknown parameter name, invalid options, or an
 /// initial value outside its bounds or not positive on the log scale.

@@ -44,7 +44,8 @@ struct FitSubjectsRequest {
   int curve_points = 400;              ///< grid size of the fitted curve
 };
 
-/// Fits each subject on its own. A subject that cannot be fitted is reported
+/// Fits each subject on its own. Invalid or incompatible options throw
+/// pk::InputError before anything runs. A subject that cannot be fitted is reported
 /// in its SubjectFit; the others still run. `progress(done, total)` is called
 /// from the worker threads (serialised) as subjects finish.
 std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request,

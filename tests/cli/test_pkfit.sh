@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Command-line tests of pkfit: outputs on bundled data, --evaluate, failures and error exits.
+set -uo pipefail
+pkfit=$1; root=$2; work=$3
+rm -rf "$work"; mkdir -p "$work"
+failures=0
+fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" -o "$work/theo" --jobs 2 >"$work/theo.txt" ||
+  fail "theophylline fit exited non-zero"
+for f in estimates.csv summary.csv predictions.csv fit_details.csv report.html fit_ID1.svg fit_ID12.svg; do
+  [ -s "$work/theo/$f" ] || fail "missing output $f"
+done
+head -1 "$work/theo/estimates.csv" | grep -qx "ID,PARAMETER,ESTIMATE,SE,RSE_PCT" || fail "estimates header"
+head -1 "$work/theo/summary.csv" | grep -qx "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS" ||
+  fail "summary header"
+head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES" || fail "predictions header"
+[ "$(tail -n +2 "$work/theo/estimates.csv" | wc -l)" -eq 36 ] || fail "expected 12 x 3 estimates"
+[ "$(tail -n +2 "$work/theo/predictions.csv" | wc -l)" -eq 132 ] || fail "expected 132 predictions"
+[ "$(awk -F, 'NR>1 && $5==1' "$work/theo/summary.csv" | wc -l)" -eq 12 ] || fail "all 12 fits should converge"
+# RES = DV - PRED on every row.
+awk -F, 'NR>1 { d = $3 - $4 - $5; if (d < 0) d = -d; if (d > 1e-9) bad = 1 } END { exit bad }' \
+  "$work/theo/predictions.csv" || fail "RES is not DV - PRED"
+grep -q "converged" "$work/theo.txt" || fail "no estimates table on stdout"
+
+# --evaluate: objective and gradient; the adjoint and forward routes print the same gradient.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --evaluate --subject 1 --init KA=1.2 \
+  --gradient adjoint >"$work/eval_adj.csv" || fail "--evaluate (adjoint) failed"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --evaluate --subject 1 --init KA=1.2 \
+  --gradient forward >"$work/eval_fwd.csv" || fail "--evaluate (forward) failed"
+head -1 "$work/eval_adj.csv" | grep -qx "ID,PARAMETER,VALUE,OBJECTIVE,GRADIENT" || fail "evaluate header"
+[ "$(tail -n +2 "$work/eval_adj.csv" | wc -l)" -eq 3 ] || fail "evaluate: expected 3 rows"
+grep -q "^1,KA,1.2," "$work/eval_adj.csv" || fail "evaluate did not use --init KA=1.2"
+paste -d, "$work/eval_adj.csv" "$work/eval_fwd.csv" | awk -F, 'NR>1 { d = $5 - $10; if (d < 0) d = -d;
+  s = $10 < 0 ? -$10 : $10; if (d > 1e-9 * (s + 1e-12)) bad = 1 } END { exit bad }' ||
+  fail "adjoint and forward gradients differ"
+
+# Maximum likelihood with an estimated lag, by Newton.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --subject 2 --error combined \
+  --init ALAG1=0.1 --optimizer newton -o "$work/ml" -q || fail "ML fit failed"
+grep -q "^1,SIGMA_PROP," "$work/ml/estimates.csv" || fail "ML estimates lack SIGMA_PROP"
+grep -q "^1,ALAG1," "$work/ml/estimates.csv" || fail "--init ALAG1 was not estimated"
+
+# A subject with too few samples fails; the others finish; exit code 1.
+printf 'ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,1,0,0,3\n1,2,0,0,2.2\n1,4,0,0,1.2\n1,8,0,0,0.4\n2,0,100,1,.\n2,1,0,0,3\n' \
+  >"$work/partial.csv"
+"$pkfit" --model 1cmt_iv --data "$work/partial.csv" -o "$work/partial" -q 2>"$work/partial.err"; rc=$?
+[ $rc -eq 1 ] || fail "a failed subject should exit 1, got $rc"
+grep -q "ID 2" "$work/partial.err" || fail "the failed subject is not named"
+grep -q "^1,CL," "$work/partial/estimates.csv" || fail "the good subject's estimates are missing"
+
+# Bad input exits 2 with file:line:column.
+printf 'ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,1,0,0,abc\n' >"$work/bad.csv"
+msg=$("$pkfit" --model 1cmt_iv --data "$work/bad.csv" -o "$work/never" 2>&1); rc=$?
+[ $rc -eq 2 ] || fail "bad data exited $rc"
+echo "$msg" | grep -q "bad.csv:3:5: column DV: 'abc' is not a number" || fail "message was: $msg"
+[ ! -e "$work/never" ] || fail "output written despite bad input"
+"$pkfit" --model 1cmt_iv --data "$root/datasets/indomethacin.csv" --init KX=1 >/dev/null 2>&1
+[ $? -eq 2 ] || fail "unknown parameter should exit 2"
+"$pkfit" --model 1cmt_iv --data "$root/datasets/indomethacin.csv" --optimizer lm --gradient adjoint -o "$work/x" \
+  >/dev/null 2>&1; [ $? -eq 2 ] || fail "lm with the adjoint route should exit 2"
+"$pkfit" --model 1cmt_iv --data "$root/datasets/indomethacin.csv" --propagator ode >/dev/null 2>&1
+[ $? -eq 2 ] || fail "an unavailable propagator should exit 2"
+
+if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi
