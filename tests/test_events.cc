@@ -44,7 +44,7 @@ void CheckSame(const pk::SubjectSimulation& a, const pk::SubjectSimulation& b, d
   REQUIRE(b.ok);
   REQUIRE(a.rows.size() == b.rows.size());
   for (size_t i = 0; i < a.rows.size(); ++i) {
-    INFO("row " << i << " time " << a.rows[i].time);
+    INFO("row " << i << " time " << a.rows[i].time << " amounts " << a.rows[i].amounts.transpose() << " vs " << b.rows[i].amounts.transpose());
     for (int c = 0; c < a.rows[i].amounts.size(); ++c) {
       CHECK(RelDiff(a.rows[i].amounts(c), b.rows[i].amounts(c), 1e-9) < tol);
     }

@@ -19,17 +19,22 @@
 namespace pk {
 namespace internal {
 
+/// Most derivatives a Dual carries. They are stored inline (no heap
+/// allocation per operation, which dominated the gradient's cost).
+constexpr int kMaxDualDerivatives = 64;
+using DualDerivatives = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxDualDerivatives, 1>;
+
 class Dual {
  public:
   Dual() = default;
   Dual(double value) : v_(value) {}  // NOLINT: constants convert implicitly
-  /// The independent variable number `i` of `n`.
-  Dual(double value, int n, int i) : v_(value), d_(Eigen::VectorXd::Unit(n, i)) {}
-  Dual(double value, Eigen::VectorXd d) : v_(value), d_(std::move(d)) {}
+  /// The independent variable number `i` of `n` (n ≤ kMaxDualDerivatives).
+  Dual(double value, int n, int i) : v_(value), d_(DualDerivatives::Unit(n, i)) {}
+  Dual(double value, const DualDerivatives& d) : v_(value), d_(d) {}
 
   double value() const { return v_; }
   /// Empty when the value is a constant.
-  const Eigen::VectorXd& derivatives() const { return d_; }
+  const DualDerivatives& derivatives() const { return d_; }
 
   Dual& operator+=(const Dual& o) {
     Axpy(1.0, o.d_);
@@ -56,7 +61,7 @@ class Dual {
     v_ = q;
     return *this;
   }
-  Dual operator-() const { return Dual(-v_, d_.size() ? Eigen::VectorXd(-d_) : Eigen::VectorXd()); }
+  Dual operator-() const { return Dual(-v_, DualDerivatives(-d_)); }
 
   friend Dual operator+(Dual a, const Dual& b) { return a += b; }
   friend Dual operator-(Dual a, const Dual& b) { return a -= b; }
@@ -64,7 +69,7 @@ class Dual {
   friend Dual operator/(Dual a, const Dual& b) { return a /= b; }
 
  private:
-  void Axpy(double a, const Eigen::VectorXd& x) {
+  void Axpy(double a, const DualDerivatives& x) {
     if (x.size() == 0 || a == 0) return;
     if (d_.size() == 0) {
       d_ = a * x;
@@ -74,7 +79,7 @@ class Dual {
   }
 
   double v_ = 0;
-  Eigen::VectorXd d_;
+  DualDerivatives d_;
 };
 
 }  // namespace internal

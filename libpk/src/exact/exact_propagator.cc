@@ -3,7 +3,6 @@
 #include <cmath>
 
 #include <Eigen/LU>
-#include <unsupported/Eigen/MatrixFunctions>
 
 namespace pk {
 namespace internal {
@@ -19,30 +18,16 @@ ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eig
     Eigen::MatrixXd a = Eigen::MatrixXd::Zero(big_n, big_n);
     a.topLeftCorner(n_, n_) = model.SystemMatrix<double>(theta);
     if (track_auc) a.row(n_).head(n_) = model.OutputRow<double>(model.central_compartment(), theta);
-    cache_[s].a = a;
+    if (!a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
+    cache_[s].reset(new Discretization(a, n_, {}));
   }
   x_ = Eigen::VectorXd::Zero(big_n);
 }
 
-const ExactPropagator::Discretization& ExactPropagator::Get(int set, double h) {
-  SetCache& c = cache_[set];
-  auto it = c.by_h.find(h);
-  if (it != c.by_h.end()) return it->second;
-  const int big_n = static_cast<int>(c.a.rows());
-  // Van Loan: exp([[A, B],[0, 0]] h) = [[Φ, Γ],[0, I]], with B = [I; 0].
-  Eigen::MatrixXd m = Eigen::MatrixXd::Zero(big_n + n_, big_n + n_);
-  m.topLeftCorner(big_n, big_n) = c.a * h;
-  m.block(0, big_n, n_, n_) = Eigen::MatrixXd::Identity(n_, n_) * h;
-  const Eigen::MatrixXd e = m.exp();
-  ++exponentials_;
-  if (!e.allFinite()) throw NumericalFailure("the matrix exponential overflowed (h = " + std::to_string(h) + ")");
-  Discretization d{e.topLeftCorner(big_n, big_n), e.topRightCorner(big_n, n_)};
-  return c.by_h.emplace(h, std::move(d)).first->second;
-}
-
 void ExactPropagator::Advance(double h, const Eigen::VectorXd& rate, int set) {
-  const Discretization& d = Get(set, h);
-  x_ = d.phi * x_ + d.gamma * rate;
+  const Discretization::Step& d = Get(set, h, rate);
+  x_ = d.phi * x_;
+  if (d.gamma.size()) x_ += d.gamma * rate;
 }
 
 void ExactPropagator::Bolus(int cmt, double amount, int /*set*/) { x_(cmt) += amount; }
@@ -55,10 +40,11 @@ void ExactPropagator::SteadyState(const SteadyStateCycle<double>& cycle, int set
   Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n_, n_);
   Eigen::VectorXd w = Eigen::VectorXd::Zero(n_);
   for (const Segment<double>& seg : cycle.period) {
-    const Discretization& d = Get(set, seg.duration);
+    const Discretization::Step& d = Get(set, seg.duration, seg.rate);
     const Eigen::MatrixXd phi = d.phi.topLeftCorner(n_, n_);
     m = phi * m;
-    w = phi * w + d.gamma.topRows(n_) * seg.rate;
+    w = phi * w;
+    if (d.gamma.size()) w += d.gamma.topRows(n_) * seg.rate;
   }
   Eigen::VectorXd b = Eigen::VectorXd::Zero(n_);
   b(cycle.cmt) = cycle.bolus;
@@ -70,8 +56,9 @@ void ExactPropagator::SteadyState(const SteadyStateCycle<double>& cycle, int set
   }
   Eigen::VectorXd z = lu.solve(m * b + w) + b;
   for (const Segment<double>& seg : cycle.to_record) {
-    const Discretization& d = Get(set, seg.duration);
-    z = d.phi.topLeftCorner(n_, n_) * z + d.gamma.topRows(n_) * seg.rate;
+    const Discretization::Step& d = Get(set, seg.duration, seg.rate);
+    z = d.phi.topLeftCorner(n_, n_) * z;
+    if (d.gamma.size()) z += d.gamma.topRows(n_) * seg.rate;
   }
   if (add) {
     x_.head(n_) += z;
@@ -82,7 +69,7 @@ void ExactPropagator::SteadyState(const SteadyStateCycle<double>& cycle, int set
 
 void ExactPropagator::SteadyInfusion(const Eigen::VectorXd& rate, int set, bool add) {
   // Constant rates u: 0 = A x + u.
-  const Eigen::MatrixXd a = cache_[set].a.topLeftCorner(n_, n_);
+  const Eigen::MatrixXd a = cache_[set]->A().topLeftCorner(n_, n_);
   const Eigen::PartialPivLU<Eigen::MatrixXd> lu(a);
   if (!(lu.rcond() > 1e-13)) {
     throw NumericalFailure("no steady state for a constant infusion: some compartment has no elimination");

@@ -2,22 +2,23 @@
 //
 // Between event and output times the input is constant, so
 //   x(t+h) = Φ(h) x(t) + Γ(h) u,   Φ(h) = e^{Ah},   Γ(h) = ∫₀ʰ e^{As} ds.
-// Both come from one exponential of Van Loan's augmented matrix
-//   exp([[A, I],[0, 0]] h) = [[Φ, Γ],[0, I]],
-// which, unlike Γ = A⁻¹(Φ − I), also holds for singular A. With AUC tracking
-// the state gains an integral row, d(AUC)/dt = c(θ)ᵀx, so A is singular by
-// construction. Φ and Γ are cached per (parameter set, h): repeated dosing
-// intervals cost one exponential.
+// Both come from the eigendecomposition of A or from one exponential of Van
+// Loan's augmented matrix exp([[A, I],[0, 0]] h) = [[Φ, Γ],[0, I]] (see
+// discretization.h); unlike Γ = A⁻¹(Φ − I), both hold for singular A. With AUC
+// tracking the state gains an integral row, d(AUC)/dt = c(θ)ᵀx, so A is
+// singular by construction. Φ and Γ are cached per (parameter set, h):
+// repeated dosing intervals cost one evaluation.
 #ifndef PK_SRC_EXACT_EXACT_PROPAGATOR_H_
 #define PK_SRC_EXACT_EXACT_PROPAGATOR_H_
 
 #include <stdexcept>
-#include <unordered_map>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "../events.h"
+#include "discretization.h"
 #include "pk/linear_model.h"
 
 namespace pk {
@@ -44,26 +45,18 @@ class ExactPropagator {
   /// Amounts (first n entries) and, with AUC tracking, the AUC last.
   const Eigen::VectorXd& state() const { return x_; }
   double auc() const { return track_auc_ ? x_(n_) : 0.0; }
-  /// Number of matrix exponentials computed so far (cache misses).
-  long exponentials() const { return exponentials_; }
 
  private:
-  struct Discretization {
-    Eigen::MatrixXd phi;    // N×N, N = n (+1 with AUC)
-    Eigen::MatrixXd gamma;  // N×n
-  };
-  struct SetCache {
-    Eigen::MatrixXd a;  // N×N, augmented with the AUC row
-    std::unordered_map<double, Discretization> by_h;
-  };
-  const Discretization& Get(int set, double h);
+  // Per parameter set: A (augmented with the AUC row, N = n + 1) and its steps.
+  const Discretization::Step& Get(int set, double h, const Eigen::VectorXd& rate) {
+    return cache_[set]->Get(h, !rate.isZero(0.0));
+  }
 
   const LinearModel& model_;
   const int n_;
   const bool track_auc_;
-  std::vector<SetCache> cache_;
+  std::vector<std::unique_ptr<Discretization>> cache_;
   Eigen::VectorXd x_;
-  long exponentials_ = 0;
 };
 
 }  // namespace internal

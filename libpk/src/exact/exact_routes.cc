@@ -57,9 +57,11 @@ class ForwardVisitor {
     b(cycle.cmt) = cycle.bolus.value();
     Eigen::VectorXd pb = b;  // P(0) = M b + w
     for (const Segment<Dual>& seg : cycle.period) {
-      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value());
+      const Eigen::VectorXd u = Values(seg.rate);
+      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value(), !u.isZero(0.0));
       m = st.phi * m;
-      pb = st.phi * pb + st.gamma * Values(seg.rate);
+      pb = st.phi * pb;
+      if (st.gamma.size()) pb += st.gamma * u;
     }
     const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n, n) - m);
     if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state: the dosing-interval map has an eigenvalue at 1");
@@ -122,14 +124,22 @@ class ForwardVisitor {
   void Propagate(int set, double h, const Eigen::VectorXd& u, const Eigen::MatrixXd& du, const Eigen::VectorXd& dh,
                  Eigen::VectorXd* x, Eigen::MatrixXd* sens) {
     if (h == 0 && dh.isZero(0.0)) return;
-    const LinearDerivatives::Step& st = sys_.Get(set, h);
-    Eigen::VectorXd xn = st.phi * *x + st.gamma * u;
-    Eigen::MatrixXd sn = st.phi * *sens + st.gamma * du;
+    const bool input = !u.isZero(0.0) || !du.isZero(0.0);
+    const LinearDerivatives::Step& st = sys_.Get(set, h, input);
+    Eigen::VectorXd xn = st.phi * *x;
+    Eigen::MatrixXd sn = st.phi * *sens;
+    if (input) {
+      xn += st.gamma * u;
+      sn += st.gamma * du;
+    }
     const std::vector<int>& active = sys_.active(set);
     if (!active.empty()) {
-      const LinearDerivatives::StepSensitivity& ss = sys_.GetSensitivity(set, h);
+      const bool with_gamma = !u.isZero(0.0);
+      const LinearDerivatives::StepSensitivity& ss = sys_.GetSensitivity(set, h, with_gamma);
       for (size_t a = 0; a < active.size(); ++a) {
-        sn += (ss.dphi[a] * *x + ss.dgamma[a] * u) * sys_.dtheta(set).row(active[a]);
+        Eigen::VectorXd d = ss.dphi[a] * *x;
+        if (with_gamma) d += ss.dgamma[a] * u;
+        sn += d * sys_.dtheta(set).row(active[a]);
       }
     }
     if (!dh.isZero(0.0)) sn += (sys_.A(set) * xn + u) * dh.transpose();
@@ -240,9 +250,11 @@ class AdjointRecorder {
     b(cycle.cmt) = cycle.bolus.value();
     Eigen::VectorXd pb = b;
     for (const Segment<Dual>& seg : cycle.period) {
-      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value());
+      const Eigen::VectorXd u = Values(seg.rate);
+      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value(), !u.isZero(0.0));
       m = st.phi * m;
-      pb = st.phi * pb + st.gamma * Values(seg.rate);
+      pb = st.phi * pb;
+      if (st.gamma.size()) pb += st.gamma * u;
     }
     const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n, n) - m);
     if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state: the dosing-interval map has an eigenvalue at 1");
@@ -296,8 +308,10 @@ class AdjointRecorder {
     t.du = DerivativeMatrix(u, p_);
     t.x_before = *x;
     if (t.h != 0) {
-      const LinearDerivatives::Step& st = sys_.Get(set, t.h);
-      *x = st.phi * *x + st.gamma * t.u;
+      const bool input = !t.u.isZero(0.0);
+      const LinearDerivatives::Step& st = sys_.Get(set, t.h, input);
+      *x = st.phi * *x;
+      if (input) *x += st.gamma * t.u;
     }
     t.x_after = *x;
     return t;
@@ -335,8 +349,9 @@ struct DiscreteAdjoint::Impl {
     const Eigen::VectorXd& lam = *lambda;
     if (!t.dh.isZero(0.0)) grad += lam.dot(sys.A(t.set) * t.x_after + t.u) * t.dh;
     if (t.h == 0) return;
-    const LinearDerivatives::Step& st = sys.Get(t.set, t.h);
-    if (!t.du.isZero(0.0)) grad += t.du.transpose() * (st.gamma.transpose() * lam);
+    const bool input = !t.du.isZero(0.0);
+    const LinearDerivatives::Step& st = sys.Get(t.set, t.h, input);
+    if (input) grad += t.du.transpose() * (st.gamma.transpose() * lam);
     sys.AccumulateFrechet(t.set, t.h, lam, t.x_before, t.u);
     *lambda = st.phi.transpose() * lam;
   }

@@ -1,7 +1,5 @@
 #include "linear_derivatives.h"
 
-#include <unsupported/Eigen/MatrixFunctions>
-
 #include "exact_propagator.h"
 
 namespace pk {
@@ -34,6 +32,9 @@ LinearDerivatives::LinearDerivatives(const LinearModel& model, const std::vector
       }
     }
     if (!d.a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
+    std::vector<Eigen::MatrixXd> active_da;
+    for (int j : d.active) active_da.push_back(d.da[j]);
+    d.disc.reset(new Discretization(d.a, n_, std::move(active_da)));
   }
 }
 
@@ -59,73 +60,23 @@ const Eigen::MatrixXd& LinearDerivatives::dCdp(int set, int cmt) {
   return d.outputs.emplace(cmt, std::make_pair(value, dc_dp)).first->second.second;
 }
 
-const LinearDerivatives::Step& LinearDerivatives::Get(int set, double h) {
-  SetData& d = sets_[set];
-  auto it = d.steps.find(h);
-  if (it != d.steps.end()) return it->second;
-  Eigen::MatrixXd m = Eigen::MatrixXd::Zero(2 * n_, 2 * n_);
-  m.topLeftCorner(n_, n_) = d.a * h;
-  m.topRightCorner(n_, n_).setIdentity();
-  m.topRightCorner(n_, n_) *= h;
-  const Eigen::MatrixXd e = m.exp();
-  ++exponentials_;
-  if (!e.allFinite()) throw NumericalFailure("the matrix exponential overflowed");
-  return d.steps.emplace(h, Step{e.topLeftCorner(n_, n_), e.topRightCorner(n_, n_)}).first->second;
-}
-
-const LinearDerivatives::StepSensitivity& LinearDerivatives::GetSensitivity(int set, double h) {
-  SetData& d = sets_[set];
-  auto it = d.sens.find(h);
-  if (it != d.sens.end()) return it->second;
-  // exp([[Mh, 0],[M_j h, Mh]]): the lower-left block is ∂exp(Mh)/∂θ_j (seed 5.4/5.7).
-  const int k = 2 * n_;
-  Eigen::MatrixXd big = Eigen::MatrixXd::Zero(2 * k, 2 * k);
-  big.topLeftCorner(n_, n_) = d.a * h;
-  big.block(0, n_, n_, n_) = Eigen::MatrixXd::Identity(n_, n_) * h;
-  big.bottomRightCorner(k, k) = big.topLeftCorner(k, k);
-  StepSensitivity s;
-  for (int j : d.active) {
-    big.block(k, 0, n_, n_) = d.da[j] * h;
-    const Eigen::MatrixXd e = big.exp();
-    ++exponentials_;
-    s.dphi.push_back(e.block(k, 0, n_, n_));
-    s.dgamma.push_back(e.block(k, n_, n_, n_));
-  }
-  return d.sens.emplace(h, std::move(s)).first->second;
+long LinearDerivatives::exponentials() const {
+  long n = 0;
+  for (const SetData& d : sets_) n += d.disc->exponentials();
+  return n;
 }
 
 void LinearDerivatives::AccumulateFrechet(int set, double h, const Eigen::VectorXd& lambda_after,
                                           const Eigen::VectorXd& x_before, const Eigen::VectorXd& u) {
-  SetData& d = sets_[set];
-  if (d.active.empty()) return;
-  auto it = d.frechet.find(h);
-  if (it == d.frechet.end()) it = d.frechet.emplace(h, Eigen::MatrixXd::Zero(2 * n_, 2 * n_)).first;
-  // Only the top block rows of λ̃ = [λ; 0] are non-zero.
-  it->second.topLeftCorner(n_, n_).noalias() += lambda_after * x_before.transpose();
-  it->second.topRightCorner(n_, n_).noalias() += lambda_after * u.transpose();
+  sets_[set].disc->AccumulateAdjoint(h, lambda_after, x_before, u);
 }
 
 void LinearDerivatives::FinishAdjoint(const std::vector<Eigen::VectorXd>& theta_grad, Eigen::VectorXd* grad) {
   for (size_t s = 0; s < sets_.size(); ++s) {
     SetData& d = sets_[s];
     Eigen::VectorXd g = theta_grad[s];
-    const int k = 2 * n_;
-    for (const auto& entry : d.frechet) {
-      const double h = entry.first;
-      // L(hMᵀ, W) is the upper-right block of exp([[hMᵀ, W],[0, hMᵀ]]).
-      Eigen::MatrixXd mt = Eigen::MatrixXd::Zero(k, k);
-      mt.topLeftCorner(n_, n_) = d.a.transpose() * h;
-      mt.bottomLeftCorner(n_, n_) = Eigen::MatrixXd::Identity(n_, n_) * h;
-      Eigen::MatrixXd big = Eigen::MatrixXd::Zero(2 * k, 2 * k);
-      big.topLeftCorner(k, k) = mt;
-      big.bottomRightCorner(k, k) = mt;
-      big.topRightCorner(k, k) = entry.second;
-      const Eigen::MatrixXd e = big.exp();
-      ++exponentials_;
-      const Eigen::MatrixXd l11 = e.topRightCorner(k, k).topLeftCorner(n_, n_);
-      for (int j : d.active) g(j) += h * (l11.cwiseProduct(d.da[j])).sum();
-    }
-    d.frechet.clear();
+    const Eigen::VectorXd g_active = d.disc->FinishAdjoint();
+    for (size_t a = 0; a < d.active.size(); ++a) g(d.active[a]) += g_active(static_cast<Eigen::Index>(a));
     *grad += d.dtheta.transpose() * g;
   }
 }

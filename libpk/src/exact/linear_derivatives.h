@@ -9,20 +9,22 @@
 //   ∂Φ/∂θ_j, ∂Γ/∂θ_j  from the lower-left block of exp([[M, 0],[M_j, M]] h),
 //                   M = [[A, I],[0, 0]], M_j = [[∂A/∂θ_j, 0],[0, 0]]   (seed 5.4/5.7)
 //
-// and, for the discrete adjoint, accumulates W = Σ λ̃ x̃ᵀ over all steps with
-// the same (set, h), so that one Fréchet derivative L(hMᵀ, W) per distinct
-// interval gives the gradient with respect to every θ_j:
-//   Σ λ̃ᵀ ∂exp(Mh)/∂θ_j x̃ = h ⟨L(hMᵀ, W), M_j⟩.
+// and, for the discrete adjoint, accumulates the steps so that the gradient
+// with respect to every θ_j costs one pass per set (see discretization.h for
+// the two exact paths: eigendecomposition, or block exponentials with one
+// Fréchet derivative L(hMᵀ, Σλ̃x̃ᵀ) per distinct interval).
 #ifndef PK_SRC_EXACT_LINEAR_DERIVATIVES_H_
 #define PK_SRC_EXACT_LINEAR_DERIVATIVES_H_
 
 #include <map>
+#include <memory>
 #include <utility>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "../autodiff.h"
+#include "discretization.h"
 #include "pk/linear_model.h"
 
 namespace pk {
@@ -30,14 +32,9 @@ namespace internal {
 
 class LinearDerivatives {
  public:
-  struct Step {
-    Eigen::MatrixXd phi;
-    Eigen::MatrixXd gamma;
-  };
-  struct StepSensitivity {
-    std::vector<Eigen::MatrixXd> dphi;    // one per active(set) entry
-    std::vector<Eigen::MatrixXd> dgamma;
-  };
+  using Step = Discretization::Step;
+  /// dphi/dgamma have one entry per active(set) parameter.
+  using StepSensitivity = Discretization::Sensitivity;
 
   LinearDerivatives(const LinearModel& model, const std::vector<DualVector>& sets, int num_free);
 
@@ -54,8 +51,12 @@ class LinearDerivatives {
   const Eigen::RowVectorXd& C(int set, int cmt);
   const Eigen::MatrixXd& dCdp(int set, int cmt);
 
-  const Step& Get(int set, double h);
-  const StepSensitivity& GetSensitivity(int set, double h);
+  /// Φ(h) and Γ(h); Γ is left empty when `with_gamma` is false.
+  const Step& Get(int set, double h, bool with_gamma) { return sets_[set].disc->Get(h, with_gamma); }
+  /// ∂Φ/∂θ_j (and ∂Γ/∂θ_j when `with_gamma`) for the active j of the set.
+  const StepSensitivity& GetSensitivity(int set, double h, bool with_gamma) {
+    return sets_[set].disc->GetSensitivity(h, with_gamma);
+  }
 
   /// Adds the outer product [λ; 0][x; u]ᵀ of one step to the (set, h) accumulator.
   void AccumulateFrechet(int set, double h, const Eigen::VectorXd& lambda_after, const Eigen::VectorXd& x_before,
@@ -64,7 +65,7 @@ class LinearDerivatives {
   void FinishAdjoint(const std::vector<Eigen::VectorXd>& theta_grad, Eigen::VectorXd* grad);
 
   /// Number of matrix exponentials computed (for benchmarks).
-  long exponentials() const { return exponentials_; }
+  long exponentials() const;
 
  private:
   struct SetData {
@@ -73,9 +74,7 @@ class LinearDerivatives {
     Eigen::MatrixXd dtheta;
     std::vector<int> active;
     Eigen::VectorXd theta;
-    std::map<double, Step> steps;
-    std::map<double, StepSensitivity> sens;
-    std::map<double, Eigen::MatrixXd> frechet;  // W accumulators
+    std::unique_ptr<Discretization> disc;
     std::map<int, std::pair<Eigen::RowVectorXd, Eigen::MatrixXd>> outputs;
   };
   const LinearModel& model_;
@@ -83,7 +82,6 @@ class LinearDerivatives {
   int m_;
   int p_;
   std::vector<SetData> sets_;
-  long exponentials_ = 0;
 };
 
 }  // namespace internal

@@ -1,0 +1,169 @@
+// pkbench: costs measured in one run and reported as ratios (docs/performance.md).
+//
+//   1. 2cmt_oral, one oral dose, 12 samples: the loss alone, loss + gradient by
+//      the forward (a) and adjoint (b) Φ/Γ routes, against a closed-form loss
+//      (the biexponential-with-absorption formula, hand-coded here).
+//   2. The gradient/loss cost ratio against the number of parameters m on a
+//      mammillary model with K peripheral compartments (m = 2K + 2).
+//   3. Fitting the 12 theophylline subjects (1cmt_oral, LM), per subject and in total.
+//
+// Timing: each case is repeated until it has run for at least --min-time
+// seconds; the median of 5 such batches is reported.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <functional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "pk/catalogue.h"
+#include "pk/fit_subjects.h"
+#include "pk/linear_model.h"
+#include "pk/objective.h"
+
+namespace {
+
+double g_min_time = 0.05;
+
+double SecondsPerCall(const std::function<void()>& f) {
+  using Clock = std::chrono::steady_clock;
+  std::vector<double> batches;
+  long reps = 1;
+  for (int b = 0; b < 5; ++b) {
+    for (;;) {
+      const auto t0 = Clock::now();
+      for (long r = 0; r < reps; ++r) f();
+      const double dt = std::chrono::duration<double>(Clock::now() - t0).count();
+      if (dt >= g_min_time) {
+        batches.push_back(dt / reps);
+        break;
+      }
+      reps = std::max(reps * 2, static_cast<long>(reps * g_min_time / std::max(dt, 1e-9)));
+    }
+  }
+  std::sort(batches.begin(), batches.end());
+  return batches[2];
+}
+
+volatile double g_sink = 0;
+
+const double kTimes[12] = {0.25, 0.5, 1, 1.5, 2, 3, 4, 6, 8, 12, 16, 24};
+
+std::shared_ptr<pk::Dataset> OneDose(const std::string& cmt_dose, double amt) {
+  std::ostringstream csv;
+  csv.precision(17);
+  csv << "ID,TIME,AMT,EVID,CMT,DV\n1,0," << amt << ",1," << cmt_dose << ",.\n";
+  for (int k = 0; k < 12; ++k) csv << "1," << kTimes[k] << ",0,0,0," << 5 * std::exp(-0.1 * kTimes[k]) + 0.3 << "\n";
+  return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), "bench"));
+}
+
+// The closed-form 2cmt oral concentration and the least-squares loss over the same samples.
+double ClosedFormLoss(const double* p, const double* y) {
+  const double ka = p[0], cl = p[1], v1 = p[2], q = p[3], v2 = p[4], dose = 100;
+  const double k10 = cl / v1, k12 = q / v1, k21 = q / v2;
+  const double s = k10 + k12 + k21, disc = std::sqrt(s * s - 4 * k10 * k21);
+  const double a = (s + disc) / 2, b = (s - disc) / 2;
+  const double ca = ka * dose / v1 * (k21 - a) / ((ka - a) * (b - a));
+  const double cb = ka * dose / v1 * (k21 - b) / ((ka - b) * (a - b));
+  const double cka = -(ca + cb);
+  double v = 0;
+  for (int k = 0; k < 12; ++k) {
+    const double t = kTimes[k];
+    const double c = ca * std::exp(-a * t) + cb * std::exp(-b * t) + cka * std::exp(-ka * t);
+    v += 0.5 * (y[k] - c) * (y[k] - c);
+  }
+  return v;
+}
+
+std::shared_ptr<const pk::LinearModel> Mammillary(int k_peripherals) {
+  pk::LinearModelBuilder b("mammillary", "central + K peripherals");
+  const int cl = b.Parameter("CL", 3), v1 = b.Parameter("V1", 10);
+  const int central = b.Compartment("CENTRAL", v1);
+  b.ClearanceFlow(central, pk::LinearModelBuilder::kOutside, cl);
+  for (int k = 0; k < k_peripherals; ++k) {
+    const int q = b.Parameter("Q" + std::to_string(k + 2), 1.0 + 0.37 * k);
+    const int v = b.Parameter("VP" + std::to_string(k + 2), 5.0 + 3.1 * k);
+    const int p = b.Compartment("P" + std::to_string(k + 2), v);
+    b.ClearanceFlow(central, p, q);
+    b.ClearanceFlow(p, central, q);
+  }
+  b.SetCentral(central);
+  b.SetDefaultDose(central);
+  return b.Build();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string data_dir = "datasets";
+  for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--min-time") && i + 1 < argc) g_min_time = std::atof(argv[++i]);
+    if (!std::strcmp(argv[i], "--datasets") && i + 1 < argc) data_dir = argv[++i];
+    if (!std::strcmp(argv[i], "--quick")) g_min_time = 0.01;
+  }
+  using Need = pk::Objective::Need;
+  using Route = pk::GradientRoute;
+
+  // ---- 1. 2cmt_oral, 12 samples.
+  {
+    const pk::Objective obj(pk::MakeModel("2cmt_oral"), OneDose("1", 100), 0, pk::ObjectiveOptions());
+    Eigen::VectorXd v = obj.DefaultValues();
+    const std::vector<int> free{0, 1, 2, 3, 4};
+    const double p[5] = {v(0), v(1), v(2), v(3), v(4)};
+    const Eigen::VectorXd y = obj.observations();
+    // Check that the closed form is the same loss.
+    const double exact = obj.Evaluate(v, free, Need::kValue).value, closed = ClosedFormLoss(p, y.data());
+    const double t_closed = SecondsPerCall([&] { g_sink = ClosedFormLoss(p, y.data()); });
+    const double t_loss = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; });
+    const double t_fwd = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; });
+    const double t_adj = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; });
+    std::printf("== 2cmt_oral, one dose, 12 samples, 5 parameters ==\n");
+    std::printf("closed-form loss agrees with the Φ/Γ loss to %.1e relative\n", std::fabs(exact - closed) / exact);
+    std::printf("%-34s %10s %12s %12s\n", "", "time (µs)", "/ loss", "/ closed form");
+    std::printf("%-34s %10.2f %12s %12.2f\n", "closed-form loss (baseline)", t_closed * 1e6, "", 1.0);
+    std::printf("%-34s %10.2f %12.2f %12.2f\n", "loss (Φ/Γ)", t_loss * 1e6, 1.0, t_loss / t_closed);
+    std::printf("%-34s %10.2f %12.2f %12.2f\n", "loss + gradient (a) forward", t_fwd * 1e6, t_fwd / t_loss, t_fwd / t_closed);
+    std::printf("%-34s %10.2f %12.2f %12.2f\n\n", "loss + gradient (b) adjoint", t_adj * 1e6, t_adj / t_loss, t_adj / t_closed);
+  }
+
+  // ---- 2. Gradient/loss ratio against m.
+  {
+    std::printf("== mammillary model, K peripherals, IV bolus, 12 samples: cost / loss ==\n");
+    std::printf("%4s %4s %4s %12s %12s %12s\n", "K", "n", "m", "loss (µs)", "(a) forward", "(b) adjoint");
+    for (int k : {1, 2, 4, 8, 16, 30}) {
+      const pk::Objective obj(Mammillary(k), OneDose("1", 100), 0, pk::ObjectiveOptions());
+      const Eigen::VectorXd v = obj.DefaultValues();
+      std::vector<int> free;
+      for (int i = 0; i < 2 * k + 2; ++i) free.push_back(i);
+      const double t_loss = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; });
+      const double t_fwd = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; });
+      const double t_adj = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; });
+      std::printf("%4d %4d %4d %12.1f %12.2f %12.2f\n", k, k + 1, 2 * k + 2, t_loss * 1e6, t_fwd / t_loss, t_adj / t_loss);
+      std::fflush(stdout);
+    }
+    std::printf("\n");
+  }
+
+  // ---- 3. Theophylline fits.
+  {
+    pk::FitSubjectsRequest req;
+    req.model = pk::MakeModel("1cmt_oral");
+    req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/theophylline.csv"));
+    for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+    req.jobs = 1;
+    req.curve_points = 2;
+    double fit_seconds = 0;
+    const double t_all = SecondsPerCall([&] {
+      const auto fits = pk::FitSubjects(req);
+      fit_seconds = 0;
+      for (const auto& f : fits) fit_seconds += f.summary.seconds;
+    });
+    std::printf("== theophylline, 12 subjects, 1cmt_oral, Levenberg-Marquardt, one thread ==\n");
+    std::printf("fitting time, sum over subjects: %.2f ms (%.3f ms per subject); with setup and plots: %.2f ms\n",
+                fit_seconds * 1e3, fit_seconds * 1e3 / 12, t_all * 1e3);
+  }
+  return 0;
+}

@@ -1,0 +1,100 @@
+// Exact discretisation of dx/dt = A x + B u for one parameter set (not installed).
+//
+// For each step length h it gives Φ(h) = e^{Ah} and Γ(h) = ∫₀ʰ e^{As} ds B
+// (B = [I; 0]: inputs enter the first n_in states), their derivatives with
+// respect to the parameters (given as ∂A/∂θ_j), and the discrete adjoint's
+// parameter gradient.
+//
+// Values always come from the Padé exponential (Eigen's MatrixFunctions):
+// exp(Ah) alone for a step without input, Van Loan's exp([[A, B],[0, 0]]h) =
+// [[Φ, Γ],[0, I]] for a step with one. Scaling and squaring keeps the
+// structure of A (a depot that only empties stays exactly e^{−KA h}), so small
+// amounts keep their relative accuracy; an eigendecomposition would give only
+// normwise accuracy there.
+//
+// Derivatives take one of two exact paths, chosen per parameter set and step:
+//
+//  * Eigendecomposition (fast): when A = V Λ V⁻¹ with real eigenvalues and a
+//    well-conditioned V (κ₁(V) ≤ 1e4),
+//      ∂Φ/∂θ_j = V (F ∘ (V⁻¹ A_j V)) V⁻¹          (Daleckii–Krein)
+//    with F_ik the divided difference of e^{λh}, computed stably as
+//      h e^{(λ_i+λ_k)h/2} sinh(δ)/δ,  δ = (λ_i − λ_k)h/2,
+//    which is also right for coincident eigenvalues. For the adjoint,
+//      Σ λ'ᵀ ∂Φ/∂θ_j x = ⟨A_j, V⁻ᵀ Z Vᵀ⟩,   Z = Σ F ∘ ((Vᵀλ')(V⁻¹x)ᵀ),
+//    so each step costs O(n²) and each set O(n³ + m n²).
+//  * Block exponentials (general): the seed's 5.4/5.7 block-triangular
+//    exp([[M, 0],[M_j, M]]h), M = [[A, B],[0, 0]], for the sensitivities, and
+//    one Fréchet derivative per distinct h for the adjoint.
+//    Used when the eigendecomposition is complex or ill-conditioned (nearly
+//    coincident eigenvalues of a non-normal A, as in flip-flop KA ≈ CL/V), and
+//    for steps with an input, whose ∂Γ this class takes from the block form.
+#ifndef PK_SRC_EXACT_DISCRETIZATION_H_
+#define PK_SRC_EXACT_DISCRETIZATION_H_
+
+#include <map>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace pk {
+namespace internal {
+
+class Discretization {
+ public:
+  struct Step {
+    Eigen::MatrixXd phi;    // N×N
+    Eigen::MatrixXd gamma;  // N×n_in; empty until a step with input asks for it
+  };
+  struct Sensitivity {
+    std::vector<Eigen::MatrixXd> dphi;    // one per dA entry
+    std::vector<Eigen::MatrixXd> dgamma;  // empty unless requested
+  };
+
+  /// `da` are ∂A/∂θ_j for the parameters to differentiate (may be empty).
+  /// `allow_eigen` = false forces the block-exponential path (for tests).
+  Discretization(Eigen::MatrixXd a, int n_in, std::vector<Eigen::MatrixXd> da, bool allow_eigen = true);
+
+  /// Whether derivatives use the eigendecomposition (computed on first use).
+  bool eigen_path();
+  const Eigen::MatrixXd& A() const { return a_; }
+
+  /// Φ(h), and Γ(h) too when `with_gamma`.
+  const Step& Get(double h, bool with_gamma = true);
+  /// ∂Φ (and ∂Γ when `with_gamma`) for every dA entry.
+  const Sensitivity& GetSensitivity(double h, bool with_gamma);
+
+  /// Records one step x⁺ = Φx + Γu with adjoint λ' of x⁺, for the θ gradient.
+  void AccumulateAdjoint(double h, const Eigen::VectorXd& lambda_after, const Eigen::VectorXd& x_before,
+                         const Eigen::VectorXd& u);
+  /// Σ over recorded steps of λ'ᵀ(∂Φ/∂θ_j x + ∂Γ/∂θ_j u), one entry per dA; clears the record.
+  Eigen::VectorXd FinishAdjoint();
+
+  long exponentials() const { return exponentials_; }
+
+ private:
+  const Eigen::MatrixXd& DividedDifferences(double h);
+  void Decompose();
+  Sensitivity BlockSensitivity(double h);
+
+  Eigen::MatrixXd a_;
+  int n_;
+  int n_in_;
+  std::vector<Eigen::MatrixXd> da_;
+  bool allow_eigen_;
+  bool decomposed_ = false;
+  bool eigen_ = false;
+  Eigen::VectorXd lambda_;
+  Eigen::MatrixXd v_, w_;  // V and V⁻¹
+  std::vector<std::pair<double, Step>> steps_;
+  std::vector<std::pair<double, Sensitivity>> sens_;
+  std::vector<std::pair<double, Sensitivity>> sens_gamma_;
+  std::vector<std::pair<double, Eigen::MatrixXd>> divided_;
+  Eigen::MatrixXd z_;                                 // eigen-path adjoint accumulator
+  std::vector<std::pair<double, Eigen::MatrixXd>> frechet_;  // block-path accumulators
+  long exponentials_ = 0;
+};
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_EXACT_DISCRETIZATION_H_
