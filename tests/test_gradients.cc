@@ -101,3 +101,30 @@ TEST_CASE("gradient routes agree: forward, adjoint and finite differences", "[gr
     }
   }
 }
+
+TEST_CASE("flip-flop (KA = CL/V): defective A falls back to block exponentials and stays exact", "[gradient]") {
+  const auto model = pk::MakeModel("1cmt_oral");
+  Scenario sc{"flip-flop", "1,0,100,0,8,2,0,1,.\n", {}, {}};
+  const pk::Objective objective(model, MakeData(sc), 0, pk::ObjectiveOptions());
+  Eigen::VectorXd values = objective.DefaultValues();
+  values(0) = 0.1;  // KA
+  values(1) = 3.0;  // CL
+  values(2) = 30.0; // V: CL/V = KA, a double eigenvalue
+  const std::vector<int> free{0, 1, 2};
+  using Need = pk::Objective::Need;
+  const auto fwd = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+  const auto adj = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  const auto fd = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kFiniteDifference);
+  REQUIRE(fwd.ok);
+  REQUIRE(adj.ok);
+  const double scale = MaxAbs(fd.gradient);
+  CHECK(MaxAbs(fwd.gradient - fd.gradient) / scale < 1e-6);
+  CHECK(MaxAbs(adj.gradient - fd.gradient) / scale < 1e-6);
+  CHECK(MaxAbs(fwd.gradient - adj.gradient) / scale < 1e-9);
+  // The prediction at the double eigenvalue: C(t) = F·D·k t e^{−kt} / V.
+  const double k = 0.1;
+  for (int s = 0; s < 3; ++s) {
+    const double t = std::vector<double>{0.25, 0.9, 1.7}[s];
+    CHECK(fwd.predictions(s) == Approx(100 * k * t * std::exp(-k * t) / 30).epsilon(1e-10));
+  }
+}

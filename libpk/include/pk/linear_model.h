@@ -62,6 +62,21 @@ class LinearModel final : public Model {
     return a;
   }
 
+  /// ⟨G, A(θ)⟩ = Σ_ik G_ik A_ik(θ), for any scalar type. Its derivative with
+  /// respect to θ_j is ⟨G, ∂A/∂θ_j⟩, which is how the adjoint route turns one
+  /// n×n matrix per parameter set into the gradient for every θ_j.
+  template <typename T>
+  T ContractSystemMatrix(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta, const Eigen::MatrixXd& g) const {
+    T sum(0.0);
+    for (const LinearFlow& f : flows_) {
+      T k = theta(f.parameter);
+      if (f.clearance) k = k / theta(volumes_[f.from]);
+      const double w = (f.to >= 0 ? g(f.to, f.from) : 0.0) - g(f.from, f.from);
+      if (w != 0) sum += k * w;
+    }
+    return sum;
+  }
+
   /// The output row C(θ) for an observation in compartment `cmt` (1-based):
   /// y = C x is that compartment's concentration, or its amount if it has no volume.
   template <typename T>

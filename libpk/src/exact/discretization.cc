@@ -26,8 +26,8 @@ double Sinhc(double d) {
 
 }  // namespace
 
-Discretization::Discretization(Eigen::MatrixXd a, int n_in, std::vector<Eigen::MatrixXd> da, bool allow_eigen)
-    : a_(std::move(a)), n_(static_cast<int>(a_.rows())), n_in_(n_in), da_(std::move(da)), allow_eigen_(allow_eigen) {}
+Discretization::Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen)
+    : a_(std::move(a)), n_(static_cast<int>(a_.rows())), n_in_(n_in), allow_eigen_(allow_eigen) {}
 
 void Discretization::Decompose() {
   if (decomposed_) return;
@@ -88,7 +88,7 @@ const Eigen::MatrixXd& Discretization::DividedDifferences(double h) {
   return divided_.back().second;
 }
 
-Discretization::Sensitivity Discretization::BlockSensitivity(double h) {
+Discretization::Sensitivity Discretization::BlockSensitivity(double h, const std::vector<Eigen::MatrixXd>& da_list) {
   // exp([[Mh, 0],[M_j h, Mh]]): the lower-left block is ∂exp(Mh)/∂θ_j (seed 5.4/5.7).
   const int k = n_ + n_in_;
   Eigen::MatrixXd big = Eigen::MatrixXd::Zero(2 * k, 2 * k);
@@ -96,7 +96,7 @@ Discretization::Sensitivity Discretization::BlockSensitivity(double h) {
   big.block(0, n_, n_in_, n_in_) = Eigen::MatrixXd::Identity(n_in_, n_in_) * h;
   big.bottomRightCorner(k, k) = big.topLeftCorner(k, k);
   Sensitivity s;
-  for (const Eigen::MatrixXd& da : da_) {
+  for (const Eigen::MatrixXd& da : da_list) {
     big.block(k, 0, n_, n_) = da * h;
     const Eigen::MatrixXd e = big.exp();
     ++exponentials_;
@@ -106,26 +106,27 @@ Discretization::Sensitivity Discretization::BlockSensitivity(double h) {
   return s;
 }
 
-const Discretization::Sensitivity& Discretization::GetSensitivity(double h, bool with_gamma) {
+const Discretization::Sensitivity& Discretization::GetSensitivity(double h, bool with_gamma,
+                                                                  const std::vector<Eigen::MatrixXd>& da_list) {
   Decompose();
   if (with_gamma || !eigen_) {
     if (Sensitivity* s = Find(sens_gamma_, h)) return *s;
-    sens_gamma_.emplace_back(h, BlockSensitivity(h));
+    sens_gamma_.emplace_back(h, BlockSensitivity(h, da_list));
     return sens_gamma_.back().second;
   }
   if (Sensitivity* s = Find(sens_, h)) return *s;
   const Eigen::MatrixXd& f = DividedDifferences(h);
   Sensitivity s;
-  for (const Eigen::MatrixXd& da : da_) s.dphi.push_back(v_ * (f.cwiseProduct(w_ * da * v_)) * w_);
+  for (const Eigen::MatrixXd& da : da_list) s.dphi.push_back(v_ * (f.cwiseProduct(w_ * da * v_)) * w_);
   sens_.emplace_back(h, std::move(s));
   return sens_.back().second;
 }
 
 void Discretization::AccumulateAdjoint(double h, const Eigen::VectorXd& lambda_after, const Eigen::VectorXd& x_before,
                                        const Eigen::VectorXd& u) {
-  if (da_.empty()) return;
   Decompose();
-  if (eigen_ && u.isZero(0.0)) {
+  const bool input = u.size() > 0 && !u.isZero(0.0);
+  if (eigen_ && !input) {
     const Eigen::MatrixXd& f = DividedDifferences(h);
     z_.noalias() += f.cwiseProduct((v_.transpose() * lambda_after) * (w_ * x_before).transpose());
     return;
@@ -137,14 +138,13 @@ void Discretization::AccumulateAdjoint(double h, const Eigen::VectorXd& lambda_a
   }
   // W += [λ; 0][x; u]ᵀ (only the top rows are non-zero).
   acc->topLeftCorner(n_, n_).noalias() += lambda_after * x_before.transpose();
-  acc->topRightCorner(n_, n_in_).noalias() += lambda_after * u.transpose();
+  if (input) acc->topRightCorner(n_, n_in_).noalias() += lambda_after * u.transpose();
 }
 
-Eigen::VectorXd Discretization::FinishAdjoint() {
-  Eigen::VectorXd g = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(da_.size()));
+Eigen::MatrixXd Discretization::FinishAdjoint() {
+  Eigen::MatrixXd g = Eigen::MatrixXd::Zero(n_, n_);
   if (eigen_ && !z_.isZero(0.0)) {
-    const Eigen::MatrixXd back = w_.transpose() * z_ * v_.transpose();
-    for (size_t j = 0; j < da_.size(); ++j) g(static_cast<Eigen::Index>(j)) += back.cwiseProduct(da_[j]).sum();
+    g = w_.transpose() * z_ * v_.transpose();
     z_.setZero();
   }
   const int k = n_ + n_in_;
@@ -160,8 +160,7 @@ Eigen::VectorXd Discretization::FinishAdjoint() {
     big.topRightCorner(k, k) = entry.second;
     const Eigen::MatrixXd e = big.exp();
     ++exponentials_;
-    const Eigen::MatrixXd l11 = e.topRightCorner(k, k).topLeftCorner(n_, n_);
-    for (size_t j = 0; j < da_.size(); ++j) g(static_cast<Eigen::Index>(j)) += h * l11.cwiseProduct(da_[j]).sum();
+    g += h * e.topRightCorner(k, k).topLeftCorner(n_, n_);
   }
   frechet_.clear();
   return g;

@@ -20,8 +20,8 @@
 //    with F_ik the divided difference of e^{λh}, computed stably as
 //      h e^{(λ_i+λ_k)h/2} sinh(δ)/δ,  δ = (λ_i − λ_k)h/2,
 //    which is also right for coincident eigenvalues. For the adjoint,
-//      Σ λ'ᵀ ∂Φ/∂θ_j x = ⟨A_j, V⁻ᵀ Z Vᵀ⟩,   Z = Σ F ∘ ((Vᵀλ')(V⁻¹x)ᵀ),
-//    so each step costs O(n²) and each set O(n³ + m n²).
+//      Σ λ'ᵀ ∂Φ/∂θ_j x = ⟨V⁻ᵀ Z Vᵀ, A_j⟩,   Z = Σ F ∘ ((Vᵀλ')(V⁻¹x)ᵀ),
+//    so each step costs O(n²) and each set O(n³), whatever the number of θ_j.
 //  * Block exponentials (general): the seed's 5.4/5.7 block-triangular
 //    exp([[M, 0],[M_j, M]]h), M = [[A, B],[0, 0]], for the sensitivities, and
 //    one Fréchet derivative per distinct h for the adjoint.
@@ -50,9 +50,8 @@ class Discretization {
     std::vector<Eigen::MatrixXd> dgamma;  // empty unless requested
   };
 
-  /// `da` are ∂A/∂θ_j for the parameters to differentiate (may be empty).
   /// `allow_eigen` = false forces the block-exponential path (for tests).
-  Discretization(Eigen::MatrixXd a, int n_in, std::vector<Eigen::MatrixXd> da, bool allow_eigen = true);
+  Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen = true);
 
   /// Whether derivatives use the eigendecomposition (computed on first use).
   bool eigen_path();
@@ -60,26 +59,27 @@ class Discretization {
 
   /// Φ(h), and Γ(h) too when `with_gamma`.
   const Step& Get(double h, bool with_gamma = true);
-  /// ∂Φ (and ∂Γ when `with_gamma`) for every dA entry.
-  const Sensitivity& GetSensitivity(double h, bool with_gamma);
+  /// ∂Φ (and ∂Γ when `with_gamma`) for each of `da` (∂A/∂θ_j, the same list on every call).
+  const Sensitivity& GetSensitivity(double h, bool with_gamma, const std::vector<Eigen::MatrixXd>& da);
 
-  /// Records one step x⁺ = Φx + Γu with adjoint λ' of x⁺, for the θ gradient.
+  /// Records one step x⁺ = Φx + Γu with adjoint λ' of x⁺, for the θ gradient
+  /// (an empty `u` means no input).
   void AccumulateAdjoint(double h, const Eigen::VectorXd& lambda_after, const Eigen::VectorXd& x_before,
                          const Eigen::VectorXd& u);
-  /// Σ over recorded steps of λ'ᵀ(∂Φ/∂θ_j x + ∂Γ/∂θ_j u), one entry per dA; clears the record.
-  Eigen::VectorXd FinishAdjoint();
+  /// The n×n matrix G with ⟨G, ∂A/∂θ_j⟩ = Σ over recorded steps of
+  /// λ'ᵀ(∂Φ/∂θ_j x + ∂Γ/∂θ_j u), for every θ_j at once; clears the record.
+  Eigen::MatrixXd FinishAdjoint();
 
   long exponentials() const { return exponentials_; }
 
  private:
   const Eigen::MatrixXd& DividedDifferences(double h);
   void Decompose();
-  Sensitivity BlockSensitivity(double h);
+  Sensitivity BlockSensitivity(double h, const std::vector<Eigen::MatrixXd>& da);
 
   Eigen::MatrixXd a_;
   int n_;
   int n_in_;
-  std::vector<Eigen::MatrixXd> da_;
   bool allow_eigen_;
   bool decomposed_ = false;
   bool eigen_ = false;

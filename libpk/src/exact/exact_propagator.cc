@@ -19,7 +19,7 @@ ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eig
     a.topLeftCorner(n_, n_) = model.SystemMatrix<double>(theta);
     if (track_auc) a.row(n_).head(n_) = model.OutputRow<double>(model.central_compartment(), theta);
     if (!a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
-    cache_[s].reset(new Discretization(a, n_, {}));
+    cache_[s].reset(new Discretization(a, n_));
   }
   x_ = Eigen::VectorXd::Zero(big_n);
 }

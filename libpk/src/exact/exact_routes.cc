@@ -176,11 +176,11 @@ namespace {
 struct SegmentTape {
   int set = 0;
   double h = 0;
-  Eigen::VectorXd dh;
-  Eigen::VectorXd u;
-  Eigen::MatrixXd du;
+  Eigen::VectorXd dh;        // empty when h does not depend on p
+  Eigen::VectorXd u;         // empty when there is no input
+  Eigen::MatrixXd du;        // empty when the input does not depend on p
   Eigen::VectorXd x_before;
-  Eigen::VectorXd x_after;
+  Eigen::VectorXd x_after;   // kept only when dh is not empty
 };
 
 struct SteadyTape {
@@ -299,21 +299,27 @@ class AdjointRecorder {
   }
 
  private:
+  // Records only what the backward step needs: most steps have no input and
+  // no time derivative, and then store just (set, h, x before).
   SegmentTape Step(int set, const Dual& h, const DualVector& u, Eigen::VectorXd* x) {
     SegmentTape t;
     t.set = set;
     t.h = h.value();
-    t.dh = Derivatives(h, p_);
-    t.u = Values(u);
-    t.du = DerivativeMatrix(u, p_);
+    if (!h.derivatives().isZero(0.0)) t.dh = Derivatives(h, p_);
+    bool input = false, input_derivative = false;
+    for (int i = 0; i < u.size(); ++i) {
+      input = input || u(i).value() != 0;
+      input_derivative = input_derivative || !u(i).derivatives().isZero(0.0);
+    }
+    if (input) t.u = Values(u);
+    if (input_derivative) t.du = DerivativeMatrix(u, p_);
     t.x_before = *x;
     if (t.h != 0) {
-      const bool input = !t.u.isZero(0.0);
       const LinearDerivatives::Step& st = sys_.Get(set, t.h, input);
       *x = st.phi * *x;
       if (input) *x += st.gamma * t.u;
     }
-    t.x_after = *x;
+    if (t.dh.size()) t.x_after = *x;
     return t;
   }
 
@@ -344,13 +350,17 @@ struct DiscreteAdjoint::Impl {
       : model(m), layout(l), subject(s), sets(st), p(num_free), sys(m, sets, num_free) {}
 
   // One step x⁺ = Φx + Γu backwards: λ ← Φᵀλ, with the h, u and θ terms.
+  // Empty tape fields are zero (see AdjointRecorder::Step).
   void BackStep(const SegmentTape& t, Eigen::VectorXd* lambda) {
-    if (t.h == 0 && t.dh.isZero(0.0)) return;
     const Eigen::VectorXd& lam = *lambda;
-    if (!t.dh.isZero(0.0)) grad += lam.dot(sys.A(t.set) * t.x_after + t.u) * t.dh;
+    if (t.dh.size()) {
+      Eigen::VectorXd f = sys.A(t.set) * t.x_after;
+      if (t.u.size()) f += t.u;
+      grad += lam.dot(f) * t.dh;
+    }
     if (t.h == 0) return;
-    const bool input = !t.du.isZero(0.0);
-    const LinearDerivatives::Step& st = sys.Get(t.set, t.h, input);
+    const bool input = t.du.size() > 0;
+    const LinearDerivatives::Step& st = sys.Get(t.set, t.h, input || t.u.size() > 0);
     if (input) grad += t.du.transpose() * (st.gamma.transpose() * lam);
     sys.AccumulateFrechet(t.set, t.h, lam, t.x_before, t.u);
     *lambda = st.phi.transpose() * lam;

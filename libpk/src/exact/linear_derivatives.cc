@@ -1,9 +1,17 @@
 #include "linear_derivatives.h"
 
+#include <unsupported/Eigen/AutoDiff>
+
 #include "exact_propagator.h"
 
 namespace pk {
 namespace internal {
+namespace {
+
+// A scalar with one fixed-size derivative, for ∂A/∂θ_j and ∂C/∂θ_j.
+using Ad1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+
+}  // namespace
 
 LinearDerivatives::LinearDerivatives(const LinearModel& model, const std::vector<DualVector>& sets, int num_free)
     : model_(model), n_(model.num_compartments()), m_(model.num_parameters()), p_(num_free) {
@@ -18,23 +26,9 @@ LinearDerivatives::LinearDerivatives(const LinearModel& model, const std::vector
       if (!d.dtheta.row(j).isZero(0.0)) d.active.push_back(j);
     }
     if (!d.theta.allFinite()) throw NumericalFailure("a model parameter is not finite");
-    // A and ∂A/∂θ_j by forward-mode AD over the m model parameters.
-    DualVector seeded(m_);
-    for (int j = 0; j < m_; ++j) seeded(j) = Dual(d.theta(j), m_, j);
-    const Eigen::Matrix<Dual, Eigen::Dynamic, Eigen::Dynamic> a = model.SystemMatrix<Dual>(seeded);
-    d.a.resize(n_, n_);
-    d.da.assign(m_, Eigen::MatrixXd::Zero(n_, n_));
-    for (int r = 0; r < n_; ++r) {
-      for (int c = 0; c < n_; ++c) {
-        d.a(r, c) = a(r, c).value();
-        const Eigen::VectorXd g = Derivatives(a(r, c), m_);
-        for (int j = 0; j < m_; ++j) d.da[j](r, c) = g(j);
-      }
-    }
+    d.a = model.SystemMatrix<double>(d.theta);
     if (!d.a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
-    std::vector<Eigen::MatrixXd> active_da;
-    for (int j : d.active) active_da.push_back(d.da[j]);
-    d.disc.reset(new Discretization(d.a, n_, std::move(active_da)));
+    d.disc.reset(new Discretization(d.a, n_));
   }
 }
 
@@ -47,17 +41,40 @@ const Eigen::MatrixXd& LinearDerivatives::dCdp(int set, int cmt) {
   SetData& d = sets_[set];
   auto it = d.outputs.find(cmt);
   if (it != d.outputs.end()) return it->second.second;
-  DualVector seeded(m_);
-  for (int j = 0; j < m_; ++j) seeded(j) = Dual(d.theta(j), m_, j);
-  const Eigen::Matrix<Dual, 1, Eigen::Dynamic> c = model_.OutputRow<Dual>(cmt, seeded);
-  Eigen::RowVectorXd value(n_);
-  Eigen::MatrixXd dc_dtheta(n_, m_);
-  for (int i = 0; i < n_; ++i) {
-    value(i) = c(i).value();
-    dc_dtheta.row(i) = Derivatives(c(i), m_).transpose();
+  const Eigen::RowVectorXd value = model_.OutputRow<double>(cmt, d.theta);
+  Eigen::MatrixXd dc_dp = Eigen::MatrixXd::Zero(n_, p_);
+  for (int j : d.active) {
+    Eigen::Matrix<Ad1, Eigen::Dynamic, 1> seeded = d.theta.cast<Ad1>();
+    seeded(j).derivatives()(0) = 1;
+    const Eigen::Matrix<Ad1, 1, Eigen::Dynamic> c = model_.OutputRow<Ad1>(cmt, seeded);
+    for (int i = 0; i < n_; ++i) {
+      const double dc = c(i).derivatives()(0);
+      if (dc != 0) dc_dp.row(i) += dc * d.dtheta.row(j);
+    }
   }
-  Eigen::MatrixXd dc_dp = dc_dtheta * d.dtheta;
   return d.outputs.emplace(cmt, std::make_pair(value, dc_dp)).first->second.second;
+}
+
+const Eigen::MatrixXd& LinearDerivatives::dA(int set, int j) {
+  SetData& d = sets_[set];
+  if (d.da.empty()) d.da.resize(m_);
+  if (d.da[j].size() == 0) {
+    // Forward-mode AD, one parameter at a time with a fixed-size scalar.
+    Eigen::Matrix<Ad1, Eigen::Dynamic, 1> seeded = d.theta.cast<Ad1>();
+    seeded(j).derivatives()(0) = 1;
+    const Eigen::Matrix<Ad1, Eigen::Dynamic, Eigen::Dynamic> a = model_.SystemMatrix<Ad1>(seeded);
+    d.da[j] = a.unaryExpr([](const Ad1& x) { return x.derivatives()(0); });
+  }
+  return d.da[j];
+}
+
+const LinearDerivatives::StepSensitivity& LinearDerivatives::GetSensitivity(int set, double h, bool with_gamma) {
+  SetData& d = sets_[set];
+  if (d.active_da.size() != d.active.size()) {
+    d.active_da.clear();
+    for (int j : d.active) d.active_da.push_back(dA(set, j));
+  }
+  return d.disc->GetSensitivity(h, with_gamma, d.active_da);
 }
 
 long LinearDerivatives::exponentials() const {
@@ -75,8 +92,15 @@ void LinearDerivatives::FinishAdjoint(const std::vector<Eigen::VectorXd>& theta_
   for (size_t s = 0; s < sets_.size(); ++s) {
     SetData& d = sets_[s];
     Eigen::VectorXd g = theta_grad[s];
-    const Eigen::VectorXd g_active = d.disc->FinishAdjoint();
-    for (size_t a = 0; a < d.active.size(); ++a) g(d.active[a]) += g_active(static_cast<Eigen::Index>(a));
+    const Eigen::MatrixXd contraction = d.disc->FinishAdjoint();
+    if (!contraction.isZero(0.0)) {
+      // ∂/∂θ_j ⟨G, A(θ)⟩ = ⟨G, ∂A/∂θ_j⟩ by AD, one active parameter at a time.
+      for (int j : d.active) {
+        Eigen::Matrix<Ad1, Eigen::Dynamic, 1> seeded = d.theta.cast<Ad1>();
+        seeded(j).derivatives()(0) = 1;
+        g(j) += model_.ContractSystemMatrix<Ad1>(seeded, contraction).derivatives()(0);
+      }
+    }
     *grad += d.dtheta.transpose() * g;
   }
 }

@@ -41,7 +41,8 @@ class LinearDerivatives {
   int n() const { return n_; }
   int num_free() const { return p_; }
   const Eigen::MatrixXd& A(int set) const { return sets_[set].a; }
-  const Eigen::MatrixXd& dA(int set, int j) const { return sets_[set].da[j]; }
+  /// ∂A/∂θ_j (built on first use).
+  const Eigen::MatrixXd& dA(int set, int j);
   /// m×P: derivatives of the set's model parameters with respect to the estimated ones.
   const Eigen::MatrixXd& dtheta(int set) const { return sets_[set].dtheta; }
   /// Model parameters j whose dθ_j/dp is not zero in this set.
@@ -54,9 +55,7 @@ class LinearDerivatives {
   /// Φ(h) and Γ(h); Γ is left empty when `with_gamma` is false.
   const Step& Get(int set, double h, bool with_gamma) { return sets_[set].disc->Get(h, with_gamma); }
   /// ∂Φ/∂θ_j (and ∂Γ/∂θ_j when `with_gamma`) for the active j of the set.
-  const StepSensitivity& GetSensitivity(int set, double h, bool with_gamma) {
-    return sets_[set].disc->GetSensitivity(h, with_gamma);
-  }
+  const StepSensitivity& GetSensitivity(int set, double h, bool with_gamma);
 
   /// Adds the outer product [λ; 0][x; u]ᵀ of one step to the (set, h) accumulator.
   void AccumulateFrechet(int set, double h, const Eigen::VectorXd& lambda_after, const Eigen::VectorXd& x_before,
@@ -70,7 +69,8 @@ class LinearDerivatives {
  private:
   struct SetData {
     Eigen::MatrixXd a;
-    std::vector<Eigen::MatrixXd> da;
+    std::vector<Eigen::MatrixXd> da;         // ∂A/∂θ_j, built on first use
+    std::vector<Eigen::MatrixXd> active_da;  // the same for active(set), in order
     Eigen::MatrixXd dtheta;
     std::vector<int> active;
     Eigen::VectorXd theta;
