@@ -7,8 +7,8 @@
 //      mammillary model with K peripheral compartments (m = 2K + 2).
 //   3. Fitting the 12 theophylline subjects (1cmt_oral, LM), per subject and in total.
 //
-// Timing: each case is repeated until it has run for at least --min-time
-// seconds; the median of 5 such batches is reported.
+// Timing: the cases compared in a table are timed in interleaved rounds and
+// their ratios are medians over the rounds (see Interleaved()).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -28,25 +28,46 @@ namespace {
 
 double g_min_time = 0.05;
 
-double SecondsPerCall(const std::function<void()>& f) {
+// Seconds per call of each function. The functions are timed in interleaved
+// rounds (each round runs every function for about --min-time seconds), so a
+// change of machine load affects all of them alike; per round, each time is
+// divided by the first function's, and the median over 7 rounds of those
+// ratios is reported together with the median time of the first.
+struct Timing {
+  double base_seconds;
+  std::vector<double> ratios;  // per function, relative to the first
+};
+
+Timing Interleaved(const std::vector<std::function<void()>>& fs) {
   using Clock = std::chrono::steady_clock;
-  std::vector<double> batches;
-  long reps = 1;
-  for (int b = 0; b < 5; ++b) {
+  std::vector<long> reps(fs.size(), 1);
+  auto batch = [&](size_t i) {
     for (;;) {
       const auto t0 = Clock::now();
-      for (long r = 0; r < reps; ++r) f();
+      for (long r = 0; r < reps[i]; ++r) fs[i]();
       const double dt = std::chrono::duration<double>(Clock::now() - t0).count();
-      if (dt >= g_min_time) {
-        batches.push_back(dt / reps);
-        break;
-      }
-      reps = std::max(reps * 2, static_cast<long>(reps * g_min_time / std::max(dt, 1e-9)));
+      if (dt >= g_min_time) return dt / reps[i];
+      reps[i] = std::max(reps[i] * 2, static_cast<long>(reps[i] * g_min_time / std::max(dt, 1e-9)));
     }
+  };
+  std::vector<double> base;
+  std::vector<std::vector<double>> ratios(fs.size());
+  for (int round = 0; round < 7; ++round) {
+    const double t0 = batch(0);
+    base.push_back(t0);
+    ratios[0].push_back(1.0);
+    for (size_t i = 1; i < fs.size(); ++i) ratios[i].push_back(batch(i) / t0);
   }
-  std::sort(batches.begin(), batches.end());
-  return batches[2];
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v[v.size() / 2];
+  };
+  Timing t{median(base), {}};
+  for (const auto& r : ratios) t.ratios.push_back(median(r));
+  return t;
 }
+
+double SecondsPerCall(const std::function<void()>& f) { return Interleaved({f}).base_seconds; }
 
 volatile double g_sink = 0;
 
@@ -116,17 +137,21 @@ int main(int argc, char** argv) {
     const Eigen::VectorXd y = obj.observations();
     // Check that the closed form is the same loss.
     const double exact = obj.Evaluate(v, free, Need::kValue).value, closed = ClosedFormLoss(p, y.data());
-    const double t_closed = SecondsPerCall([&] { g_sink = ClosedFormLoss(p, y.data()); });
-    const double t_loss = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; });
-    const double t_fwd = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; });
-    const double t_adj = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; });
+    const Timing t = Interleaved({[&] { g_sink = ClosedFormLoss(p, y.data()); },
+                                  [&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; },
+                                  [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; },
+                                  [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
+    const double closed_us = t.base_seconds * 1e6;
     std::printf("== 2cmt_oral, one dose, 12 samples, 5 parameters ==\n");
     std::printf("closed-form loss agrees with the Φ/Γ loss to %.1e relative\n", std::fabs(exact - closed) / exact);
-    std::printf("%-34s %10s %12s %12s\n", "", "time (µs)", "/ loss", "/ closed form");
-    std::printf("%-34s %10.2f %12s %12.2f\n", "closed-form loss (baseline)", t_closed * 1e6, "", 1.0);
-    std::printf("%-34s %10.2f %12.2f %12.2f\n", "loss (Φ/Γ)", t_loss * 1e6, 1.0, t_loss / t_closed);
-    std::printf("%-34s %10.2f %12.2f %12.2f\n", "loss + gradient (a) forward", t_fwd * 1e6, t_fwd / t_loss, t_fwd / t_closed);
-    std::printf("%-34s %10.2f %12.2f %12.2f\n\n", "loss + gradient (b) adjoint", t_adj * 1e6, t_adj / t_loss, t_adj / t_closed);
+    std::printf("%-34s %10s %12s %14s\n", "", "time (µs)", "/ loss", "/ closed form");
+    const char* names[] = {"closed-form loss (baseline)", "loss (Φ/Γ)", "loss + gradient (a) forward",
+                           "loss + gradient (b) adjoint"};
+    for (int i = 0; i < 4; ++i) {
+      std::printf("%-34s %10.2f %12.2f %14.1f\n", names[i], closed_us * t.ratios[i], t.ratios[i] / t.ratios[1],
+                  t.ratios[i]);
+    }
+    std::printf("\n");
   }
 
   // ---- 2. Gradient/loss ratio against m.
@@ -138,10 +163,11 @@ int main(int argc, char** argv) {
       const Eigen::VectorXd v = obj.DefaultValues();
       std::vector<int> free;
       for (int i = 0; i < 2 * k + 2; ++i) free.push_back(i);
-      const double t_loss = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; });
-      const double t_fwd = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; });
-      const double t_adj = SecondsPerCall([&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; });
-      std::printf("%4d %4d %4d %12.1f %12.2f %12.2f\n", k, k + 1, 2 * k + 2, t_loss * 1e6, t_fwd / t_loss, t_adj / t_loss);
+      const Timing t = Interleaved({[&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; },
+                                    [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; },
+                                    [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
+      std::printf("%4d %4d %4d %12.1f %12.2f %12.2f\n", k, k + 1, 2 * k + 2, t.base_seconds * 1e6, t.ratios[1],
+                  t.ratios[2]);
       std::fflush(stdout);
     }
     std::printf("\n");

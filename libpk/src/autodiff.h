@@ -117,6 +117,15 @@ inline Eigen::MatrixXd DerivativeMatrix(const DualVector& v, int p) {
   return d;
 }
 
+inline bool HasDerivative(const Dual& x) { return !x.derivatives().isZero(0.0); }
+
+// The same helpers for plain doubles (constants: no derivatives), so that code
+// templated on the scalar type runs on either.
+inline bool HasDerivative(double) { return false; }
+inline Eigen::VectorXd Derivatives(double, int p) { return Eigen::VectorXd::Zero(p); }
+inline Eigen::MatrixXd DerivativeMatrix(const Eigen::VectorXd& v, int p) { return Eigen::MatrixXd::Zero(v.size(), p); }
+inline const Eigen::VectorXd& Values(const Eigen::VectorXd& v) { return v; }
+
 inline Eigen::VectorXd Values(const DualVector& v) {
   Eigen::VectorXd out(v.size());
   for (int i = 0; i < v.size(); ++i) out(i) = v(i).value();

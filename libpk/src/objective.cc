@@ -227,11 +227,14 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       }
       return sets;
     };
+    // Dose modifiers move event times and amounts; model parameters do not.
+    bool events_depend = false;
+    for (int i : model_free) events_depend = events_depend || i >= d.model->num_parameters();
     if (route == GradientRoute::kForward && pm > 0) {
       const auto sets = dual_sets();
-      internal::ForwardSensitivities(*d.linear, d.layout, s, sets, pm, &yhat, &jm);
+      internal::ForwardSensitivities(*d.linear, d.layout, s, sets, pm, events_depend, &yhat, &jm);
     } else if (route == GradientRoute::kAdjoint && pm > 0) {
-      adjoint.reset(new internal::DiscreteAdjoint(*d.linear, d.layout, s, dual_sets(), pm));
+      adjoint.reset(new internal::DiscreteAdjoint(*d.linear, d.layout, s, dual_sets(), pm, events_depend));
       adjoint->Forward(&yhat);
     } else {
       internal::Predict(*d.linear, d.layout, s, &yhat);

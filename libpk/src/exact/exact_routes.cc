@@ -23,6 +23,7 @@ namespace {
 // ---------------------------------------------------------------------------
 // Route (a): forward sensitivities.
 
+template <typename T>
 class ForwardVisitor {
  public:
   ForwardVisitor(LinearDerivatives* sys, const PreparedSubject& s, int num_free, Eigen::VectorXd* yhat,
@@ -36,29 +37,29 @@ class ForwardVisitor {
     sens_ = Eigen::MatrixXd::Zero(sys_.n(), p_);
   }
 
-  void Advance(const Dual& h, const DualVector& u, int set) {
-    Propagate(set, h.value(), Values(u), DerivativeMatrix(u, p_), Derivatives(h, p_), &x_, &sens_);
+  void Advance(const T& h, const Vec<T>& u, int set) {
+    Propagate(set, Value(h), Values(u), DerivativeMatrix(u, p_), Derivatives(h, p_), &x_, &sens_);
   }
-  void Bolus(int cmt, const Dual& amount, int /*set*/) {
-    x_(cmt) += amount.value();
-    sens_.row(cmt) += Derivatives(amount, p_).transpose();
+  void Bolus(int cmt, const T& amount, int /*set*/) {
+    x_(cmt) += Value(amount);
+    if (HasDerivative(amount)) sens_.row(cmt) += Derivatives(amount, p_).transpose();
   }
   void Reset() {
     x_.setZero();
     sens_.setZero();
   }
-  void DoseEntered(const Dual&, int) {}
+  void DoseEntered(const T&, int) {}
 
-  void SteadyState(const SteadyStateCycle<Dual>& cycle, int set, bool add) {
+  void SteadyState(const SteadyStateCycle<T>& cycle, int set, bool add) {
     const int n = sys_.n();
     // Fixed point value: (I − M) x* = M b + w.
     Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
     Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
-    b(cycle.cmt) = cycle.bolus.value();
+    b(cycle.cmt) = Value(cycle.bolus);
     Eigen::VectorXd pb = b;  // P(0) = M b + w
-    for (const Segment<Dual>& seg : cycle.period) {
+    for (const Segment<T>& seg : cycle.period) {
       const Eigen::VectorXd u = Values(seg.rate);
-      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value(), !u.isZero(0.0));
+      const LinearDerivatives::Step& st = sys_.Get(set, Value(seg.duration), !u.isZero(0.0));
       m = st.phi * m;
       pb = st.phi * pb;
       if (st.gamma.size()) pb += st.gamma * u;
@@ -86,7 +87,7 @@ class ForwardVisitor {
     }
   }
 
-  void SteadyInfusion(const DualVector& u, int set, bool add) {
+  void SteadyInfusion(const Vec<T>& u, int set, bool add) {
     // 0 = A z + u  ⇒  ∂z = −A⁻¹ (Σ_j ∂A/∂θ_j z ∂θ_j/∂p + ∂u/∂p).
     const Eigen::PartialPivLU<Eigen::MatrixXd> lu(sys_.A(set));
     if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state for a constant infusion");
@@ -113,9 +114,9 @@ class ForwardVisitor {
   }
 
  private:
-  void RunSegments(const std::vector<Segment<Dual>>& segments, int set, Eigen::VectorXd* x, Eigen::MatrixXd* sens) {
-    for (const Segment<Dual>& seg : segments) {
-      Propagate(set, seg.duration.value(), Values(seg.rate), DerivativeMatrix(seg.rate, p_),
+  void RunSegments(const std::vector<Segment<T>>& segments, int set, Eigen::VectorXd* x, Eigen::MatrixXd* sens) {
+    for (const Segment<T>& seg : segments) {
+      Propagate(set, Value(seg.duration), Values(seg.rate), DerivativeMatrix(seg.rate, p_),
                 Derivatives(seg.duration, p_), x, sens);
     }
   }
@@ -160,12 +161,18 @@ class ForwardVisitor {
 }  // namespace
 
 void ForwardSensitivities(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
-                          const std::vector<DualVector>& sets, int num_free, Eigen::VectorXd* yhat,
-                          Eigen::MatrixXd* jacobian) {
+                          const std::vector<DualVector>& sets, int num_free, bool events_depend_on_p,
+                          Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) {
   LinearDerivatives sys(model, sets, num_free);
-  ForwardVisitor visitor(&sys, subject, num_free, yhat, jacobian);
-  EventEngine<Dual, ForwardVisitor> engine(subject, layout, sets, &visitor);
-  engine.Run();
+  if (events_depend_on_p) {
+    ForwardVisitor<Dual> visitor(&sys, subject, num_free, yhat, jacobian);
+    EventEngine<Dual, ForwardVisitor<Dual>> engine(subject, layout, sets, &visitor);
+    engine.Run();
+  } else {
+    ForwardVisitor<double> visitor(&sys, subject, num_free, yhat, jacobian);
+    EventEngine<double, ForwardVisitor<double>> engine(subject, layout, subject.sets, &visitor);
+    engine.Run();
+  }
 }
 
 // ---------------------------------------------------------------------------
@@ -205,6 +212,7 @@ struct TapeOp {
   std::shared_ptr<SteadyTape> ss;   // kSteadyState
 };
 
+template <typename T>
 class AdjointRecorder {
  public:
   AdjointRecorder(LinearDerivatives* sys, const PreparedSubject& s, int num_free, Eigen::VectorXd* yhat,
@@ -216,19 +224,19 @@ class AdjointRecorder {
     x_ = Eigen::VectorXd::Zero(sys_.n());
   }
 
-  void Advance(const Dual& h, const DualVector& u, int set) {
+  void Advance(const T& h, const Vec<T>& u, int set) {
     TapeOp op;
     op.kind = TapeOp::kAdvance;
     op.set = set;
     op.step = Step(set, h, u, &x_);
     tape_.push_back(std::move(op));
   }
-  void Bolus(int cmt, const Dual& amount, int /*set*/) {
-    x_(cmt) += amount.value();
+  void Bolus(int cmt, const T& amount, int /*set*/) {
+    x_(cmt) += Value(amount);
     TapeOp op;
     op.kind = TapeOp::kBolus;
     op.cmt = cmt;
-    op.d_amount = Derivatives(amount, p_);
+    if (HasDerivative(amount)) op.d_amount = Derivatives(amount, p_);
     tape_.push_back(std::move(op));
   }
   void Reset() {
@@ -237,9 +245,9 @@ class AdjointRecorder {
     op.kind = TapeOp::kReset;
     tape_.push_back(std::move(op));
   }
-  void DoseEntered(const Dual&, int) {}
+  void DoseEntered(const T&, int) {}
 
-  void SteadyState(const SteadyStateCycle<Dual>& cycle, int set, bool add) {
+  void SteadyState(const SteadyStateCycle<T>& cycle, int set, bool add) {
     const int n = sys_.n();
     auto tape = std::make_shared<SteadyTape>();
     tape->add = add;
@@ -247,11 +255,11 @@ class AdjointRecorder {
     tape->db = Derivatives(cycle.bolus, p_);
     Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
     Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
-    b(cycle.cmt) = cycle.bolus.value();
+    b(cycle.cmt) = Value(cycle.bolus);
     Eigen::VectorXd pb = b;
-    for (const Segment<Dual>& seg : cycle.period) {
+    for (const Segment<T>& seg : cycle.period) {
       const Eigen::VectorXd u = Values(seg.rate);
-      const LinearDerivatives::Step& st = sys_.Get(set, seg.duration.value(), !u.isZero(0.0));
+      const LinearDerivatives::Step& st = sys_.Get(set, Value(seg.duration), !u.isZero(0.0));
       m = st.phi * m;
       pb = st.phi * pb;
       if (st.gamma.size()) pb += st.gamma * u;
@@ -261,9 +269,9 @@ class AdjointRecorder {
     const Eigen::VectorXd x_star = lu.solve(pb);
     tape->m = m;
     Eigen::VectorXd x = x_star + b;
-    for (const Segment<Dual>& seg : cycle.period) tape->period.push_back(Step(set, seg.duration, seg.rate, &x));
+    for (const Segment<T>& seg : cycle.period) tape->period.push_back(Step(set, seg.duration, seg.rate, &x));
     Eigen::VectorXd z = x_star + b;
-    for (const Segment<Dual>& seg : cycle.to_record) tape->to_record.push_back(Step(set, seg.duration, seg.rate, &z));
+    for (const Segment<T>& seg : cycle.to_record) tape->to_record.push_back(Step(set, seg.duration, seg.rate, &z));
     x_ = add ? Eigen::VectorXd(x_ + z) : z;
     TapeOp op;
     op.kind = TapeOp::kSteadyState;
@@ -272,7 +280,7 @@ class AdjointRecorder {
     tape_.push_back(std::move(op));
   }
 
-  void SteadyInfusion(const DualVector& u, int set, bool add) {
+  void SteadyInfusion(const Vec<T>& u, int set, bool add) {
     const Eigen::PartialPivLU<Eigen::MatrixXd> lu(sys_.A(set));
     if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state for a constant infusion");
     TapeOp op;
@@ -301,15 +309,15 @@ class AdjointRecorder {
  private:
   // Records only what the backward step needs: most steps have no input and
   // no time derivative, and then store just (set, h, x before).
-  SegmentTape Step(int set, const Dual& h, const DualVector& u, Eigen::VectorXd* x) {
+  SegmentTape Step(int set, const T& h, const Vec<T>& u, Eigen::VectorXd* x) {
     SegmentTape t;
     t.set = set;
-    t.h = h.value();
-    if (!h.derivatives().isZero(0.0)) t.dh = Derivatives(h, p_);
+    t.h = Value(h);
+    if (HasDerivative(h)) t.dh = Derivatives(h, p_);
     bool input = false, input_derivative = false;
     for (int i = 0; i < u.size(); ++i) {
-      input = input || u(i).value() != 0;
-      input_derivative = input_derivative || !u(i).derivatives().isZero(0.0);
+      input = input || Value(u(i)) != 0;
+      input_derivative = input_derivative || HasDerivative(u(i));
     }
     if (input) t.u = Values(u);
     if (input_derivative) t.du = DerivativeMatrix(u, p_);
@@ -345,9 +353,11 @@ struct DiscreteAdjoint::Impl {
   std::vector<Eigen::VectorXd> theta_grad;
   Eigen::VectorXd grad;
 
+  bool dual_events;
+
   Impl(const LinearModel& m, const ParameterLayout& l, const PreparedSubject& s, const std::vector<DualVector>& st,
-       int num_free)
-      : model(m), layout(l), subject(s), sets(st), p(num_free), sys(m, sets, num_free) {}
+       int num_free, bool events_depend_on_p)
+      : model(m), layout(l), subject(s), sets(st), p(num_free), sys(m, sets, num_free), dual_events(events_depend_on_p) {}
 
   // One step x⁺ = Φx + Γu backwards: λ ← Φᵀλ, with the h, u and θ terms.
   // Empty tape fields are zero (see AdjointRecorder::Step).
@@ -385,7 +395,7 @@ struct DiscreteAdjoint::Impl {
           BackStep(op.step, &lambda);
           break;
         case TapeOp::kBolus:
-          grad += lambda(op.cmt) * op.d_amount;
+          if (op.d_amount.size()) grad += lambda(op.cmt) * op.d_amount;
           break;
         case TapeOp::kReset:
           lambda.setZero();
@@ -422,16 +432,23 @@ struct DiscreteAdjoint::Impl {
 };
 
 DiscreteAdjoint::DiscreteAdjoint(const LinearModel& model, const ParameterLayout& layout,
-                                 const PreparedSubject& subject, const std::vector<DualVector>& sets, int num_free)
-    : impl_(new Impl(model, layout, subject, sets, num_free)) {}
+                                 const PreparedSubject& subject, const std::vector<DualVector>& sets, int num_free,
+                                 bool events_depend_on_p)
+    : impl_(new Impl(model, layout, subject, sets, num_free, events_depend_on_p)) {}
 
 DiscreteAdjoint::~DiscreteAdjoint() = default;
 
 void DiscreteAdjoint::Forward(Eigen::VectorXd* yhat) {
   impl_->tape.clear();
-  AdjointRecorder recorder(&impl_->sys, impl_->subject, impl_->p, yhat, &impl_->tape);
-  EventEngine<Dual, AdjointRecorder> engine(impl_->subject, impl_->layout, impl_->sets, &recorder);
-  engine.Run();
+  if (impl_->dual_events) {
+    AdjointRecorder<Dual> recorder(&impl_->sys, impl_->subject, impl_->p, yhat, &impl_->tape);
+    EventEngine<Dual, AdjointRecorder<Dual>> engine(impl_->subject, impl_->layout, impl_->sets, &recorder);
+    engine.Run();
+  } else {
+    AdjointRecorder<double> recorder(&impl_->sys, impl_->subject, impl_->p, yhat, &impl_->tape);
+    EventEngine<double, AdjointRecorder<double>> engine(impl_->subject, impl_->layout, impl_->subject.sets, &recorder);
+    engine.Run();
+  }
 }
 
 Eigen::VectorXd DiscreteAdjoint::Gradient(const Eigen::VectorXd& dl_dyhat) { return impl_->Backward(dl_dyhat); }

@@ -28,16 +28,18 @@
 namespace pk {
 namespace internal {
 
-/// Route (a). Throws NumericalFailure on numerical trouble.
+/// Route (a). Throws NumericalFailure on numerical trouble. When no estimated
+/// parameter moves an event (no free F, ALAG, R or D), `events_depend_on_p` is
+/// false and the event engine runs on plain doubles.
 void ForwardSensitivities(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
-                          const std::vector<DualVector>& sets, int num_free, Eigen::VectorXd* yhat,
-                          Eigen::MatrixXd* jacobian);
+                          const std::vector<DualVector>& sets, int num_free, bool events_depend_on_p,
+                          Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian);
 
 /// Route (b): Forward() computes ŷ and records the steps; Gradient() sweeps back.
 class DiscreteAdjoint {
  public:
   DiscreteAdjoint(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
-                  const std::vector<DualVector>& sets, int num_free);
+                  const std::vector<DualVector>& sets, int num_free, bool events_depend_on_p);
   ~DiscreteAdjoint();
   void Forward(Eigen::VectorXd* yhat);
   Eigen::VectorXd Gradient(const Eigen::VectorXd& dl_dyhat);
