@@ -61,6 +61,17 @@ std::vector<double> ParseTimes(const std::vector<std::string>& specs) {
   return times;
 }
 
+bool ParseCommandLine(int argc, char** argv, const boost::program_options::options_description& desc,
+                      const char* usage, boost::program_options::variables_map* vm) {
+  boost::program_options::store(boost::program_options::parse_command_line(argc, argv, desc), *vm);
+  boost::program_options::notify(*vm);
+  if (vm->count("help")) {
+    std::cout << usage << "\n" << desc << "\n";
+    return false;
+  }
+  return true;
+}
+
 int Run(const std::string& program, const std::function<int()>& body) {
   try {
     return body();

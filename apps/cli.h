@@ -6,6 +6,8 @@
 #include <string>
 #include <vector>
 
+#include <boost/program_options.hpp>
+
 #include "pk/parameters.h"
 
 namespace pk {
@@ -16,6 +18,11 @@ ParameterValues ParseAssignments(const std::vector<std::string>& items, const st
 
 /// Output times: "FROM:STEP:TO" (inclusive) or a comma-separated list, or several of them.
 std::vector<double> ParseTimes(const std::vector<std::string>& specs);
+
+/// Parses the command line into `vm`; prints `usage` and the options and
+/// returns false when --help was given.
+bool ParseCommandLine(int argc, char** argv, const boost::program_options::options_description& desc,
+                      const char* usage, boost::program_options::variables_map* vm);
 
 /// Runs `body` and maps errors to exit codes: pk::InputError and bad options -> 2
 /// with one line "<program>: error: ..." on stderr; other exceptions -> 3.

@@ -126,12 +126,7 @@ int Main(int argc, char** argv) {
       "evaluate", "no fit: print objective and gradient at the given values as CSV")(
       "quiet,q", "no progress bar and no table on stdout");
   po::variables_map vm;
-  po::store(po::parse_command_line(argc, argv, desc), vm);
-  po::notify(vm);
-  if (vm.count("help")) {
-    std::cout << kUsage << "\n" << desc << "\n";
-    return 0;
-  }
+  if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
   if (!vm.count("model") || !vm.count("data")) throw pk::InputError("", 0, 0, "--model and --data are required");
   const std::string propagator = vm["propagator"].as<std::string>();
   if (propagator != "exact") {

@@ -97,12 +97,7 @@ int Main(int argc, char** argv) {
       "plot", po::value<std::string>(), "write concentration against time as SVG")(
       "log", "logarithmic concentration axis for --plot");
   po::variables_map vm;
-  po::store(po::parse_command_line(argc, argv, desc), vm);
-  po::notify(vm);
-  if (vm.count("help")) {
-    std::cout << kUsage << "\n" << desc << "\n";
-    return 0;
-  }
+  if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
   if (vm.count("list-models")) {
     for (const std::string& name : pk::CatalogueModelNames()) {
       const auto model = pk::MakeModel(name);

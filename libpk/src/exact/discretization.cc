@@ -6,6 +6,8 @@
 #include <Eigen/LU>
 #include <unsupported/Eigen/MatrixFunctions>
 
+#include "numerical_failure.h"
+
 namespace pk {
 namespace internal {
 namespace {
@@ -164,6 +166,29 @@ Eigen::MatrixXd Discretization::FinishAdjoint() {
   }
   frechet_.clear();
   return g;
+}
+
+PeriodicSteadyState SolvePeriodicSteadyState(Discretization* d, int n, const Eigen::VectorXd& bolus,
+                                             const std::vector<std::pair<double, Eigen::VectorXd>>& segments) {
+  PeriodicSteadyState ss;
+  ss.m = Eigen::MatrixXd::Identity(n, n);
+  Eigen::VectorXd p0 = bolus;  // P(0) = M b + w
+  for (const auto& seg : segments) {
+    const bool input = !seg.second.isZero(0.0);
+    const Discretization::Step& st = d->Get(seg.first, input);
+    const Eigen::MatrixXd phi = st.phi.topLeftCorner(n, n);
+    ss.m = phi * ss.m;
+    p0 = phi * p0;
+    if (input) p0 += st.gamma.topRows(n) * seg.second;
+  }
+  ss.lu.compute(Eigen::MatrixXd::Identity(n, n) - ss.m);
+  if (!(ss.lu.rcond() > 1e-13)) {
+    throw NumericalFailure(
+        "no steady state: the dosing-interval map has an eigenvalue at 1 (is drug eliminated from every "
+        "compartment it reaches?)");
+  }
+  ss.x_star = ss.lu.solve(p0);
+  return ss;
 }
 
 }  // namespace internal

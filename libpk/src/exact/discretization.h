@@ -35,6 +35,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/LU>
 
 namespace pk {
 namespace internal {
@@ -93,6 +94,19 @@ class Discretization {
   std::vector<std::pair<double, Eigen::MatrixXd>> frechet_;  // block-path accumulators
   long exponentials_ = 0;
 };
+
+/// The steady state before a dose of a periodic dosing cycle: one period adds
+/// `bolus` and then runs through `segments` (step length, input rates), an
+/// affine map P(x) = M (x + b) + w. The fixed point solves (I − M) x* = M b + w.
+/// Only the first `n` states take part (the simulator's AUC row does not).
+struct PeriodicSteadyState {
+  Eigen::VectorXd x_star;
+  Eigen::MatrixXd m;
+  Eigen::PartialPivLU<Eigen::MatrixXd> lu;  ///< of I − M, for implicit derivatives
+};
+/// Throws NumericalFailure when I − M is singular (no elimination).
+PeriodicSteadyState SolvePeriodicSteadyState(Discretization* d, int n, const Eigen::VectorXd& bolus,
+                                             const std::vector<std::pair<double, Eigen::VectorXd>>& segments);
 
 }  // namespace internal
 }  // namespace pk

@@ -35,26 +35,13 @@ void ExactPropagator::Bolus(int cmt, double amount, int /*set*/) { x_(cmt) += am
 void ExactPropagator::Reset() { x_.head(n_).setZero(); }
 
 void ExactPropagator::SteadyState(const SteadyStateCycle<double>& cycle, int set, bool add) {
-  // One period is the affine map P(x) = M (x + b) + w; the steady state
-  // before a dose solves (I − M) x = M b + w.
-  Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n_, n_);
-  Eigen::VectorXd w = Eigen::VectorXd::Zero(n_);
-  for (const Segment<double>& seg : cycle.period) {
-    const Discretization::Step& d = Get(set, seg.duration, seg.rate);
-    const Eigen::MatrixXd phi = d.phi.topLeftCorner(n_, n_);
-    m = phi * m;
-    w = phi * w;
-    if (d.gamma.size()) w += d.gamma.topRows(n_) * seg.rate;
-  }
+  std::vector<std::pair<double, Eigen::VectorXd>> period;
+  for (const Segment<double>& seg : cycle.period) period.emplace_back(seg.duration, seg.rate);
   Eigen::VectorXd b = Eigen::VectorXd::Zero(n_);
   b(cycle.cmt) = cycle.bolus;
-  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n_, n_) - m);
-  if (!(lu.rcond() > 1e-13)) {
-    throw NumericalFailure(
-        "no steady state: the dosing-interval map has an eigenvalue at 1 (is drug eliminated from every "
-        "compartment it reaches?)");
-  }
-  Eigen::VectorXd z = lu.solve(m * b + w) + b;
+  const PeriodicSteadyState ss = SolvePeriodicSteadyState(cache_[set].get(), n_, b, period);
+  // From the fixed point to the record time.
+  Eigen::VectorXd z = ss.x_star + b;
   for (const Segment<double>& seg : cycle.to_record) {
     const Discretization::Step& d = Get(set, seg.duration, seg.rate);
     z = d.phi.topLeftCorner(n_, n_) * z;

@@ -19,16 +19,11 @@
 
 #include "../events.h"
 #include "discretization.h"
+#include "numerical_failure.h"
 #include "pk/linear_model.h"
 
 namespace pk {
 namespace internal {
-
-/// A numerical failure of one evaluation (reported, never a crash).
-class NumericalFailure : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
 
 class ExactPropagator {
  public:

@@ -20,6 +20,17 @@ std::vector<int> SampleIndex(const PreparedSubject& subject, int* count) {
 
 namespace {
 
+// The value of a steady state's fixed point (discretization.h), for either scalar type.
+template <typename T>
+PeriodicSteadyState FixedPoint(LinearDerivatives* sys, int set, const SteadyStateCycle<T>& cycle,
+                               Eigen::VectorXd* bolus) {
+  std::vector<std::pair<double, Eigen::VectorXd>> period;
+  for (const Segment<T>& seg : cycle.period) period.emplace_back(Value(seg.duration), Values(seg.rate));
+  *bolus = Eigen::VectorXd::Zero(sys->n());
+  (*bolus)(cycle.cmt) = Value(cycle.bolus);
+  return SolvePeriodicSteadyState(sys->discretization(set), sys->n(), *bolus, period);
+}
+
 // ---------------------------------------------------------------------------
 // Route (a): forward sensitivities.
 
@@ -52,21 +63,9 @@ class ForwardVisitor {
 
   void SteadyState(const SteadyStateCycle<T>& cycle, int set, bool add) {
     const int n = sys_.n();
-    // Fixed point value: (I − M) x* = M b + w.
-    Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
-    Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
-    b(cycle.cmt) = Value(cycle.bolus);
-    Eigen::VectorXd pb = b;  // P(0) = M b + w
-    for (const Segment<T>& seg : cycle.period) {
-      const Eigen::VectorXd u = Values(seg.rate);
-      const LinearDerivatives::Step& st = sys_.Get(set, Value(seg.duration), !u.isZero(0.0));
-      m = st.phi * m;
-      pb = st.phi * pb;
-      if (st.gamma.size()) pb += st.gamma * u;
-    }
-    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n, n) - m);
-    if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state: the dosing-interval map has an eigenvalue at 1");
-    const Eigen::VectorXd x_star = lu.solve(pb);
+    Eigen::VectorXd b;
+    const PeriodicSteadyState ps = FixedPoint(&sys_, set, cycle, &b);
+    const Eigen::VectorXd& x_star = ps.x_star;
     // ∂_p P at x*, by propagating (x*, S = 0) through one period.
     Eigen::MatrixXd db = Eigen::MatrixXd::Zero(n, p_);
     db.row(cycle.cmt) = Derivatives(cycle.bolus, p_).transpose();
@@ -74,17 +73,11 @@ class ForwardVisitor {
     Eigen::MatrixXd sens = db;
     RunSegments(cycle.period, set, &x, &sens);
     // Implicit function theorem: S* = (I − M)⁻¹ ∂_p P.
-    Eigen::MatrixXd s_star = lu.solve(sens);
+    Eigen::MatrixXd s_star = ps.lu.solve(sens);
     Eigen::VectorXd z = x_star + b;
     Eigen::MatrixXd sz = s_star + db;
     RunSegments(cycle.to_record, set, &z, &sz);
-    if (add) {
-      x_ += z;
-      sens_ += sz;
-    } else {
-      x_ = z;
-      sens_ = sz;
-    }
+    SetOrAdd(z, sz, add);
   }
 
   void SteadyInfusion(const Vec<T>& u, int set, bool add) {
@@ -94,14 +87,7 @@ class ForwardVisitor {
     const Eigen::VectorXd z = lu.solve(-Values(u));
     Eigen::MatrixXd rhs = DerivativeMatrix(u, p_);
     for (int j : sys_.active(set)) rhs += (sys_.dA(set, j) * z) * sys_.dtheta(set).row(j);
-    const Eigen::MatrixXd sz = -lu.solve(rhs);
-    if (add) {
-      x_ += z;
-      sens_ += sz;
-    } else {
-      x_ = z;
-      sens_ = sz;
-    }
+    SetOrAdd(z, -lu.solve(rhs), add);
   }
 
   void RecordDone(int r, int set) {
@@ -114,6 +100,17 @@ class ForwardVisitor {
   }
 
  private:
+  // A steady state replaces the state (SS=1) or adds to it (SS=2), with its sensitivity.
+  void SetOrAdd(const Eigen::VectorXd& z, const Eigen::MatrixXd& sz, bool add) {
+    if (add) {
+      x_ += z;
+      sens_ += sz;
+    } else {
+      x_ = z;
+      sens_ = sz;
+    }
+  }
+
   void RunSegments(const std::vector<Segment<T>>& segments, int set, Eigen::VectorXd* x, Eigen::MatrixXd* sens) {
     for (const Segment<T>& seg : segments) {
       Propagate(set, Value(seg.duration), Values(seg.rate), DerivativeMatrix(seg.rate, p_),
@@ -248,26 +245,14 @@ class AdjointRecorder {
   void DoseEntered(const T&, int) {}
 
   void SteadyState(const SteadyStateCycle<T>& cycle, int set, bool add) {
-    const int n = sys_.n();
     auto tape = std::make_shared<SteadyTape>();
     tape->add = add;
     tape->cmt = cycle.cmt;
     tape->db = Derivatives(cycle.bolus, p_);
-    Eigen::MatrixXd m = Eigen::MatrixXd::Identity(n, n);
-    Eigen::VectorXd b = Eigen::VectorXd::Zero(n);
-    b(cycle.cmt) = Value(cycle.bolus);
-    Eigen::VectorXd pb = b;
-    for (const Segment<T>& seg : cycle.period) {
-      const Eigen::VectorXd u = Values(seg.rate);
-      const LinearDerivatives::Step& st = sys_.Get(set, Value(seg.duration), !u.isZero(0.0));
-      m = st.phi * m;
-      pb = st.phi * pb;
-      if (st.gamma.size()) pb += st.gamma * u;
-    }
-    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n, n) - m);
-    if (!(lu.rcond() > 1e-13)) throw NumericalFailure("no steady state: the dosing-interval map has an eigenvalue at 1");
-    const Eigen::VectorXd x_star = lu.solve(pb);
-    tape->m = m;
+    Eigen::VectorXd b;
+    const PeriodicSteadyState ps = FixedPoint(&sys_, set, cycle, &b);
+    const Eigen::VectorXd& x_star = ps.x_star;
+    tape->m = ps.m;
     Eigen::VectorXd x = x_star + b;
     for (const Segment<T>& seg : cycle.period) tape->period.push_back(Step(set, seg.duration, seg.rate, &x));
     Eigen::VectorXd z = x_star + b;

@@ -54,6 +54,7 @@ class LinearDerivatives {
 
   /// Φ(h) and Γ(h); Γ is left empty when `with_gamma` is false.
   const Step& Get(int set, double h, bool with_gamma) { return sets_[set].disc->Get(h, with_gamma); }
+  Discretization* discretization(int set) { return sets_[set].disc.get(); }
   /// ∂Φ/∂θ_j (and ∂Γ/∂θ_j when `with_gamma`) for the active j of the set.
   const StepSensitivity& GetSensitivity(int set, double h, bool with_gamma);
 
