@@ -26,6 +26,36 @@ double Sinhc(double d) {
   return std::sinh(d) / d;
 }
 
+// A diagonal T with T⁻¹AT symmetric, when one exists: reversible exchange
+// (clearance flows between compartments with volumes) gives A_ij t_j/t_i =
+// A_ji t_i/t_j, so t_j = t_i sqrt(A_ji/A_ij) along every edge of the graph.
+bool SymmetrizingDiagonal(const Eigen::MatrixXd& a, Eigen::VectorXd* t) {
+  const int n = static_cast<int>(a.rows());
+  t->setZero(n);
+  std::vector<int> stack;
+  for (int root = 0; root < n; ++root) {
+    if ((*t)(root) != 0) continue;
+    (*t)(root) = 1;
+    stack.push_back(root);
+    while (!stack.empty()) {
+      const int i = stack.back();
+      stack.pop_back();
+      for (int j = 0; j < n; ++j) {
+        if (j == i || (a(i, j) == 0 && a(j, i) == 0)) continue;
+        if (!(a(i, j) * a(j, i) > 0)) return false;  // one-way flow (a depot): not symmetrisable
+        const double tj = (*t)(i) * std::sqrt(a(j, i) / a(i, j));
+        if ((*t)(j) == 0) {
+          (*t)(j) = tj;
+          stack.push_back(j);
+        } else if (std::fabs((*t)(j) - tj) > 1e-12 * tj) {
+          return false;
+        }
+      }
+    }
+  }
+  return true;
+}
+
 }  // namespace
 
 Discretization::Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen)
@@ -35,14 +65,26 @@ void Discretization::Decompose() {
   if (decomposed_) return;
   decomposed_ = true;
   if (!allow_eigen_) return;
-  const Eigen::EigenSolver<Eigen::MatrixXd> es(a_);
-  if (es.info() != Eigen::Success) return;
-  const double scale = std::max(a_.cwiseAbs().maxCoeff(), 1e-300);
-  if (es.eigenvalues().imag().cwiseAbs().maxCoeff() > 1e-12 * scale) return;
-  lambda_ = es.eigenvalues().real();
-  v_ = es.eigenvectors().real();
-  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(v_);
-  w_ = lu.inverse();
+  Eigen::VectorXd t;
+  if (SymmetrizingDiagonal(a_, &t)) {
+    // A = T Q Λ Qᵀ T⁻¹ from the symmetric S = T⁻¹AT: real eigenvalues, orthogonal Q.
+    Eigen::MatrixXd sym = t.cwiseInverse().asDiagonal() * a_ * t.asDiagonal();
+    sym = 0.5 * (sym + sym.transpose());
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(sym);
+    if (es.info() != Eigen::Success) return;
+    lambda_ = es.eigenvalues();
+    v_ = t.asDiagonal() * es.eigenvectors();
+    w_ = es.eigenvectors().transpose() * t.cwiseInverse().asDiagonal();
+  } else {
+    const Eigen::EigenSolver<Eigen::MatrixXd> es(a_);
+    if (es.info() != Eigen::Success) return;
+    const double scale = std::max(a_.cwiseAbs().maxCoeff(), 1e-300);
+    if (es.eigenvalues().imag().cwiseAbs().maxCoeff() > 1e-12 * scale) return;
+    lambda_ = es.eigenvalues().real();
+    v_ = es.eigenvectors().real();
+    const Eigen::PartialPivLU<Eigen::MatrixXd> lu(v_);
+    w_ = lu.inverse();
+  }
   const double kappa = v_.cwiseAbs().colwise().sum().maxCoeff() * w_.cwiseAbs().colwise().sum().maxCoeff();
   if (!(kappa <= 1e4) || !w_.allFinite()) return;
   eigen_ = true;

@@ -15,7 +15,10 @@
 // Derivatives take one of two exact paths, chosen per parameter set and step:
 //
 //  * Eigendecomposition (fast): when A = V Λ V⁻¹ with real eigenvalues and a
-//    well-conditioned V (κ₁(V) ≤ 1e4),
+//    well-conditioned V (κ₁(V) ≤ 1e4). Reversible exchange between volumes
+//    makes T⁻¹AT symmetric for a diagonal T (found from the graph), and then
+//    the symmetric eigensolver gives V = TQ with Q orthogonal; otherwise (a
+//    one-way depot) the general real eigensolver is used.
 //      ∂Φ/∂θ_j = V (F ∘ (V⁻¹ A_j V)) V⁻¹          (Daleckii–Krein)
 //    with F_ik the divided difference of e^{λh}, computed stably as
 //      h e^{(λ_i+λ_k)h/2} sinh(δ)/δ,  δ = (λ_i − λ_k)h/2,
