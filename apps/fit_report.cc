@@ -60,6 +60,17 @@ std::string SubjectSvg(const SubjectFit& f, bool log) {
 
 }  // namespace
 
+std::string InitialTable(const std::vector<SubjectFit>& fits) {
+  std::ostringstream out;
+  out << "ID,PARAMETER,INITIAL,SOURCE\n";
+  for (const SubjectFit& f : fits) {
+    for (const auto& kv : f.initial) {
+      out << FormatNumber(f.id) << "," << kv.first << "," << Csv(kv.second) << "," << Quote(f.initial_method) << "\n";
+    }
+  }
+  return out.str();
+}
+
 std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
   std::ostringstream out;
   const SubjectFit* first = nullptr;
@@ -106,13 +117,13 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
   sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS\n";
   pred << "ID,TIME,DV,PRED,RES,WRES\n";
-  det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC\n";
+  det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC,INITIAL_VALUES\n";
   for (const SubjectFit& f : fits) {
     const std::string id = FormatNumber(f.id);
     const FitSummary& s = f.summary;
     det << id << "," << Quote(Status(f)) << "," << Quote(f.ok ? s.message : f.error) << "," << Csv(s.initial_objective)
         << "," << s.evaluations << "," << s.best_start << "," << Csv(s.minus2ll) << "," << Csv(s.aic) << ","
-        << Csv(s.bic) << "\n";
+        << Csv(s.bic) << "," << Quote(f.initial_method) << "\n";
     sum << id << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations << ","
         << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "\n";
     if (!f.ok) continue;
@@ -169,7 +180,9 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
       html << "<p class=\"bad\">" << Escape(f.error) << "</p>\n";
       continue;
     }
-    html << "<pre>" << Escape(f.summary.FullReport()) << "</pre>\n" << SubjectSvg(f, context.log_plots) << "\n";
+    html << "<p>Starting values from " << Escape(f.initial_method) << ":";
+    for (const auto& kv : f.initial) html << " " << Escape(kv.first) << " = " << Fmt(kv.second);
+    html << ".</p>\n<pre>" << Escape(f.summary.FullReport()) << "</pre>\n" << SubjectSvg(f, context.log_plots) << "\n";
   }
   html << "</body></html>\n";
 

@@ -21,6 +21,9 @@ struct ReportContext {
 /// SVG per subject and report.html into `dir` (each file whole or not at all).
 void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits, const ReportContext& context);
 
+/// The starting values per subject as CSV: ID,PARAMETER,INITIAL,SOURCE.
+std::string InitialTable(const std::vector<SubjectFit>& fits);
+
 /// The estimates as a fixed-width table for the terminal.
 std::string EstimatesTable(const std::vector<SubjectFit>& fits);
 

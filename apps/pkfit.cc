@@ -104,7 +104,9 @@ int Main(int argc, char** argv) {
   desc.add_options()("help,h", "show this help")("model,m", po::value<std::string>(), "catalogue model")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "init", po::value<std::vector<std::string>>(&init)->composing(),
-      "NAME=VALUE: initial value; the parameter is estimated (also F1, ALAG1, R1, D1)")(
+      "NAME=VALUE: initial value; the parameter is estimated (also F1, ALAG1, R1, D1). 'auto': print the "
+      "starting values computed from the data (the default for parameters without --init)")(
+      "catalogue-init", "start from the catalogue defaults instead of values computed from the data")(
       "fix", po::value<std::vector<std::string>>(&fix)->composing(), "NAME=VALUE: hold at this value")(
       "param", po::value<std::vector<std::string>>(&params)->composing(), "same as --fix")(
       "lower", po::value<std::vector<std::string>>(&lower)->composing(), "NAME=VALUE: lower bound")(
@@ -173,6 +175,16 @@ int Main(int argc, char** argv) {
 
   // Parameters: every model parameter not supplied by a data column, plus σ for ML, plus --init.
   const pk::Objective probe(req.model, req.data, req.subjects.empty() ? 0 : req.subjects[0], req.objective, req.priors);
+  bool show_initial = false;
+  for (auto it = init.begin(); it != init.end();) {
+    if (*it == "auto") {
+      show_initial = true;
+      it = init.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  req.initial_from_data = vm.count("catalogue-init") == 0;
   const pk::ParameterValues inits = pk::cli::ParseAssignments(init, "--init");
   pk::ParameterValues fixes = pk::cli::ParseAssignments(fix, "--fix");
   for (const auto& kv : pk::cli::ParseAssignments(params, "--param")) fixes[kv.first] = kv.second;
@@ -284,6 +296,7 @@ int Main(int argc, char** argv) {
       std::cerr << "pkfit: ID " << pk::FormatNumber(f.id) << ": " << f.summary.message << "\n";
     }
   }
+  if (show_initial) std::cout << pk::cli::InitialTable(fits) << "\n";
   if (!quiet) {
     std::cout << pk::cli::EstimatesTable(fits);
     const std::string route = fits.empty() ? "" : fits.front().summary.gradient;

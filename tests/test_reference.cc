@@ -47,6 +47,9 @@ std::vector<Reference> ReadReference() {
 TEST_CASE("theophylline and indomethacin: no higher objective than R's nls, same estimates", "[reference]") {
   const std::vector<Reference> refs = ReadReference();
   REQUIRE(refs.size() == 18);
+  // Once from starting values computed from the data (one start), once from the
+  // catalogue defaults with four starts.
+  const bool from_data = GENERATE(true, false);
   for (const std::string dataset : {"theophylline", "indomethacin"}) {
     pk::FitSubjectsRequest req;
     req.model = pk::MakeModel(dataset == "theophylline" ? "1cmt_oral" : "2cmt_iv");
@@ -57,7 +60,8 @@ TEST_CASE("theophylline and indomethacin: no higher objective than R's nls, same
       s.initial = NAN;
       req.parameters.push_back(s);
     }
-    req.fit.starts = 4;
+    req.initial_from_data = from_data;
+    req.fit.starts = from_data ? 1 : 4;
     req.jobs = 2;
     const std::vector<pk::SubjectFit> fits = pk::FitSubjects(req);
     for (const Reference& ref : refs) {
@@ -67,7 +71,8 @@ TEST_CASE("theophylline and indomethacin: no higher objective than R's nls, same
         if (f.id == ref.id) fit = &f;
       }
       REQUIRE(fit != nullptr);
-      INFO(dataset << " ID " << ref.id << "\n" << fit->summary.FullReport());
+      INFO(dataset << " ID " << ref.id << " starting from " << fit->initial_method << "\n" << fit->summary.FullReport());
+      if (from_data) CHECK(fit->initial_method.rfind("data", 0) == 0);
       REQUIRE(fit->ok);
       CHECK(fit->summary.converged());
       CHECK(fit->summary.objective <= ref.objective * (1 + 1e-9));

@@ -22,7 +22,28 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
       out->error = "no samples (every observation has MDV=1 or no DV)";
       return;
     }
-    out->summary = Fit(objective, req.parameters, req.fit);
+    std::vector<ParameterSpec> specs = req.parameters;
+    out->initial_method = "catalogue defaults";
+    if (req.initial_from_data) {
+      const InitialEstimate est = EstimateInitialValues(*req.model, *req.data, subject);
+      if (est.ok) {
+        out->initial_method = "data (" + est.method + ")";
+        for (ParameterSpec& spec : specs) {
+          auto it = est.values.find(spec.name);
+          if (std::isnan(spec.initial) && it != est.values.end()) spec.initial = it->second;
+        }
+      } else {
+        out->initial_method = "catalogue defaults (from the data: " + est.message + ")";
+      }
+    }
+    const Eigen::VectorXd defaults = objective.DefaultValues();
+    for (const ParameterSpec& spec : specs) {
+      if (!spec.fixed) {
+        out->initial[spec.name] =
+            std::isnan(spec.initial) ? defaults(objective.ParameterIndex(spec.name)) : spec.initial;
+      }
+    }
+    out->summary = Fit(objective, specs, req.fit);
     out->ok = true;
     const Objective::Evaluation ev = objective.Evaluate(out->summary.values, {}, Objective::Need::kValue);
     if (ev.ok) {

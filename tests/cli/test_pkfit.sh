@@ -23,6 +23,16 @@ awk -F, 'NR>1 { d = $3 - $4 - $5; if (d < 0) d = -d; if (d > 1e-9) bad = 1 } END
   "$work/theo/predictions.csv" || fail "RES is not DV - PRED"
 grep -q "converged" "$work/theo.txt" || fail "no estimates table on stdout"
 
+# --init auto prints the starting values computed from the data, and the report names their source.
+"$pkfit" --model 2cmt_iv --data "$root/datasets/indomethacin.csv" --init auto -o "$work/auto" -q >"$work/auto.txt" ||
+  fail "--init auto fit failed"
+head -1 "$work/auto.txt" | grep -qx "ID,PARAMETER,INITIAL,SOURCE" || fail "--init auto did not print the starting values"
+[ "$(grep -c '^[0-9],' "$work/auto.txt")" -eq 24 ] || fail "--init auto: expected 6 x 4 starting values"
+grep -q "data (exponential grid" "$work/auto/fit_details.csv" || fail "fit_details lacks the starting-value source"
+"$pkfit" --model 2cmt_iv --data "$root/datasets/indomethacin.csv" --catalogue-init --init auto -o "$work/cat" -q \
+  >"$work/cat.txt" || true
+grep -q "catalogue defaults" "$work/cat.txt" || fail "--catalogue-init did not start from the defaults"
+
 # --evaluate: objective and gradient; the adjoint and forward routes print the same gradient.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --evaluate --subject 1 --init KA=1.2 \
   --gradient adjoint >"$work/eval_adj.csv" || fail "--evaluate (adjoint) failed"

@@ -10,6 +10,7 @@
 #include <Eigen/Core>
 
 #include "pk/fit.h"
+#include "pk/initial_estimates.h"
 #include "pk/objective.h"
 
 namespace pk {
@@ -26,6 +27,9 @@ struct SubjectFit {
   /// Weighted residuals: least squares √W(DV − PRED)/σ̂ with σ̂² = 2V/(N − p);
   /// maximum likelihood (DV − PRED)/σ_k.
   Eigen::VectorXd wres;
+  /// Where the starting values came from: "data (...)" or "catalogue defaults (...)".
+  std::string initial_method;
+  ParameterValues initial;     ///< the starting values of the estimated parameters
   /// The fitted curve on a fine grid (for plots): times and central concentrations.
   std::vector<double> curve_times;
   std::vector<double> curve;
@@ -40,6 +44,10 @@ struct FitSubjectsRequest {
   std::vector<LogNormalPrior> priors;
   std::vector<ParameterSpec> parameters;  ///< an empty name list is not allowed
   FitOptions fit;
+  /// Start parameters whose ParameterSpec::initial is NaN from values computed
+  /// from each subject's data (pk/initial_estimates.h) instead of the catalogue
+  /// defaults; where that fails, the defaults are used and the reason recorded.
+  bool initial_from_data = true;
   int jobs = 0;                        ///< worker threads; 0 = all cores
   int curve_points = 400;              ///< grid size of the fitted curve
 };

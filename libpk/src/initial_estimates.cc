@@ -1,0 +1,239 @@
+#include "pk/initial_estimates.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include <Eigen/Dense>
+
+namespace pk {
+namespace {
+
+struct DoseInput {
+  double time;
+  double amount;
+  double duration;  // 0 for a bolus
+};
+
+// Response at time t (after dose time) of the kernel e^{−λs} to one dose, and
+// with first-order absorption at rate ka when ka > 0.
+double KernelResponse(const DoseInput& d, double t, double lambda, double ka) {
+  const double s = t - d.time;
+  if (s <= 0) return 0;
+  if (ka > 0) {
+    // D·ka (e^{−λs} − e^{−ka s})/(ka − λ)
+    return d.amount * ka * (std::exp(-lambda * s) - std::exp(-ka * s)) / (ka - lambda);
+  }
+  if (d.duration <= 0) return d.amount * std::exp(-lambda * s);
+  const double rate = d.amount / d.duration;
+  if (s <= d.duration) return rate * (1 - std::exp(-lambda * s)) / lambda;
+  return rate * (std::exp(-lambda * (s - d.duration)) - std::exp(-lambda * s)) / lambda;
+}
+
+struct Candidate {
+  double cost = std::numeric_limits<double>::infinity();
+  std::vector<double> rates;
+  double ka = 0;
+  Eigen::VectorXd amplitudes;
+};
+
+// Weighted linear least squares for the amplitudes at fixed rates; rejects
+// non-positive amplitudes.
+bool SolveAmplitudes(const std::vector<DoseInput>& doses, const std::vector<double>& t, const std::vector<double>& c,
+                     const std::vector<double>& rates, double ka, Candidate* out) {
+  const int n = static_cast<int>(t.size()), m = static_cast<int>(rates.size());
+  Eigen::MatrixXd x(n, m);
+  Eigen::VectorXd y(n);
+  for (int k = 0; k < n; ++k) {
+    const double w = 1 / c[k];
+    y(k) = 1;  // c_k·w
+    for (int i = 0; i < m; ++i) {
+      double sum = 0;
+      for (const DoseInput& d : doses) sum += KernelResponse(d, t[k], rates[i], ka);
+      x(k, i) = sum * w;
+    }
+  }
+  const Eigen::VectorXd a = x.colPivHouseholderQr().solve(y);
+  if (!a.allFinite() || (a.array() <= 0).any()) return false;
+  const double cost = (x * a - y).squaredNorm();
+  if (!(cost < out->cost)) return false;
+  out->cost = cost;
+  out->rates = rates;
+  out->ka = ka;
+  out->amplitudes = a;
+  return true;
+}
+
+// All increasing m-tuples of grid indices.
+void Combinations(int grid, int m, int start, std::vector<int>* current, std::vector<std::vector<int>>* out) {
+  if (static_cast<int>(current->size()) == m) {
+    out->push_back(*current);
+    return;
+  }
+  for (int i = start; i < grid; ++i) {
+    current->push_back(i);
+    Combinations(grid, m, i + 1, current, out);
+    current->pop_back();
+  }
+}
+
+}  // namespace
+
+bool ExponentialsToMammillary(const Exponentials& e, std::vector<double>* p, std::string* why) {
+  const int m = static_cast<int>(e.rate.size());
+  auto fail = [&](const std::string& w) {
+    if (why) *why = w;
+    return false;
+  };
+  double b0 = 0;
+  for (double a : e.amplitude) b0 += a;
+  if (!(b0 > 0)) return fail("the amplitudes do not sum to a positive concentration");
+  const double v1 = 1 / b0;
+  p->clear();
+  if (m == 1) {
+    *p = {e.rate[0] * v1, v1};
+    return true;
+  }
+  if (m == 2) {
+    const double a1 = e.amplitude[0], a2 = e.amplitude[1], l1 = e.rate[0], l2 = e.rate[1];
+    const double k21 = (a1 * l2 + a2 * l1) / (a1 + a2);
+    const double k10 = l1 * l2 / k21;
+    const double k12 = l1 + l2 - k21 - k10;
+    if (!(k21 > 0 && k10 > 0 && k12 > 0)) return fail("the exponentials give a negative micro-constant");
+    *p = {k10 * v1, v1, k12 * v1, k12 * v1 / k21};
+    return true;
+  }
+  if (m == 3) {
+    // A(s) = Π(s + λ_i) = s³ + a1 s² + a2 s + a3; B(s) = Σ a_i Π_{j≠i}(s + λ_j) = b0 s² + b1 s + b2.
+    const double l1 = e.rate[0], l2 = e.rate[1], l3 = e.rate[2];
+    const double a1 = l1 + l2 + l3, a2 = l1 * l2 + l1 * l3 + l2 * l3, a3 = l1 * l2 * l3;
+    double b1 = 0, b2 = 0;
+    for (int i = 0; i < 3; ++i) {
+      const double lj = e.rate[(i + 1) % 3], lk = e.rate[(i + 2) % 3];
+      b1 += e.amplitude[i] * (lj + lk);
+      b2 += e.amplitude[i] * lj * lk;
+    }
+    // B(s)/b0 = (s + k21)(s + k31).
+    const double sum = b1 / b0, prod = b2 / b0, disc = sum * sum - 4 * prod;
+    if (!(disc >= 0) || !(prod > 0)) return fail("the peripheral rates are complex (no mammillary model fits)");
+    const double k21 = (sum + std::sqrt(disc)) / 2, k31 = (sum - std::sqrt(disc)) / 2;
+    if (!(k31 > 0)) return fail("a peripheral rate is not positive");
+    const double k10 = a3 / (k21 * k31);
+    const double s1 = a1 - k10 - k21 - k31;
+    const double s2 = a2 - k10 * (k21 + k31) - k21 * k31;
+    if (std::fabs(k21 - k31) < 1e-12 * k21) return fail("the peripheral rates coincide: the labelling is not identifiable");
+    // k12 k31 + k13 k21 = s2, k12 + k13 = s1.
+    const double k12 = (s2 - s1 * k21) / (k31 - k21), k13 = s1 - k12;
+    if (!(k10 > 0 && k12 > 0 && k13 > 0)) return fail("the exponentials give a negative micro-constant");
+    *p = {k10 * v1, v1, k12 * v1, k12 * v1 / k21, k13 * v1, k13 * v1 / k31};
+    return true;
+  }
+  return fail("only 1, 2 or 3 exponentials are supported");
+}
+
+InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, int subject) {
+  InitialEstimate out;
+  out.method = "exponential grid with linear amplitudes";
+  const std::string& name = model.name();
+  int phases = 0;
+  if (name.rfind("1cmt", 0) == 0) phases = 1;
+  if (name.rfind("2cmt", 0) == 0) phases = 2;
+  if (name.rfind("3cmt", 0) == 0) phases = 3;
+  const bool oral = name.find("oral") != std::string::npos;
+  if (phases == 0 || !model.is_linear()) {
+    out.message = "automatic initial values cover the 1-3 compartment catalogue models";
+    return out;
+  }
+  // The dose history and the samples.
+  const Subject& s = data.subjects[subject];
+  std::vector<DoseInput> doses;
+  std::vector<double> t, c;
+  for (const Record& r : s.records) {
+    if (r.evid == Evid::kReset || r.evid == Evid::kResetDose || r.ss != 0 || r.rate < 0) {
+      out.message = "steady-state doses, resets and modelled rates are not handled";
+      return out;
+    }
+    if (r.IsDose()) {
+      if (r.cmt != 0 && r.cmt != model.default_dose_compartment()) {
+        out.message = "doses into a compartment other than the default are not handled";
+        return out;
+      }
+      const double duration = r.rate > 0 ? r.amt / r.rate : 0.0;
+      if (oral && duration > 0) {
+        out.message = "infusions into the depot are not handled";
+        return out;
+      }
+      for (int k = 0; k <= r.addl; ++k) doses.push_back({r.time + k * r.ii, r.amt, duration});
+    } else if (r.IsSample() && r.dv > 0 && (r.cmt == 0 || r.cmt == model.central_compartment())) {
+      t.push_back(r.time);
+      c.push_back(r.dv);
+    }
+  }
+  if (doses.empty()) {
+    out.message = "no dose";
+    return out;
+  }
+  // Samples after the first dose only.
+  std::vector<double> ts, cs;
+  for (size_t k = 0; k < t.size(); ++k) {
+    if (t[k] > doses.front().time) {
+      ts.push_back(t[k]);
+      cs.push_back(c[k]);
+    }
+  }
+  const int unknowns = phases + (oral ? 1 : 0);
+  if (static_cast<int>(ts.size()) < unknowns + 1) {
+    out.message = "too few positive samples after the dose";
+    return out;
+  }
+  const double first = ts.front() - doses.front().time, span = ts.back() - doses.front().time;
+  const double lo = 0.05 / span, hi = 20 / first;
+  const int grid = phases == 1 ? 40 : (phases == 2 ? 28 : 16);
+  std::vector<double> rates(grid);
+  for (int i = 0; i < grid; ++i) rates[i] = lo * std::pow(hi / lo, static_cast<double>(i) / (grid - 1));
+  std::vector<std::vector<int>> combos;
+  std::vector<int> current;
+  Combinations(grid, phases, 0, &current, &combos);
+
+  // Keep the best few candidates, so an infeasible conversion can fall back to the next.
+  std::vector<Candidate> best;
+  auto consider = [&](const std::vector<double>& lambdas, double ka) {
+    Candidate cand;
+    if (!SolveAmplitudes(doses, ts, cs, lambdas, ka, &cand)) return;
+    best.push_back(cand);
+    std::sort(best.begin(), best.end(), [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; });
+    if (best.size() > 20) best.pop_back();
+  };
+  for (const std::vector<int>& idx : combos) {
+    std::vector<double> lambdas;
+    for (int i : idx) lambdas.push_back(rates[i]);
+    if (!oral) {
+      consider(lambdas, 0);
+    } else {
+      // Absorption faster than every disposition rate (the usual, non-flip-flop branch).
+      for (int j = idx.back() + 1; j < grid; ++j) consider(lambdas, rates[j]);
+    }
+  }
+  for (const Candidate& cand : best) {
+    Exponentials e;
+    e.rate = cand.rates;
+    for (int i = 0; i < cand.amplitudes.size(); ++i) e.amplitude.push_back(cand.amplitudes(i));
+    std::vector<double> p;
+    std::string why;
+    if (!ExponentialsToMammillary(e, &p, &why)) {
+      out.message = why;
+      continue;
+    }
+    // Catalogue order: [KA,] then the disposition parameters.
+    int k = 0;
+    if (oral) out.values[model.parameter_names()[k++]] = cand.ka;
+    for (double v : p) out.values[model.parameter_names()[k++]] = v;
+    out.ok = true;
+    out.message.clear();
+    return out;
+  }
+  if (out.message.empty()) out.message = "no candidate with positive amplitudes";
+  return out;
+}
+
+}  // namespace pk
