@@ -38,7 +38,8 @@ pk::GradientRoute ParseRoute(const std::string& s) {
   if (s == "forward") return pk::GradientRoute::kForward;
   if (s == "adjoint") return pk::GradientRoute::kAdjoint;
   if (s == "fd") return pk::GradientRoute::kFiniteDifference;
-  throw pk::InputError("", 0, 0, "--gradient: expected auto, forward, adjoint or fd, got '" + s + "'");
+  if (s == "companion") return pk::GradientRoute::kCompanion;
+  throw pk::InputError("", 0, 0, "--gradient: expected auto, forward, adjoint, fd or companion, got '" + s + "'");
 }
 
 void ParseOptimizer(const std::string& s, pk::FitOptions* o) {
@@ -113,7 +114,7 @@ int Main(int argc, char** argv) {
       "upper", po::value<std::vector<std::string>>(&upper)->composing(), "NAME=VALUE: upper bound")(
       "prior", po::value<std::vector<std::string>>(&priors)->composing(),
       "NAME=MEDIAN,SD: log-normal prior (SD on the log scale)")(
-      "gradient", po::value<std::string>()->default_value("auto"), "auto, forward, adjoint or fd")(
+      "gradient", po::value<std::string>()->default_value("auto"), "auto, forward, adjoint, fd or companion (tf<n>)")(
       "propagator", po::value<std::string>()->default_value("exact"), "exact (the Φ/Γ recursion)")(
       "optimizer", po::value<std::string>()->default_value("lm"), "lm, bfgs, newton or nlopt:NAME")(
       "weighting", po::value<std::string>()->default_value("uniform"), "uniform, dv2, dv or column:NAME")(

@@ -18,6 +18,8 @@ const std::vector<std::pair<std::string, Factory>>& Registry() {
       {"1cmt_iv", models::OneCmtIv},   {"1cmt_oral", models::OneCmtOral},
       {"2cmt_iv", models::TwoCmtIv},   {"2cmt_oral", models::TwoCmtOral},
       {"3cmt_iv", models::ThreeCmtIv}, {"3cmt_oral", models::ThreeCmtOral},
+      {"tf1", [] { return models::TransferFunction(1); }}, {"tf2", [] { return models::TransferFunction(2); }},
+      {"tf3", [] { return models::TransferFunction(3); }}, {"tf4", [] { return models::TransferFunction(4); }},
   };
   return registry;
 }

@@ -15,6 +15,7 @@ std::shared_ptr<const LinearModel> TwoCmtIv();
 std::shared_ptr<const LinearModel> TwoCmtOral();
 std::shared_ptr<const LinearModel> ThreeCmtIv();
 std::shared_ptr<const LinearModel> ThreeCmtOral();
+std::shared_ptr<const LinearModel> TransferFunction(int order);
 
 }  // namespace models
 }  // namespace pk

@@ -128,3 +128,51 @@ TEST_CASE("flip-flop (KA = CL/V): defective A falls back to block exponentials a
     CHECK(fwd.predictions(s) == Approx(100 * k * t * std::exp(-k * t) / 30).epsilon(1e-10));
   }
 }
+
+TEST_CASE("companion route: tf1..tf4 agree with forward, adjoint and finite differences", "[gradient][companion]") {
+  const auto model_name = GENERATE(as<std::string>{}, "tf1", "tf2", "tf3", "tf4");
+  const auto model = pk::MakeModel(model_name);
+  const int n = model->num_compartments();
+  for (const Scenario& sc : Scenarios()) {
+    if (!sc.extra_free.empty()) continue;  // the companion route differentiates a_i, b_i only
+    INFO(model_name << " / " << sc.name);
+    const pk::Objective objective(model, MakeData(sc), 0, pk::ObjectiveOptions());
+    Eigen::VectorXd values = objective.DefaultValues();
+    std::vector<int> free;
+    for (int i = 0; i < 2 * n; ++i) {
+      values(i) *= 1.0 + 0.05 * i;
+      free.push_back(i);
+    }
+    using Need = pk::Objective::Need;
+    const auto comp = objective.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kCompanion);
+    const auto fwd = objective.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kForward);
+    const auto adj = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+    const auto fd = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kFiniteDifference);
+    REQUIRE(comp.ok);
+    REQUIRE(fwd.ok);
+    REQUIRE(adj.ok);
+    REQUIRE(fd.ok);
+    CHECK(std::string(comp.route) == "companion");
+    const double scale = MaxAbs(fd.gradient);
+    INFO("companion " << comp.gradient.transpose() << "\nforward   " << fwd.gradient.transpose() << "\nfd        "
+                      << fd.gradient.transpose());
+    CHECK(MaxAbs(comp.gradient - fd.gradient) / scale < 1e-7);
+    CHECK(MaxAbs(comp.gradient - fwd.gradient) / scale < 1e-9);
+    CHECK(MaxAbs(comp.gradient - adj.gradient) / scale < 1e-9);
+    const double jscale = fwd.jacobian.cwiseAbs().maxCoeff();
+    CHECK((comp.jacobian - fwd.jacobian).cwiseAbs().maxCoeff() / jscale < 1e-9);
+  }
+}
+
+TEST_CASE("companion route refuses what it cannot differentiate", "[gradient][companion]") {
+  const Scenario sc{"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}};
+  const pk::Objective compartmental(pk::MakeModel("2cmt_iv"), MakeData(sc), 0, pk::ObjectiveOptions());
+  const auto ev = compartmental.Evaluate(compartmental.DefaultValues(), {0, 1}, pk::Objective::Need::kGradient,
+                                         pk::GradientRoute::kCompanion);
+  CHECK(!ev.ok);
+  CHECK_THAT(ev.message, Catch::Contains("tf<n> models only"));
+  const pk::Objective tf(pk::MakeModel("tf2"), MakeData(sc), 0, pk::ObjectiveOptions());
+  const auto lag = tf.Evaluate(tf.DefaultValues(), {0, tf.ParameterIndex("F1")}, pk::Objective::Need::kGradient,
+                               pk::GradientRoute::kCompanion);
+  CHECK(!lag.ok);
+}

@@ -112,3 +112,36 @@ TEST_CASE("starting values from the data are reported, and designs they cannot u
   CHECK(!e.ok);
   CHECK_THAT(e.message, Catch::Contains("steady-state"));
 }
+
+TEST_CASE("transfer functions: the same fit as the compartmental model, and conversions agree", "[initial][companion]") {
+  // tf2 and 2cmt_iv describe the same family after an IV bolus: equal optimum on indomethacin.
+  pk::FitSubjectsRequest req;
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/indomethacin.csv"));
+  req.jobs = 1;
+  auto fit_with = [&](const std::string& model) {
+    req.model = pk::MakeModel(model);
+    req.parameters.clear();
+    for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+    return pk::FitSubjects(req);
+  };
+  const auto cmt = fit_with("2cmt_iv");
+  const auto tf = fit_with("tf2");
+  for (size_t k = 0; k < cmt.size(); ++k) {
+    INFO("ID " << cmt[k].id);
+    REQUIRE(tf[k].ok);
+    CHECK(tf[k].summary.objective == Approx(cmt[k].summary.objective).epsilon(1e-7));
+    // b1 is the initial concentration per unit dose: 1/V1 of the compartmental fit.
+    const double b1 = tf[k].summary.estimates[2].estimate;
+    const double v1 = cmt[k].summary.estimates[1].estimate;
+    CHECK(b1 == Approx(1 / v1).epsilon(1e-5));
+  }
+  // Exponentials -> transfer function coefficients for a known case.
+  std::vector<double> coeffs;
+  pk::ExponentialsToTransferFunction({{2.0, 1.0}, {0.5, 0.1}}, &coeffs);
+  // A(s) = (s+0.5)(s+0.1) = s² + 0.6 s + 0.05; B(s) = 2(s+0.1) + (s+0.5) = 3 s + 0.7.
+  REQUIRE(coeffs.size() == 4);
+  CHECK(coeffs[0] == Approx(0.6));
+  CHECK(coeffs[1] == Approx(0.05));
+  CHECK(coeffs[2] == Approx(3.0));
+  CHECK(coeffs[3] == Approx(0.7));
+}

@@ -131,6 +131,32 @@ bool ExponentialsToMammillary(const Exponentials& e, std::vector<double>* p, std
   return fail("only 1, 2 or 3 exponentials are supported");
 }
 
+void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* coefficients) {
+  const int n = static_cast<int>(e.rate.size());
+  // Polynomial products, highest power first: {1} · (s + λ).
+  auto product = [&](int skip) {
+    std::vector<double> p{1.0};
+    for (int i = 0; i < n; ++i) {
+      if (i == skip) continue;
+      std::vector<double> q(p.size() + 1, 0.0);
+      for (size_t k = 0; k < p.size(); ++k) {
+        q[k] += p[k];
+        q[k + 1] += p[k] * e.rate[i];
+      }
+      p = q;
+    }
+    return p;
+  };
+  const std::vector<double> a = product(-1);  // size n+1, a[0] = 1
+  std::vector<double> b(n, 0.0);
+  for (int i = 0; i < n; ++i) {
+    const std::vector<double> p = product(i);  // size n
+    for (int k = 0; k < n; ++k) b[k] += e.amplitude[i] * p[k];
+  }
+  coefficients->assign(a.begin() + 1, a.end());
+  coefficients->insert(coefficients->end(), b.begin(), b.end());
+}
+
 InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, int subject) {
   InitialEstimate out;
   out.method = "exponential grid with linear amplitudes";
@@ -139,6 +165,8 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
   if (name.rfind("1cmt", 0) == 0) phases = 1;
   if (name.rfind("2cmt", 0) == 0) phases = 2;
   if (name.rfind("3cmt", 0) == 0) phases = 3;
+  const bool tf = name.size() == 3 && name.rfind("tf", 0) == 0;
+  if (tf) phases = name[2] - '0';
   const bool oral = name.find("oral") != std::string::npos;
   if (phases == 0 || !model.is_linear()) {
     out.message = "automatic initial values cover the 1-3 compartment catalogue models";
@@ -164,7 +192,7 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
         return out;
       }
       for (int k = 0; k <= r.addl; ++k) doses.push_back({r.time + k * r.ii, r.amt, duration});
-    } else if (r.IsSample() && r.dv > 0 && (r.cmt == 0 || r.cmt == model.central_compartment())) {
+    } else if (r.IsSample() && r.dv > 0 && (tf || r.cmt == 0 || r.cmt == model.central_compartment())) {
       t.push_back(r.time);
       c.push_back(r.dv);
     }
@@ -188,7 +216,7 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
   }
   const double first = ts.front() - doses.front().time, span = ts.back() - doses.front().time;
   const double lo = 0.05 / span, hi = 20 / first;
-  const int grid = phases == 1 ? 40 : (phases == 2 ? 28 : 16);
+  const int grid = phases == 1 ? 40 : (phases == 2 ? 28 : (phases == 3 ? 16 : 11));
   std::vector<double> rates(grid);
   for (int i = 0; i < grid; ++i) rates[i] = lo * std::pow(hi / lo, static_cast<double>(i) / (grid - 1));
   std::vector<std::vector<int>> combos;
@@ -220,6 +248,13 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
     for (int i = 0; i < cand.amplitudes.size(); ++i) e.amplitude.push_back(cand.amplitudes(i));
     std::vector<double> p;
     std::string why;
+    if (tf) {
+      ExponentialsToTransferFunction(e, &p);
+      for (size_t k = 0; k < p.size(); ++k) out.values[model.parameter_names()[k]] = p[k];
+      out.ok = true;
+      out.message.clear();
+      return out;
+    }
     if (!ExponentialsToMammillary(e, &p, &why)) {
       out.message = why;
       continue;

@@ -9,15 +9,44 @@ namespace pk {
 
 LinearModel::LinearModel(std::string name, std::string description, std::vector<std::string> compartments,
                          std::vector<std::string> parameters, Eigen::VectorXd defaults, int central,
-                         int default_dose, std::vector<LinearFlow> flows, std::vector<int> volumes)
+                         int default_dose, std::vector<LinearTerm> a_terms, std::vector<std::vector<LinearTerm>> c_terms,
+                         int tf_order)
     : Model(std::move(name), std::move(description), std::move(compartments), std::move(parameters),
             std::move(defaults), central, default_dose),
-      flows_(std::move(flows)),
-      volumes_(std::move(volumes)) {}
+      a_terms_(std::move(a_terms)),
+      c_terms_(std::move(c_terms)),
+      tf_order_(tf_order) {}
+
+std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std::string description,
+                                                          std::vector<std::string> compartments,
+                                                          std::vector<std::string> parameters,
+                                                          Eigen::VectorXd defaults, int central, int default_dose,
+                                                          std::vector<LinearTerm> system_terms,
+                                                          std::vector<std::vector<LinearTerm>> output_terms,
+                                                          int transfer_function_order) {
+  const int n = static_cast<int>(compartments.size()), m = static_cast<int>(parameters.size());
+  auto bad = [&](const std::string& what) { throw std::logic_error("model " + name + ": " + what); };
+  if (static_cast<int>(output_terms.size()) != n) bad("one output row per compartment is needed");
+  if (defaults.size() != m) bad("one default per parameter is needed");
+  if (central < 1 || central > n || default_dose < 1 || default_dose > n) bad("central or dose compartment out of range");
+  auto check = [&](const LinearTerm& t) {
+    if (t.row < 0 || t.row >= n || t.col < 0 || t.col >= n) bad("term outside the state");
+    if (t.numerator >= m || t.denominator >= m || t.numerator < -1 || t.denominator < -1) bad("term parameter out of range");
+  };
+  for (const LinearTerm& t : system_terms) check(t);
+  for (const auto& row : output_terms) {
+    for (const LinearTerm& t : row) check(t);
+  }
+  for (std::string& p : parameters) p = internal::ToUpper(p);
+  return std::shared_ptr<const LinearModel>(new LinearModel(std::move(name), std::move(description),
+                                                            std::move(compartments), std::move(parameters),
+                                                            std::move(defaults), central, default_dose,
+                                                            std::move(system_terms), std::move(output_terms),
+                                                            transfer_function_order));
+}
 
 double LinearModel::Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
-  const int i = cmt - 1;
-  return volumes_[i] >= 0 ? x(i) / theta(volumes_[i]) : x(i);
+  return OutputRow<double>(cmt, theta) * x;
 }
 
 LinearModelBuilder::LinearModelBuilder(std::string name, std::string description)
@@ -61,9 +90,19 @@ std::shared_ptr<const LinearModel> LinearModelBuilder::Build() const {
   }
   Eigen::VectorXd defaults(m);
   for (int i = 0; i < m; ++i) defaults(i) = defaults_[i];
-  return std::shared_ptr<const LinearModel>(new LinearModel(name_, description_, compartments_, parameters_,
-                                                            defaults, central_ + 1, default_dose_ + 1, flows_,
-                                                            volumes_));
+  // Each flow k(θ) (a rate constant, or CL/V of its source) adds +k at (to, from) and −k at (from, from).
+  std::vector<LinearTerm> a_terms;
+  for (const LinearFlow& f : flows_) {
+    const int den = f.clearance ? volumes_[f.from] : -1;
+    a_terms.push_back({f.from, f.from, -1.0, f.parameter, den});
+    if (f.to >= 0) a_terms.push_back({f.to, f.from, 1.0, f.parameter, den});
+  }
+  // Observing compartment c gives its concentration (amount / volume), or its amount.
+  std::vector<std::vector<LinearTerm>> c_terms(n);
+  for (int c = 0; c < n; ++c) c_terms[c].push_back({0, c, 1.0, -1, volumes_[c]});
+  return std::shared_ptr<const LinearModel>(new LinearModel(name_, description_, compartments_, parameters_, defaults,
+                                                            central_ + 1, default_dose_ + 1, std::move(a_terms),
+                                                            std::move(c_terms), 0));
 }
 
 }  // namespace pk

@@ -6,6 +6,7 @@
 #include "autodiff.h"
 #include "events.h"
 #include "exact/exact_propagator.h"
+#include "exact/companion_route.h"
 #include "exact/exact_routes.h"
 #include "internal_text.h"
 #include "pk/error.h"
@@ -42,6 +43,7 @@ const char* ToString(GradientRoute r) {
     case GradientRoute::kForward: return "forward";
     case GradientRoute::kAdjoint: return "adjoint";
     case GradientRoute::kFiniteDifference: return "fd";
+    case GradientRoute::kCompanion: return "companion";
   }
   return "?";
 }
@@ -207,6 +209,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   }
   if (route == GradientRoute::kAuto) route = need == Need::kJacobian ? GradientRoute::kForward : GradientRoute::kAdjoint;
   if (need == Need::kJacobian && route == GradientRoute::kAdjoint) route = GradientRoute::kForward;
+  if (route == GradientRoute::kCompanion && need == Need::kValue) route = GradientRoute::kAuto;
   if (need == Need::kValue) route = GradientRoute::kAuto;
   ev.route = need == Need::kValue ? "none" : ToString(route);
 
@@ -230,7 +233,21 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     // Dose modifiers move event times and amounts; model parameters do not.
     bool events_depend = false;
     for (int i : model_free) events_depend = events_depend || i >= d.model->num_parameters();
-    if (route == GradientRoute::kForward && pm > 0) {
+    if (route == GradientRoute::kCompanion) {
+      // Only the transfer function's coefficients (layout entries 0..2n−1).
+      const int order = d.linear->transfer_function_order();
+      if (order == 0) throw internal::NumericalFailure("the companion route applies to tf<n> models only");
+      for (int i : model_free) {
+        if (i >= 2 * order) {
+          throw internal::NumericalFailure("the companion route differentiates a_i and b_i only, not " +
+                                           d.layout.name(i));
+        }
+      }
+      Eigen::MatrixXd j_all;
+      internal::CompanionJacobian(*d.linear, d.layout, s, &yhat, &j_all);
+      jm.resize(N, pm);
+      for (int a2 = 0; a2 < pm; ++a2) jm.col(a2) = j_all.col(model_free[a2]);
+    } else if (route == GradientRoute::kForward && pm > 0) {
       const auto sets = dual_sets();
       internal::ForwardSensitivities(*d.linear, d.layout, s, sets, pm, events_depend, &yhat, &jm);
     } else if (route == GradientRoute::kAdjoint && pm > 0) {

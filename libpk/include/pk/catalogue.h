@@ -5,10 +5,12 @@
 //   1cmt_iv    (CL, V)                    1cmt_oral  (KA, CL, V)
 //   2cmt_iv    (CL, V1, Q, V2)            2cmt_oral  (KA, CL, V1, Q, V2)
 //   3cmt_iv    (CL, V1, Q2, V2, Q3, V3)   3cmt_oral  (KA, CL, V1, Q2, V2, Q3, V3)
+//   tf1 … tf4  (A1..An, B1..Bn)           y = B(s)/A(s)·u in companion form
 //
 // Oral models number the depot 1 and the central compartment 2; IV models
 // number the central compartment 1; peripherals follow. The default output is
-// the central concentration A_central / V_central.
+// the central concentration A_central / V_central. A tf<n> model has states
+// X1..Xn; doses enter X1 (CMT 1) and every observation is the output y.
 #ifndef PK_CATALOGUE_H_
 #define PK_CATALOGUE_H_
 

@@ -37,6 +37,11 @@ struct Exponentials {
 /// Returns false with `why` for infeasible values (negative or complex rates).
 bool ExponentialsToMammillary(const Exponentials& e, std::vector<double>* parameters, std::string* why);
 
+/// The transfer function of a unit-dose sum of exponentials:
+/// A(s) = Π(s + λ_i) = sⁿ + a₁sⁿ⁻¹ + … + aₙ and B(s) = Σ a_i Π_{j≠i}(s + λ_j) =
+/// b₁sⁿ⁻¹ + … + bₙ; `coefficients` = {a₁..aₙ, b₁..bₙ}, the tf<n> parameter order.
+void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* coefficients);
+
 struct InitialEstimate {
   bool ok = false;
   std::string method;    ///< how the values were found
@@ -44,7 +49,7 @@ struct InitialEstimate {
   ParameterValues values;
 };
 
-/// Starting values for a catalogue model (1/2/3 compartments, IV or oral) from
+/// Starting values for a catalogue model (1/2/3 compartments, IV or oral, or tf1..tf4) from
 /// one subject's data: any number of boluses, infusions (RATE > 0) and ADDL
 /// doses into the model's default dose compartment with F = 1 and no lag;
 /// steady-state doses, resets and other compartments are not handled.

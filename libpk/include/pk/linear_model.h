@@ -20,6 +20,7 @@
 #define PK_LINEAR_MODEL_H_
 
 #include <memory>
+#include <utility>
 #include <string>
 #include <vector>
 
@@ -37,14 +38,36 @@ struct LinearFlow {
   bool clearance = false;
 };
 
+/// One term of A(θ) or of an output row C(θ): sign · θ[numerator] / θ[denominator]
+/// at (row, col); an index of -1 stands for the constant 1.
+struct LinearTerm {
+  int row = 0;
+  int col = 0;
+  double sign = 1;
+  int numerator = -1;
+  int denominator = -1;
+};
+
 class LinearModel final : public Model {
  public:
   bool is_linear() const override { return true; }
   double Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override;
 
-  const std::vector<LinearFlow>& flows() const { return flows_; }
-  /// Parameter index of each compartment's volume (0-based), or -1.
-  const std::vector<int>& volume_parameters() const { return volumes_; }
+  /// A model from its terms: A(θ) = Σ system terms; the output of an observation
+  /// in compartment c (1-based) is C_c(θ) x with C_c = Σ output_terms[c-1] (their
+  /// `row` is ignored). `transfer_function_order` is n for a companion-form tf<n>
+  /// model (see pk/catalogue.h), 0 otherwise.
+  static std::shared_ptr<const LinearModel> FromTerms(std::string name, std::string description,
+                                                      std::vector<std::string> compartments,
+                                                      std::vector<std::string> parameters, Eigen::VectorXd defaults,
+                                                      int central, int default_dose,
+                                                      std::vector<LinearTerm> system_terms,
+                                                      std::vector<std::vector<LinearTerm>> output_terms,
+                                                      int transfer_function_order = 0);
+
+  const std::vector<LinearTerm>& system_terms() const { return a_terms_; }
+  /// n for the companion-form transfer-function models tf<n>, else 0.
+  int transfer_function_order() const { return tf_order_; }
 
   /// A(θ), for any scalar type (double or an automatic-differentiation scalar).
   template <typename T>
@@ -53,12 +76,7 @@ class LinearModel final : public Model {
     const int n = num_compartments();
     Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> a =
         Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>::Zero(n, n);
-    for (const LinearFlow& f : flows_) {
-      T k = theta(f.parameter);
-      if (f.clearance) k = k / theta(volumes_[f.from]);
-      a(f.from, f.from) -= k;
-      if (f.to >= 0) a(f.to, f.from) += k;
-    }
+    for (const LinearTerm& t : a_terms_) a(t.row, t.col) += TermValue(t, theta);
     return a;
   }
 
@@ -68,35 +86,41 @@ class LinearModel final : public Model {
   template <typename T>
   T ContractSystemMatrix(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta, const Eigen::MatrixXd& g) const {
     T sum(0.0);
-    for (const LinearFlow& f : flows_) {
-      T k = theta(f.parameter);
-      if (f.clearance) k = k / theta(volumes_[f.from]);
-      const double w = (f.to >= 0 ? g(f.to, f.from) : 0.0) - g(f.from, f.from);
-      if (w != 0) sum += k * w;
+    for (const LinearTerm& t : a_terms_) {
+      if (g(t.row, t.col) != 0) sum += TermValue(t, theta) * g(t.row, t.col);
     }
     return sum;
   }
 
-  /// The output row C(θ) for an observation in compartment `cmt` (1-based):
-  /// y = C x is that compartment's concentration, or its amount if it has no volume.
+  /// The output row C(θ) for an observation in compartment `cmt` (1-based). For
+  /// a compartment model y = C x is that compartment's concentration, or its
+  /// amount if it has no volume; for a tf<n> model it is the output B(s)/A(s)·u.
   template <typename T>
   Eigen::Matrix<T, 1, Eigen::Dynamic> OutputRow(int cmt,
                                                 const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
     Eigen::Matrix<T, 1, Eigen::Dynamic> c =
         Eigen::Matrix<T, 1, Eigen::Dynamic>::Zero(num_compartments());
-    const int i = cmt - 1;
-    c(i) = volumes_[i] >= 0 ? T(1) / theta(volumes_[i]) : T(1);
+    for (const LinearTerm& t : c_terms_[cmt - 1]) c(t.col) += TermValue(t, theta);
     return c;
   }
 
  private:
   friend class LinearModelBuilder;
   LinearModel(std::string name, std::string description, std::vector<std::string> compartments,
-              std::vector<std::string> parameters, Eigen::VectorXd defaults, int central,
-              int default_dose, std::vector<LinearFlow> flows, std::vector<int> volumes);
+              std::vector<std::string> parameters, Eigen::VectorXd defaults, int central, int default_dose,
+              std::vector<LinearTerm> a_terms, std::vector<std::vector<LinearTerm>> c_terms, int tf_order);
 
-  std::vector<LinearFlow> flows_;
-  std::vector<int> volumes_;
+  template <typename T>
+  static T TermValue(const LinearTerm& t, const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) {
+    T v(t.sign);
+    if (t.numerator >= 0) v = v * theta(t.numerator);
+    if (t.denominator >= 0) v = v / theta(t.denominator);
+    return v;
+  }
+
+  std::vector<LinearTerm> a_terms_;
+  std::vector<std::vector<LinearTerm>> c_terms_;
+  int tf_order_ = 0;
 };
 
 /// Assembles a LinearModel from its compartment graph. Indices are 0-based.

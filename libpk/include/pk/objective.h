@@ -36,6 +36,7 @@ enum class GradientRoute {
   kForward,           ///< block-exponential sensitivities (full Jacobian)
   kAdjoint,           ///< discrete adjoint (gradient only; cost independent of the parameter count)
   kFiniteDifference,  ///< central differences
+  kCompanion,         ///< tf<n> models: two companion filters give every ∂y/∂a_i, ∂y/∂b_i
 };
 
 const char* ToString(Weighting w);

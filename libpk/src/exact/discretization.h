@@ -15,7 +15,7 @@
 // Derivatives take one of two exact paths, chosen per parameter set and step:
 //
 //  * Eigendecomposition (fast): when A = V Λ V⁻¹ with real eigenvalues and a
-//    well-conditioned V (κ₁(V) ≤ 1e4). Reversible exchange between volumes
+//    well-conditioned V (κ₁(V) ≤ 1e3; the derivatives carry errors of about κ²ε). Reversible exchange between volumes
 //    makes T⁻¹AT symmetric for a diagonal T (found from the graph), and then
 //    the symmetric eigensolver gives V = TQ with Q orthogonal; otherwise (a
 //    one-way depot) the general real eigensolver is used.
