@@ -45,6 +45,14 @@ paste -d, "$work/eval_adj.csv" "$work/eval_fwd.csv" | awk -F, 'NR>1 { d = $5 - $
   s = $10 < 0 ? -$10 : $10; if (d > 1e-9 * (s + 1e-12)) bad = 1 } END { exit bad }' ||
   fail "adjoint and forward gradients differ"
 
+# A transfer-function model by the companion route reaches the 2cmt_iv optimum.
+"$pkfit" --model tf2 --data "$root/datasets/indomethacin.csv" --gradient companion -o "$work/tf2" -q ||
+  fail "tf2 fit by the companion route failed"
+grep -q ",companion,lm," "$work/tf2/summary.csv" || fail "summary does not report the companion route"
+paste -d, <(cut -d, -f3 "$work/tf2/summary.csv") <(cut -d, -f3 "$work/auto/summary.csv") | awk -F, 'NR>1 {
+  d = $1 - $2; if (d < 0) d = -d; if (d > 1e-7 * $2) bad = 1 } END { exit bad }' ||
+  fail "tf2 and 2cmt_iv objectives differ on indomethacin"
+
 # Maximum likelihood with an estimated lag, by Newton.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --subject 2 --error combined \
   --init ALAG1=0.1 --optimizer newton -o "$work/ml" -q || fail "ML fit failed"

@@ -8,7 +8,7 @@ fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 
 # The catalogue.
 n=$("$pksim" --list-models | wc -l)
-[ "$n" -eq 6 ] || fail "--list-models printed $n models, expected 6"
+[ "$n" -eq 10 ] || fail "--list-models printed $n models, expected 10 (six compartmental, tf1..tf4)"
 
 # A regimen from flags: 1cmt_iv bolus, CP(t) = 100/30 exp(-0.1 t).
 "$pksim" --model 1cmt_iv --dose 100 --param CL=3 --param V=30 --times 0:1:10 --out "$work/bolus.csv" ||
