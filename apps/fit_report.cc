@@ -113,7 +113,9 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   struct stat st;
   if (::stat(dir.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) throw std::runtime_error(dir + ": cannot create the output directory");
 
-  std::ostringstream est, sum, pred, det;
+  std::ostringstream est, sum, pred, det, derived;
+  bool any_derived = false;
+  derived << "ID,READING,PARAMETER,VALUE,SE,RSE_PCT,NOTE\n";
   est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
   sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS\n";
   pred << "ID,TIME,DV,PRED,RES,WRES\n";
@@ -127,6 +129,14 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     sum << id << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations << ","
         << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "\n";
     if (!f.ok) continue;
+    for (const TransferFunctionReading& r : f.derived) {
+      any_derived = true;
+      if (!r.ok) derived << id << "," << r.reading << ",,,,," << Quote(r.message) << "\n";
+      for (const DerivedParameter& d : r.parameters) {
+        derived << id << "," << r.reading << "," << d.name << "," << Csv(d.value) << "," << Csv(d.se) << ","
+                << Csv(d.rse_pct) << ",\n";
+      }
+    }
     for (const ParameterEstimate& e : s.estimates) {
       est << id << "," << e.name << "," << Csv(e.estimate) << "," << (e.fixed ? "" : Csv(e.se)) << ","
           << (e.fixed ? "" : Csv(e.rse_pct)) << "\n";
@@ -182,7 +192,23 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     }
     html << "<p>Starting values from " << Escape(f.initial_method) << ":";
     for (const auto& kv : f.initial) html << " " << Escape(kv.first) << " = " << Fmt(kv.second);
-    html << ".</p>\n<pre>" << Escape(f.summary.FullReport()) << "</pre>\n" << SubjectSvg(f, context.log_plots) << "\n";
+    html << ".</p>\n<pre>" << Escape(f.summary.FullReport()) << "</pre>\n";
+    for (const TransferFunctionReading& r : f.derived) {
+      const char* title = r.reading == "exponents" ? "Exponents and half-lives" :
+                          (r.reading == "iv" ? "As an IV compartment model" : "As an oral compartment model (fastest rate = KA)");
+      html << "<h4>" << title << "</h4>\n";
+      if (!r.ok) {
+        html << "<p class=\"bad\">" << Escape(r.message) << "</p>\n";
+        continue;
+      }
+      html << "<table><tr><th class=\"l\">parameter</th><th>value</th><th>SE</th><th>RSE%</th></tr>\n";
+      for (const DerivedParameter& d : r.parameters) {
+        html << "<tr><td class=\"l\">" << Escape(d.name) << "</td><td>" << Fmt(d.value) << "</td><td>" << Fmt(d.se)
+             << "</td><td>" << Fmt(d.rse_pct, "%.3g") << "</td></tr>\n";
+      }
+      html << "</table>\n";
+    }
+    html << SubjectSvg(f, context.log_plots) << "\n";
   }
   html << "</body></html>\n";
 
@@ -190,6 +216,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   WriteFileAtomically(dir + "/summary.csv", sum.str());
   WriteFileAtomically(dir + "/predictions.csv", pred.str());
   WriteFileAtomically(dir + "/fit_details.csv", det.str());
+  if (any_derived) WriteFileAtomically(dir + "/derived.csv", derived.str());
   for (const SubjectFit& f : fits) {
     WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + ".svg", SubjectSvg(f, context.log_plots));
   }

@@ -134,6 +134,19 @@ TEST_CASE("transfer functions: the same fit as the compartmental model, and conv
     const double b1 = tf[k].summary.estimates[2].estimate;
     const double v1 = cmt[k].summary.estimates[1].estimate;
     CHECK(b1 == Approx(1 / v1).epsilon(1e-5));
+    // The IV reading of tf2 and its delta-method SEs equal the direct 2cmt_iv fit and its SEs
+    // (a smooth one-to-one reparameterisation with the same residual variance).
+    REQUIRE(tf[k].derived.size() == 3);
+    const pk::TransferFunctionReading& iv = tf[k].derived[1];
+    REQUIRE(iv.reading == "iv");
+    REQUIRE(iv.ok);
+    for (size_t p = 0; p < 4; ++p) {
+      const pk::ParameterEstimate& direct = cmt[k].summary.estimates[p];
+      INFO(direct.name);
+      CHECK(iv.parameters[p].name == direct.name);
+      CHECK(iv.parameters[p].value == Approx(direct.estimate).epsilon(1e-5));
+      CHECK(iv.parameters[p].se == Approx(direct.se).epsilon(1e-3));
+    }
   }
   // Exponentials -> transfer function coefficients for a known case.
   std::vector<double> coeffs;

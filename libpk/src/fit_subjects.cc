@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "pk/error.h"
+#include "pk/linear_model.h"
 
 namespace pk {
 namespace {
@@ -45,6 +46,24 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
     }
     out->summary = Fit(objective, specs, req.fit);
     out->ok = true;
+    const auto* linear = dynamic_cast<const LinearModel*>(req.model.get());
+    if (linear != nullptr && linear->transfer_function_order() > 0) {
+      // The coefficients a₁..aₙ, b₁..bₙ and their covariance (fixed ones: zero variance).
+      const int n2 = 2 * linear->transfer_function_order();
+      const Eigen::VectorXd coefficients = out->summary.values.head(n2);
+      Eigen::MatrixXd cov;
+      if (out->summary.covariance.size() > 0) {
+        cov = Eigen::MatrixXd::Zero(n2, n2);
+        const auto& names = out->summary.estimated;
+        for (size_t i = 0; i < names.size(); ++i) {
+          for (size_t j = 0; j < names.size(); ++j) {
+            const int a = objective.ParameterIndex(names[i]), b = objective.ParameterIndex(names[j]);
+            if (a < n2 && b < n2) cov(a, b) = out->summary.covariance(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
+          }
+        }
+      }
+      out->derived = ConvertTransferFunction(coefficients, cov);
+    }
     const Objective::Evaluation ev = objective.Evaluate(out->summary.values, {}, Objective::Need::kValue);
     if (ev.ok) {
       out->pred = ev.predictions;

@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 
+#include "pk/conversion.h"
 #include "pk/fit.h"
 #include "pk/initial_estimates.h"
 #include "pk/objective.h"
@@ -30,6 +31,9 @@ struct SubjectFit {
   /// Where the starting values came from: "data (...)" or "catalogue defaults (...)".
   std::string initial_method;
   ParameterValues initial;     ///< the starting values of the estimated parameters
+  /// For tf<n> models: exponents, half-lives and the equivalent IV and oral
+  /// compartmental parameters, with delta-method SEs (pk/conversion.h).
+  std::vector<TransferFunctionReading> derived;
   /// The fitted curve on a fine grid (for plots): times and central concentrations.
   std::vector<double> curve_times;
   std::vector<double> curve;

@@ -1,0 +1,49 @@
+// libpk: from transfer-function coefficients to exponents, half-lives and
+// compartmental parameters, with standard errors by the delta method.
+//
+// A tf<n> model y = B(s)/A(s)·u (per unit dose) has poles −λ_i, the roots of
+// A(s), and an impulse response Σ a_i e^{−λ_i t} with residues
+// a_i = B(−λ_i)/A'(−λ_i). Read as an IV bolus input, the exponentials give a
+// mammillary model of n compartments (ExponentialsToMammillary). Read as an
+// oral input, the fastest rate is taken as KA (the usual, non-flip-flop
+// labelling, which the data alone cannot decide), the disposition amplitudes
+// become a_i (KA − λ_i)/KA, and n − 1 compartments follow.
+//
+// Standard errors: Cov(g) = J Cov(θ) Jᵀ, with J = ∂g/∂θ by central differences
+// of the conversion (it involves polynomial roots, which are smooth where the
+// conversion is feasible).
+#ifndef PK_CONVERSION_H_
+#define PK_CONVERSION_H_
+
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace pk {
+
+struct DerivedParameter {
+  std::string name;  ///< e.g. LAMBDA1, THALF1, AMP1, CL, V1, Q, V2, KA
+  double value = 0;
+  double se = std::numeric_limits<double>::quiet_NaN();
+  double rse_pct = std::numeric_limits<double>::quiet_NaN();
+};
+
+struct TransferFunctionReading {
+  std::string reading;  ///< "exponents", "iv" or "oral"
+  bool ok = false;
+  std::string message;  ///< why the coefficients do not convert, when !ok
+  std::vector<DerivedParameter> parameters;
+};
+
+/// Converts tf<n> coefficients {a₁..aₙ, b₁..bₙ} (per unit dose) with their
+/// covariance (2n×2n; pass an empty matrix for no standard errors) into three
+/// readings: the exponents (λ_i fastest first, t½_i = ln2/λ_i, amplitudes a_i),
+/// the IV mammillary parameters, and the oral ones (KA, then the disposition).
+std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::VectorXd& coefficients,
+                                                             const Eigen::MatrixXd& covariance);
+
+}  // namespace pk
+
+#endif  // PK_CONVERSION_H_
