@@ -79,6 +79,37 @@ TEST_CASE("tf coefficients convert back to the IV and oral compartmental paramet
   }
 }
 
+TEST_CASE("compartmental -> exponentials -> tf -> compartmental round trips, micro-constants included", "[conversion]") {
+  struct Case {
+    std::string model;
+    std::vector<double> theta;
+    std::string reading;
+  };
+  for (const Case& c : std::vector<Case>{{"2cmt_iv", {4, 12, 7, 40}, "iv"},
+                                         {"3cmt_iv", {3, 10, 8, 20, 1, 60}, "iv"},
+                                         {"2cmt_oral", {1.3, 4, 12, 7, 40}, "oral"}}) {
+    INFO(c.model);
+    const Eigen::VectorXd theta = Eigen::Map<const Eigen::VectorXd>(c.theta.data(), c.theta.size());
+    pk::Exponentials e;
+    std::string why;
+    REQUIRE(pk::ModelToExponentials(*pk::MakeModel(c.model), theta, &e, &why));
+    std::vector<double> coeffs;
+    pk::ExponentialsToTransferFunction(e, &coeffs);
+    const auto readings =
+        pk::ConvertTransferFunction(Eigen::Map<const Eigen::VectorXd>(coeffs.data(), coeffs.size()), Eigen::MatrixXd());
+    const auto& r = Reading(readings, c.reading);
+    REQUIRE(r.ok);
+    for (size_t i = 0; i < c.theta.size(); ++i) CHECK(r.parameters[i].value == Approx(c.theta[i]).epsilon(1e-8));
+    // Micro-constants follow the clearances and volumes: K10 = CL/V1, K12 = Q/V1, K21 = Q/V2.
+    const size_t off = c.reading == "oral" ? 1 : 0;
+    const double cl = c.theta[off], v1 = c.theta[off + 1], q = c.theta[off + 2], v2 = c.theta[off + 3];
+    CHECK(r.parameters[c.theta.size()].name == "K10");
+    CHECK(r.parameters[c.theta.size()].value == Approx(cl / v1));
+    CHECK(r.parameters[c.theta.size() + 1].value == Approx(q / v1));
+    CHECK(r.parameters[c.theta.size() + 2].value == Approx(q / v2));
+  }
+}
+
 TEST_CASE("delta-method standard errors of derived parameters", "[conversion]") {
   // tf1: y = b1/(s + a1): V = 1/b1, CL = a1/b1.
   const double a1 = 0.2, b1 = 0.05, sa = 0.01, sb = 0.004;

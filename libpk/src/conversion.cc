@@ -5,8 +5,10 @@
 #include <functional>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 
 #include "pk/initial_estimates.h"
+#include "pk/linear_model.h"
 
 namespace pk {
 namespace {
@@ -58,6 +60,16 @@ bool Exponents(const Eigen::VectorXd& c, Exponentials* e, std::string* why) {
   return true;
 }
 
+// {CL, V1[, Q2, V2[, Q3, V3]]} -> append k10[, k12, k21[, k13, k31]].
+void AppendMicroConstants(std::vector<double>* p) {
+  const std::vector<double> q = *p;
+  p->push_back(q[0] / q[1]);
+  for (size_t i = 2; i + 1 < q.size(); i += 2) {
+    p->push_back(q[i] / q[1]);
+    p->push_back(q[i] / q[i + 1]);
+  }
+}
+
 void Propagate(const ReadingFunction& f, const std::vector<std::string>& names, const Eigen::VectorXd& c,
                const Eigen::MatrixXd& cov, TransferFunctionReading* out) {
   std::vector<double> values;
@@ -95,6 +107,45 @@ void Propagate(const ReadingFunction& f, const std::vector<std::string>& names, 
 
 }  // namespace
 
+bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Exponentials* e, std::string* why) {
+  const auto* linear = dynamic_cast<const LinearModel*>(&model);
+  if (linear == nullptr) {
+    *why = "only linear models have a sum-of-exponentials response";
+    return false;
+  }
+  const Eigen::MatrixXd a = linear->SystemMatrix<double>(theta);
+  const Eigen::RowVectorXd c = linear->OutputRow<double>(model.central_compartment(), theta);
+  const Eigen::EigenSolver<Eigen::MatrixXd> es(a);
+  if (es.info() != Eigen::Success || es.eigenvalues().imag().cwiseAbs().maxCoeff() > 1e-10 * a.norm()) {
+    *why = "A(θ) has complex eigenvalues";
+    return false;
+  }
+  const Eigen::MatrixXd v = es.eigenvectors().real();
+  const Eigen::FullPivLU<Eigen::MatrixXd> lu(v);
+  if (!lu.isInvertible()) {
+    *why = "A(θ) is defective (coincident rates)";
+    return false;
+  }
+  const Eigen::VectorXd w_dose = lu.inverse().col(model.default_dose_compartment() - 1);
+  const Eigen::RowVectorXd cv = c * v;
+  e->rate.clear();
+  e->amplitude.clear();
+  // c e^{At} e_dose = Σ_i (cV)_i (V⁻¹ e_dose)_i e^{λ_i t}; modes the output never sees are dropped.
+  std::vector<std::pair<double, double>> modes;
+  for (int i = 0; i < a.rows(); ++i) {
+    const double amp = cv(i) * w_dose(i);
+    if (std::fabs(amp) > 1e-14 * std::max(1.0, cv.cwiseAbs().maxCoeff() * w_dose.cwiseAbs().maxCoeff())) {
+      modes.emplace_back(-es.eigenvalues()(i).real(), amp);
+    }
+  }
+  std::sort(modes.begin(), modes.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+  for (const auto& m : modes) {
+    e->rate.push_back(m.first);
+    e->amplitude.push_back(m.second);
+  }
+  return true;
+}
+
 std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::VectorXd& coefficients,
                                                              const Eigen::MatrixXd& covariance) {
   const int n = static_cast<int>(coefficients.size()) / 2;
@@ -118,13 +169,18 @@ std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::Vector
       },
       names, coefficients, covariance, &out[0]);
 
+  // Clearances and volumes, then the micro-constants they imply.
   static const std::vector<std::vector<std::string>> kMammillary = {
-      {"CL", "V"}, {"CL", "V1", "Q", "V2"}, {"CL", "V1", "Q2", "V2", "Q3", "V3"}};
+      {"CL", "V", "K10"},
+      {"CL", "V1", "Q", "V2", "K10", "K12", "K21"},
+      {"CL", "V1", "Q2", "V2", "Q3", "V3", "K10", "K12", "K21", "K13", "K31"}};
   if (n >= 1 && n <= 3) {
     Propagate(
         [](const Eigen::VectorXd& c, std::vector<double>* v, std::string* why) {
           Exponentials e;
-          return Exponents(c, &e, why) && ExponentialsToMammillary(e, v, why);
+          if (!Exponents(c, &e, why) || !ExponentialsToMammillary(e, v, why)) return false;
+          AppendMicroConstants(v);
+          return true;
         },
         kMammillary[n - 1], coefficients, covariance, &out[1]);
   } else {
@@ -146,6 +202,7 @@ std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::Vector
           }
           std::vector<double> p;
           if (!ExponentialsToMammillary(disposition, &p, why)) return false;
+          AppendMicroConstants(&p);
           v->assign(1, ka);
           v->insert(v->end(), p.begin(), p.end());
           return true;

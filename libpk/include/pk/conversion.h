@@ -21,6 +21,9 @@
 
 #include <Eigen/Core>
 
+#include "pk/initial_estimates.h"
+#include "pk/model.h"
+
 namespace pk {
 
 struct DerivedParameter {
@@ -37,10 +40,18 @@ struct TransferFunctionReading {
   std::vector<DerivedParameter> parameters;
 };
 
+/// The other direction: the unit-dose response of a linear model (central
+/// concentration after a unit dose into the default dose compartment) as a sum
+/// of exponentials, from the eigendecomposition of A(θ). `theta` holds the
+/// model parameters. ExponentialsToTransferFunction then gives its tf coefficients.
+/// Returns false with `why` for a complex or defective spectrum.
+bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Exponentials* e, std::string* why);
+
 /// Converts tf<n> coefficients {a₁..aₙ, b₁..bₙ} (per unit dose) with their
 /// covariance (2n×2n; pass an empty matrix for no standard errors) into three
 /// readings: the exponents (λ_i fastest first, t½_i = ln2/λ_i, amplitudes a_i),
-/// the IV mammillary parameters, and the oral ones (KA, then the disposition).
+/// the IV mammillary parameters and their micro-constants (CL, V1, …, K10, K12,
+/// K21, …), and the oral ones (KA, then the same for the disposition).
 std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::VectorXd& coefficients,
                                                              const Eigen::MatrixXd& covariance);
 
