@@ -183,6 +183,18 @@ TEST_CASE("resets, new subjects and time-varying parameters", "[events]") {
   }
 }
 
+TEST_CASE("initial amounts X0_<n> enter at the first record and add to doses", "[events]") {
+  const double cl = 3, v = 30, k = cl / v;
+  const auto alone = SimulateText("1cmt_iv", "ID,TIME,EVID\n1,0,2\n1,2,0\n", {{"CL", cl}, {"V", v}, {"X0_1", 10}});
+  CHECK(RelDiff(alone.rows[1].cp, 10 / v * std::exp(-k * 2)) < 1e-13);
+  const auto with_dose =
+      SimulateText("1cmt_iv", "ID,TIME,AMT,EVID\n1,0,100,1\n1,2,0,0\n", {{"CL", cl}, {"V", v}, {"X0_1", 10}});
+  CHECK(RelDiff(with_dose.rows[0].cp, 110 / v * std::exp(-k * 2)) < 1e-13);
+  // A reset empties it.
+  const auto reset = SimulateText("1cmt_iv", "ID,TIME,EVID\n1,0,2\n1,1,3\n1,2,0\n", {{"CL", cl}, {"V", v}, {"X0_1", 10}});
+  CHECK(reset.rows[1].cp == 0);
+}
+
 TEST_CASE("dose modifiers F, R and D", "[events]") {
   const double cl = 3, v = 30, k = cl / v;
   auto infusion_end_conc = [&](double rate, double dur) { return rate / cl * (1 - std::exp(-k * dur)); };

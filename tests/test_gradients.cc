@@ -32,6 +32,7 @@ const std::vector<Scenario>& Scenarios() {
       {"D and F", "1,0,100,-2,0,0,0,1,.\n", {"D1", "F1"}, {2.2, 0.9}},
       {"ss1 with lag", "1,0,100,0,12,0,1,1,.\n", {"ALAG1"}, {1.3}},
       {"ss1 infusion with lag and D", "1,0,100,-2,8,0,1,1,.\n", {"ALAG1", "D1"}, {0.6, 11.0}},
+      {"initial state", "1,0,100,0,6,2,0,1,.\n", {"X0_1"}, {30.0}},
   };
   return s;
 }
@@ -165,6 +166,15 @@ TEST_CASE("companion route: tf1..tf4 agree with forward, adjoint and finite diff
 }
 
 TEST_CASE("companion route refuses what it cannot differentiate", "[gradient][companion]") {
+  {
+    const Scenario sc0{"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}};
+    const pk::Objective tf0(pk::MakeModel("tf2"), MakeData(sc0), 0, pk::ObjectiveOptions());
+    Eigen::VectorXd v = tf0.DefaultValues();
+    v(tf0.ParameterIndex("X0_1")) = 3;
+    const auto ev0 = tf0.Evaluate(v, {0, 1}, pk::Objective::Need::kGradient, pk::GradientRoute::kCompanion);
+    CHECK(!ev0.ok);
+    CHECK_THAT(ev0.message, Catch::Contains("zero initial state"));
+  }
   const Scenario sc{"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}};
   const pk::Objective compartmental(pk::MakeModel("2cmt_iv"), MakeData(sc), 0, pk::ObjectiveOptions());
   const auto ev = compartmental.Evaluate(compartmental.DefaultValues(), {0, 1}, pk::Objective::Need::kGradient,

@@ -101,6 +101,12 @@ class EventEngine {
     const std::vector<Record>& records = s_.records();
     if (records.empty()) return;
     t_ = T(records[0].time);
+    // Initial amounts (X0_<n>) enter at the first record, as jumps of the state.
+    const Vec<T>& first = sets_[s_.set_of_record[0]];
+    for (int c = 0; c < n_; ++c) {
+      const T& x0 = first(layout_.InitialState(c));
+      if (!IsExactlyZero(x0)) v_->Bolus(c, x0, s_.set_of_record[0]);
+    }
     for (int r = 0; r < static_cast<int>(records.size()); ++r) {
       const Record& rec = records[r];
       const int set = s_.set_of_record[r];

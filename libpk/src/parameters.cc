@@ -9,7 +9,7 @@ namespace pk {
 
 ParameterLayout::ParameterLayout(const Model& model)
     : num_model_(model.num_parameters()), n_(model.num_compartments()), names_(model.parameter_names()) {
-  const char* prefixes[] = {"F", "ALAG", "R", "D"};
+  const char* prefixes[] = {"F", "ALAG", "R", "D", "X0_"};
   for (const char* prefix : prefixes) {
     for (int c = 1; c <= n_; ++c) names_.push_back(prefix + std::to_string(c));
   }
@@ -21,6 +21,7 @@ ParameterLayout::ParameterLayout(const Model& model)
     defaults_(Alag(c)) = 0.0;
     defaults_(Rate(c)) = nan;
     defaults_(Duration(c)) = nan;
+    defaults_(InitialState(c)) = 0.0;
   }
 }
 

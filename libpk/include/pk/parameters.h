@@ -10,8 +10,10 @@
 //   ALAG<n>  absorption lag: the dose enters ALAG<n> after its time    default 0
 //   R<n>     infusion rate, used by doses with RATE=-1                 no default
 //   D<n>     infusion duration, used by doses with RATE=-2             no default
+//   X0_<n>   initial amount in compartment n at the subject's first    default 0
+//            record (like NONMEM's A_0(n)); a reset (EVID 3/4, SS=1) empties it
 //
-// The layout is θ followed by F1..Fn, ALAG1..ALAGn, R1..Rn, D1..Dn.
+// The layout is θ followed by F1..Fn, ALAG1..ALAGn, R1..Rn, D1..Dn, X0_1..X0_n.
 #ifndef PK_PARAMETERS_H_
 #define PK_PARAMETERS_H_
 
@@ -45,8 +47,9 @@ class ParameterLayout {
   int Alag(int cmt) const { return num_model_ + n_ + cmt; }
   int Rate(int cmt) const { return num_model_ + 2 * n_ + cmt; }
   int Duration(int cmt) const { return num_model_ + 3 * n_ + cmt; }
+  int InitialState(int cmt) const { return num_model_ + 4 * n_ + cmt; }
 
-  /// Model defaults, F=1, ALAG=0, and NaN (unset) for R and D.
+  /// Model defaults, F=1, ALAG=0, X0=0, and NaN (unset) for R and D.
   Eigen::VectorXd Defaults() const;
   /// Defaults overridden by `values`; throws pk::InputError for an unknown name,
   /// listing the valid ones.

@@ -12,8 +12,14 @@ namespace {
 
 class CompanionVisitor {
  public:
-  CompanionVisitor(const LinearModel& model, const PreparedSubject& s, Eigen::VectorXd* yhat, Eigen::MatrixXd* jac)
+  CompanionVisitor(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& s,
+                   Eigen::VectorXd* yhat, Eigen::MatrixXd* jac)
       : n_(model.num_compartments()), s_(s), yhat_(yhat), jac_(jac) {
+    for (int c = 0; c < n_; ++c) {
+      if (s.sets[0](layout.InitialState(c)) != 0) {
+        throw NumericalFailure("the companion route assumes a zero initial state; use forward or adjoint with X0_<n>");
+      }
+    }
     const Eigen::VectorXd theta = s.sets[0].head(model.num_parameters());
     for (size_t k = 1; k < s.sets.size(); ++k) {
       if (!(s.sets[k].head(model.num_parameters()).array() == theta.array()).all()) {
@@ -92,7 +98,7 @@ class CompanionVisitor {
 
 void CompanionJacobian(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
                        Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) {
-  CompanionVisitor visitor(model, subject, yhat, jacobian);
+  CompanionVisitor visitor(model, layout, subject, yhat, jacobian);
   EventEngine<double, CompanionVisitor> engine(subject, layout, subject.sets, &visitor);
   engine.Run();
 }
