@@ -209,41 +209,32 @@ RunResult RunLm(Problem* pb, int m, const Eigen::VectorXd& phi0, const FitOption
   const auto status = lm.minimize(phi);
   r.phi = phi;
   r.iterations = static_cast<int>(lm.iter);
+  // MINPACK's outcomes: 1–4 are convergence tests; 6–8 mean no further reduction is possible at machine precision.
   using namespace Eigen::LevenbergMarquardtSpace;
-  switch (status) {
-    case RelativeReductionTooSmall:
-      r.termination = TerminationType::kConvergence;
-      r.message = "relative reduction of the sum of squares below ftol";
-      break;
-    case RelativeErrorTooSmall:
-      r.termination = TerminationType::kConvergence;
-      r.message = "relative change of the parameters below xtol";
-      break;
-    case RelativeErrorAndReductionTooSmall:
-      r.termination = TerminationType::kConvergence;
-      r.message = "relative reduction and parameter change below tolerance";
-      break;
-    case CosinusTooSmall:
-      r.termination = TerminationType::kConvergence;
-      r.message = "residuals orthogonal to the Jacobian columns";
-      break;
-    case FtolTooSmall:
-    case XtolTooSmall:
-    case GtolTooSmall:
-      r.termination = TerminationType::kConvergence;
-      r.message = "no further reduction possible at machine precision";
-      break;
-    case TooManyFunctionEvaluation:
-      r.termination = TerminationType::kNoConvergence;
-      r.message = "evaluation limit reached";
-      break;
-    case UserAsked:
-      r.termination = TerminationType::kFailure;
-      r.message = "the Jacobian could not be evaluated";
-      break;
-    default:
-      r.termination = TerminationType::kFailure;
-      r.message = "improper input to Levenberg-Marquardt";
+  struct Outcome {
+    Status status;
+    TerminationType termination;
+    const char* message;
+  };
+  static const Outcome kOutcomes[] = {
+      {RelativeReductionTooSmall, TerminationType::kConvergence, "relative reduction of the sum of squares below ftol"},
+      {RelativeErrorTooSmall, TerminationType::kConvergence, "relative change of the parameters below xtol"},
+      {RelativeErrorAndReductionTooSmall, TerminationType::kConvergence,
+       "relative reduction and parameter change below tolerance"},
+      {CosinusTooSmall, TerminationType::kConvergence, "residuals orthogonal to the Jacobian columns"},
+      {FtolTooSmall, TerminationType::kConvergence, "no further reduction possible at machine precision"},
+      {XtolTooSmall, TerminationType::kConvergence, "no further reduction possible at machine precision"},
+      {GtolTooSmall, TerminationType::kConvergence, "no further reduction possible at machine precision"},
+      {TooManyFunctionEvaluation, TerminationType::kNoConvergence, "evaluation limit reached"},
+      {UserAsked, TerminationType::kFailure, "the Jacobian could not be evaluated"},
+  };
+  r.termination = TerminationType::kFailure;
+  r.message = "improper input to Levenberg-Marquardt";
+  for (const Outcome& o : kOutcomes) {
+    if (o.status == status) {
+      r.termination = o.termination;
+      r.message = o.message;
+    }
   }
   return r;
 }
