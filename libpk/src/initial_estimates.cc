@@ -64,6 +64,35 @@ bool SolveAmplitudes(const std::vector<DoseInput>& doses, const std::vector<doub
   return true;
 }
 
+// Terminal-phase log-linear regression, as in non-compartmental analysis: over
+// the last k points after the peak (k = 3, 4, …), the slope of log c against
+// t with the best adjusted R². Returns λz > 0, or 0 when there is none.
+double TerminalRate(const std::vector<double>& t, const std::vector<double>& c) {
+  const int n = static_cast<int>(t.size());
+  const int peak = static_cast<int>(std::max_element(c.begin(), c.end()) - c.begin());
+  double best_r2 = -1, best_rate = 0;
+  for (int k = 3; k <= n - peak - 1 && k <= n; ++k) {
+    double st = 0, sy = 0, stt = 0, sty = 0, syy = 0;
+    for (int i = n - k; i < n; ++i) {
+      const double y = std::log(c[i]);
+      st += t[i];
+      sy += y;
+      stt += t[i] * t[i];
+      sty += t[i] * y;
+      syy += y * y;
+    }
+    const double sxx = stt - st * st / k, sxy = sty - st * sy / k, syy_c = syy - sy * sy / k;
+    if (!(sxx > 0) || !(syy_c > 0)) continue;
+    const double slope = sxy / sxx, r2 = sxy * sxy / (sxx * syy_c);
+    const double adjusted = 1 - (1 - r2) * (k - 1) / (k - 2);
+    if (slope < 0 && adjusted > best_r2 - 1e-4) {  // prefer more points at (nearly) equal fit
+      best_r2 = std::max(best_r2, adjusted);
+      best_rate = -slope;
+    }
+  }
+  return best_rate;
+}
+
 // All increasing m-tuples of grid indices.
 void Combinations(int grid, int m, int start, std::vector<int>* current, std::vector<std::vector<int>>* out) {
   if (static_cast<int>(current->size()) == m) {
@@ -159,7 +188,7 @@ void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* 
 
 InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, int subject) {
   InitialEstimate out;
-  out.method = "exponential grid with linear amplitudes";
+  out.method = "terminal log-linear regression, exponential grid with linear amplitudes";
   const std::string& name = model.name();
   int phases = 0;
   if (name.rfind("1cmt", 0) == 0) phases = 1;
@@ -219,9 +248,17 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
   const int grid = phases == 1 ? 40 : (phases == 2 ? 28 : (phases == 3 ? 16 : 11));
   std::vector<double> rates(grid);
   for (int i = 0; i < grid; ++i) rates[i] = lo * std::pow(hi / lo, static_cast<double>(i) / (grid - 1));
+  // The terminal rate from log-linear regression joins the grid, so the slowest
+  // phase can be matched exactly rather than to the grid's resolution.
+  const double lambda_z = TerminalRate(ts, cs);
+  if (lambda_z > 0) {
+    rates.push_back(lambda_z);
+    std::sort(rates.begin(), rates.end());
+  }
+  const int grid_size = static_cast<int>(rates.size());
   std::vector<std::vector<int>> combos;
   std::vector<int> current;
-  Combinations(grid, phases, 0, &current, &combos);
+  Combinations(grid_size, phases, 0, &current, &combos);
 
   // Keep the best few candidates, so an infeasible conversion can fall back to the next.
   std::vector<Candidate> best;
@@ -239,7 +276,7 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
       consider(lambdas, 0);
     } else {
       // Absorption faster than every disposition rate (the usual, non-flip-flop branch).
-      for (int j = idx.back() + 1; j < grid; ++j) consider(lambdas, rates[j]);
+      for (int j = idx.back() + 1; j < grid_size; ++j) consider(lambdas, rates[j]);
     }
   }
   for (const Candidate& cand : best) {

@@ -28,7 +28,7 @@ grep -q "converged" "$work/theo.txt" || fail "no estimates table on stdout"
   fail "--init auto fit failed"
 head -1 "$work/auto.txt" | grep -qx "ID,PARAMETER,INITIAL,SOURCE" || fail "--init auto did not print the starting values"
 [ "$(grep -c '^[0-9],' "$work/auto.txt")" -eq 24 ] || fail "--init auto: expected 6 x 4 starting values"
-grep -q "data (exponential grid" "$work/auto/fit_details.csv" || fail "fit_details lacks the starting-value source"
+grep -q "data (terminal log-linear regression" "$work/auto/fit_details.csv" || fail "fit_details lacks the starting-value source"
 "$pkfit" --model 2cmt_iv --data "$root/datasets/indomethacin.csv" --catalogue-init --init auto -o "$work/cat" -q \
   >"$work/cat.txt" || true
 grep -q "catalogue defaults" "$work/cat.txt" || fail "--catalogue-init did not start from the defaults"

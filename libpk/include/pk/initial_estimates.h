@@ -5,9 +5,11 @@
 // c(t) = Σ_i a_i e^{−λ_i t}; an infusion or a first-order absorption with rate
 // KA turns each kernel into a known function of λ_i (and KA). For fixed rates
 // the amplitudes a_i are therefore a linear least-squares problem. libpk
-// searches the rates on a log-spaced grid spanning the sampling design (the
-// terminal rate from about 1/20 of the observed time span, the fastest from
-// about 20/first sample time), solves for the amplitudes at each candidate
+// estimates the terminal rate λz by log-linear regression on the last points
+// (as in non-compartmental analysis, by adjusted R²), and searches the rates on
+// a log-spaced grid spanning the sampling design (from about 1/20 of the
+// observed time span to about 20/first sample time) with λz added to it. It
+// solves for the amplitudes at each candidate
 // (weights 1/DV², so every decade of concentration counts), keeps candidates
 // with positive amplitudes, and converts the best feasible one into the
 // model's parameters (ExponentialsToMammillary). The fit then refines them.
