@@ -19,16 +19,13 @@
 namespace pk {
 namespace internal {
 
-/// Most derivatives a Dual carries. They are stored inline (no heap
-/// allocation per operation, which dominated the gradient's cost).
-constexpr int kMaxDualDerivatives = 64;
-using DualDerivatives = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxDualDerivatives, 1>;
+using DualDerivatives = Eigen::VectorXd;
 
 class Dual {
  public:
   Dual() = default;
   Dual(double value) : v_(value) {}  // NOLINT: constants convert implicitly
-  /// The independent variable number `i` of `n` (n ≤ kMaxDualDerivatives).
+  /// The independent variable number `i` of `n`.
   Dual(double value, int n, int i) : v_(value), d_(DualDerivatives::Unit(n, i)) {}
   Dual(double value, const DualDerivatives& d) : v_(value), d_(d) {}
 
@@ -61,7 +58,7 @@ class Dual {
     v_ = q;
     return *this;
   }
-  Dual operator-() const { return Dual(-v_, DualDerivatives(-d_)); }
+  Dual operator-() const { return Dual(-v_, d_.size() ? DualDerivatives(-d_) : DualDerivatives()); }
 
   friend Dual operator+(Dual a, const Dual& b) { return a += b; }
   friend Dual operator-(Dual a, const Dual& b) { return a -= b; }

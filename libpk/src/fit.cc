@@ -311,7 +311,6 @@ RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::Vecto
 // ---- Damped Newton with the Gauss–Newton matrix or the Fisher information.
 RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& o) {
   RunResult r;
-  const int n = pb->n();
   Eigen::VectorXd phi = phi0;
   Objective::Evaluation ev = pb->Eval(phi, Need::kJacobian);
   if (!ev.ok) {
@@ -379,7 +378,6 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
       r.message = "iteration limit reached";
     }
   }
-  (void)n;
   r.phi = phi;
   return r;
 }

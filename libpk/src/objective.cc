@@ -201,12 +201,6 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     }
   }
   const int pm = static_cast<int>(model_free.size());
-  if (pm > internal::kMaxDualDerivatives && route != GradientRoute::kFiniteDifference && need != Need::kValue) {
-    ev.ok = false;
-    ev.message = "more than " + std::to_string(internal::kMaxDualDerivatives) +
-                 " model parameters to differentiate; use the fd route";
-    return ev;
-  }
   if (route == GradientRoute::kAuto) route = need == Need::kJacobian ? GradientRoute::kForward : GradientRoute::kAdjoint;
   if (need == Need::kJacobian && route == GradientRoute::kAdjoint) route = GradientRoute::kForward;
   if (route == GradientRoute::kCompanion && need == Need::kValue) route = GradientRoute::kAuto;
