@@ -71,6 +71,39 @@ std::string InitialTable(const std::vector<SubjectFit>& fits) {
   return out.str();
 }
 
+std::string DerivedTable(const std::vector<SubjectFit>& fits) {
+  std::ostringstream out;
+  char buf[160];
+  for (const char* reading : {"exponents", "iv", "oral"}) {
+    bool header = false;
+    for (const SubjectFit& f : fits) {
+      for (const TransferFunctionReading& r : f.derived) {
+        if (r.reading != reading) continue;
+        if (!header) {
+          out << "\n" << (r.reading == "exponents" ? "exponents and half-lives"
+                                                    : (r.reading == "iv" ? "as an IV compartment model"
+                                                                         : "as an oral compartment model (fastest rate = KA)"))
+              << ", value (RSE%):\n";
+          header = true;
+        }
+        std::snprintf(buf, sizeof buf, "%-6s", FormatNumber(f.id).c_str());
+        out << buf;
+        if (!r.ok) {
+          out << " " << r.message << "\n";
+          continue;
+        }
+        for (const DerivedParameter& d : r.parameters) {
+          if (d.name.rfind("AMP", 0) == 0) continue;  // amplitudes: in derived.csv
+          std::snprintf(buf, sizeof buf, " %s %s (%s)", d.name.c_str(), Fmt(d.value).c_str(), Fmt(d.rse_pct, "%.3g").c_str());
+          out << buf;
+        }
+        out << "\n";
+      }
+    }
+  }
+  return out.str();
+}
+
 std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
   std::ostringstream out;
   const SubjectFit* first = nullptr;

@@ -24,6 +24,9 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
 /// The starting values per subject as CSV: ID,PARAMETER,INITIAL,SOURCE.
 std::string InitialTable(const std::vector<SubjectFit>& fits);
 
+/// For tf models: the exponents, half-lives and compartmental readings, for the terminal.
+std::string DerivedTable(const std::vector<SubjectFit>& fits);
+
 /// The estimates as a fixed-width table for the terminal.
 std::string EstimatesTable(const std::vector<SubjectFit>& fits);
 

@@ -299,7 +299,7 @@ int Main(int argc, char** argv) {
   }
   if (show_initial) std::cout << pk::cli::InitialTable(fits) << "\n";
   if (!quiet) {
-    std::cout << pk::cli::EstimatesTable(fits);
+    std::cout << pk::cli::EstimatesTable(fits) << pk::cli::DerivedTable(fits);
     const std::string route = fits.empty() ? "" : fits.front().summary.gradient;
     std::cout << "\npropagator exact, gradient " << route << ", optimizer " << fits.front().summary.optimizer
               << "; results in " << dir << "/ (report.html, estimates.csv, summary.csv, predictions.csv)\n";

@@ -51,6 +51,8 @@ paste -d, "$work/eval_adj.csv" "$work/eval_fwd.csv" | awk -F, 'NR>1 { d = $5 - $
 grep -q ",companion,lm," "$work/tf2/summary.csv" || fail "summary does not report the companion route"
 grep -q "^1,iv,CL," "$work/tf2/derived.csv" || fail "derived.csv lacks the IV reading"
 grep -q "^1,exponents,THALF2," "$work/tf2/derived.csv" || fail "derived.csv lacks the half-lives"
+"$pkfit" --model tf2 --data "$root/datasets/indomethacin.csv" --subject 1 -o "$work/tf2b" | grep -q "as an IV compartment model" ||
+  fail "pkfit does not print the compartmental reading of a tf model"
 paste -d, <(cut -d, -f3 "$work/tf2/summary.csv") <(cut -d, -f3 "$work/auto/summary.csv") | awk -F, 'NR>1 {
   d = $1 - $2; if (d < 0) d = -d; if (d > 1e-7 * $2) bad = 1 } END { exit bad }' ||
   fail "tf2 and 2cmt_iv objectives differ on indomethacin"
