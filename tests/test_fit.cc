@@ -9,6 +9,7 @@
 
 #include "pk/catalogue.h"
 #include "pk/fit.h"
+#include "pk/fit_subjects.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
 
@@ -167,5 +168,35 @@ TEST_CASE("fixed parameters, bounds and multiple starts", "[fit]") {
     bad.optimizer = pk::OptimizerType::kNlopt;
     bad.nlopt_algorithm = "LD_NOSUCH";
     CHECK_THROWS_WITH(pk::Fit(objective, {{"KA", 1}}, bad), Catch::Contains("unknown NLopt algorithm"));
+  }
+}
+
+TEST_CASE("weighted residuals of FitSubjects: sqrt(W)(DV - PRED)/sigma and (DV - PRED)/sigma_k", "[fit]") {
+  const pk::ParameterValues truth{{"KA", 1.5}, {"CL", 3}, {"V", 30}};
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel("1cmt_oral");
+  req.data = Synthetic("1cmt_oral", truth, "1,0,300,0,0,0,0,1,.\n", kTimes, 0.1, 11);
+  for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+  req.jobs = 1;
+  SECTION("least squares with 1/DV^2 weights") {
+    req.objective.weighting = pk::Weighting::kInverseDvSquared;
+    const pk::SubjectFit f = pk::FitSubjects(req).at(0);
+    REQUIRE(f.ok);
+    const int n = static_cast<int>(f.dv.size());
+    const double sigma = std::sqrt(2 * f.summary.objective / (n - 3));
+    for (int k = 0; k < n; ++k) {
+      CHECK(f.wres(k) == Approx((f.dv(k) - f.pred(k)) / f.dv(k) / sigma).epsilon(1e-9));
+    }
+  }
+  SECTION("maximum likelihood, proportional error") {
+    req.objective.error_model = pk::ErrorModel::kProportional;
+    req.fit.optimizer = pk::OptimizerType::kNewton;
+    req.parameters.push_back({"SIGMA_PROP", NAN});
+    const pk::SubjectFit f = pk::FitSubjects(req).at(0);
+    REQUIRE(f.ok);
+    const double b = f.summary.values(f.summary.values.size() - 1);
+    for (int k = 0; k < f.dv.size(); ++k) {
+      CHECK(f.wres(k) == Approx((f.dv(k) - f.pred(k)) / (b * f.pred(k))).epsilon(1e-9));
+    }
   }
 }

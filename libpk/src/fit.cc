@@ -444,12 +444,7 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
 
   const Objective::Evaluation first = pb.Eval(phi0, Need::kValue);
   summary.initial_objective = first.ok ? first.value : NAN;
-  const int m = first.ok ? static_cast<int>(objective.Evaluate(base, free, Need::kValue).predictions.size()) : 0;
-  int residuals = 0;
-  if (!ml) {
-    const Objective::Evaluation j = objective.Evaluate(base, free, Need::kJacobian);
-    residuals = j.ok ? static_cast<int>(j.residuals.size()) : m;
-  }
+  const int residuals = objective.num_residuals();
 
   RunResult best;
   if (n == 0) {

@@ -172,6 +172,7 @@ Eigen::VectorXd Objective::DefaultValues() const {
 }
 
 int Objective::num_samples() const { return static_cast<int>(impl_->y.size()); }
+int Objective::num_residuals() const { return num_samples() + static_cast<int>(impl_->priors.size()); }
 const Eigen::VectorXd& Objective::observations() const { return impl_->y; }
 const Eigen::VectorXd& Objective::weights() const { return impl_->w; }
 std::vector<double> Objective::sample_times() const { return impl_->times; }
@@ -410,7 +411,11 @@ void Objective::CheckValues(const Eigen::VectorXd& values) const {
 
 std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const std::vector<double>& times) const {
   const Impl& d = *impl_;
-  Dataset one = *d.data;
+  // This subject alone (not a copy of the whole dataset), with output records at `times`.
+  Dataset one;
+  one.source = d.data->source;
+  one.columns = d.data->columns;
+  one.extra_columns = d.data->extra_columns;
   one.subjects = {d.data->subjects[d.subject]};
   one = AddOutputTimes(one, times);
   ParameterValues named;

@@ -96,6 +96,8 @@ class Objective {
   Eigen::VectorXd DefaultValues() const;
 
   int num_samples() const;
+  /// Rows of Evaluation::residuals (least squares): the samples, then one per prior.
+  int num_residuals() const;
   const Eigen::VectorXd& observations() const;
   const Eigen::VectorXd& weights() const;
   std::vector<double> sample_times() const;
