@@ -87,5 +87,12 @@ int Run(const std::string& program, const std::function<int()>& body) {
   }
 }
 
+Propagator ParsePropagator(const std::string& text) {
+  for (Propagator p : {Propagator::kAuto, Propagator::kExact, Propagator::kOde}) {
+    if (text == ToString(p)) return p;
+  }
+  throw InputError("", 0, 0, "--propagator must be auto, exact or ode, not '" + text + "'");
+}
+
 }  // namespace cli
 }  // namespace pk

@@ -9,6 +9,7 @@
 #include <boost/program_options.hpp>
 
 #include "pk/parameters.h"
+#include "pk/propagator.h"
 
 namespace pk {
 namespace cli {
@@ -18,6 +19,9 @@ ParameterValues ParseAssignments(const std::vector<std::string>& items, const st
 
 /// Output times: "FROM:STEP:TO" (inclusive) or a comma-separated list, or several of them.
 std::vector<double> ParseTimes(const std::vector<std::string>& specs);
+
+/// "auto", "exact" or "ode"; throws pk::InputError otherwise.
+Propagator ParsePropagator(const std::string& text);
 
 /// Parses the command line into `vm`; prints `usage` and the options and
 /// returns false when --help was given.

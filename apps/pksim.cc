@@ -9,6 +9,7 @@
 
 #include "cli.h"
 #include "pk/catalogue.h"
+#include "pk/ode_model.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/exposure.h"
@@ -23,8 +24,10 @@ namespace {
 
 const char* const kUsage =
     "Usage: pksim --model NAME (--data FILE | --dose AMT ...) [options]\n"
-    "Simulates a dataset (NONMEM-style CSV) or a regimen given by flags, exactly.\n"
-    "Writes one CSV row per EVID 0/2 record (or requested time): ID,TIME,EVID,CP,A1..An.\n\n"
+    "Simulates a dataset (NONMEM-style CSV) or a regimen given by flags: exactly for\n"
+    "linear models, with CVODES for nonlinear ones (or --propagator ode).\n"
+    "Writes one CSV row per EVID 0/2 record (or requested time): ID,TIME,EVID,CP,\n"
+    "the model's further outputs (e.g. EFFECT), A1..An.\n\n"
     "Examples:\n"
     "  pksim --model 2cmt_oral --dose 500 --ii 12 --doses 14 --times 0:0.5:168 --summary\n"
     "  pksim --model 1cmt_iv --dose 1000 --duration 2 --times 0:0.1:24 --param CL=4 --out sim.csv\n"
@@ -95,6 +98,10 @@ int Main(int argc, char** argv) {
       "summary", "print Cmax, Tmax, Cmin, trough and AUC per subject and dosing interval")(
       "summary-csv", po::value<std::string>(), "write the exposure summary as CSV")(
       "plot", po::value<std::string>(), "write concentration against time as SVG")(
+      "propagator", po::value<std::string>()->default_value("auto"),
+      "exact (Φ/Γ, linear models), ode (CVODES, every model) or auto")(
+      "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
+      "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
       "log", "logarithmic concentration axis for --plot");
   po::variables_map vm;
   if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
@@ -103,7 +110,7 @@ int Main(int argc, char** argv) {
       const auto model = pk::MakeModel(name);
       std::string ps;
       for (const std::string& p : model->parameter_names()) ps += (ps.empty() ? "" : ", ") + p;
-      std::printf("%-10s (%s)  %s\n", name.c_str(), ps.c_str(), model->description().c_str());
+      std::printf("%-17s (%s)  %s\n", name.c_str(), ps.c_str(), model->description().c_str());
     }
     return 0;
   }
@@ -149,10 +156,17 @@ int Main(int argc, char** argv) {
     data = pk::ParseDataset(csv.str(), "command-line regimen");
   }
 
-  const std::vector<pk::SubjectSimulation> sims = pk::Simulate(*model, data, values);
+  pk::SimulationOptions sim_options;
+  sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
+  sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
+  sim_options.ode.absolute_tolerance = vm["atol"].as<double>();
+  const std::vector<pk::SubjectSimulation> sims = pk::Simulate(*model, data, values, sim_options);
+  const auto* ode_model = dynamic_cast<const pk::OdeModel*>(model.get());
+  const int extra_outputs = ode_model ? ode_model->num_outputs() - 1 : 0;
   int failed = 0;
   std::ostringstream csv;
   csv << "ID,TIME,EVID,CP";
+  for (int k = 1; k <= extra_outputs; ++k) csv << "," << ode_model->output_names()[k];
   for (int c = 1; c <= model->num_compartments(); ++c) csv << ",A" << c;
   csv << "\n";
   for (const pk::SubjectSimulation& s : sims) {
@@ -164,6 +178,7 @@ int Main(int argc, char** argv) {
     for (const pk::SimulatedRecord& r : s.rows) {
       csv << pk::FormatNumber(s.id) << "," << pk::FormatNumber(r.time) << "," << static_cast<int>(r.evid) << ","
           << pk::FormatNumber(r.cp);
+      for (int k = 1; k <= extra_outputs; ++k) csv << "," << pk::FormatNumber(r.outputs(k));
       for (int c = 0; c < r.amounts.size(); ++c) csv << "," << pk::FormatNumber(r.amounts(c));
       csv << "\n";
     }

@@ -1,6 +1,7 @@
 // The registry that names the catalogue models.
 #include "pk/catalogue.h"
 
+#include <cstdlib>
 #include <functional>
 #include <utility>
 
@@ -20,6 +21,9 @@ const std::vector<std::pair<std::string, Factory>>& Registry() {
       {"3cmt_iv", models::ThreeCmtIv}, {"3cmt_oral", models::ThreeCmtOral},
       {"tf1", [] { return models::TransferFunction(1); }}, {"tf2", [] { return models::TransferFunction(2); }},
       {"tf3", [] { return models::TransferFunction(3); }}, {"tf4", [] { return models::TransferFunction(4); }},
+      {"1cmt_iv_mm", models::OneCmtIvMm},     {"1cmt_oral_mm", models::OneCmtOralMm},
+      {"2cmt_iv_mm", models::TwoCmtIvMm},     {"1cmt_oral_transit", [] { return models::OneCmtOralTransit(3); }},
+      {"1cmt_iv_emax", models::OneCmtIvEmax},
   };
   return registry;
 }
@@ -32,7 +36,23 @@ std::vector<std::string> CatalogueModelNames() {
   return names;
 }
 
-std::shared_ptr<const Model> MakeModel(const std::string& name) {
+std::shared_ptr<const Model> MakeModel(const std::string& spec) {
+  // Model options follow the name: "1cmt_oral_transit:NTR=5".
+  const size_t colon = spec.find(':');
+  const std::string name = spec.substr(0, colon);
+  if (colon != std::string::npos) {
+    const std::string option = internal::ToUpper(spec.substr(colon + 1));
+    if (internal::ToUpper(name) != "1CMT_ORAL_TRANSIT" || option.rfind("NTR=", 0) != 0) {
+      throw InputError("", 0, 0, "model '" + name + "' has no option '" + spec.substr(colon + 1) +
+                                     "' (only 1cmt_oral_transit takes one: NTR=<1..50>)");
+    }
+    char* end = nullptr;
+    const long ntr = std::strtol(option.c_str() + 4, &end, 10);
+    if (*end != '\0' || end == option.c_str() + 4 || ntr < 1 || ntr > 50) {
+      throw InputError("", 0, 0, "NTR must be an integer from 1 to 50, not '" + option.substr(4) + "'");
+    }
+    return models::OneCmtOralTransit(static_cast<int>(ntr));
+  }
   for (const auto& entry : Registry()) {
     if (internal::ToUpper(entry.first) == internal::ToUpper(name)) return entry.second();
   }

@@ -1,10 +1,11 @@
-// The catalogue's linear models, one short file each (not installed).
+// The catalogue models, one short file each (not installed).
 #ifndef PK_MODELS_CATALOGUE_MODELS_H_
 #define PK_MODELS_CATALOGUE_MODELS_H_
 
 #include <memory>
 
 #include "pk/linear_model.h"
+#include "pk/ode_model.h"
 
 namespace pk {
 namespace models {
@@ -16,6 +17,11 @@ std::shared_ptr<const LinearModel> TwoCmtOral();
 std::shared_ptr<const LinearModel> ThreeCmtIv();
 std::shared_ptr<const LinearModel> ThreeCmtOral();
 std::shared_ptr<const LinearModel> TransferFunction(int order);
+std::shared_ptr<const LinearModel> OneCmtOralTransit(int num_transit);
+std::shared_ptr<const OdeModel> OneCmtIvMm();
+std::shared_ptr<const OdeModel> OneCmtOralMm();
+std::shared_ptr<const OdeModel> TwoCmtIvMm();
+std::shared_ptr<const OdeModel> OneCmtIvEmax();
 
 }  // namespace models
 }  // namespace pk

@@ -4,6 +4,7 @@
 #include "exact/exact_propagator.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
+#include "ode/ode_propagator.h"
 
 namespace pk {
 namespace {
@@ -50,23 +51,91 @@ class Recorder {
   SubjectSimulation* out_;
 };
 
+// The same for the ODE propagator.
+class OdeRecorder {
+ public:
+  OdeRecorder(const internal::OdeSystem& sys, const ParameterLayout& layout, const internal::PreparedSubject& s,
+              const SimulationOptions& options, SubjectSimulation* out)
+      : sys_(sys),
+        s_(s),
+        ode_(dynamic_cast<const OdeModel*>(&sys.model())),
+        prop_(sys, layout, s.sets, 0, options.ode, false, false, options.track_auc),
+        out_(out) {
+    dvid_ = s.data->ExtraColumn("DVID");
+    if (!s.records().empty()) prop_.set_time(s.records()[0].time);
+  }
+
+  void Advance(double h, const Eigen::VectorXd& u, int set) { prop_.Advance(h, u, set); }
+  void Bolus(int cmt, double amount, int set) { prop_.Bolus(cmt, amount, set); }
+  void Reset() { prop_.Reset(); }
+  void SteadyState(const internal::SteadyStateCycle<double>& c, int set, bool add) { prop_.SteadyState(c, set, add); }
+  void SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) { prop_.SteadyInfusion(u, set, add); }
+  void DoseEntered(double time, int set) {
+    out_->doses.push_back({time, sys_.Observe(sys_.central_key(), prop_.state(), Theta(set)), prop_.auc()});
+  }
+
+  void RecordDone(int r, int set) {
+    const Record& rec = s_.records()[r];
+    prop_.set_time(rec.time);
+    if (rec.evid != Evid::kObservation && rec.evid != Evid::kOther) return;
+    const Eigen::VectorXd theta = Theta(set);
+    SimulatedRecord row;
+    row.record = r;
+    row.time = rec.time;
+    row.evid = rec.evid;
+    row.cp = sys_.Observe(sys_.central_key(), prop_.state(), theta);
+    row.pred = sys_.Observe(Key(r), prop_.state(), theta);
+    row.auc = prop_.auc();
+    row.amounts = prop_.state();
+    if (ode_) {
+      row.outputs.resize(ode_->num_outputs());
+      for (int k = 0; k < ode_->num_outputs(); ++k) row.outputs(k) = ode_->OutputValue(k + 1, prop_.state(), theta);
+    }
+    out_->rows.push_back(std::move(row));
+  }
+
+ private:
+  Eigen::VectorXd Theta(int set) const { return s_.sets[set].head(sys_.num_theta()); }
+  // Nonlinear models: the DVID's output; linear models: the record's compartment.
+  int Key(int r) const {
+    if (!ode_) return s_.cmt[r] + 1;
+    return internal::OutputOfRecord(*ode_, *s_.data, s_.records()[r], dvid_);
+  }
+
+  const internal::OdeSystem& sys_;
+  const internal::PreparedSubject& s_;
+  const OdeModel* ode_;
+  internal::OdePropagator<double> prop_;
+  SubjectSimulation* out_;
+  int dvid_ = -1;
+};
+
 }  // namespace
 
-bool SimulationOptions::IsValid(std::string* /*error*/) const { return true; }
+bool SimulationOptions::IsValid(std::string* error) const { return ode.IsValid(error); }
 
 SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int subject,
                                   const ParameterValues& values, const SimulationOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("", 0, 0, why);
   const auto* linear = dynamic_cast<const LinearModel*>(&model);
-  if (linear == nullptr) throw InputError("", 0, 0, "model " + model.name() + " has no propagator yet");
+  const Propagator propagator = ResolvePropagator(model, options.propagator);
   const ParameterLayout layout(model);
   const internal::PreparedSubject s =
       internal::PrepareSubject(model, layout, data, subject, layout.Resolve(values));
   SubjectSimulation out;
   out.id = data.subjects[subject].id;
   try {
-    Recorder recorder(*linear, s, options.track_auc, &out);
-    internal::EventEngine<double, Recorder> engine(s, layout, s.sets, &recorder);
-    engine.Run();
+    if (propagator == Propagator::kExact) {
+      Recorder recorder(*linear, s, options.track_auc, &out);
+      internal::EventEngine<double, Recorder> engine(s, layout, s.sets, &recorder);
+      engine.Run();
+    } else {
+      const internal::OdeSystem sys(model);
+      OdeRecorder recorder(sys, layout, s, options, &out);
+      internal::EventEngine<double, OdeRecorder> engine(s, layout, s.sets, &recorder);
+      engine.Run();
+    }
   } catch (const internal::NumericalFailure& e) {
     out.ok = false;
     out.message = e.what();

@@ -8,9 +8,11 @@
 // data columns named like a parameter overriding them per record; the value on
 // record i governs the interval that ends at record i.
 //
-// Linear models are propagated exactly, x ← Φ(h)x + Γ(h)u between event and
-// output times, with Φ and Γ cached per distinct interval. AUC is exact: it is
-// an extra integral state, not a trapezoid sum.
+// Linear models are propagated exactly by default, x ← Φ(h)x + Γ(h)u between
+// event and output times, with Φ and Γ cached per distinct interval. Nonlinear
+// models (and linear ones on request) are integrated by CVODES, restarted at
+// every discontinuity. Either way AUC is an extra integral state, not a
+// trapezoid sum.
 #ifndef PK_SIMULATE_H_
 #define PK_SIMULATE_H_
 
@@ -21,12 +23,16 @@
 
 #include "pk/dataset.h"
 #include "pk/model.h"
+#include "pk/ode_options.h"
 #include "pk/parameters.h"
+#include "pk/propagator.h"
 
 namespace pk {
 
 struct SimulationOptions {
-  bool track_auc = true;  ///< carry the exact AUC of the central concentration
+  bool track_auc = true;  ///< carry the AUC of the central concentration
+  Propagator propagator = Propagator::kAuto;
+  OdeOptions ode;         ///< tolerances of the ODE propagator
 
   bool IsValid(std::string* error) const;
 };
@@ -40,6 +46,8 @@ struct SimulatedRecord {
   double pred = 0;    ///< prediction for the record's CMT (equal to cp for the default)
   double auc = 0;     ///< ∫ cp dt from the subject's first record
   Eigen::VectorXd amounts;
+  /// Every output of a nonlinear model (outputs(0) = cp); empty for linear models.
+  Eigen::VectorXd outputs;
 };
 
 /// A dose entering the system, with the state just before it.
@@ -57,7 +65,8 @@ struct SubjectSimulation {
   std::vector<DoseEntry> doses;
 };
 
-/// Simulates one subject. Input errors (CMT out of range, a RATE=-1 dose with
+/// Simulates one subject. For a nonlinear model, `pred` is the output named by
+/// the record's DVID column (default 1). Input errors (CMT out of range, a RATE=-1 dose with
 /// no R<n>, ...) throw pk::InputError naming the file, line and column;
 /// numerical failure (for example no steady state because nothing is
 /// eliminated) is reported through `ok` and `message`.

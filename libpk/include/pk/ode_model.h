@@ -1,0 +1,155 @@
+// libpk: nonlinear compartment models, dx/dt = f(x, θ) + u, y_k = g_k(x, θ).
+//
+// A nonlinear model is a functor with a templated right-hand side and output;
+// libpk differentiates it by forward-mode automatic differentiation (pk::Dual)
+// to obtain f_x, f_θ, g_x and g_θ. The input u is the vector of infusion rates
+// into each compartment and adds to f; boluses are jumps of x. Such a model is
+// propagated by CVODES (the ODE propagator, docs/ode_routes.md); linear
+// catalogue models can use the same propagator.
+//
+//   struct OneCmtIvMm {  // Michaelis–Menten elimination; θ = (VMAX, KM, V)
+//     template <typename T>
+//     void Rhs(const T* x, const T* theta, T* dxdt) const {
+//       const T c = x[0] / theta[2];
+//       dxdt[0] = -theta[0] * c / (theta[1] + c);
+//     }
+//     template <typename T>
+//     T Output(int output, const T* x, const T* theta) const { return x[0] / theta[2]; }
+//   };
+//
+//   pk::OdeModelSpec spec;
+//   spec.name = "1cmt_iv_mm";
+//   spec.compartments = {"CENTRAL"};
+//   spec.parameters = {{"VMAX", 10}, {"KM", 2}, {"V", 30}};
+//   std::shared_ptr<const pk::Model> model = pk::MakeOdeModel(spec, OneCmtIvMm());
+//
+// f must not depend on time explicitly (events carry all time dependence).
+// Outputs are numbered from 1; an observation measures output DVID (a data
+// column, default 1). Output 1 is the model's "central concentration" used by
+// pksim's CP column and exposure metrics.
+#ifndef PK_ODE_MODEL_H_
+#define PK_ODE_MODEL_H_
+
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/dual.h"
+#include "pk/model.h"
+
+namespace pk {
+
+/// Names, sizes and defaults of a nonlinear model.
+struct OdeModelSpec {
+  std::string name;
+  std::string description;
+  std::vector<std::string> compartments;
+  /// Parameter names (upper case) with sensible starting values.
+  std::vector<std::pair<std::string, double>> parameters;
+  /// Output names; outputs are numbered 1, 2, … (the DVID of an observation).
+  std::vector<std::string> outputs = {"CP"};
+  int central = 1;       ///< 1-based compartment shown as the central one
+  int default_dose = 1;  ///< 1-based compartment receiving doses with CMT=0
+};
+
+/// The runtime interface of a nonlinear model. Implemented by
+/// AutoDiffOdeModel (use MakeOdeModel); derivatives always come from AD.
+class OdeModel : public Model {
+ public:
+  bool is_linear() const override { return false; }
+  int num_outputs() const { return static_cast<int>(outputs_.size()); }
+  const std::vector<std::string>& output_names() const { return outputs_; }
+
+  /// Output 1 when `cmt` is the central compartment, otherwise the amount in `cmt`.
+  double Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override;
+
+  /// f(x, θ) (the input u is added by the propagator).
+  virtual void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const = 0;
+  /// f and, for k directions (columns of dx, n×k, and dtheta, m×k), the
+  /// directional derivatives df = f_x dx + f_θ dtheta (n×k). With dx = [I 0]
+  /// and dtheta = [0 I] they are the Jacobians [f_x f_θ].
+  virtual void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
+                              const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const = 0;
+  /// y = g_output(x, θ), output numbered from 1.
+  virtual double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const = 0;
+  /// y and dy = g_x dx + g_θ dtheta (1×k).
+  virtual void OutputDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                 const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
+                                 Eigen::RowVectorXd* dy) const = 0;
+
+ protected:
+  explicit OdeModel(const OdeModelSpec& spec);
+
+ private:
+  std::vector<std::string> outputs_;
+};
+
+/// An OdeModel from a functor with templated `Rhs` and `Output` (see above).
+template <typename Functor>
+class AutoDiffOdeModel final : public OdeModel {
+ public:
+  AutoDiffOdeModel(const OdeModelSpec& spec, Functor functor) : OdeModel(spec), f_(std::move(functor)) {}
+
+  const Functor& functor() const { return f_; }
+
+  void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const override {
+    f->resize(num_compartments());
+    f_.Rhs(x.data(), theta.data(), f->data());
+  }
+
+  void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
+                      const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const override {
+    const int n = num_compartments();
+    std::vector<Dual> xd, td, fd(n);
+    Seed(x, dx, &xd);
+    Seed(theta, dtheta, &td);
+    f_.Rhs(xd.data(), td.data(), fd.data());
+    const Eigen::Index k = dx.cols();
+    f->resize(n);
+    df->setZero(n, k);
+    for (int i = 0; i < n; ++i) {
+      (*f)(i) = fd[i].value();
+      if (fd[i].derivatives().size()) df->row(i) = fd[i].derivatives().transpose();
+    }
+  }
+
+  double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override {
+    return f_.Output(output, x.data(), theta.data());
+  }
+
+  void OutputDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                         const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
+                         Eigen::RowVectorXd* dy) const override {
+    std::vector<Dual> xd, td;
+    Seed(x, dx, &xd);
+    Seed(theta, dtheta, &td);
+    const Dual g = f_.Output(output, xd.data(), td.data());
+    *y = g.value();
+    if (g.derivatives().size()) {
+      *dy = g.derivatives().transpose();
+    } else {
+      dy->setZero(dx.cols());
+    }
+  }
+
+ private:
+  static void Seed(const Eigen::VectorXd& v, const Eigen::MatrixXd& d, std::vector<Dual>* out) {
+    out->resize(v.size());
+    for (Eigen::Index i = 0; i < v.size(); ++i) (*out)[i] = Dual(v(i), d.row(i).transpose());
+  }
+
+  Functor f_;
+};
+
+/// Wraps a functor into a model (see the example at the top of this file).
+template <typename Functor>
+std::shared_ptr<const OdeModel> MakeOdeModel(const OdeModelSpec& spec, Functor functor) {
+  return std::make_shared<AutoDiffOdeModel<Functor>>(spec, std::move(functor));
+}
+
+}  // namespace pk
+
+#endif  // PK_ODE_MODEL_H_

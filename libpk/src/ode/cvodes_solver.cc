@@ -1,0 +1,443 @@
+#include "cvodes_solver.h"
+
+#include <cmath>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include <cvodes/cvodes.h>
+#include <nvector/nvector_serial.h>
+#include <sunlinsol/sunlinsol_dense.h>
+#include <sunmatrix/sunmatrix_dense.h>
+
+#include "../exact/numerical_failure.h"
+
+namespace pk {
+namespace internal {
+namespace {
+
+using Map = Eigen::Map<Eigen::VectorXd>;
+
+Map View(N_Vector v) { return Map(N_VGetArrayPointer(v), N_VGetLength(v)); }
+Eigen::Map<Eigen::MatrixXd> View(SUNMatrix m) {
+  return Eigen::Map<Eigen::MatrixXd>(SUNDenseMatrix_Data(m), SUNDenseMatrix_Rows(m), SUNDenseMatrix_Columns(m));
+}
+
+// RAII owners of SUNDIALS handles.
+struct Context {
+  SUNContext ctx = nullptr;
+  Context() {
+    if (SUNContext_Create(nullptr, &ctx) != 0) throw NumericalFailure("CVODES: cannot create a SUNDIALS context");
+  }
+  ~Context() { SUNContext_Free(&ctx); }
+};
+struct Vector {
+  N_Vector v = nullptr;
+  Vector(long n, SUNContext ctx) : v(N_VNew_Serial(n, ctx)) { N_VConst(0.0, v); }
+  ~Vector() { N_VDestroy(v); }
+  Vector(const Vector&) = delete;
+  Vector& operator=(const Vector&) = delete;
+};
+struct VectorArray {
+  N_Vector* v = nullptr;
+  int count = 0;
+  VectorArray(int k, N_Vector like) : v(N_VCloneVectorArray(k, like)), count(k) {
+    for (int i = 0; i < k; ++i) N_VConst(0.0, v[i]);
+  }
+  ~VectorArray() { N_VDestroyVectorArray(v, count); }
+  VectorArray(const VectorArray&) = delete;
+  VectorArray& operator=(const VectorArray&) = delete;
+};
+struct LinearSolver {
+  SUNMatrix a = nullptr;
+  SUNLinearSolver ls = nullptr;
+  LinearSolver(N_Vector y, long n, SUNContext ctx) : a(SUNDenseMatrix(n, n, ctx)), ls(SUNLinSol_Dense(y, a, ctx)) {}
+  ~LinearSolver() {
+    SUNLinSolFree(ls);
+    SUNMatDestroy(a);
+  }
+  LinearSolver(const LinearSolver&) = delete;
+  LinearSolver& operator=(const LinearSolver&) = delete;
+};
+struct Memory {
+  void* mem = nullptr;
+  explicit Memory(SUNContext ctx) : mem(CVodeCreate(CV_BDF, ctx)) {}
+  ~Memory() { CVodeFree(&mem); }
+  Memory(const Memory&) = delete;
+  Memory& operator=(const Memory&) = delete;
+};
+
+}  // namespace
+
+struct CvodesSolver::Impl {
+  const OdeSystem& sys;
+  OdeOptions opt;
+  int n;
+  Context context;
+  OdeStatistics stats;
+  std::string last_error;
+  // The segment being integrated.
+  const SegmentInput* in = nullptr;
+  int k = 0;
+  bool with_loss = false;  // state carries the continuous loss as entry n
+  bool with_auc = false;   // state carries ∫ y_auc_key dt as its last entry
+
+  // One CVODES instance per configuration: plain (with/without loss state),
+  // forward sensitivities with k directions, and the adjoint.
+  struct Forward {
+    std::unique_ptr<Vector> y;
+    std::unique_ptr<Memory> mem;
+    std::unique_ptr<LinearSolver> ls;
+    std::unique_ptr<VectorArray> ys;
+  };
+  std::map<std::pair<int, int>, Forward> forward;  // (k, with_loss + 2·with_auc)
+  struct Adjoint {
+    std::unique_ptr<Vector> y, yb, qb;
+    std::unique_ptr<Memory> mem;
+    std::unique_ptr<LinearSolver> ls, lsb;
+    int which = -1;
+    int kq = 0;
+  };
+  std::unique_ptr<Adjoint> adjoint;
+
+  Impl(const OdeSystem& s, const OdeOptions& o) : sys(s), opt(o), n(s.n()) {}
+
+  static void ErrorHandler(int, const char*, const char* function, char* msg, void* data) {
+    static_cast<Impl*>(data)->last_error = std::string(function) + ": " + msg;
+  }
+
+  void Check(int flag, const char* what) {
+    if (flag >= 0) return;
+    std::ostringstream os;
+    os << "the ODE solver failed (" << what << ", flag " << flag << ")";
+    if (!last_error.empty()) os << ": " << last_error;
+    last_error.clear();
+    throw NumericalFailure(os.str());
+  }
+
+  // The continuous loss integrand ½ w (y − y_m)² at local time t and its
+  // derivative with respect to y, summed over the terms.
+  double LossIntegrand(double t, const Eigen::VectorXd& x, Eigen::VectorXd* dl_dy = nullptr) const {
+    double sum = 0;
+    if (dl_dy) dl_dy->resize(in->continuous.size());
+    for (size_t i = 0; i < in->continuous.size(); ++i) {
+      const ContinuousTerm& c = in->continuous[i];
+      const double r = sys.Observe(c.key, x, in->theta) - (c.ym0 + c.ym_slope * t);
+      const double w = c.w0 + c.w_slope * t;
+      sum += 0.5 * w * r * r;
+      if (dl_dy) (*dl_dy)(static_cast<Eigen::Index>(i)) = w * r;
+    }
+    return sum;
+  }
+
+  static int Rhs(realtype t, N_Vector y, N_Vector ydot, void* data) {
+    Impl& d = *static_cast<Impl*>(data);
+    ++d.stats.rhs_evaluations;
+    const Eigen::VectorXd x = View(y).head(d.n);
+    Eigen::VectorXd f;
+    d.sys.Rhs(x, d.in->theta, &f);
+    Map out = View(ydot);
+    out.head(d.n) = f + d.in->u;
+    if (d.with_loss) out(d.n) = d.LossIntegrand(t, x);
+    if (d.with_auc) out(out.size() - 1) = d.sys.Observe(d.in->auc_key, x, d.in->theta);
+    return out.allFinite() ? 0 : 1;
+  }
+
+  static int Jacobian(realtype t, N_Vector y, N_Vector, SUNMatrix jac, void* data, N_Vector, N_Vector, N_Vector) {
+    Impl& d = *static_cast<Impl*>(data);
+    ++d.stats.jacobian_evaluations;
+    const Eigen::VectorXd x = View(y).head(d.n);
+    auto j = View(jac);
+    j.setZero();
+    j.topLeftCorner(d.n, d.n) = d.sys.StateJacobian(x, d.in->theta);
+    if (d.with_loss) {
+      // ∂/∂x of ½ w (y − y_m)² = w (y − y_m) g_x.
+      Eigen::VectorXd dl;
+      d.LossIntegrand(t, x, &dl);
+      for (size_t i = 0; i < d.in->continuous.size(); ++i) {
+        double yv;
+        Eigen::RowVectorXd gx;
+        d.sys.ObserveDirectional(d.in->continuous[i].key, x, d.in->theta, Eigen::MatrixXd::Identity(d.n, d.n),
+                                 Eigen::MatrixXd::Zero(d.sys.num_theta(), d.n), &yv, &gx);
+        j.row(d.n).head(d.n) += dl(static_cast<Eigen::Index>(i)) * gx;
+      }
+    }
+    if (d.with_auc) {
+      double yv;
+      Eigen::RowVectorXd gx;
+      d.sys.ObserveDirectional(d.in->auc_key, x, d.in->theta, Eigen::MatrixXd::Identity(d.n, d.n),
+                               Eigen::MatrixXd::Zero(d.sys.num_theta(), d.n), &yv, &gx);
+      j.row(j.rows() - 1).head(d.n) = gx;
+    }
+    return j.allFinite() ? 0 : 1;
+  }
+
+  // dS/dt = f_x S + f_θ ∂θ/∂p + ∂u/∂p for all k directions at once, from one
+  // dual-number evaluation of f seeded with (S, ∂θ/∂p).
+  static int SensitivityRhs(int k, realtype t, N_Vector y, N_Vector, N_Vector* ys, N_Vector* ysdot, void* data,
+                            N_Vector, N_Vector) {
+    Impl& d = *static_cast<Impl*>(data);
+    const Eigen::VectorXd x = View(y).head(d.n);
+    Eigen::MatrixXd s(d.n, k);
+    for (int i = 0; i < k; ++i) s.col(i) = View(ys[i]).head(d.n);
+    Eigen::VectorXd f;
+    Eigen::MatrixXd df;
+    d.sys.RhsDirectional(x, d.in->theta, s, d.in->dtheta, &f, &df);
+    if (d.in->du.cols() == k) df += d.in->du;
+    Eigen::RowVectorXd dloss = Eigen::RowVectorXd::Zero(k);
+    if (d.with_loss) {
+      Eigen::VectorXd dl;
+      d.LossIntegrand(t, x, &dl);
+      for (size_t i = 0; i < d.in->continuous.size(); ++i) {
+        double yv;
+        Eigen::RowVectorXd dy;
+        d.sys.ObserveDirectional(d.in->continuous[i].key, x, d.in->theta, s, d.in->dtheta, &yv, &dy);
+        dloss += dl(static_cast<Eigen::Index>(i)) * dy;
+      }
+    }
+    for (int i = 0; i < k; ++i) {
+      Map out = View(ysdot[i]);
+      out.head(d.n) = df.col(i);
+      if (d.with_loss) out(d.n) = dloss(i);
+    }
+    return df.allFinite() ? 0 : 1;
+  }
+
+  // Backward: dλ/dt = −f_xᵀλ − Σ g_xᵀ w (y − y_m).
+  static int AdjointRhs(realtype t, N_Vector y, N_Vector yb, N_Vector ybdot, void* data) {
+    Impl& d = *static_cast<Impl*>(data);
+    ++d.stats.rhs_evaluations;
+    const Eigen::VectorXd x = View(y);
+    Map out = View(ybdot);
+    out = -d.sys.StateJacobian(x, d.in->theta).transpose() * View(yb);
+    if (!d.in->continuous.empty()) {
+      Eigen::VectorXd dl;
+      d.LossIntegrand(t, x, &dl);
+      for (size_t i = 0; i < d.in->continuous.size(); ++i) {
+        double yv;
+        Eigen::RowVectorXd gx;
+        d.sys.ObserveDirectional(d.in->continuous[i].key, x, d.in->theta, Eigen::MatrixXd::Identity(d.n, d.n),
+                                 Eigen::MatrixXd::Zero(d.sys.num_theta(), d.n), &yv, &gx);
+        out -= dl(static_cast<Eigen::Index>(i)) * gx.transpose();
+      }
+    }
+    return out.allFinite() ? 0 : 1;
+  }
+
+  static int AdjointJacobian(realtype, N_Vector y, N_Vector, N_Vector, SUNMatrix jac, void* data, N_Vector, N_Vector,
+                             N_Vector) {
+    Impl& d = *static_cast<Impl*>(data);
+    ++d.stats.jacobian_evaluations;
+    View(jac) = -d.sys.StateJacobian(View(y), d.in->theta).transpose();
+    return 0;
+  }
+
+  // CVODES integrates the backward quadrature from h down to 0, so the
+  // integrand enters with a minus sign: q(0) = ∫₀ʰ (…) ds.
+  static int AdjointQuadrature(realtype t, N_Vector y, N_Vector yb, N_Vector qbdot, void* data) {
+    Impl& d = *static_cast<Impl*>(data);
+    if (d.k == 0) {
+      N_VConst(0.0, qbdot);
+      return 0;
+    }
+    const Eigen::VectorXd x = View(y);
+    const Map lambda = View(yb);
+    Eigen::VectorXd f;
+    Eigen::MatrixXd df;
+    d.sys.RhsDirectional(x, d.in->theta, Eigen::MatrixXd::Zero(d.n, d.k), d.in->dtheta, &f, &df);
+    if (d.in->du.cols() == d.k) df += d.in->du;
+    Eigen::RowVectorXd q = lambda.transpose() * df;
+    if (!d.in->continuous.empty()) {
+      Eigen::VectorXd dl;
+      d.LossIntegrand(t, x, &dl);
+      for (size_t i = 0; i < d.in->continuous.size(); ++i) {
+        double yv;
+        Eigen::RowVectorXd dy;
+        d.sys.ObserveDirectional(d.in->continuous[i].key, x, d.in->theta, Eigen::MatrixXd::Zero(d.n, d.k),
+                                 d.in->dtheta, &yv, &dy);
+        q += dl(static_cast<Eigen::Index>(i)) * dy;
+      }
+    }
+    View(qbdot) = -q.transpose();
+    return q.allFinite() ? 0 : 1;
+  }
+
+  void Configure(void* mem, N_Vector y, LinearSolver* ls) {
+    Check(CVodeInit(mem, Rhs, 0.0, y), "CVodeInit");
+    Check(CVodeSetUserData(mem, this), "CVodeSetUserData");
+    Check(CVodeSetErrHandlerFn(mem, ErrorHandler, this), "CVodeSetErrHandlerFn");
+    Check(CVodeSStolerances(mem, opt.relative_tolerance, opt.absolute_tolerance), "CVodeSStolerances");
+    Check(CVodeSetMaxNumSteps(mem, opt.max_steps), "CVodeSetMaxNumSteps");
+    Check(CVodeSetLinearSolver(mem, ls->ls, ls->a), "CVodeSetLinearSolver");
+    Check(CVodeSetJacFn(mem, Jacobian), "CVodeSetJacFn");
+  }
+
+  Forward& GetForward(int kk, bool loss, bool auc = false) {
+    const std::pair<int, int> key(kk, int(loss) + 2 * int(auc));
+    auto it = forward.find(key);
+    if (it != forward.end()) return it->second;
+    Forward& f = forward[key];
+    const int size = n + (loss ? 1 : 0) + (auc ? 1 : 0);
+    f.y.reset(new Vector(size, context.ctx));
+    f.mem.reset(new Memory(context.ctx));
+    if (f.mem->mem == nullptr) throw NumericalFailure("CVODES: out of memory");
+    f.ls.reset(new LinearSolver(f.y->v, size, context.ctx));
+    Configure(f.mem->mem, f.y->v, f.ls.get());
+    if (kk > 0) {
+      f.ys.reset(new VectorArray(kk, f.y->v));
+      Check(CVodeSensInit(f.mem->mem, kk, CV_STAGGERED, SensitivityRhs, f.ys->v), "CVodeSensInit");
+      Check(CVodeSensEEtolerances(f.mem->mem), "CVodeSensEEtolerances");
+      Check(CVodeSetSensErrCon(f.mem->mem, SUNTRUE), "CVodeSetSensErrCon");
+    }
+    return f;
+  }
+
+  void Integrate(void* mem, double h, N_Vector y) {
+    Check(CVodeSetStopTime(mem, h), "CVodeSetStopTime");
+    realtype t = 0;
+    Check(CVode(mem, h, y, &t, CV_NORMAL), "CVode");
+    if (std::fabs(t - h) > 1e-12 * std::max(1.0, h)) throw NumericalFailure("the ODE solver stopped early");
+    long steps = 0;
+    CVodeGetNumSteps(mem, &steps);
+    stats.steps += steps;
+  }
+};
+
+CvodesSolver::CvodesSolver(const OdeSystem& system, const OdeOptions& options) : impl_(new Impl(system, options)) {}
+CvodesSolver::~CvodesSolver() = default;
+const OdeStatistics& CvodesSolver::statistics() const { return impl_->stats; }
+
+void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc) {
+  Impl& d = *impl_;
+  if (in.h <= 0) return;
+  d.in = &in;
+  d.k = 0;
+  d.with_loss = loss != nullptr && !in.continuous.empty();
+  d.with_auc = auc != nullptr;
+  Impl::Forward& f = d.GetForward(0, d.with_loss, d.with_auc);
+  Map y = View(f.y->v);
+  y.head(d.n) = *x;
+  y.tail(y.size() - d.n).setZero();
+  d.Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
+  d.Integrate(f.mem->mem, in.h, f.y->v);
+  *x = y.head(d.n);
+  if (d.with_loss) *loss += y(d.n);
+  if (d.with_auc) *auc += y(y.size() - 1);
+  d.with_auc = false;
+}
+
+void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, double* loss,
+                                      Eigen::RowVectorXd* dloss) {
+  Impl& d = *impl_;
+  const int k = static_cast<int>(s->cols());
+  if (in.h <= 0) return;
+  if (k == 0) {
+    Advance(in, x, loss);
+    return;
+  }
+  d.in = &in;
+  d.k = k;
+  d.with_loss = loss != nullptr && !in.continuous.empty();
+  Impl::Forward& f = d.GetForward(k, d.with_loss);
+  Map y = View(f.y->v);
+  y.head(d.n) = *x;
+  if (d.with_loss) y(d.n) = 0;
+  for (int i = 0; i < k; ++i) {
+    Map si = View(f.ys->v[i]);
+    si.head(d.n) = s->col(i);
+    if (d.with_loss) si(d.n) = 0;
+  }
+  d.Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
+  d.Check(CVodeSensReInit(f.mem->mem, CV_STAGGERED, f.ys->v), "CVodeSensReInit");
+  d.Integrate(f.mem->mem, in.h, f.y->v);
+  realtype t = 0;
+  d.Check(CVodeGetSens(f.mem->mem, &t, f.ys->v), "CVodeGetSens");
+  *x = y.head(d.n);
+  for (int i = 0; i < k; ++i) s->col(i) = View(f.ys->v[i]).head(d.n);
+  if (d.with_loss) {
+    *loss += y(d.n);
+    for (int i = 0; i < k; ++i) (*dloss)(i) += View(f.ys->v[i])(d.n);
+  }
+}
+
+void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
+                                  const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                                  Eigen::RowVectorXd* q) {
+  Impl& d = *impl_;
+  const int k = static_cast<int>(in.dtheta.cols());
+  *lambda_start = lambda_end;
+  q->setZero(k);
+  if (in.h <= 0) return;
+  d.in = &in;
+  d.k = k;
+  d.with_loss = false;
+  if (!d.adjoint) {
+    d.adjoint.reset(new Impl::Adjoint);
+    Impl::Adjoint& a = *d.adjoint;
+    a.y.reset(new Vector(d.n, d.context.ctx));
+    a.mem.reset(new Memory(d.context.ctx));
+    a.ls.reset(new LinearSolver(a.y->v, d.n, d.context.ctx));
+    View(a.y->v) = x0;
+    d.Configure(a.mem->mem, a.y->v, a.ls.get());
+    d.Check(CVodeAdjInit(a.mem->mem, d.opt.checkpoint_steps, CV_HERMITE), "CVodeAdjInit");
+  }
+  Impl::Adjoint& a = *d.adjoint;
+  // Forward over this segment only: checkpoints never straddle a jump.
+  View(a.y->v) = x0;
+  d.Check(CVodeReInit(a.mem->mem, 0.0, a.y->v), "CVodeReInit");
+  d.Check(CVodeAdjReInit(a.mem->mem), "CVodeAdjReInit");
+  d.Check(CVodeSetStopTime(a.mem->mem, in.h), "CVodeSetStopTime");
+  realtype t = 0;
+  int ncheck = 0;
+  d.Check(CVodeF(a.mem->mem, in.h, a.y->v, &t, CV_NORMAL, &ncheck), "CVodeF");
+  long steps = 0;
+  CVodeGetNumSteps(a.mem->mem, &steps);
+  d.stats.steps += steps;
+  const long stored = std::min<long>(steps, d.opt.checkpoint_steps) * 2 * d.n + (ncheck + 1) * 6L * d.n;
+  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, stored * static_cast<long>(sizeof(double)));
+
+  const int kq = std::max(k, 1);
+  if (a.which < 0 || a.kq != kq) {
+    if (a.which >= 0) throw NumericalFailure("internal: the adjoint quadrature size changed");
+    a.yb.reset(new Vector(d.n, d.context.ctx));
+    a.qb.reset(new Vector(kq, d.context.ctx));
+    View(a.yb->v) = lambda_end;
+    d.Check(CVodeCreateB(a.mem->mem, CV_BDF, &a.which), "CVodeCreateB");
+    d.Check(CVodeInitB(a.mem->mem, a.which, Impl::AdjointRhs, in.h, a.yb->v), "CVodeInitB");
+    d.Check(CVodeSStolerancesB(a.mem->mem, a.which, d.opt.relative_tolerance, d.opt.absolute_tolerance),
+            "CVodeSStolerancesB");
+    d.Check(CVodeSetUserDataB(a.mem->mem, a.which, &d), "CVodeSetUserDataB");
+    d.Check(CVodeSetMaxNumStepsB(a.mem->mem, a.which, d.opt.max_steps), "CVodeSetMaxNumStepsB");
+    a.lsb.reset(new LinearSolver(a.yb->v, d.n, d.context.ctx));
+    d.Check(CVodeSetLinearSolverB(a.mem->mem, a.which, a.lsb->ls, a.lsb->a), "CVodeSetLinearSolverB");
+    d.Check(CVodeSetJacFnB(a.mem->mem, a.which, Impl::AdjointJacobian), "CVodeSetJacFnB");
+    N_VConst(0.0, a.qb->v);
+    d.Check(CVodeQuadInitB(a.mem->mem, a.which, Impl::AdjointQuadrature, a.qb->v), "CVodeQuadInitB");
+    d.Check(CVodeQuadSStolerancesB(a.mem->mem, a.which, d.opt.relative_tolerance, d.opt.absolute_tolerance),
+            "CVodeQuadSStolerancesB");
+    d.Check(CVodeSetQuadErrConB(a.mem->mem, a.which, SUNTRUE), "CVodeSetQuadErrConB");
+    void* memb = CVodeGetAdjCVodeBmem(a.mem->mem, a.which);
+    CVodeSetErrHandlerFn(memb, Impl::ErrorHandler, &d);
+    a.kq = kq;
+  } else {
+    View(a.yb->v) = lambda_end;
+    d.Check(CVodeReInitB(a.mem->mem, a.which, in.h, a.yb->v), "CVodeReInitB");
+    N_VConst(0.0, a.qb->v);
+    d.Check(CVodeQuadReInitB(a.mem->mem, a.which, a.qb->v), "CVodeQuadReInitB");
+  }
+  if (k == 0) d.k = 0;
+  d.Check(CVodeB(a.mem->mem, 0.0, CV_NORMAL), "CVodeB");
+  d.Check(CVodeGetB(a.mem->mem, a.which, &t, a.yb->v), "CVodeGetB");
+  *lambda_start = View(a.yb->v);
+  if (k > 0) {
+    d.Check(CVodeGetQuadB(a.mem->mem, a.which, &t, a.qb->v), "CVodeGetQuadB");
+    *q = View(a.qb->v).transpose();
+  }
+  void* memb = CVodeGetAdjCVodeBmem(a.mem->mem, a.which);
+  long bsteps = 0;
+  CVodeGetNumSteps(memb, &bsteps);
+  d.stats.backward_steps += bsteps;
+}
+
+}  // namespace internal
+}  // namespace pk

@@ -1,0 +1,346 @@
+// The ODE propagator (not installed): the EventEngine visitor that integrates
+// with CVODES between events, for either scalar type of the engine.
+//
+// On T = double it propagates x only. On T = Dual (P directions, the free
+// parameters) it can also propagate the forward sensitivity S = ∂x/∂p
+// (route (a), the seed's dx_θ/dt = f_x x_θ + f_θ):
+//   within a segment   dS/dt = f_x S + f_θ ∂θ/∂p + ∂u/∂p        (CVODES)
+//   at a bolus         S[c] += ∂(F·AMT)/∂p                      (a jump)
+//   after a segment    S += (f(x⁺) + u) ∂h/∂p                   (moving event times)
+// The last line is the lag term: a dose time τ that moves with p lengthens the
+// segment before it and shortens the one after, which together give the
+// seed's (f⁻ − f⁺)∂τ/∂p because f is autonomous between events.
+//
+// With `tape` on, it records every step for the adjoint sweep (ode_routes.h).
+//
+// A steady state is the periodic fixed point x* = P(x*) of the dosing-cycle
+// map, found by Newton's method with P_x from n sensitivity directions, and
+// differentiated by the implicit function theorem:
+//   (I − P_x) ∂x*/∂p = ∂P/∂p.
+// A steady constant infusion solves f(x*, θ) + u = 0, with
+//   f_x ∂x*/∂p = −(f_θ ∂θ/∂p + ∂u/∂p).
+#ifndef PK_SRC_ODE_ODE_PROPAGATOR_H_
+#define PK_SRC_ODE_ODE_PROPAGATOR_H_
+
+#include <cmath>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Dense>
+
+#include "../autodiff.h"
+#include "../events.h"
+#include "../exact/numerical_failure.h"
+#include "cvodes_solver.h"
+#include "ode_system.h"
+
+namespace pk {
+namespace internal {
+
+/// Continuous records (CONT=1 samples) of one subject: per output key, the
+/// record times, values and weights per unit time, linearly interpolated.
+struct ContinuousRecords {
+  struct Series {
+    int key = 1;
+    std::vector<double> t, y, w;
+  };
+  std::vector<Series> series;
+
+  bool empty() const { return series.empty(); }
+  /// The terms active on [t0, t0 + h] (each segment lies between two records).
+  std::vector<ContinuousTerm> Terms(double t0, double h) const;
+};
+
+/// One step of the forward pass, for the adjoint sweep.
+struct TapeStep {
+  enum Kind { kAdvance, kBolus, kReset, kSteadyState, kSteadyInfusion, kSample } kind = kReset;
+  SegmentInput segment;       // kAdvance: with ∂θ/∂p and ∂u/∂p (P columns)
+  Eigen::VectorXd x0, x1;     // kAdvance: state at the start and end; kSteady*: x*
+  Eigen::RowVectorXd dh;      // kAdvance: ∂h/∂p
+  int cmt = 0;                // kBolus
+  Eigen::RowVectorXd damount; // kBolus: ∂(F·AMT)/∂p
+  bool add = false;           // kSteady*: SS=2
+  Eigen::MatrixXd jacobian;   // kSteadyState: P_x; kSteadyInfusion: f_x
+  Eigen::MatrixXd forcing;    // kSteadyInfusion: f_θ ∂θ/∂p + ∂u/∂p (n×P)
+  std::vector<TapeStep> cycle;  // kSteadyState: the cycle from x* (bolus, then segments)
+  int sample = -1, key = 0, set = 0;  // kSample
+};
+
+template <typename T>
+class OdePropagator {
+ public:
+  OdePropagator(const OdeSystem& sys, const ParameterLayout& layout, const std::vector<Vec<T>>& sets, int p,
+                const OdeOptions& options, bool sensitivities, bool tape, bool track_auc,
+                const ContinuousRecords* continuous = nullptr)
+      : sys_(sys),
+        layout_(layout),
+        sets_(sets),
+        p_(p),
+        n_(sys.n()),
+        solver_(sys, options),
+        options_(options),
+        sens_(sensitivities),
+        tape_on_(tape),
+        track_auc_(track_auc),
+        continuous_(continuous != nullptr && !continuous->empty() ? continuous : nullptr) {
+    x_ = Eigen::VectorXd::Zero(n_);
+    s_ = Eigen::MatrixXd::Zero(n_, sens_ ? p_ : 0);
+    dloss_ = Eigen::RowVectorXd::Zero(sens_ ? p_ : 0);
+  }
+
+  // ---- EventEngine visitor interface ----
+  void Advance(const T& h, const Vec<T>& u, int set) {
+    SegmentInput seg = MakeSegment(h, u, set, p_);
+    // Inside a steady-state cycle the time is virtual: no records, no AUC.
+    const ContinuousRecords* cont = in_cycle_ ? nullptr : continuous_;
+    const bool auc = track_auc_ && !in_cycle_;
+    if (cont) seg.continuous = cont->Terms(t_, seg.h);
+    if (auc) seg.auc_key = sys_.central_key();
+    TapeStep step;
+    if (tape_on_) step.x0 = x_;
+    if (sens_) {
+      solver_.AdvanceSensitivity(seg, &x_, &s_, cont ? &loss_ : nullptr, &dloss_);
+      s_ += FlowAtEnd(seg) * Derivatives(h, p_).transpose();
+    } else {
+      solver_.Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr);
+    }
+    if (!in_cycle_) t_ += seg.h;
+    if (tape_on_) {
+      step.kind = TapeStep::kAdvance;
+      step.x1 = x_;
+      step.dh = Derivatives(h, p_).transpose();
+      step.segment = std::move(seg);
+      tape_.push_back(std::move(step));
+    }
+  }
+
+  void Bolus(int cmt, const T& amount, int /*set*/) {
+    x_(cmt) += Value(amount);
+    if (sens_) s_.row(cmt) += Derivatives(amount, p_).transpose();
+    if (tape_on_) {
+      TapeStep step;
+      step.kind = TapeStep::kBolus;
+      step.cmt = cmt;
+      step.damount = Derivatives(amount, p_).transpose();
+      tape_.push_back(std::move(step));
+    }
+  }
+
+  void Reset() {
+    x_.setZero();
+    s_.setZero();
+    if (tape_on_) {
+      TapeStep step;
+      step.kind = TapeStep::kReset;
+      tape_.push_back(std::move(step));
+    }
+  }
+
+  void SteadyInfusion(const Vec<T>& u, int set, bool add) {
+    const Eigen::VectorXd theta = Values(Vec<T>(sets_[set].head(sys_.num_theta())));
+    const Eigen::VectorXd uv = Values(u);
+    Eigen::VectorXd x = Eigen::VectorXd::Zero(n_);
+    Eigen::MatrixXd fx;
+    for (int it = 0;; ++it) {
+      Eigen::VectorXd f;
+      sys_.Rhs(x, theta, &f);
+      f += uv;
+      fx = sys_.StateJacobian(x, theta);
+      if (f.lpNorm<Eigen::Infinity>() <= Tolerance(x) * 1e-2 && it > 0) break;
+      if (it >= options_.max_newton_iterations) {
+        throw NumericalFailure("no steady state for the constant infusion: Newton did not converge (is the rate "
+                               "above the elimination capacity?)");
+      }
+      Eigen::FullPivLU<Eigen::MatrixXd> lu(fx);
+      if (!lu.isInvertible()) throw NumericalFailure("no steady state for the constant infusion: f_x is singular");
+      x -= lu.solve(f);
+      if (!x.allFinite()) throw NumericalFailure("no steady state for the constant infusion");
+    }
+    const SegmentInput seg = MakeSegment(T(0.0), u, set, p_);
+    Eigen::VectorXd f;
+    Eigen::MatrixXd forcing;
+    sys_.RhsDirectional(x, theta, Eigen::MatrixXd::Zero(n_, p_), seg.dtheta, &f, &forcing);
+    forcing += seg.du;
+    Place(x, sens_ ? Eigen::MatrixXd(-fx.fullPivLu().solve(forcing)) : Eigen::MatrixXd(), add);
+    if (tape_on_) {
+      TapeStep step;
+      step.kind = TapeStep::kSteadyInfusion;
+      step.x1 = x;
+      step.jacobian = fx;
+      step.forcing = forcing;
+      step.add = add;
+      tape_.push_back(std::move(step));
+    }
+  }
+
+  void SteadyState(const SteadyStateCycle<T>& cycle, int set, bool add) {
+    // Newton on x = P(x): directions are the n initial states, then the P parameters.
+    const int k = n_ + p_;
+    Eigen::VectorXd x = Eigen::VectorXd::Zero(n_);
+    Eigen::MatrixXd s;
+    std::vector<TapeStep> steps;
+    for (int it = 0;; ++it) {
+      Eigen::VectorXd xp = x;
+      s = Eigen::MatrixXd::Zero(n_, k);
+      s.leftCols(n_).setIdentity();
+      steps.clear();
+      RunCycle(cycle, set, &xp, &s, tape_on_ ? &steps : nullptr);
+      const Eigen::VectorXd r = xp - x;
+      if (it > 0 && r.lpNorm<Eigen::Infinity>() <= Tolerance(xp)) break;
+      if (it >= options_.max_newton_iterations) {
+        throw NumericalFailure("no periodic steady state: Newton on x = P(x) did not converge");
+      }
+      Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n_, n_) - s.leftCols(n_));
+      Eigen::VectorXd dx = lu.solve(r);
+      if (!dx.allFinite()) {
+        throw NumericalFailure("no periodic steady state (I − P_x is singular: is nothing eliminated?)");
+      }
+      x += dx;
+    }
+    const Eigen::MatrixXd px = s.leftCols(n_);
+    Eigen::MatrixXd dxdp;
+    if (sens_) dxdp = (Eigen::MatrixXd::Identity(n_, n_) - px).partialPivLu().solve(s.rightCols(p_));
+    Place(x, dxdp, add);
+    if (tape_on_) {
+      TapeStep step;
+      step.kind = TapeStep::kSteadyState;
+      step.x1 = x;
+      step.jacobian = px;
+      step.add = add;
+      step.cycle = std::move(steps);
+      tape_.push_back(std::move(step));
+    }
+    // From the fixed point (just before a cycle's bolus) to the record time.
+    Bolus(cycle.cmt, cycle.bolus, set);
+    in_cycle_ = true;
+    for (const Segment<T>& seg : cycle.to_record) Advance(seg.duration, seg.rate, set);
+    in_cycle_ = false;
+  }
+
+  void DoseEntered(const T&, int) {}
+  void RecordDone(int, int) {}
+
+  // ---- state ----
+  const Eigen::VectorXd& state() const { return x_; }
+  const Eigen::MatrixXd& sensitivity() const { return s_; }
+  double auc() const { return auc_; }
+  double continuous_loss() const { return loss_; }
+  const Eigen::RowVectorXd& continuous_loss_gradient() const { return dloss_; }
+  void set_time(double t) { t_ = t; }
+  std::vector<TapeStep>& tape() { return tape_; }
+  void TapeSample(int sample, int key, int set) {
+    if (!tape_on_) return;
+    TapeStep step;
+    step.kind = TapeStep::kSample;
+    step.sample = sample;
+    step.key = key;
+    step.set = set;
+    step.x1 = x_;
+    tape_.push_back(std::move(step));
+  }
+  CvodesSolver& solver() { return solver_; }
+  const OdeSystem& system() const { return sys_; }
+  /// θ and ∂θ/∂p of a parameter set.
+  void Theta(int set, Eigen::VectorXd* theta, Eigen::MatrixXd* dtheta) const {
+    const Vec<T> th = sets_[set].head(sys_.num_theta());
+    *theta = Values(th);
+    *dtheta = DerivativeMatrix(th, p_);
+  }
+
+  /// f(x(h)) + u at the end of a segment.
+  Eigen::VectorXd FlowAtEnd(const SegmentInput& seg) const {
+    Eigen::VectorXd f;
+    sys_.Rhs(x_, seg.theta, &f);
+    return f + seg.u;
+  }
+
+ private:
+  SegmentInput MakeSegment(const T& h, const Vec<T>& u, int set, int k) const {
+    SegmentInput seg;
+    seg.h = Value(h);
+    seg.u = Values(u);
+    seg.du = DerivativeMatrix(u, k);
+    Theta(set, &seg.theta, &seg.dtheta);
+    if (k != p_) seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), k);
+    return seg;
+  }
+
+  double Tolerance(const Eigen::VectorXd& x) const {
+    return 10 * (options_.relative_tolerance * x.lpNorm<Eigen::Infinity>() + options_.absolute_tolerance);
+  }
+
+  void Place(const Eigen::VectorXd& x, const Eigen::MatrixXd& dxdp, bool add) {
+    if (add) {
+      x_ += x;
+      if (sens_) s_ += dxdp;
+    } else {
+      x_ = x;
+      if (sens_) s_ = dxdp;
+    }
+  }
+
+  // One dosing cycle from *x: the bolus, then the period's segments, with the
+  // sensitivity directions [∂/∂x0 (n) | ∂/∂p (P)] in *s. Records the steps
+  // (P parameter columns) for the adjoint when `steps` is given.
+  void RunCycle(const SteadyStateCycle<T>& cycle, int set, Eigen::VectorXd* x, Eigen::MatrixXd* s,
+                std::vector<TapeStep>* steps) {
+    const Eigen::RowVectorXd db = Derivatives(cycle.bolus, p_).transpose();
+    (*x)(cycle.cmt) += Value(cycle.bolus);
+    s->row(cycle.cmt).tail(p_) += db;
+    if (steps) {
+      TapeStep b;
+      b.kind = TapeStep::kBolus;
+      b.cmt = cycle.cmt;
+      b.damount = db;
+      steps->push_back(std::move(b));
+    }
+    for (const Segment<T>& period : cycle.period) {
+      const SegmentInput seg_p = MakeSegment(period.duration, period.rate, set, p_);
+      SegmentInput seg = seg_p;
+      seg.du = Eigen::MatrixXd::Zero(n_, n_ + p_);
+      seg.du.rightCols(p_) = seg_p.du;
+      seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), n_ + p_);
+      seg.dtheta.rightCols(p_) = seg_p.dtheta;
+      TapeStep step;
+      if (steps) step.x0 = *x;
+      solver_.AdvanceSensitivity(seg, x, s);
+      Eigen::VectorXd f;
+      sys_.Rhs(*x, seg.theta, &f);
+      const Eigen::RowVectorXd dh = Derivatives(period.duration, p_).transpose();
+      s->rightCols(p_) += (f + seg.u) * dh;
+      if (steps) {
+        step.kind = TapeStep::kAdvance;
+        step.x1 = *x;
+        step.dh = dh;
+        step.segment = seg_p;
+        steps->push_back(std::move(step));
+      }
+    }
+  }
+
+  const OdeSystem& sys_;
+  const ParameterLayout& layout_;
+  const std::vector<Vec<T>>& sets_;
+  const int p_;
+  const int n_;
+  CvodesSolver solver_;
+  OdeOptions options_;
+  const bool sens_;
+  const bool tape_on_;
+  const bool track_auc_;
+  const ContinuousRecords* continuous_;
+  Eigen::VectorXd x_;
+  Eigen::MatrixXd s_;
+  double t_ = 0;
+  bool in_cycle_ = false;
+  double auc_ = 0;
+  double loss_ = 0;
+  Eigen::RowVectorXd dloss_;
+  std::vector<TapeStep> tape_;
+};
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_ODE_ODE_PROPAGATOR_H_

@@ -1,0 +1,210 @@
+#include "ode_routes.h"
+
+#include <Eigen/Dense>
+
+namespace pk {
+namespace internal {
+
+std::vector<ContinuousTerm> ContinuousRecords::Terms(double t0, double h) const {
+  std::vector<ContinuousTerm> terms;
+  const double mid = t0 + 0.5 * h;
+  for (const Series& s : series) {
+    for (size_t i = 0; i + 1 < s.t.size(); ++i) {
+      if (!(s.t[i] <= mid && mid < s.t[i + 1])) continue;
+      const double span = s.t[i + 1] - s.t[i];
+      ContinuousTerm c;
+      c.key = s.key;
+      c.ym_slope = (s.y[i + 1] - s.y[i]) / span;
+      c.ym0 = s.y[i] + c.ym_slope * (t0 - s.t[i]);
+      c.w_slope = (s.w[i + 1] - s.w[i]) / span;
+      c.w0 = s.w[i] + c.w_slope * (t0 - s.t[i]);
+      terms.push_back(c);
+    }
+  }
+  return terms;
+}
+
+namespace {
+
+// Forwards the engine's calls to the propagator and collects the samples.
+template <typename T>
+class Collector {
+ public:
+  Collector(const OdeSubject& o, const PreparedSubject& s, OdePropagator<T>* prop, Eigen::VectorXd* yhat,
+            Eigen::MatrixXd* jacobian)
+      : o_(o), s_(s), prop_(prop), yhat_(yhat), jacobian_(jacobian) {
+    prop_->set_time(s.records().empty() ? 0.0 : s.records()[0].time);
+  }
+
+  void Advance(const T& h, const Vec<T>& u, int set) { prop_->Advance(h, u, set); }
+  void Bolus(int cmt, const T& amount, int set) { prop_->Bolus(cmt, amount, set); }
+  void Reset() { prop_->Reset(); }
+  void SteadyState(const SteadyStateCycle<T>& c, int set, bool add) { prop_->SteadyState(c, set, add); }
+  void SteadyInfusion(const Vec<T>& u, int set, bool add) { prop_->SteadyInfusion(u, set, add); }
+  void DoseEntered(const T&, int) {}
+
+  void RecordDone(int r, int set) {
+    prop_->set_time(s_.records()[r].time);
+    const int k = o_.sample_of_record[r];
+    if (k < 0) return;
+    const int key = o_.key_of_record[r];
+    Eigen::VectorXd theta;
+    Eigen::MatrixXd dtheta;
+    prop_->Theta(set, &theta, &dtheta);
+    if (jacobian_ != nullptr) {
+      // ∂ŷ/∂p = g_x S + g_θ ∂θ/∂p
+      Eigen::RowVectorXd dy;
+      o_.system->ObserveDirectional(key, prop_->state(), theta, prop_->sensitivity(), dtheta, &(*yhat_)(k), &dy);
+      jacobian_->row(k) = dy;
+    } else {
+      (*yhat_)(k) = o_.system->Observe(key, prop_->state(), theta);
+      prop_->TapeSample(k, key, set);
+    }
+  }
+
+ private:
+  const OdeSubject& o_;
+  const PreparedSubject& s_;
+  OdePropagator<T>* prop_;
+  Eigen::VectorXd* yhat_;
+  Eigen::MatrixXd* jacobian_;
+};
+
+void Accumulate(const OdeStatistics& from, OdeStatistics* to) {
+  if (to == nullptr) return;
+  to->steps += from.steps;
+  to->rhs_evaluations += from.rhs_evaluations;
+  to->jacobian_evaluations += from.jacobian_evaluations;
+  to->backward_steps += from.backward_steps;
+  to->peak_adjoint_bytes = std::max(to->peak_adjoint_bytes, from.peak_adjoint_bytes);
+}
+
+}  // namespace
+
+void OdePredict(const OdeSubject& o, const PreparedSubject& s, Eigen::VectorXd* yhat, double* continuous_loss,
+                OdeStatistics* stats) {
+  OdePropagator<double> prop(*o.system, *o.layout, s.sets, 0, o.options, false, false, false, &o.continuous);
+  *yhat = Eigen::VectorXd::Zero(o.num_samples);
+  Collector<double> c(o, s, &prop, yhat, nullptr);
+  EventEngine<double, Collector<double>> engine(s, *o.layout, s.sets, &c);
+  engine.Run();
+  *continuous_loss = prop.continuous_loss();
+  Accumulate(prop.solver().statistics(), stats);
+}
+
+void OdeForwardSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
+                             int p, Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian, double* continuous_loss,
+                             Eigen::RowVectorXd* continuous_gradient, OdeStatistics* stats) {
+  OdePropagator<Dual> prop(*o.system, *o.layout, sets, p, o.options, true, false, false, &o.continuous);
+  *yhat = Eigen::VectorXd::Zero(o.num_samples);
+  *jacobian = Eigen::MatrixXd::Zero(o.num_samples, p);
+  Collector<Dual> c(o, s, &prop, yhat, jacobian);
+  EventEngine<Dual, Collector<Dual>> engine(s, *o.layout, sets, &c);
+  engine.Run();
+  *continuous_loss = prop.continuous_loss();
+  *continuous_gradient = prop.continuous_loss_gradient();
+  Accumulate(prop.solver().statistics(), stats);
+}
+
+struct OdeAdjoint::Impl {
+  const OdeSubject& o;
+  const PreparedSubject& s;
+  std::vector<DualVector> sets;
+  int p;
+  OdePropagator<Dual> prop;
+
+  Impl(const OdeSubject& oo, const PreparedSubject& ss, const std::vector<DualVector>& st, int pp)
+      : o(oo), s(ss), sets(st), p(pp), prop(*oo.system, *oo.layout, sets, pp, oo.options, false, true, false,
+                                            &oo.continuous) {}
+
+  // Backward over one recorded segment: the moving-end term, then CVODES.
+  void BackwardSegment(const TapeStep& step, Eigen::VectorXd* lambda, Eigen::VectorXd* g) {
+    if (step.dh.size() && !step.dh.isZero(0.0)) {
+      Eigen::VectorXd f;
+      o.system->Rhs(step.x1, step.segment.theta, &f);
+      *g += (lambda->dot(f + step.segment.u)) * step.dh.transpose();
+    }
+    Eigen::VectorXd lambda0;
+    Eigen::RowVectorXd q;
+    prop.solver().AdjointSegment(step.segment, step.x0, *lambda, &lambda0, &q);
+    if (q.size()) *g += q.transpose();
+    *lambda = lambda0;
+  }
+
+  void Sweep(const std::vector<TapeStep>& tape, const Eigen::VectorXd& dl_dy, Eigen::VectorXd* lambda,
+             Eigen::VectorXd* g) {
+    const int n = o.system->n();
+    for (auto it = tape.rbegin(); it != tape.rend(); ++it) {
+      const TapeStep& step = *it;
+      switch (step.kind) {
+        case TapeStep::kSample: {
+          // λ jumps by g_xᵀ ∂ℓ/∂y; the output's own θ-dependence adds g_θᵀ ∂ℓ/∂y.
+          Eigen::VectorXd theta;
+          Eigen::MatrixXd dtheta;
+          prop.Theta(step.set, &theta, &dtheta);
+          Eigen::MatrixXd dirs = Eigen::MatrixXd::Zero(n, n + p);
+          dirs.leftCols(n).setIdentity();
+          Eigen::MatrixXd dth = Eigen::MatrixXd::Zero(theta.size(), n + p);
+          dth.rightCols(p) = dtheta;
+          double y;
+          Eigen::RowVectorXd dy;
+          o.system->ObserveDirectional(step.key, step.x1, theta, dirs, dth, &y, &dy);
+          const double w = dl_dy(step.sample);
+          *lambda += w * dy.head(n).transpose();
+          *g += w * dy.tail(p).transpose();
+          break;
+        }
+        case TapeStep::kAdvance:
+          BackwardSegment(step, lambda, g);
+          break;
+        case TapeStep::kBolus:
+          *g += (*lambda)(step.cmt) * step.damount.transpose();
+          break;
+        case TapeStep::kReset:
+          lambda->setZero();
+          break;
+        case TapeStep::kSteadyInfusion: {
+          // λᵀ ∂x*/∂p = −(f_x⁻ᵀ λ)ᵀ (f_θ θ_p + u_p)
+          const Eigen::VectorXd mu = step.jacobian.transpose().fullPivLu().solve(*lambda);
+          *g -= (mu.transpose() * step.forcing).transpose();
+          if (!step.add) lambda->setZero();
+          break;
+        }
+        case TapeStep::kSteadyState: {
+          // λᵀ ∂x*/∂p = μᵀ ∂P/∂p with (I − P_x)ᵀ μ = λ; ∂P/∂p by a backward pass over the cycle.
+          Eigen::VectorXd mu =
+              (Eigen::MatrixXd::Identity(n, n) - step.jacobian).transpose().partialPivLu().solve(*lambda);
+          Sweep(step.cycle, dl_dy, &mu, g);
+          if (!step.add) lambda->setZero();
+          break;
+        }
+      }
+    }
+  }
+};
+
+OdeAdjoint::OdeAdjoint(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets, int p)
+    : impl_(new Impl(o, s, sets, p)) {}
+OdeAdjoint::~OdeAdjoint() = default;
+
+void OdeAdjoint::Forward(Eigen::VectorXd* yhat, double* continuous_loss) {
+  Impl& d = *impl_;
+  *yhat = Eigen::VectorXd::Zero(d.o.num_samples);
+  Collector<Dual> c(d.o, d.s, &d.prop, yhat, nullptr);
+  EventEngine<Dual, Collector<Dual>> engine(d.s, *d.o.layout, d.sets, &c);
+  engine.Run();
+  *continuous_loss = d.prop.continuous_loss();
+}
+
+Eigen::VectorXd OdeAdjoint::Gradient(const Eigen::VectorXd& dl_dyhat) {
+  Impl& d = *impl_;
+  Eigen::VectorXd lambda = Eigen::VectorXd::Zero(d.o.system->n());
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(d.p);
+  d.Sweep(d.prop.tape(), dl_dyhat, &lambda, &g);
+  return g;
+}
+
+const OdeStatistics& OdeAdjoint::statistics() const { return impl_->prop.solver().statistics(); }
+
+}  // namespace internal
+}  // namespace pk

@@ -1,0 +1,107 @@
+#include "ode_system.h"
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "../autodiff.h"
+#include "pk/error.h"
+
+namespace pk {
+namespace internal {
+namespace {
+
+DualVector Seeded(const Eigen::VectorXd& v, const Eigen::MatrixXd& d) {
+  DualVector out(v.size());
+  for (Eigen::Index i = 0; i < v.size(); ++i) out(i) = Dual(v(i), d.row(i).transpose());
+  return out;
+}
+
+}  // namespace
+
+OdeSystem::OdeSystem(const Model& model)
+    : model_(model),
+      linear_(dynamic_cast<const LinearModel*>(&model)),
+      ode_(dynamic_cast<const OdeModel*>(&model)),
+      n_(model.num_compartments()),
+      m_(model.num_parameters()) {
+  if (linear_ == nullptr && ode_ == nullptr) {
+    throw InputError("", 0, 0, "model " + model.name() + " is neither linear nor an OdeModel");
+  }
+}
+
+void OdeSystem::Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const {
+  if (ode_) {
+    ode_->Rhs(x, theta, f);
+  } else {
+    *f = linear_->SystemMatrix<double>(theta) * x;
+  }
+}
+
+void OdeSystem::RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
+                               const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const {
+  if (ode_) {
+    ode_->RhsDirectional(x, theta, dx, dtheta, f, df);
+    return;
+  }
+  // f = A(θ)x: df = A dx + (∂A/∂θ · dθ) x, with ∂A/∂θ·dθ from A evaluated on duals.
+  const Eigen::MatrixXd a = linear_->SystemMatrix<double>(theta);
+  *f = a * x;
+  *df = a * dx;
+  if (dtheta.size() == 0 || dtheta.isZero(0.0)) return;
+  const Eigen::Matrix<Dual, Eigen::Dynamic, Eigen::Dynamic> ad = linear_->SystemMatrix<Dual>(Seeded(theta, dtheta));
+  for (int i = 0; i < n_; ++i) {
+    for (int j = 0; j < n_; ++j) {
+      if (x(j) != 0 && ad(i, j).derivatives().size()) df->row(i) += x(j) * ad(i, j).derivatives().transpose();
+    }
+  }
+}
+
+Eigen::MatrixXd OdeSystem::StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
+  if (linear_) return linear_->SystemMatrix<double>(theta);
+  Eigen::VectorXd f;
+  Eigen::MatrixXd df;
+  ode_->RhsDirectional(x, theta, Eigen::MatrixXd::Identity(n_, n_), Eigen::MatrixXd::Zero(m_, n_), &f, &df);
+  return df;
+}
+
+double OdeSystem::Observe(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
+  if (ode_) return ode_->OutputValue(key, x, theta);
+  return linear_->OutputRow<double>(key, theta).dot(x);
+}
+
+void OdeSystem::ObserveDirectional(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                   const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
+                                   Eigen::RowVectorXd* dy) const {
+  if (ode_) {
+    ode_->OutputDirectional(key, x, theta, dx, dtheta, y, dy);
+    return;
+  }
+  const Eigen::RowVectorXd c = linear_->OutputRow<double>(key, theta);
+  *y = c.dot(x);
+  *dy = c * dx;
+  const Eigen::Matrix<Dual, 1, Eigen::Dynamic> cd = linear_->OutputRow<Dual>(key, Seeded(theta, dtheta));
+  for (int j = 0; j < n_; ++j) {
+    if (x(j) != 0 && cd(j).derivatives().size()) *dy += x(j) * cd(j).derivatives().transpose();
+  }
+}
+
+int OutputOfRecord(const OdeModel& model, const Dataset& data, const Record& record, int dvid_column) {
+  if (dvid_column < 0) return 1;
+  const double v = record.extra[dvid_column];
+  if (std::isnan(v)) return 1;
+  if (v != std::floor(v) || v < 1 || v > model.num_outputs()) {
+    std::string names;
+    for (int k = 0; k < model.num_outputs(); ++k) {
+      names += (k ? ", " : "") + std::to_string(k + 1) + "=" + model.output_names()[k];
+    }
+    throw InputError(data.source, record.line, data.ColumnNumber("DVID"),
+                     "DVID " + std::to_string(v) + " is not an output of model " + model.name() + " (" + names + ")");
+  }
+  return static_cast<int>(v);
+}
+
+int OdeSystem::central_key() const { return ode_ ? 1 : model_.central_compartment(); }
+
+}  // namespace internal
+}  // namespace pk

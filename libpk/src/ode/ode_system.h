@@ -1,0 +1,64 @@
+// The right-hand side seen by the ODE propagator (not installed): either a
+// nonlinear OdeModel or a LinearModel run through CVODES (f = A(θ)x), so that
+// every catalogue model can use the ODE routes.
+//
+// An observation is identified by an "output key": the DVID for a nonlinear
+// model (output 1, 2, …), the 1-based compartment for a linear model (its
+// concentration, as in the exact propagator).
+#ifndef PK_SRC_ODE_ODE_SYSTEM_H_
+#define PK_SRC_ODE_ODE_SYSTEM_H_
+
+#include <memory>
+
+#include <Eigen/Core>
+
+#include "pk/dataset.h"
+#include "pk/linear_model.h"
+#include "pk/ode_model.h"
+
+namespace pk {
+namespace internal {
+
+class OdeSystem {
+ public:
+  /// Throws pk::InputError for a model that is neither linear nor an OdeModel.
+  explicit OdeSystem(const Model& model);
+
+  int n() const { return n_; }
+  int num_theta() const { return m_; }
+  const Model& model() const { return model_; }
+  bool is_linear() const { return linear_ != nullptr; }
+
+  void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const;
+  /// f and f_x dx + f_θ dtheta (n×k).
+  void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
+                      const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const;
+  /// f_x (n×n).
+  Eigen::MatrixXd StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const;
+
+  double Observe(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const;
+  /// y and g_x dx + g_θ dtheta (1×k).
+  void ObserveDirectional(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                          const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
+                          Eigen::RowVectorXd* dy) const;
+
+  /// The key of the model's default output (central concentration).
+  int central_key() const;
+
+ private:
+  const Model& model_;
+  const LinearModel* linear_ = nullptr;
+  const OdeModel* ode_ = nullptr;
+  int n_ = 0;
+  int m_ = 0;
+};
+
+/// The output a record of a nonlinear model measures: its DVID (column index
+/// `dvid_column` into Record::extra, or -1), default 1. Throws pk::InputError
+/// naming the line and column for a DVID that is not an output number.
+int OutputOfRecord(const OdeModel& model, const Dataset& data, const Record& record, int dvid_column);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_ODE_ODE_SYSTEM_H_

@@ -1,0 +1,40 @@
+#include "pk/propagator.h"
+
+#include "pk/error.h"
+#include "pk/ode_options.h"
+
+namespace pk {
+
+const char* ToString(Propagator p) {
+  switch (p) {
+    case Propagator::kAuto: return "auto";
+    case Propagator::kExact: return "exact";
+    case Propagator::kOde: return "ode";
+  }
+  return "?";
+}
+
+Propagator ResolvePropagator(const Model& model, Propagator requested) {
+  if (requested == Propagator::kExact && !model.is_linear()) {
+    throw InputError("", 0, 0, "model " + model.name() +
+                                   " is nonlinear: the exact (Φ/Γ) propagator needs a linear model; use "
+                                   "--propagator ode");
+  }
+  if (requested == Propagator::kAuto) return model.is_linear() ? Propagator::kExact : Propagator::kOde;
+  return requested;
+}
+
+bool OdeOptions::IsValid(std::string* error) const {
+  auto fail = [&](const char* why) {
+    if (error) *error = why;
+    return false;
+  };
+  if (!(relative_tolerance > 0 && relative_tolerance < 1)) return fail("the ODE relative tolerance must be in (0, 1)");
+  if (!(absolute_tolerance > 0)) return fail("the ODE absolute tolerance must be > 0");
+  if (max_steps < 1) return fail("the ODE step limit must be >= 1");
+  if (checkpoint_steps < 1) return fail("the checkpoint interval must be >= 1 step");
+  if (max_newton_iterations < 1) return fail("the steady-state Newton limit must be >= 1");
+  return true;
+}
+
+}  // namespace pk
