@@ -1,5 +1,6 @@
 #include "pk/objective.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -11,6 +12,7 @@
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
+#include "ode/ode_routes.h"
 #include "pk/parameters.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
@@ -58,7 +60,7 @@ bool ObjectiveOptions::IsValid(std::string* error) const {
     return fail("weights apply to least squares; maximum likelihood weights samples by its error model");
   }
   if (!(fd_relative_step > 0 && fd_relative_step < 0.1)) return fail("fd_relative_step must be in (0, 0.1)");
-  return true;
+  return ode.IsValid(error);
 }
 
 struct Objective::Impl {
@@ -73,6 +75,9 @@ struct Objective::Impl {
   int sigma_add = -1, sigma_prop = -1;
   Eigen::VectorXd y, w;
   std::vector<double> times;
+  Propagator propagator = Propagator::kExact;
+  std::unique_ptr<internal::OdeSystem> ode_system;
+  internal::OdeSubject ode;
   struct Prior {
     int index;
     double log_median, sd;
@@ -93,9 +98,18 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
   std::string why;
   if (!options.IsValid(&why)) throw InputError("", 0, 0, why);
   d.linear = dynamic_cast<const LinearModel*>(d.model.get());
-  if (d.linear == nullptr) throw InputError("", 0, 0, "model " + d.model->name() + " has no propagator yet");
+  d.propagator = ResolvePropagator(*d.model, options.propagator);
   // Dose modifiers (R, D, ...) are checked when values are given (CheckValues).
   d.prepared = internal::PrepareSubject(*d.model, d.layout, *d.data, subject, d.layout.Defaults(), false);
+  const int cont_col = d.data->ExtraColumn("CONT");
+  const int dvid_col = d.data->ExtraColumn("DVID");
+  const auto* ode_model = dynamic_cast<const OdeModel*>(d.model.get());
+  if (d.propagator == Propagator::kOde) {
+    d.ode_system.reset(new internal::OdeSystem(*d.model));
+    d.ode.system = d.ode_system.get();
+    d.ode.layout = &d.layout;
+    d.ode.options = options.ode;
+  }
   d.names = d.layout.names();
   if (options.error_model == ErrorModel::kAdditive || options.error_model == ErrorModel::kCombined) {
     d.sigma_add = static_cast<int>(d.names.size());
@@ -111,8 +125,23 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
   }
   std::vector<double> ys, ws;
   double sum_abs = 0;
-  for (const Record& r : d.prepared.records()) {
+  const std::vector<Record>& records = d.prepared.records();
+  d.ode.key_of_record.assign(records.size(), 0);
+  d.ode.sample_of_record.assign(records.size(), -1);
+  for (size_t ri = 0; ri < records.size(); ++ri) {
+    const Record& r = records[ri];
+    if (ode_model) d.ode.key_of_record[ri] = internal::OutputOfRecord(*ode_model, *d.data, r, dvid_col);
+    if (!ode_model) d.ode.key_of_record[ri] = d.prepared.cmt[ri] + 1;
     if (!r.IsSample()) continue;
+    const bool continuous = cont_col >= 0 && r.extra[cont_col] == 1;
+    if (continuous && d.propagator != Propagator::kOde) {
+      throw InputError(d.data->source, r.line, d.data->ColumnNumber("CONT"),
+                       "continuous records (CONT=1) need the ODE propagator (--propagator ode)");
+    }
+    if (continuous && options.error_model != ErrorModel::kLeastSquares) {
+      throw InputError(d.data->source, r.line, d.data->ColumnNumber("CONT"),
+                       "continuous records (CONT=1) are fitted by least squares, not maximum likelihood");
+    }
     double w = 1;
     const auto bad = [&](const std::string& what) {
       throw InputError(d.data->source, r.line, d.data->ColumnNumber(what == "weight" ? options.weight_column : "DV"),
@@ -134,11 +163,31 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
         if (!std::isfinite(w) || w < 0) bad("weight");
         break;
     }
+    if (continuous) {
+      const int key = d.ode.key_of_record[ri];
+      auto& series = d.ode.continuous.series;
+      auto it = std::find_if(series.begin(), series.end(), [&](const auto& x) { return x.key == key; });
+      if (it == series.end()) {
+        series.push_back({});
+        series.back().key = key;
+        it = series.end() - 1;
+      }
+      if (!it->t.empty() && !(r.time > it->t.back())) {
+        throw InputError(d.data->source, r.line, d.data->ColumnNumber("TIME"),
+                         "continuous records (CONT=1) of one output need increasing times");
+      }
+      it->t.push_back(r.time);
+      it->y.push_back(r.dv);
+      it->w.push_back(w);
+      continue;
+    }
+    d.ode.sample_of_record[ri] = static_cast<int>(ys.size());
     ys.push_back(r.dv);
     ws.push_back(w);
     d.times.push_back(r.time);
     sum_abs += std::fabs(r.dv);
   }
+  d.ode.num_samples = static_cast<int>(ys.size());
   d.y = Eigen::Map<Eigen::VectorXd>(ys.data(), static_cast<Eigen::Index>(ys.size()));
   d.w = Eigen::Map<Eigen::VectorXd>(ws.data(), static_cast<Eigen::Index>(ws.size()));
   d.default_sigma_add = ys.empty() || sum_abs == 0 ? 1.0 : 0.1 * sum_abs / static_cast<double>(ys.size());
@@ -172,6 +221,8 @@ Eigen::VectorXd Objective::DefaultValues() const {
 }
 
 int Objective::num_samples() const { return static_cast<int>(impl_->y.size()); }
+bool Objective::has_continuous_records() const { return !impl_->ode.continuous.empty(); }
+Propagator Objective::propagator() const { return impl_->propagator; }
 int Objective::num_residuals() const { return num_samples() + static_cast<int>(impl_->priors.size()); }
 const Eigen::VectorXd& Objective::observations() const { return impl_->y; }
 const Eigen::VectorXd& Objective::weights() const { return impl_->w; }
@@ -202,16 +253,45 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     }
   }
   const int pm = static_cast<int>(model_free.size());
-  if (route == GradientRoute::kAuto) route = need == Need::kJacobian ? GradientRoute::kForward : GradientRoute::kAdjoint;
+  const bool ode = d.propagator == Propagator::kOde;
+  ev.propagator = ToString(d.propagator);
+  if (route == GradientRoute::kAuto) {
+    if (need == Need::kJacobian) {
+      route = GradientRoute::kForward;
+    } else if (ode) {
+      route = pm > kOdeAdjointThreshold ? GradientRoute::kAdjoint : GradientRoute::kForward;
+    } else {
+      route = GradientRoute::kAdjoint;
+    }
+  }
   if (need == Need::kJacobian && route == GradientRoute::kAdjoint) route = GradientRoute::kForward;
   if (route == GradientRoute::kCompanion && need == Need::kValue) route = GradientRoute::kAuto;
   if (need == Need::kValue) route = GradientRoute::kAuto;
   ev.route = need == Need::kValue ? "none" : ToString(route);
+  if (need == Need::kJacobian && !d.ode.continuous.empty()) {
+    ev.ok = false;
+    ev.message = "continuous records (CONT=1) give no residual vector: use a gradient optimiser (bfgs or nlopt:...)";
+    return ev;
+  }
 
   internal::PreparedSubject s = d.prepared;
   Eigen::VectorXd yhat;
   Eigen::MatrixXd jm;  // N × pm, ∂ŷ/∂(free model parameters)
   std::unique_ptr<internal::DiscreteAdjoint> adjoint;
+  std::unique_ptr<internal::OdeAdjoint> ode_adjoint;
+  double cont_loss = 0;                                    // ½∫ w (y − y_m)² of the continuous records
+  Eigen::RowVectorXd cont_grad = Eigen::RowVectorXd::Zero(pm);
+  // Predictions alone at other values (finite differences).
+  auto predict = [&](const Eigen::VectorXd& v, Eigen::VectorXd* y, double* cl) {
+    internal::PreparedSubject sv = d.prepared;
+    internal::RebindParameters(d.layout, v.head(L), &sv);
+    *cl = 0;
+    if (ode) {
+      internal::OdePredict(d.ode, sv, y, cl);
+    } else {
+      internal::Predict(*d.linear, d.layout, sv, y);
+    }
+  };
   try {
     internal::RebindParameters(d.layout, values.head(L), &s);
     auto dual_sets = [&]() {
@@ -230,8 +310,10 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     for (int i : model_free) events_depend = events_depend || i >= d.model->num_parameters();
     if (route == GradientRoute::kCompanion) {
       // Only the transfer function's coefficients (layout entries 0..2n−1).
-      const int order = d.linear->transfer_function_order();
-      if (order == 0) throw internal::NumericalFailure("the companion route applies to tf<n> models only");
+      const int order = d.linear == nullptr || ode ? 0 : d.linear->transfer_function_order();
+      if (order == 0) {
+        throw internal::NumericalFailure("the companion route applies to tf<n> models with the exact propagator only");
+      }
       for (int i : model_free) {
         if (i >= 2 * order) {
           throw internal::NumericalFailure("the companion route differentiates a_i and b_i only, not " +
@@ -242,6 +324,12 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       internal::CompanionJacobian(*d.linear, d.layout, s, &yhat, &j_all);
       jm.resize(N, pm);
       for (int a2 = 0; a2 < pm; ++a2) jm.col(a2) = j_all.col(model_free[a2]);
+    } else if (ode && route == GradientRoute::kForward && pm > 0) {
+      const auto sets = dual_sets();
+      internal::OdeForwardSensitivities(d.ode, s, sets, pm, &yhat, &jm, &cont_loss, &cont_grad);
+    } else if (ode && route == GradientRoute::kAdjoint && pm > 0) {
+      ode_adjoint.reset(new internal::OdeAdjoint(d.ode, s, dual_sets(), pm));
+      ode_adjoint->Forward(&yhat, &cont_loss);
     } else if (route == GradientRoute::kForward && pm > 0) {
       const auto sets = dual_sets();
       internal::ForwardSensitivities(*d.linear, d.layout, s, sets, pm, events_depend, &yhat, &jm);
@@ -249,7 +337,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       adjoint.reset(new internal::DiscreteAdjoint(*d.linear, d.layout, s, dual_sets(), pm, events_depend));
       adjoint->Forward(&yhat);
     } else {
-      internal::Predict(*d.linear, d.layout, s, &yhat);
+      predict(values, &yhat, &cont_loss);
       jm = Eigen::MatrixXd::Zero(N, pm);
     }
     if (route == GradientRoute::kFiniteDifference && need == Need::kJacobian) {
@@ -259,11 +347,9 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
         Eigen::VectorXd vp = values, vm = values, yp, ym;
         vp(i) += h;
         vm(i) -= h;
-        internal::PreparedSubject sp = d.prepared, sm = d.prepared;
-        internal::RebindParameters(d.layout, vp.head(L), &sp);
-        internal::RebindParameters(d.layout, vm.head(L), &sm);
-        internal::Predict(*d.linear, d.layout, sp, &yp);
-        internal::Predict(*d.linear, d.layout, sm, &ym);
+        double cp, cm;
+        predict(vp, &yp, &cp);
+        predict(vm, &ym, &cm);
         jm.col(a) = (yp - ym) / (2 * h);
       }
     }
@@ -304,6 +390,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       dl_dy(k) = -r(k) / sigma2(k) + dl_ds2 * ds2_dy(k);
     }
   }
+  value += cont_loss;
   for (const Impl::Prior& p : d.priors) {
     const double z = (std::log(values(p.index)) - p.log_median) / p.sd;
     value += 0.5 * z * z;
@@ -338,8 +425,16 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::VectorXd gm = Eigen::VectorXd::Zero(pm);
   if (adjoint) {
     gm = adjoint->Gradient(dl_dy);
+  } else if (ode_adjoint) {
+    try {
+      gm = ode_adjoint->Gradient(dl_dy);  // includes the continuous records' term
+    } catch (const internal::NumericalFailure& e) {
+      ev.ok = false;
+      ev.message = e.what();
+      return ev;
+    }
   } else if (pm > 0) {
-    gm = jm.transpose() * dl_dy;
+    gm = jm.transpose() * dl_dy + cont_grad.transpose();
   }
   for (int a2 = 0; a2 < pm; ++a2) ev.gradient(model_pos[a2]) = gm(a2);
   // σ and the priors.
@@ -409,7 +504,8 @@ void Objective::CheckValues(const Eigen::VectorXd& values) const {
   internal::PrepareSubject(*impl_->model, impl_->layout, *impl_->data, impl_->subject, values.head(impl_->L()), true);
 }
 
-std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const std::vector<double>& times) const {
+std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const std::vector<double>& times,
+                                         int output) const {
   const Impl& d = *impl_;
   // This subject alone (not a copy of the whole dataset), with output records at `times`.
   Dataset one;
@@ -424,11 +520,14 @@ std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const st
   }
   SimulationOptions opts;
   opts.track_auc = false;
+  opts.propagator = d.propagator;
+  opts.ode = d.options.ode;
   const SubjectSimulation sim = SimulateSubject(*d.model, one, 0, named, opts);
   std::vector<double> out;
   if (!sim.ok) return std::vector<double>(times.size(), std::numeric_limits<double>::quiet_NaN());
   for (const SimulatedRecord& row : sim.rows) {
-    if (one.subjects[0].records[row.record].line == -1) out.push_back(row.cp);
+    if (one.subjects[0].records[row.record].line != -1) continue;
+    out.push_back(output > 1 && output <= row.outputs.size() ? row.outputs(output - 1) : row.cp);
   }
   return out;
 }

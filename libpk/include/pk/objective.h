@@ -14,6 +14,13 @@
 // The gradient routes need only ∂ℓ_k/∂ŷ_k and ∂ℓ_k/∂θ, so adding a loss never
 // touches them (docs/gradients.md). Records with MDV=1 or without a DV are not
 // samples.
+//
+// Continuous records (the seed's continuous dF/dt, ODE propagator only):
+// observations with CONT=1 in a data column form a continuous record of their
+// output (DVID), y_m linearly interpolated between consecutive CONT rows, and
+// add ½∫ w (y − y_m)² ds to V, w per unit time from the weighting option (also
+// interpolated). They are not samples and give no residuals, so they need a
+// gradient optimiser (bfgs or an NLopt algorithm), not LM or Newton.
 #ifndef PK_OBJECTIVE_H_
 #define PK_OBJECTIVE_H_
 
@@ -25,6 +32,8 @@
 
 #include "pk/dataset.h"
 #include "pk/model.h"
+#include "pk/ode_options.h"
+#include "pk/propagator.h"
 
 namespace pk {
 
@@ -32,9 +41,11 @@ enum class Weighting { kUniform, kInverseDvSquared, kInverseDv, kColumn };
 enum class ErrorModel { kLeastSquares, kAdditive, kProportional, kCombined };
 /// How the gradient (or residual Jacobian) is computed.
 enum class GradientRoute {
-  kAuto,              ///< forward when a Jacobian is needed, else the adjoint
-  kForward,           ///< block-exponential sensitivities (full Jacobian)
-  kAdjoint,           ///< discrete adjoint (gradient only; cost independent of the parameter count)
+  kAuto,              ///< forward when a Jacobian is needed; else the adjoint (exact), or forward
+                      ///< sensitivities up to kOdeAdjointThreshold parameters and the adjoint beyond (ode)
+  kForward,           ///< sensitivities: block exponentials (exact) or CVODES forward sensitivities (ode)
+  kAdjoint,           ///< discrete adjoint (exact) or CVODES adjoint (ode): gradient only, one backward
+                      ///< pass whatever the parameter count
   kFiniteDifference,  ///< central differences
   kCompanion,         ///< tf<n> models: two companion filters give every ∂y/∂a_i, ∂y/∂b_i
 };
@@ -49,9 +60,15 @@ struct ObjectiveOptions {
   ErrorModel error_model = ErrorModel::kLeastSquares;
   GradientRoute gradient = GradientRoute::kAuto;
   double fd_relative_step = 1e-5;             ///< central-difference step, relative to |θ| (floor 1e-8)
+  Propagator propagator = Propagator::kAuto;  ///< exact (Φ/Γ, linear models) or ode (CVODES)
+  OdeOptions ode;                             ///< tolerances etc. of the ODE propagator
 
   bool IsValid(std::string* error) const;
 };
+
+/// With the ODE propagator and GradientRoute::kAuto, gradients over more free
+/// model parameters than this use the adjoint (measured by pkbench; docs/performance.md).
+constexpr int kOdeAdjointThreshold = 8;
 
 /// A normal prior on log θ: adds ½((log θ − log median)/sd_log)² to V.
 struct LogNormalPrior {
@@ -78,6 +95,7 @@ class Objective {
     /// plus the prior's Hessian, over the free parameters (Need::kJacobian).
     Eigen::MatrixXd information;
     const char* route = "";       ///< the route that computed the derivatives
+    const char* propagator = "";  ///< "exact" or "ode"
   };
 
   /// Binds subject `subject` of `data` to `model`. Throws pk::InputError for a
@@ -96,6 +114,10 @@ class Objective {
   Eigen::VectorXd DefaultValues() const;
 
   int num_samples() const;
+  /// True when the subject has continuous records (CONT=1).
+  bool has_continuous_records() const;
+  /// The propagator in use ("exact" or "ode").
+  Propagator propagator() const;
   /// Rows of Evaluation::residuals (least squares): the samples, then one per prior.
   int num_residuals() const;
   const Eigen::VectorXd& observations() const;
@@ -118,8 +140,10 @@ class Objective {
   void CheckValues(const Eigen::VectorXd& values) const;
 
   /// Predictions at arbitrary times (for plots): the subject's records with
-  /// EVID 2 records added at `times`; returns the central concentration.
-  std::vector<double> PredictAt(const Eigen::VectorXd& values, const std::vector<double>& times) const;
+  /// EVID 2 records added at `times`; returns the central concentration, or
+  /// output `output` (1-based) of a nonlinear model.
+  std::vector<double> PredictAt(const Eigen::VectorXd& values, const std::vector<double>& times,
+                                int output = 1) const;
 
  private:
   struct Impl;

@@ -63,7 +63,8 @@ struct TapeStep {
   bool add = false;           // kSteady*: SS=2
   Eigen::MatrixXd jacobian;   // kSteadyState: P_x; kSteadyInfusion: f_x
   Eigen::MatrixXd forcing;    // kSteadyInfusion: f_θ ∂θ/∂p + ∂u/∂p (n×P)
-  std::vector<TapeStep> cycle;  // kSteadyState: the cycle from x* (bolus, then segments)
+  std::vector<TapeStep> cycle;      // kSteadyState: the cycle from x* (bolus, then segments)
+  std::vector<TapeStep> to_record;  // kSteadyState: from x* to the record time
   int sample = -1, key = 0, set = 0;  // kSample
 };
 
@@ -92,9 +93,8 @@ class OdePropagator {
   // ---- EventEngine visitor interface ----
   void Advance(const T& h, const Vec<T>& u, int set) {
     SegmentInput seg = MakeSegment(h, u, set, p_);
-    // Inside a steady-state cycle the time is virtual: no records, no AUC.
-    const ContinuousRecords* cont = in_cycle_ ? nullptr : continuous_;
-    const bool auc = track_auc_ && !in_cycle_;
+    const ContinuousRecords* cont = continuous_;
+    const bool auc = track_auc_;
     if (cont) seg.continuous = cont->Terms(t_, seg.h);
     if (auc) seg.auc_key = sys_.central_key();
     TapeStep step;
@@ -105,7 +105,7 @@ class OdePropagator {
     } else {
       solver_.Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr);
     }
-    if (!in_cycle_) t_ += seg.h;
+    t_ += seg.h;
     if (tape_on_) {
       step.kind = TapeStep::kAdvance;
       step.x1 = x_;
@@ -186,36 +186,36 @@ class OdePropagator {
       s.leftCols(n_).setIdentity();
       steps.clear();
       RunCycle(cycle, set, &xp, &s, tape_on_ ? &steps : nullptr);
-      const Eigen::VectorXd r = xp - x;
-      if (it > 0 && r.lpNorm<Eigen::Infinity>() <= Tolerance(xp)) break;
-      if (it >= options_.max_newton_iterations) {
-        throw NumericalFailure("no periodic steady state: Newton on x = P(x) did not converge");
-      }
       Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n_, n_) - s.leftCols(n_));
-      Eigen::VectorXd dx = lu.solve(r);
+      const Eigen::VectorXd dx = lu.solve(xp - x);
       if (!dx.allFinite()) {
         throw NumericalFailure("no periodic steady state (I − P_x is singular: is nothing eliminated?)");
       }
       x += dx;
+      // Quadratic convergence: once the step is at the integration tolerance,
+      // this last update leaves x* as accurate as the integration.
+      if (it > 0 && dx.lpNorm<Eigen::Infinity>() <= Tolerance(x)) break;
+      if (it >= options_.max_newton_iterations) {
+        throw NumericalFailure("no periodic steady state: Newton on x = P(x) did not converge");
+      }
     }
     const Eigen::MatrixXd px = s.leftCols(n_);
-    Eigen::MatrixXd dxdp;
+    Eigen::MatrixXd dxdp = Eigen::MatrixXd::Zero(n_, sens_ ? p_ : 0);
     if (sens_) dxdp = (Eigen::MatrixXd::Identity(n_, n_) - px).partialPivLu().solve(s.rightCols(p_));
-    Place(x, dxdp, add);
-    if (tape_on_) {
-      TapeStep step;
-      step.kind = TapeStep::kSteadyState;
-      step.x1 = x;
-      step.jacobian = px;
-      step.add = add;
-      step.cycle = std::move(steps);
-      tape_.push_back(std::move(step));
-    }
+    TapeStep step;
+    step.kind = TapeStep::kSteadyState;
+    step.x1 = x;
+    step.jacobian = px;
+    step.add = add;
+    step.cycle = std::move(steps);
     // From the fixed point (just before a cycle's bolus) to the record time.
-    Bolus(cycle.cmt, cycle.bolus, set);
-    in_cycle_ = true;
-    for (const Segment<T>& seg : cycle.to_record) Advance(seg.duration, seg.rate, set);
-    in_cycle_ = false;
+    // This runs on the steady state alone: with SS=2 it is then added to the
+    // state already present at the record time.
+    std::vector<TapeStep>* to_record = tape_on_ ? &step.to_record : nullptr;
+    Jump(cycle.cmt, cycle.bolus, 0, &x, &dxdp, to_record);
+    for (const Segment<T>& seg : cycle.to_record) AdvanceAux(seg.duration, seg.rate, set, 0, &x, &dxdp, to_record);
+    Place(x, dxdp, add);
+    if (tape_on_) tape_.push_back(std::move(step));
   }
 
   void DoseEntered(const T&, int) {}
@@ -267,7 +267,7 @@ class OdePropagator {
   }
 
   double Tolerance(const Eigen::VectorXd& x) const {
-    return 10 * (options_.relative_tolerance * x.lpNorm<Eigen::Infinity>() + options_.absolute_tolerance);
+    return options_.relative_tolerance * x.lpNorm<Eigen::Infinity>() + options_.absolute_tolerance;
   }
 
   void Place(const Eigen::VectorXd& x, const Eigen::MatrixXd& dxdp, bool add) {
@@ -280,43 +280,59 @@ class OdePropagator {
     }
   }
 
+  // x[c] += amount, with its derivatives in the last P columns of *s.
+  void Jump(int cmt, const T& amount, int offset, Eigen::VectorXd* x, Eigen::MatrixXd* s,
+            std::vector<TapeStep>* steps) {
+    const Eigen::RowVectorXd db = Derivatives(amount, p_).transpose();
+    (*x)(cmt) += Value(amount);
+    if (s->cols() > offset) s->row(cmt).tail(p_) += db;
+    if (steps) {
+      TapeStep b;
+      b.kind = TapeStep::kBolus;
+      b.cmt = cmt;
+      b.damount = db;
+      steps->push_back(std::move(b));
+    }
+  }
+
+  // Integrates *x over one segment outside the main state (steady-state
+  // cycles). *s holds `offset` initial-state directions, then the P parameter
+  // directions, or no columns at all for values only.
+  void AdvanceAux(const T& h, const Vec<T>& u, int set, int offset, Eigen::VectorXd* x, Eigen::MatrixXd* s,
+                  std::vector<TapeStep>* steps) {
+    const SegmentInput seg_p = MakeSegment(h, u, set, p_);
+    TapeStep step;
+    if (steps) step.x0 = *x;
+    const Eigen::RowVectorXd dh = Derivatives(h, p_).transpose();
+    if (s->cols() == 0) {
+      solver_.Advance(seg_p, x);
+    } else {
+      SegmentInput seg = seg_p;
+      seg.du = Eigen::MatrixXd::Zero(n_, offset + p_);
+      seg.du.rightCols(p_) = seg_p.du;
+      seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), offset + p_);
+      seg.dtheta.rightCols(p_) = seg_p.dtheta;
+      solver_.AdvanceSensitivity(seg, x, s);
+      Eigen::VectorXd f;
+      sys_.Rhs(*x, seg.theta, &f);
+      s->rightCols(p_) += (f + seg.u) * dh;
+    }
+    if (steps) {
+      step.kind = TapeStep::kAdvance;
+      step.x1 = *x;
+      step.dh = dh;
+      step.segment = seg_p;
+      steps->push_back(std::move(step));
+    }
+  }
+
   // One dosing cycle from *x: the bolus, then the period's segments, with the
   // sensitivity directions [∂/∂x0 (n) | ∂/∂p (P)] in *s. Records the steps
   // (P parameter columns) for the adjoint when `steps` is given.
   void RunCycle(const SteadyStateCycle<T>& cycle, int set, Eigen::VectorXd* x, Eigen::MatrixXd* s,
                 std::vector<TapeStep>* steps) {
-    const Eigen::RowVectorXd db = Derivatives(cycle.bolus, p_).transpose();
-    (*x)(cycle.cmt) += Value(cycle.bolus);
-    s->row(cycle.cmt).tail(p_) += db;
-    if (steps) {
-      TapeStep b;
-      b.kind = TapeStep::kBolus;
-      b.cmt = cycle.cmt;
-      b.damount = db;
-      steps->push_back(std::move(b));
-    }
-    for (const Segment<T>& period : cycle.period) {
-      const SegmentInput seg_p = MakeSegment(period.duration, period.rate, set, p_);
-      SegmentInput seg = seg_p;
-      seg.du = Eigen::MatrixXd::Zero(n_, n_ + p_);
-      seg.du.rightCols(p_) = seg_p.du;
-      seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), n_ + p_);
-      seg.dtheta.rightCols(p_) = seg_p.dtheta;
-      TapeStep step;
-      if (steps) step.x0 = *x;
-      solver_.AdvanceSensitivity(seg, x, s);
-      Eigen::VectorXd f;
-      sys_.Rhs(*x, seg.theta, &f);
-      const Eigen::RowVectorXd dh = Derivatives(period.duration, p_).transpose();
-      s->rightCols(p_) += (f + seg.u) * dh;
-      if (steps) {
-        step.kind = TapeStep::kAdvance;
-        step.x1 = *x;
-        step.dh = dh;
-        step.segment = seg_p;
-        steps->push_back(std::move(step));
-      }
-    }
+    Jump(cycle.cmt, cycle.bolus, n_, x, s, steps);
+    for (const Segment<T>& period : cycle.period) AdvanceAux(period.duration, period.rate, set, n_, x, s, steps);
   }
 
   const OdeSystem& sys_;
@@ -333,7 +349,6 @@ class OdePropagator {
   Eigen::VectorXd x_;
   Eigen::MatrixXd s_;
   double t_ = 0;
-  bool in_cycle_ = false;
   double auc_ = 0;
   double loss_ = 0;
   Eigen::RowVectorXd dloss_;

@@ -171,9 +171,12 @@ struct OdeAdjoint::Impl {
           break;
         }
         case TapeStep::kSteadyState: {
-          // λᵀ ∂x*/∂p = μᵀ ∂P/∂p with (I − P_x)ᵀ μ = λ; ∂P/∂p by a backward pass over the cycle.
+          // Back from the record time to x* on the steady-state part, then
+          // λ*ᵀ ∂x*/∂p = μᵀ ∂P/∂p with (I − P_x)ᵀ μ = λ*; ∂P/∂p by a backward pass over the cycle.
+          Eigen::VectorXd lambda_ss = *lambda;
+          Sweep(step.to_record, dl_dy, &lambda_ss, g);
           Eigen::VectorXd mu =
-              (Eigen::MatrixXd::Identity(n, n) - step.jacobian).transpose().partialPivLu().solve(*lambda);
+              (Eigen::MatrixXd::Identity(n, n) - step.jacobian).transpose().partialPivLu().solve(lambda_ss);
           Sweep(step.cycle, dl_dy, &mu, g);
           if (!step.add) lambda->setZero();
           break;
