@@ -49,14 +49,25 @@ std::string Quote(const std::string& s) {
   return out + "\"";
 }
 
-std::string SubjectSvg(const SubjectFit& f, bool log) {
-  PlotSeries data{"observed", f.times, std::vector<double>(f.dv.data(), f.dv.data() + f.dv.size()), true};
-  PlotSeries curve{"fitted", f.curve_times, f.curve, false};
+// The plot of output `output` (1-based); models with one output have only output 1.
+std::string SubjectSvg(const SubjectFit& f, bool log, int output = 1) {
+  PlotSeries data{"observed", {}, {}, true};
+  for (int k = 0; k < f.dv.size(); ++k) {
+    if (!f.sample_output.empty() && f.sample_output[k] != output) continue;
+    data.x.push_back(f.times[k]);
+    data.y.push_back(f.dv(k));
+  }
+  const bool multi = !f.output_curves.empty();
+  PlotSeries curve{"fitted", f.curve_times, multi ? f.output_curves[output - 1] : f.curve, false};
   PlotOptions o;
-  o.title = "ID " + FormatNumber(f.id) + (f.ok ? "" : " (fit failed)");
-  o.log_y = log;
+  o.title = "ID " + FormatNumber(f.id) + (multi ? " " + f.output_names[output - 1] + " (DVID " +
+                                                      std::to_string(output) + ")" : "") +
+            (f.ok ? "" : " (fit failed)");
+  o.log_y = log && (!multi || output == 1);
   return RenderSvg({curve, data}, o);
 }
+
+int NumPlots(const SubjectFit& f) { return f.output_curves.empty() ? 1 : static_cast<int>(f.output_curves.size()); }
 
 }  // namespace
 
@@ -150,7 +161,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   bool any_derived = false;
   derived << "ID,READING,PARAMETER,VALUE,SE,RSE_PCT,NOTE\n";
   est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
-  sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS\n";
+  sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR\n";
   pred << "ID,TIME,DV,PRED,RES,WRES\n";
   det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC,INITIAL_VALUES\n";
   for (const SubjectFit& f : fits) {
@@ -160,7 +171,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
         << "," << s.evaluations << "," << s.best_start << "," << Csv(s.minus2ll) << "," << Csv(s.aic) << ","
         << Csv(s.bic) << "," << Quote(f.initial_method) << "\n";
     sum << id << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations << ","
-        << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "\n";
+        << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "," << s.propagator << "\n";
     if (!f.ok) continue;
     for (const TransferFunctionReading& r : f.derived) {
       any_derived = true;
@@ -241,7 +252,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
       }
       html << "</table>\n";
     }
-    html << SubjectSvg(f, context.log_plots) << "\n";
+    for (int k = 1; k <= NumPlots(f); ++k) html << SubjectSvg(f, context.log_plots, k) << "\n";
   }
   html << "</body></html>\n";
 
@@ -252,6 +263,10 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   if (any_derived) WriteFileAtomically(dir + "/derived.csv", derived.str());
   for (const SubjectFit& f : fits) {
     WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + ".svg", SubjectSvg(f, context.log_plots));
+    for (int k = 2; k <= NumPlots(f); ++k) {
+      WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + "_" + f.output_names[k - 1] + ".svg",
+                          SubjectSvg(f, context.log_plots, k));
+    }
   }
   WriteFileAtomically(dir + "/report.html", html.str());
 }

@@ -115,7 +115,12 @@ int Main(int argc, char** argv) {
       "prior", po::value<std::vector<std::string>>(&priors)->composing(),
       "NAME=MEDIAN,SD: log-normal prior (SD on the log scale)")(
       "gradient", po::value<std::string>()->default_value("auto"), "auto, forward, adjoint, fd or companion (tf<n>)")(
-      "propagator", po::value<std::string>()->default_value("exact"), "exact (the Φ/Γ recursion)")(
+      "propagator", po::value<std::string>()->default_value("auto"),
+      "exact (the Φ/Γ recursion, linear models), ode (CVODES, every model) or auto (exact when linear)")(
+      "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
+      "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
+      "checkpoint-steps", po::value<int>()->default_value(100),
+      "ODE adjoint: integration steps between checkpoints (storage against recomputation)")(
       "optimizer", po::value<std::string>()->default_value("lm"), "lm, bfgs, newton or nlopt:NAME")(
       "weighting", po::value<std::string>()->default_value("uniform"), "uniform, dv2, dv or column:NAME")(
       "error", po::value<std::string>(), "maximum likelihood: additive, proportional or combined")(
@@ -131,13 +136,13 @@ int Main(int argc, char** argv) {
   po::variables_map vm;
   if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
   if (!vm.count("model") || !vm.count("data")) throw pk::InputError("", 0, 0, "--model and --data are required");
-  const std::string propagator = vm["propagator"].as<std::string>();
-  if (propagator != "exact") {
-    throw pk::InputError("", 0, 0, "--propagator: only 'exact' (the Φ/Γ recursion for linear models) is available");
-  }
-
   pk::FitSubjectsRequest req;
   req.model = pk::MakeModel(vm["model"].as<std::string>());
+  req.objective.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
+  pk::ResolvePropagator(*req.model, req.objective.propagator);  // a clear error for exact + nonlinear
+  req.objective.ode.relative_tolerance = vm["rtol"].as<double>();
+  req.objective.ode.absolute_tolerance = vm["atol"].as<double>();
+  req.objective.ode.checkpoint_steps = vm["checkpoint-steps"].as<int>();
   req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(vm["data"].as<std::string>()));
   req.objective.gradient = ParseRoute(vm["gradient"].as<std::string>());
   ParseWeighting(vm["weighting"].as<std::string>(), &req.objective);
@@ -157,6 +162,20 @@ int Main(int argc, char** argv) {
   if (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt &&
       req.objective.error_model != pk::ErrorModel::kLeastSquares) {
     req.fit.optimizer = pk::OptimizerType::kNewton;  // the default optimiser for maximum likelihood
+  }
+  // Continuous records (CONT=1) give a loss without residuals: LM cannot take them.
+  const int cont_col = req.data->ExtraColumn("CONT");
+  bool continuous = false;
+  for (const pk::Subject& s : req.data->subjects) {
+    for (const pk::Record& r : s.records) continuous = continuous || (cont_col >= 0 && r.extra[cont_col] == 1);
+  }
+  if (continuous && (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt ||
+                     req.fit.optimizer == pk::OptimizerType::kNewton)) {
+    if (!vm["optimizer"].defaulted()) {
+      throw pk::InputError("", 0, 0, "continuous records (CONT=1) have no residual vector: use --optimizer bfgs or "
+                                     "nlopt:NAME");
+    }
+    req.fit.optimizer = pk::OptimizerType::kBfgs;
   }
 
   // Subjects.
@@ -301,7 +320,7 @@ int Main(int argc, char** argv) {
   if (!quiet) {
     std::cout << pk::cli::EstimatesTable(fits) << pk::cli::DerivedTable(fits);
     const std::string route = fits.empty() ? "" : fits.front().summary.gradient;
-    std::cout << "\npropagator exact, gradient " << route << ", optimizer " << fits.front().summary.optimizer
+    std::cout << "\npropagator " << fits.front().summary.propagator << ", gradient " << route << ", optimizer " << fits.front().summary.optimizer
               << "; results in " << dir << "/ (report.html, estimates.csv, summary.csv, predictions.csv)\n";
   }
   if (bad) std::cerr << "pkfit: " << bad << " of " << fits.size() << " subjects failed or did not converge\n";

@@ -137,6 +137,7 @@ class Problem {
     if (!ev.ok || need == Need::kValue) return ev;
     const Eigen::VectorXd d = Dtheta(phi);
     route_ = ev.route;
+    propagator_ = ev.propagator;
     ev.gradient = ev.gradient.cwiseProduct(d);
     if (need == Need::kJacobian) {
       if (ev.jacobian.size()) ev.jacobian = ev.jacobian * d.asDiagonal();
@@ -147,6 +148,7 @@ class Problem {
 
   int evaluations() const { return evaluations_; }
   const std::string& route() const { return route_; }
+  const std::string& propagator() const { return propagator_; }
 
  private:
   const Objective& obj_;
@@ -154,6 +156,7 @@ class Problem {
   std::vector<Transform> tr_;
   Eigen::VectorXd base_;
   int evaluations_ = 0;
+  std::string propagator_ = ToString(obj_.propagator());
   std::string route_ = "none";
 };
 
@@ -497,6 +500,7 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
   summary.objective = best.value;
   summary.values = pb.Values(best.phi);
   summary.gradient = pb.route();
+  summary.propagator = pb.propagator();
 
   // Estimates, and the covariance at the optimum from the Jacobian or information.
   for (ParameterEstimate& est : summary.estimates) est.estimate = summary.values(objective.ParameterIndex(est.name));
@@ -561,7 +565,7 @@ std::string FitSummary::BriefReport() const {
   const char* status = termination == TerminationType::kConvergence
                            ? "converged"
                            : (termination == TerminationType::kNoConvergence ? "did not converge" : "failed");
-  out << optimizer << " (" << gradient << " gradient): " << status << " after " << iterations
+  out << optimizer << " (" << propagator << " propagator, " << gradient << " gradient): " << status << " after " << iterations
       << " iterations, objective " << Num(initial_objective) << " -> " << Num(objective) << ", "
       << Num(seconds * 1e3, "%.3g") << " ms (" << message << ")";
   return out.str();

@@ -8,6 +8,7 @@
 
 #include "pk/error.h"
 #include "pk/linear_model.h"
+#include "pk/ode_model.h"
 
 namespace pk {
 namespace {
@@ -89,6 +90,16 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
     const int m = std::max(2, req.curve_points);
     for (int k = 0; k < m; ++k) out->curve_times.push_back(t0 + (t1 - t0) * k / (m - 1));
     out->curve = objective.PredictAt(out->summary.values, out->curve_times);
+    if (const auto* ode = dynamic_cast<const OdeModel*>(req.model.get())) {
+      if (ode->num_outputs() > 1) {
+        out->sample_output = objective.sample_outputs();
+        out->output_names = ode->output_names();
+        out->output_curves.push_back(out->curve);
+        for (int k = 2; k <= ode->num_outputs(); ++k) {
+          out->output_curves.push_back(objective.PredictAt(out->summary.values, out->curve_times, k));
+        }
+      }
+    }
   } catch (const InputError& e) {
     out->ok = false;
     out->error = e.what();

@@ -12,6 +12,7 @@
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
+#include "pk/ode_model.h"
 #include "ode/ode_routes.h"
 #include "pk/parameters.h"
 #include "pk/regimen.h"
@@ -227,6 +228,14 @@ int Objective::num_residuals() const { return num_samples() + static_cast<int>(i
 const Eigen::VectorXd& Objective::observations() const { return impl_->y; }
 const Eigen::VectorXd& Objective::weights() const { return impl_->w; }
 std::vector<double> Objective::sample_times() const { return impl_->times; }
+std::vector<int> Objective::sample_outputs() const {
+  std::vector<int> out;
+  const bool ode_model = dynamic_cast<const OdeModel*>(impl_->model.get()) != nullptr;
+  for (size_t r = 0; r < impl_->ode.sample_of_record.size(); ++r) {
+    if (impl_->ode.sample_of_record[r] >= 0) out.push_back(ode_model ? impl_->ode.key_of_record[r] : 1);
+  }
+  return out;
+}
 double Objective::subject_id() const { return impl_->data->subjects[impl_->subject].id; }
 const Model& Objective::model() const { return *impl_->model; }
 const ObjectiveOptions& Objective::options() const { return impl_->options; }

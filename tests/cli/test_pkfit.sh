@@ -12,7 +12,7 @@ for f in estimates.csv summary.csv predictions.csv fit_details.csv report.html f
   [ -s "$work/theo/$f" ] || fail "missing output $f"
 done
 head -1 "$work/theo/estimates.csv" | grep -qx "ID,PARAMETER,ESTIMATE,SE,RSE_PCT" || fail "estimates header"
-head -1 "$work/theo/summary.csv" | grep -qx "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS" ||
+head -1 "$work/theo/summary.csv" | grep -qx "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR" ||
   fail "summary header"
 head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES" || fail "predictions header"
 [ "$(tail -n +2 "$work/theo/estimates.csv" | wc -l)" -eq 36 ] || fail "expected 12 x 3 estimates"

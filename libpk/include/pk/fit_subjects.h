@@ -37,6 +37,12 @@ struct SubjectFit {
   /// The fitted curve on a fine grid (for plots): times and central concentrations.
   std::vector<double> curve_times;
   std::vector<double> curve;
+  /// Models with several outputs (DVID): the output each sample measures, and
+  /// per output k (1-based: output_curves[k-1], the first equal to `curve`)
+  /// its name and fitted curve. Empty for single-output models.
+  std::vector<int> sample_output;
+  std::vector<std::string> output_names;
+  std::vector<std::vector<double>> output_curves;
 };
 
 /// Specification shared by all subjects.

@@ -123,6 +123,8 @@ class Objective {
   const Eigen::VectorXd& observations() const;
   const Eigen::VectorXd& weights() const;
   std::vector<double> sample_times() const;
+  /// The output each sample measures: its DVID for a nonlinear model, else 1.
+  std::vector<int> sample_outputs() const;
   double subject_id() const;
   const Model& model() const;
   const ObjectiveOptions& options() const;
