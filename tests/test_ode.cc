@@ -9,6 +9,8 @@
 #include <catch2/catch.hpp>
 
 #include "pk/catalogue.h"
+#include "pk/error.h"
+#include "pk/fit.h"
 #include "pk/objective.h"
 #include "pk/ode_model.h"
 #include "pk/simulate.h"
@@ -176,4 +178,209 @@ TEST_CASE("ODE routes agree: forward sensitivities, adjoint and finite differenc
     CHECK((fwd.gradient - adj.gradient).cwiseAbs().maxCoeff() <= 1e-7 * scale);
     CHECK((fwd.gradient - fd).cwiseAbs().maxCoeff() <= 1e-5 * scale);
   }
+}
+
+namespace {
+
+// A right-hand side that turns non-finite once x < 50.
+struct Blowup {
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    using std::sqrt;
+    dxdt[0] = -p[0] * sqrt(x[0] - T(50.0));
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const { return x[0]; }
+};
+
+pk::SimulationOptions TightOde() {
+  pk::SimulationOptions o;
+  o.propagator = pk::Propagator::kOde;
+  o.ode.relative_tolerance = 1e-12;
+  o.ode.absolute_tolerance = 1e-14;
+  return o;
+}
+
+std::shared_ptr<pk::Dataset> Parse(const std::string& csv, const char* name = "test") {
+  return std::make_shared<pk::Dataset>(pk::ParseDataset(csv, name));
+}
+
+// Noise-free observations of `model` at `values` on the records of `csv` (DV replaced).
+std::shared_ptr<pk::Dataset> Synthetic(const pk::Model& model, const std::string& csv, const pk::ParameterValues& v) {
+  auto data = Parse(csv);
+  const pk::SubjectSimulation sim = pk::SimulateSubject(model, *data, 0, v, TightOde());
+  REQUIRE(sim.ok);
+  for (const pk::SimulatedRecord& row : sim.rows) {
+    pk::Record& r = data->subjects[0].records[row.record];
+    if (r.evid == pk::Evid::kObservation) {
+      r.dv = row.pred;
+      r.dv_missing = false;
+      r.mdv = 0;
+    }
+  }
+  return data;
+}
+
+}  // namespace
+
+TEST_CASE("Michaelis-Menten IV bolus against its implicit closed form", "[ode][closed-form]") {
+  // Km ln(C0/C) + (C0 − C) = (Vmax/V) t
+  const auto model = pk::MakeModel("1cmt_iv_mm");
+  const double vmax = 12, km = 1.5, v = 25, dose = 150, c0 = dose / v;
+  auto data = Parse("ID,TIME,AMT,EVID\n1,0,150,1\n1,0.5,0,2\n1,2,0,2\n1,5,0,2\n1,9,0,2\n1,14,0,2\n1,20,0,2\n");
+  const auto sim = pk::SimulateSubject(*model, *data, 0, {{"VMAX", vmax}, {"KM", km}, {"V", v}}, TightOde());
+  REQUIRE(sim.ok);
+  REQUIRE(sim.rows.size() == 6);
+  for (const auto& row : sim.rows) {
+    INFO("t = " << row.time << ", C = " << row.cp);
+    const double lhs = km * std::log(c0 / row.cp) + (c0 - row.cp);
+    CHECK(lhs == Approx(vmax / v * row.time).epsilon(1e-10));
+  }
+  // C dt = −(V/Vmax)(Km + C) dC, so AUC(t) = (V/Vmax)[Km (C0 − C) + (C0² − C²)/2].
+  for (const auto& row : sim.rows) {
+    const double c = row.cp;
+    CHECK(row.auc == Approx(v / vmax * (km * (c0 - c) + 0.5 * (c0 * c0 - c * c))).epsilon(1e-9));
+  }
+}
+
+TEST_CASE("nonlinear steady states: Newton's fixed point against long regimens and closed forms", "[ode][ss]") {
+  const auto model = pk::MakeModel("1cmt_iv_mm");
+  const pk::ParameterValues p = {{"VMAX", 20}, {"KM", 2}, {"V", 30}};
+  SECTION("SS=1 bolus equals the 80th dose of a regimen") {
+    auto ss = Parse("ID,TIME,AMT,II,ADDL,SS,EVID\n1,0,100,12,0,1,1\n1,3,0,0,0,0,2\n1,11,0,0,0,0,2\n");
+    auto train = Parse("ID,TIME,AMT,II,ADDL,SS,EVID\n1,0,100,12,79,0,1\n1,951,0,0,0,0,2\n1,959,0,0,0,0,2\n");
+    const auto a = pk::SimulateSubject(*model, *ss, 0, p, TightOde());
+    const auto b = pk::SimulateSubject(*model, *train, 0, p, TightOde());
+    REQUIRE(a.ok);
+    REQUIRE(b.ok);
+    for (int k = 0; k < 2; ++k) CHECK(a.rows[k].cp == Approx(b.rows[k].cp).epsilon(1e-8));
+  }
+  SECTION("SS=1 infusion longer than II equals a long regimen") {
+    auto ss = Parse("ID,TIME,AMT,RATE,II,ADDL,SS,EVID\n1,0,100,6,8,0,1,1\n1,5,0,0,0,0,0,2\n");
+    auto train = Parse("ID,TIME,AMT,RATE,II,ADDL,SS,EVID\n1,0,100,6,8,119,0,1\n1,957,0,0,0,0,0,2\n");
+    const auto a = pk::SimulateSubject(*model, *ss, 0, p, TightOde());
+    const auto b = pk::SimulateSubject(*model, *train, 0, p, TightOde());
+    REQUIRE(a.ok);
+    REQUIRE(b.ok);
+    CHECK(a.rows[0].cp == Approx(b.rows[0].cp).epsilon(1e-8));
+  }
+  SECTION("constant infusion: Vmax C/(Km + C) = R") {
+    auto ss = Parse("ID,TIME,AMT,RATE,SS,EVID\n1,0,0,10,1,1\n1,4,0,0,0,2\n");
+    const auto a = pk::SimulateSubject(*model, *ss, 0, p, TightOde());
+    REQUIRE(a.ok);
+    CHECK(a.rows[0].cp == Approx(10.0 * 2 / (20 - 10)).epsilon(1e-10));
+  }
+  SECTION("no steady state when the rate exceeds the capacity") {
+    auto ss = Parse("ID,TIME,AMT,RATE,SS,EVID\n1,0,0,25,1,1\n1,4,0,0,0,2\n");
+    const auto a = pk::SimulateSubject(*model, *ss, 0, p, TightOde());
+    CHECK_FALSE(a.ok);
+    CHECK(a.message.find("steady state") != std::string::npos);
+  }
+}
+
+TEST_CASE("synthetic Michaelis-Menten data (bolus, then infusion) is recovered to 1e-5", "[ode][fit]") {
+  const auto model = pk::MakeModel(GENERATE(as<std::string>{}, "1cmt_iv_mm", "2cmt_iv_mm"));
+  INFO(model->name());
+  pk::ParameterValues truth = {{"VMAX", 30}, {"KM", 1.8}, {"V", 20}};
+  if (model->name() == "2cmt_iv_mm") truth = {{"VMAX", 30}, {"KM", 1.8}, {"V1", 20}, {"Q", 6}, {"V2", 45}};
+  std::ostringstream csv;
+  csv << "ID,TIME,AMT,RATE,EVID,DV\n1,0,200,0,1,.\n";
+  for (double t : {0.25, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0}) csv << "1," << t << ",0,0,0,0\n";
+  csv << "1,8,300,50,1,.\n";
+  for (double t : {8.5, 9.0, 10.0, 12.0, 13.0, 14.0, 16.0, 20.0, 26.0, 32.0}) csv << "1," << t << ",0,0,0,0\n";
+  const auto data = Synthetic(*model, csv.str(), truth);
+  pk::ObjectiveOptions oo;
+  oo.propagator = pk::Propagator::kOde;
+  oo.ode.relative_tolerance = 1e-12;
+  oo.ode.absolute_tolerance = 1e-14;
+  const pk::Objective objective(model, data, 0, oo);
+  std::vector<pk::ParameterSpec> specs;
+  for (const auto& kv : truth) {
+    pk::ParameterSpec s;
+    s.name = kv.first;
+    s.initial = kv.second * 1.3;  // a start well away from the truth
+    specs.push_back(s);
+  }
+  const pk::FitSummary fit = pk::Fit(objective, specs, pk::FitOptions());
+  INFO(fit.BriefReport());
+  REQUIRE(fit.converged());
+  CHECK(fit.propagator == "ode");
+  for (const auto& e : fit.estimates) {
+    INFO(e.name);
+    CHECK(e.estimate == Approx(truth.at(e.name)).epsilon(1e-5));
+  }
+}
+
+TEST_CASE("effect compartment: DVID selects the output; concentration and effect are fitted together",
+          "[ode][fit][emax]") {
+  const auto model = pk::MakeModel("1cmt_iv_emax");
+  const pk::ParameterValues truth = {{"CL", 4},   {"V", 25},    {"KE0", 0.7}, {"E0", 8},
+                                     {"EMAX", 60}, {"EC50", 1.2}, {"HILL", 2.2}};
+  std::ostringstream csv;
+  csv << "ID,TIME,AMT,RATE,EVID,DVID,DV\n1,0,100,50,1,.,.\n";
+  for (double t : {0.5, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0}) {
+    csv << "1," << t << ",0,0,0,1,0\n1," << t << ",0,0,0,2,0\n";
+  }
+  const auto data = Synthetic(*model, csv.str(), truth);
+  // Output 2 is the effect: E0 + EMAX Ce^h/(EC50^h + Ce^h), well above E0 at 2 h.
+  const auto& recs = data->subjects[0].records;
+  CHECK(recs[6].dv > 20);
+  CHECK(recs[5].dv < 5);
+  pk::ObjectiveOptions oo;
+  oo.ode.relative_tolerance = 1e-11;
+  oo.ode.absolute_tolerance = 1e-13;
+  const pk::Objective objective(model, data, 0, oo);
+  CHECK(objective.propagator() == pk::Propagator::kOde);
+  CHECK(objective.sample_outputs() == std::vector<int>({1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2}));
+  std::vector<pk::ParameterSpec> specs;
+  for (const auto& kv : truth) {
+    pk::ParameterSpec s;
+    s.name = kv.first;
+    s.initial = kv.second * 1.15;
+    specs.push_back(s);
+  }
+  const pk::FitSummary fit = pk::Fit(objective, specs, pk::FitOptions());
+  INFO(fit.BriefReport());
+  REQUIRE(fit.converged());
+  for (const auto& e : fit.estimates) {
+    INFO(e.name);
+    CHECK(e.estimate == Approx(truth.at(e.name)).epsilon(1e-5));
+  }
+  // A DVID the model does not have is an input error naming line and column.
+  auto bad = Parse("ID,TIME,AMT,EVID,DVID,DV\n1,0,100,1,.,.\n1,1,0,0,3,2\n", "bad.csv");
+  try {
+    pk::Objective o(model, bad, 0, oo);
+    FAIL("expected an InputError");
+  } catch (const pk::InputError& e) {
+    CHECK(std::string(e.what()).find("bad.csv:3:5") != std::string::npos);
+  }
+}
+
+TEST_CASE("the exact propagator refuses nonlinear models; solver failures are reported, not thrown",
+          "[ode][errors]") {
+  const auto model = pk::MakeModel("1cmt_iv_mm");
+  auto data = Parse("ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,2,0,0,2\n1,50,0,0,1\n");
+  pk::ObjectiveOptions exact;
+  exact.propagator = pk::Propagator::kExact;
+  CHECK_THROWS_AS(pk::Objective(model, data, 0, exact), pk::InputError);
+
+  pk::ObjectiveOptions few;
+  few.ode.max_steps = 3;  // far too few: CVODES stops with "too much work"
+  const pk::Objective obj(model, data, 0, few);
+  for (auto route : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint, pk::GradientRoute::kFiniteDifference}) {
+    const auto ev = obj.Evaluate(obj.DefaultValues(), {0, 1, 2}, pk::Objective::Need::kGradient, route);
+    CHECK_FALSE(ev.ok);
+    CHECK(ev.message.find("mxstep") != std::string::npos);
+  }
+
+  // A right-hand side that turns non-finite ends the evaluation with a reason.
+  pk::OdeModelSpec spec;
+  spec.name = "blowup";
+  spec.compartments = {"CENTRAL"};
+  spec.parameters = {{"K", 30}};
+  const auto blowup = pk::MakeOdeModel(spec, Blowup());
+  const pk::Objective bo(blowup, data, 0, pk::ObjectiveOptions());
+  const auto ev = bo.Evaluate(bo.DefaultValues(), {0}, pk::Objective::Need::kJacobian);
+  CHECK_FALSE(ev.ok);
+  CHECK(ev.message.find("ODE solver failed") != std::string::npos);
 }

@@ -147,16 +147,22 @@ class OdePropagator {
       sys_.Rhs(x, theta, &f);
       f += uv;
       fx = sys_.StateJacobian(x, theta);
-      if (f.lpNorm<Eigen::Infinity>() <= Tolerance(x) * 1e-2 && it > 0) break;
+      Eigen::FullPivLU<Eigen::MatrixXd> lu(fx);
+      if (!lu.isInvertible()) throw NumericalFailure("no steady state for the constant infusion (f_x is singular: is the rate above the "
+                               "elimination capacity, or is nothing eliminated?)");
+      const Eigen::VectorXd dx = lu.solve(f);
+      x -= dx;
+      if (!x.allFinite()) throw NumericalFailure("no steady state for the constant infusion");
+      if (dx.lpNorm<Eigen::Infinity>() <= Tolerance(x)) {
+        fx = sys_.StateJacobian(x, theta);
+        break;
+      }
       if (it >= options_.max_newton_iterations) {
         throw NumericalFailure("no steady state for the constant infusion: Newton did not converge (is the rate "
                                "above the elimination capacity?)");
       }
-      Eigen::FullPivLU<Eigen::MatrixXd> lu(fx);
-      if (!lu.isInvertible()) throw NumericalFailure("no steady state for the constant infusion: f_x is singular");
-      x -= lu.solve(f);
-      if (!x.allFinite()) throw NumericalFailure("no steady state for the constant infusion");
     }
+    CheckPhysical(x, "the constant infusion");
     const SegmentInput seg = MakeSegment(T(0.0), u, set, p_);
     Eigen::VectorXd f;
     Eigen::MatrixXd forcing;
@@ -199,6 +205,7 @@ class OdePropagator {
         throw NumericalFailure("no periodic steady state: Newton on x = P(x) did not converge");
       }
     }
+    CheckPhysical(x, "the dosing cycle");
     const Eigen::MatrixXd px = s.leftCols(n_);
     Eigen::MatrixXd dxdp = Eigen::MatrixXd::Zero(n_, sens_ ? p_ : 0);
     if (sens_) dxdp = (Eigen::MatrixXd::Identity(n_, n_) - px).partialPivLu().solve(s.rightCols(p_));
@@ -264,6 +271,14 @@ class OdePropagator {
     Theta(set, &seg.theta, &seg.dtheta);
     if (k != p_) seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), k);
     return seg;
+  }
+
+  // A nonlinear model's amounts cannot be negative; Newton may still find such
+  // a root (for example when an infusion exceeds a saturable elimination).
+  void CheckPhysical(const Eigen::VectorXd& x, const char* what) const {
+    if (sys_.is_linear() || x.minCoeff() >= -Tolerance(x)) return;
+    throw NumericalFailure(std::string("no steady state with non-negative amounts for ") + what +
+                           " (is the dosing rate above the elimination capacity?)");
   }
 
   double Tolerance(const Eigen::VectorXd& x) const {
