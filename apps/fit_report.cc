@@ -64,6 +64,7 @@ std::string SubjectSvg(const SubjectFit& f, bool log, int output = 1) {
                                                       std::to_string(output) + ")" : "") +
             (f.ok ? "" : " (fit failed)");
   o.log_y = log && (!multi || output == 1);
+  if (multi && output > 1) o.y_label = "output " + f.output_names[output - 1];
   return RenderSvg({curve, data}, o);
 }
 
