@@ -4,6 +4,7 @@
 // catalogue model × event type.
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <sstream>
 
 #include <catch2/catch.hpp>
@@ -383,4 +384,46 @@ TEST_CASE("the exact propagator refuses nonlinear models; solver failures are re
   const auto ev = bo.Evaluate(bo.DefaultValues(), {0}, pk::Objective::Need::kJacobian);
   CHECK_FALSE(ev.ok);
   CHECK(ev.message.find("ODE solver failed") != std::string::npos);
+}
+
+TEST_CASE("noisy Michaelis-Menten fits reach R's optimum (optim + deSolve)", "[ode][fit][reference]") {
+  // tests/reference/make_mm_reference.R wrote the reference objectives.
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/tests/reference/mm_optim_reference.csv");
+  REQUIRE(in.good());
+  std::string line;
+  std::getline(in, line);
+  const auto model = pk::MakeModel("1cmt_iv_mm");
+  const auto data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/mm_synthetic.csv"));
+  int subjects = 0;
+  while (std::getline(in, line)) {
+    std::istringstream row(line);
+    double id, objective, vmax, km, v;
+    char c;
+    row >> id >> c >> objective >> c >> vmax >> c >> km >> c >> v;
+    INFO("ID " << id);
+    int subject = -1;
+    for (size_t i = 0; i < data->subjects.size(); ++i) {
+      if (data->subjects[i].id == id) subject = static_cast<int>(i);
+    }
+    REQUIRE(subject >= 0);
+    pk::ObjectiveOptions oo;
+    oo.ode.relative_tolerance = 1e-11;
+    oo.ode.absolute_tolerance = 1e-13;
+    const pk::Objective obj(model, data, subject, oo);
+    std::vector<pk::ParameterSpec> specs(3);
+    specs[0].name = "VMAX";
+    specs[1].name = "KM";
+    specs[2].name = "V";
+    for (auto& s : specs) s.initial = NAN;  // catalogue defaults, not R's answer
+    const pk::FitSummary fit = pk::Fit(obj, specs, pk::FitOptions());
+    INFO(fit.BriefReport());
+    REQUIRE(fit.converged());
+    // No higher than the independent optimum (beyond its own integration error), and the same point.
+    CHECK(fit.objective <= objective * (1 + 1e-7));
+    CHECK(fit.estimates[0].estimate == Approx(vmax).epsilon(1e-4));
+    CHECK(fit.estimates[1].estimate == Approx(km).epsilon(1e-4));
+    CHECK(fit.estimates[2].estimate == Approx(v).epsilon(1e-4));
+    ++subjects;
+  }
+  CHECK(subjects == 6);
 }
