@@ -39,6 +39,7 @@
 
 #include "pk/dual.h"
 #include "pk/model.h"
+#include "pk/tape_scalar.h"
 
 namespace pk {
 
@@ -73,6 +74,10 @@ class OdeModel : public Model {
   /// and dtheta = [0 I] they are the Jacobians [f_x f_θ].
   virtual void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
                               const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const = 0;
+  /// f and the vector–Jacobian products wᵀf_x (n) and wᵀf_θ (m), by one
+  /// reverse-mode pass (the adjoint route's λᵀf_x and λᵀf_θ).
+  virtual void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
+                                 Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const = 0;
   /// y = g_output(x, θ), output numbered from 1.
   virtual double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const = 0;
   /// y and dy = g_x dx + g_θ dtheta (1×k).
@@ -114,6 +119,30 @@ class AutoDiffOdeModel final : public OdeModel {
       (*f)(i) = fd[i].value();
       if (fd[i].derivatives().size()) df->row(i) = fd[i].derivatives().transpose();
     }
+  }
+
+  void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
+                         Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const override {
+    const int n = num_compartments();
+    const Eigen::Index m = theta.size();
+    Tape& tape = Tape::Active();
+    tape.Clear();
+    std::vector<TapeScalar> xt(n), tt(m), ft(n);
+    for (int i = 0; i < n; ++i) xt[i] = TapeScalar::Variable(x(i));
+    for (Eigen::Index j = 0; j < m; ++j) tt[j] = TapeScalar::Variable(theta(j));
+    f_.Rhs(xt.data(), tt.data(), ft.data());
+    std::vector<double> adj(tape.size(), 0.0);
+    f->resize(n);
+    for (int i = 0; i < n; ++i) {
+      (*f)(i) = ft[i].value();
+      if (ft[i].index() >= 0) adj[ft[i].index()] += w(i);
+    }
+    tape.Sweep(&adj);
+    wfx->resize(n);
+    wftheta->resize(m);
+    for (int i = 0; i < n; ++i) (*wfx)(i) = adj[xt[i].index()];
+    for (Eigen::Index j = 0; j < m; ++j) (*wftheta)(j) = adj[tt[j].index()];
+    tape.Clear();
   }
 
   double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override {

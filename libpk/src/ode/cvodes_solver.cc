@@ -209,7 +209,9 @@ struct CvodesSolver::Impl {
     ++d.stats.rhs_evaluations;
     const Eigen::VectorXd x = View(y);
     Map out = View(ybdot);
-    out = -d.sys.StateJacobian(x, d.in->theta).transpose() * View(yb);
+    Eigen::VectorXd f, wfx, wft;
+    d.sys.RhsVectorJacobian(x, d.in->theta, View(yb), &f, &wfx, &wft);
+    out = -wfx;
     if (!d.in->continuous.empty()) {
       Eigen::VectorXd dl;
       d.LossIntegrand(t, x, &dl);
@@ -242,11 +244,11 @@ struct CvodesSolver::Impl {
     }
     const Eigen::VectorXd x = View(y);
     const Map lambda = View(yb);
-    Eigen::VectorXd f;
-    Eigen::MatrixXd df;
-    d.sys.RhsDirectional(x, d.in->theta, Eigen::MatrixXd::Zero(d.n, d.k), d.in->dtheta, &f, &df);
-    if (d.in->du.cols() == d.k) df += d.in->du;
-    Eigen::RowVectorXd q = lambda.transpose() * df;
+    // λᵀ(f_θ ∂θ/∂p + ∂u/∂p) from one reverse pass: (λᵀf_θ) ∂θ/∂p.
+    Eigen::VectorXd f, wfx, wft;
+    d.sys.RhsVectorJacobian(x, d.in->theta, lambda, &f, &wfx, &wft);
+    Eigen::RowVectorXd q = wft.transpose() * d.in->dtheta;
+    if (d.in->du.cols() == d.k) q += lambda.transpose() * d.in->du;
     if (!d.in->continuous.empty()) {
       Eigen::VectorXd dl;
       d.LossIntegrand(t, x, &dl);

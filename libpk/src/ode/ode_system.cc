@@ -57,6 +57,20 @@ void OdeSystem::RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& 
   }
 }
 
+void OdeSystem::RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
+                                  Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const {
+  if (ode_) {
+    ode_->RhsVectorJacobian(x, theta, w, f, wfx, wftheta);
+    return;
+  }
+  // wᵀA(θ)x = ⟨w xᵀ, A(θ)⟩, differentiated in θ by duals.
+  const Eigen::MatrixXd a = linear_->SystemMatrix<double>(theta);
+  *f = a * x;
+  *wfx = a.transpose() * w;
+  const Dual c = linear_->ContractSystemMatrix<Dual>(Seeded(theta, Eigen::MatrixXd::Identity(m_, m_)), w * x.transpose());
+  *wftheta = c.derivatives().size() ? Eigen::VectorXd(c.derivatives()) : Eigen::VectorXd::Zero(m_);
+}
+
 Eigen::MatrixXd OdeSystem::StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
   if (linear_) return linear_->SystemMatrix<double>(theta);
   Eigen::VectorXd f;

@@ -33,6 +33,9 @@ class OdeSystem {
   /// f and f_x dx + f_θ dtheta (n×k).
   void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
                       const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const;
+  /// f, wᵀf_x and wᵀf_θ (reverse mode for nonlinear models).
+  void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
+                         Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const;
   /// f_x (n×n).
   Eigen::MatrixXd StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const;
 

@@ -1,0 +1,123 @@
+// libpk: a reverse-mode automatic-differentiation scalar.
+//
+// The adjoint route needs the vector–Jacobian products λᵀf_x and λᵀf_θ at
+// every backward step. Forward mode (pk::Dual) would cost one pass per state
+// or parameter; reverse mode gets both from one pass over a recording of f,
+// at a few times the cost of f itself, whatever n and m are. libpk evaluates
+// model functors on TapeScalar for that (pk/ode_model.h); a model never uses
+// it directly, it only has to be a template on its scalar type.
+//
+// The tape is per thread: one evaluation records onto it, is swept backward,
+// and is cleared before the next.
+#ifndef PK_TAPE_SCALAR_H_
+#define PK_TAPE_SCALAR_H_
+
+#include <cmath>
+#include <vector>
+
+namespace pk {
+
+/// The recording: node k has up to two parents with their partial derivatives.
+class Tape {
+ public:
+  struct Node {
+    int a, b;
+    double da, db;
+  };
+  void Clear() { nodes_.clear(); }
+  int size() const { return static_cast<int>(nodes_.size()); }
+  int Push(int a, double da, int b = -1, double db = 0) {
+    nodes_.push_back({a, b, da, db});
+    return static_cast<int>(nodes_.size()) - 1;
+  }
+  /// Back-propagates the adjoints in `adj` (one per node, seeded by the caller).
+  void Sweep(std::vector<double>* adj) const {
+    for (int k = size() - 1; k >= 0; --k) {
+      const double w = (*adj)[k];
+      if (w == 0) continue;
+      const Node& n = nodes_[k];
+      if (n.a >= 0) (*adj)[n.a] += n.da * w;
+      if (n.b >= 0) (*adj)[n.b] += n.db * w;
+    }
+  }
+  /// The tape of the calling thread.
+  static Tape& Active() {
+    static thread_local Tape tape;
+    return tape;
+  }
+
+ private:
+  std::vector<Node> nodes_;
+};
+
+class TapeScalar {
+ public:
+  TapeScalar() = default;
+  TapeScalar(double value) : v_(value) {}  // NOLINT: constants convert implicitly
+  /// A new independent variable on the active tape.
+  static TapeScalar Variable(double value) { return TapeScalar(value, Tape::Active().Push(-1, 0)); }
+
+  double value() const { return v_; }
+  int index() const { return i_; }  ///< node on the tape, -1 for a constant
+
+  /// f(x) with f'(x): one unary node.
+  TapeScalar Unary(double f, double df) const { return i_ < 0 ? TapeScalar(f) : TapeScalar(f, Tape::Active().Push(i_, df)); }
+  /// f(x, y) with its partials: one binary node.
+  static TapeScalar Binary(double f, const TapeScalar& x, double dx, const TapeScalar& y, double dy) {
+    if (x.i_ < 0 && y.i_ < 0) return TapeScalar(f);
+    if (x.i_ < 0) return TapeScalar(f, Tape::Active().Push(y.i_, dy));
+    if (y.i_ < 0) return TapeScalar(f, Tape::Active().Push(x.i_, dx));
+    return TapeScalar(f, Tape::Active().Push(x.i_, dx, y.i_, dy));
+  }
+
+  friend TapeScalar operator+(const TapeScalar& a, const TapeScalar& b) { return Binary(a.v_ + b.v_, a, 1, b, 1); }
+  friend TapeScalar operator-(const TapeScalar& a, const TapeScalar& b) { return Binary(a.v_ - b.v_, a, 1, b, -1); }
+  friend TapeScalar operator*(const TapeScalar& a, const TapeScalar& b) { return Binary(a.v_ * b.v_, a, b.v_, b, a.v_); }
+  friend TapeScalar operator/(const TapeScalar& a, const TapeScalar& b) {
+    const double q = a.v_ / b.v_;
+    return Binary(q, a, 1 / b.v_, b, -q / b.v_);
+  }
+  TapeScalar operator-() const { return Unary(-v_, -1); }
+  TapeScalar operator+() const { return *this; }
+  TapeScalar& operator+=(const TapeScalar& o) { return *this = *this + o; }
+  TapeScalar& operator-=(const TapeScalar& o) { return *this = *this - o; }
+  TapeScalar& operator*=(const TapeScalar& o) { return *this = *this * o; }
+  TapeScalar& operator/=(const TapeScalar& o) { return *this = *this / o; }
+
+  friend bool operator<(const TapeScalar& a, const TapeScalar& b) { return a.v_ < b.v_; }
+  friend bool operator>(const TapeScalar& a, const TapeScalar& b) { return a.v_ > b.v_; }
+  friend bool operator<=(const TapeScalar& a, const TapeScalar& b) { return a.v_ <= b.v_; }
+  friend bool operator>=(const TapeScalar& a, const TapeScalar& b) { return a.v_ >= b.v_; }
+
+ private:
+  TapeScalar(double value, int index) : v_(value), i_(index) {}
+  double v_ = 0;
+  int i_ = -1;
+};
+
+inline TapeScalar exp(const TapeScalar& x) {
+  const double e = std::exp(x.value());
+  return x.Unary(e, e);
+}
+inline TapeScalar log(const TapeScalar& x) { return x.Unary(std::log(x.value()), 1 / x.value()); }
+inline TapeScalar sqrt(const TapeScalar& x) {
+  const double s = std::sqrt(x.value());
+  return x.Unary(s, 0.5 / s);
+}
+inline TapeScalar abs(const TapeScalar& x) { return x.value() < 0 ? -x : x; }
+inline TapeScalar fabs(const TapeScalar& x) { return abs(x); }
+inline TapeScalar pow(const TapeScalar& x, double p) {
+  return x.Unary(std::pow(x.value(), p), p == 0 ? 0.0 : p * std::pow(x.value(), p - 1));
+}
+/// x^p; at x = 0 the derivative with respect to p is taken as 0 (as for pk::Dual).
+inline TapeScalar pow(const TapeScalar& x, const TapeScalar& p) {
+  const double v = std::pow(x.value(), p.value());
+  const double dx = p.value() == 0 ? 0.0 : p.value() * std::pow(x.value(), p.value() - 1);
+  const double dp = x.value() > 0 ? v * std::log(x.value()) : 0.0;
+  return TapeScalar::Binary(v, x, dx, p, dp);
+}
+inline TapeScalar pow(double x, const TapeScalar& p) { return pow(TapeScalar(x), p); }
+
+}  // namespace pk
+
+#endif  // PK_TAPE_SCALAR_H_
