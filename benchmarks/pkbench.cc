@@ -6,6 +6,11 @@
 //   2. The gradient/loss cost ratio against the number of parameters m on a
 //      mammillary model with K peripheral compartments (m = 2K + 2).
 //   3. Fitting the 12 theophylline subjects (1cmt_oral, LM), per subject and in total.
+//   4. The ODE routes on a scalable nonlinear model, a chain of n compartments
+//      with saturable transfer (m = 2n): a plain forward solve against the
+//      loss + gradient by (a) CVODES forward sensitivities and (b) the CVODES
+//      adjoint, with the adjoint's stored bytes; then the adjoint's time and
+//      storage against the checkpoint interval.
 //
 // Timing: the cases compared in a table are timed in interleaved rounds and
 // their ratios are medians over the rounds (see Interleaved()).
@@ -23,6 +28,7 @@
 #include "pk/fit_subjects.h"
 #include "pk/linear_model.h"
 #include "pk/objective.h"
+#include "pk/ode_model.h"
 
 namespace {
 
@@ -118,6 +124,33 @@ std::shared_ptr<const pk::LinearModel> Mammillary(int k_peripherals) {
 
 }  // namespace
 
+// A chain of n compartments: x_i flows to x_{i+1} at VMAX_i x_i/(KM_i + x_i),
+// and the last one is eliminated the same way. θ = (VMAX_1..n, KM_1..n).
+struct SaturableChain {
+  int n;
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    T inflow(0.0);
+    for (int i = 0; i < n; ++i) {
+      const T out = p[i] * x[i] / (p[n + i] + x[i]);
+      dxdt[i] = inflow - out;
+      inflow = out;
+    }
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const { return x[n - 1]; }
+};
+
+std::shared_ptr<const pk::OdeModel> Chain(int n) {
+  pk::OdeModelSpec spec;
+  spec.name = "chain" + std::to_string(n);
+  for (int i = 1; i <= n; ++i) spec.compartments.push_back("X" + std::to_string(i));
+  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"VMAX" + std::to_string(i), 40.0 + i});
+  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"KM" + std::to_string(i), 5.0 + 0.1 * i});
+  spec.central = n;
+  return pk::MakeOdeModel(spec, SaturableChain{n});
+}
+
 int main(int argc, char** argv) {
   std::string data_dir = "datasets";
   for (int i = 1; i < argc; ++i) {
@@ -169,6 +202,46 @@ int main(int argc, char** argv) {
       std::printf("%4d %4d %4d %12.1f %12.2f %12.2f\n", k, k + 1, 2 * k + 2, t.base_seconds * 1e6, t.ratios[1],
                   t.ratios[2]);
       std::fflush(stdout);
+    }
+    std::printf("\n");
+  }
+
+  // ---- 4. ODE routes on the saturable chain.
+  {
+    std::printf("== saturable chain of n compartments (m = 2n), bolus into X1, 12 samples of Xn; CVODES rtol 1e-8 ==\n");
+    std::printf("%4s %4s %14s %14s %14s %16s\n", "n", "m", "solve (ms)", "(a) / solve", "(b) / solve",
+                "(b) stored bytes");
+    for (int n : {1, 2, 4, 8, 16, 24, 32}) {
+      const pk::Objective obj(Chain(n), OneDose("1", 100), 0, pk::ObjectiveOptions());
+      const Eigen::VectorXd v = obj.DefaultValues();
+      std::vector<int> free;
+      for (int i = 0; i < 2 * n; ++i) free.push_back(i);
+      const auto adj = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint);
+      const Timing t = Interleaved({[&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; },
+                                    [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; },
+                                    [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
+      std::printf("%4d %4d %14.3f %14.2f %14.2f %16ld\n", n, 2 * n, t.base_seconds * 1e3, t.ratios[1], t.ratios[2],
+                  adj.ode_statistics.peak_adjoint_bytes);
+      std::fflush(stdout);
+    }
+    std::printf("\n== the same, n = 16 (m = 32): the adjoint's time and storage against how much it keeps ==\n");
+    std::printf("%-28s %12s %14s %16s %10s\n", "trajectory kept", "steps/check", "(b) / solve", "stored bytes",
+                "fwd steps");
+    for (bool all : {true, false}) {
+      for (int steps : {2, 10, 100, 1000, 10000}) {
+        pk::ObjectiveOptions oo;
+        oo.ode.checkpoint_steps = steps;
+        oo.ode.adjoint_store_all_segments = all;
+        const pk::Objective obj(Chain(16), OneDose("1", 100), 0, oo);
+        const Eigen::VectorXd v = obj.DefaultValues();
+        std::vector<int> free;
+        for (int i = 0; i < 32; ++i) free.push_back(i);
+        const auto adj = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint);
+        const Timing t = Interleaved({[&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; },
+                                      [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
+        std::printf("%-28s %12d %14.2f %16ld %10ld\n", all ? "all segments (1 fwd pass)" : "one segment (2 fwd passes)",
+                    steps, t.ratios[1], adj.ode_statistics.peak_adjoint_bytes, adj.ode_statistics.steps);
+      }
     }
     std::printf("\n");
   }

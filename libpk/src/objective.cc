@@ -296,7 +296,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     internal::RebindParameters(d.layout, v.head(L), &sv);
     *cl = 0;
     if (ode) {
-      internal::OdePredict(d.ode, sv, y, cl);
+      internal::OdePredict(d.ode, sv, y, cl, &ev.ode_statistics);
     } else {
       internal::Predict(*d.linear, d.layout, sv, y);
     }
@@ -335,7 +335,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       for (int a2 = 0; a2 < pm; ++a2) jm.col(a2) = j_all.col(model_free[a2]);
     } else if (ode && route == GradientRoute::kForward && pm > 0) {
       const auto sets = dual_sets();
-      internal::OdeForwardSensitivities(d.ode, s, sets, pm, &yhat, &jm, &cont_loss, &cont_grad);
+      internal::OdeForwardSensitivities(d.ode, s, sets, pm, &yhat, &jm, &cont_loss, &cont_grad, &ev.ode_statistics);
     } else if (ode && route == GradientRoute::kAdjoint && pm > 0) {
       ode_adjoint.reset(new internal::OdeAdjoint(d.ode, s, dual_sets(), pm));
       ode_adjoint->Forward(&yhat, &cont_loss);
@@ -437,6 +437,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   } else if (ode_adjoint) {
     try {
       gm = ode_adjoint->Gradient(dl_dy);  // includes the continuous records' term
+      ev.ode_statistics = ode_adjoint->statistics();
     } catch (const internal::NumericalFailure& e) {
       ev.ok = false;
       ev.message = e.what();

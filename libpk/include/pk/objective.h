@@ -96,6 +96,7 @@ class Objective {
     Eigen::MatrixXd information;
     const char* route = "";       ///< the route that computed the derivatives
     const char* propagator = "";  ///< "exact" or "ode"
+    OdeStatistics ode_statistics;  ///< the ODE propagator's work (ode only)
   };
 
   /// Binds subject `subject` of `data` to `model`. Throws pk::InputError for a

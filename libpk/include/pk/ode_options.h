@@ -15,11 +15,27 @@ struct OdeOptions {
   long max_steps = 100000;
   /// Adjoint route: integration steps between two CVODES checkpoints. Fewer
   /// steps store less and recompute more (the seed's §4 trade of time for storage).
-  int checkpoint_steps = 100;
+  int checkpoint_steps = 1000;
+  /// Adjoint route: keep every inter-event segment's trajectory from the one
+  /// forward pass (true), or keep only the segment being swept and integrate
+  /// each one forward a second time during the sweep (false: about one more
+  /// forward solve, storage of one segment instead of all).
+  bool adjoint_store_all_segments = true;
   /// Steady states of nonlinear models: Newton iterations on x = P(x) allowed.
   int max_newton_iterations = 50;
 
   bool IsValid(std::string* error) const;
+};
+
+/// What the ODE propagator did in one evaluation (for the time/storage trade-off).
+struct OdeStatistics {
+  long steps = 0;                 ///< forward integration steps (all passes)
+  long rhs_evaluations = 0;       ///< f and the adjoint right-hand side
+  long jacobian_evaluations = 0;
+  long backward_steps = 0;        ///< adjoint steps
+  /// Largest adjoint storage held at once: CVODES's Hermite data (y and ẏ per
+  /// step, checkpoint_steps steps) plus its checkpoints (a Nordsieck array each).
+  long peak_adjoint_bytes = 0;
 };
 
 }  // namespace pk

@@ -4,6 +4,7 @@
 #include <map>
 #include <sstream>
 #include <string>
+#include <tuple>
 
 #include <cvodes/cvodes.h>
 #include <nvector/nvector_serial.h>
@@ -97,8 +98,57 @@ struct CvodesSolver::Impl {
     std::unique_ptr<LinearSolver> ls, lsb;
     int which = -1;
     int kq = 0;
+    long bytes = 0;        // CVODES's storage for this segment's trajectory
+    SegmentInput segment;  // stored segments keep their own input
+    std::shared_ptr<Context> context;  // pooled memories carry their own context
   };
-  std::unique_ptr<Adjoint> adjoint;
+  std::unique_ptr<Adjoint> adjoint;               // reused: recompute mode
+  std::vector<std::unique_ptr<Adjoint>> stored;   // one per segment: store mode
+  long stored_bytes = 0;
+
+  void ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0, Eigen::VectorXd* x_end);
+
+  // Allocating a CVODES adjoint memory (CVodeAdjInit allocates the storage
+  // for checkpoint_steps steps) costs as much as integrating a short segment,
+  // so the per-segment memories of the store-all mode are kept per thread and
+  // reused by later evaluations with the same size and options.
+  struct PoolKey {
+    int n, kq, checkpoint_steps;
+    double rtol, atol;
+    long max_steps;
+    bool operator<(const PoolKey& o) const {
+      return std::tie(n, kq, checkpoint_steps, rtol, atol, max_steps) <
+             std::tie(o.n, o.kq, o.checkpoint_steps, o.rtol, o.atol, o.max_steps);
+    }
+  };
+  struct Pool {
+    std::shared_ptr<Context> context = std::make_shared<Context>();
+    std::vector<std::unique_ptr<Adjoint>> free;
+  };
+  static std::map<PoolKey, Pool>& Pools() {
+    static thread_local std::map<PoolKey, Pool> pools;
+    return pools;
+  }
+  PoolKey Key(int kq) const {
+    return {n, kq, opt.checkpoint_steps, opt.relative_tolerance, opt.absolute_tolerance, opt.max_steps};
+  }
+  std::unique_ptr<Adjoint> Borrow(int kq) {
+    Pool& pool = Pools()[Key(kq)];
+    if (pool.free.empty()) {
+      std::unique_ptr<Adjoint> a(new Adjoint);
+      a->context = pool.context;
+      return a;
+    }
+    std::unique_ptr<Adjoint> a = std::move(pool.free.back());
+    pool.free.pop_back();
+    return a;
+  }
+  void Return(std::unique_ptr<Adjoint> a) {
+    if (!a || !a->mem) return;
+    Pools()[Key(std::max(a->kq, 1))].free.push_back(std::move(a));
+  }
+  void Backward(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& lambda_end,
+                Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
   Impl(const OdeSystem& s, const OdeOptions& o) : sys(s), opt(o), n(s.n()) {}
 
@@ -306,7 +356,11 @@ struct CvodesSolver::Impl {
 };
 
 CvodesSolver::CvodesSolver(const OdeSystem& system, const OdeOptions& options) : impl_(new Impl(system, options)) {}
-CvodesSolver::~CvodesSolver() = default;
+CvodesSolver::~CvodesSolver() {
+  // Stored adjoint memories go back to this thread's pool for the next evaluation.
+  Impl& d = *impl_;
+  for (auto& a : d.stored) d.Return(std::move(a));
+}
 const OdeStatistics& CvodesSolver::statistics() const { return impl_->stats; }
 
 void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc) {
@@ -362,83 +416,126 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
   }
 }
 
+// The forward half of the adjoint on one segment: CVodeF from x0 to h, storing
+// the trajectory (Hermite data, checkpoints every checkpoint_steps steps).
+void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0,
+                                      Eigen::VectorXd* x_end) {
+  in = &seg;
+  k = static_cast<int>(seg.dtheta.cols());
+  with_loss = false;
+  with_auc = false;
+  if (!a.mem) {
+    SUNContext ctx = a.context ? a.context->ctx : context.ctx;
+    a.y.reset(new Vector(n, ctx));
+    a.mem.reset(new Memory(ctx));
+    if (a.mem->mem == nullptr) throw NumericalFailure("CVODES: out of memory");
+    a.ls.reset(new LinearSolver(a.y->v, n, ctx));
+    View(a.y->v) = x0;
+    Configure(a.mem->mem, a.y->v, a.ls.get());
+    Check(CVodeAdjInit(a.mem->mem, opt.checkpoint_steps, CV_HERMITE), "CVodeAdjInit");
+  } else {
+    // A memory from the pool: point its callbacks at this solver.
+    Check(CVodeSetUserData(a.mem->mem, this), "CVodeSetUserData");
+    Check(CVodeSetErrHandlerFn(a.mem->mem, ErrorHandler, this), "CVodeSetErrHandlerFn");
+    if (a.which >= 0) {
+      Check(CVodeSetUserDataB(a.mem->mem, a.which, this), "CVodeSetUserDataB");
+      CVodeSetErrHandlerFn(CVodeGetAdjCVodeBmem(a.mem->mem, a.which), ErrorHandler, this);
+    }
+  }
+  View(a.y->v) = x0;
+  Check(CVodeReInit(a.mem->mem, 0.0, a.y->v), "CVodeReInit");
+  Check(CVodeAdjReInit(a.mem->mem), "CVodeAdjReInit");
+  Check(CVodeSetStopTime(a.mem->mem, seg.h), "CVodeSetStopTime");
+  realtype t = 0;
+  int ncheck = 0;
+  Check(CVodeF(a.mem->mem, seg.h, a.y->v, &t, CV_NORMAL, &ncheck), "CVodeF");
+  if (x_end) *x_end = View(a.y->v);
+  long steps = 0;
+  CVodeGetNumSteps(a.mem->mem, &steps);
+  stats.steps += steps;
+  a.bytes = (std::min<long>(steps, opt.checkpoint_steps) * 2 * n + (ncheck + 1) * 6L * n) *
+            static_cast<long>(sizeof(double));
+}
+
+// The backward half: λ from λ(h) = lambda_end to λ(0), with the quadrature.
+void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& lambda_end,
+                                  Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
+  in = &seg;
+  k = static_cast<int>(seg.dtheta.cols());
+  with_loss = false;
+  const int kq = std::max(k, 1);
+  if (a.which < 0) {
+    SUNContext ctx = a.context ? a.context->ctx : context.ctx;
+    a.yb.reset(new Vector(n, ctx));
+    a.qb.reset(new Vector(kq, ctx));
+    View(a.yb->v) = lambda_end;
+    Check(CVodeCreateB(a.mem->mem, CV_BDF, &a.which), "CVodeCreateB");
+    Check(CVodeInitB(a.mem->mem, a.which, AdjointRhs, seg.h, a.yb->v), "CVodeInitB");
+    Check(CVodeSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, opt.absolute_tolerance),
+          "CVodeSStolerancesB");
+    Check(CVodeSetUserDataB(a.mem->mem, a.which, this), "CVodeSetUserDataB");
+    Check(CVodeSetMaxNumStepsB(a.mem->mem, a.which, opt.max_steps), "CVodeSetMaxNumStepsB");
+    a.lsb.reset(new LinearSolver(a.yb->v, n, ctx));
+    Check(CVodeSetLinearSolverB(a.mem->mem, a.which, a.lsb->ls, a.lsb->a), "CVodeSetLinearSolverB");
+    Check(CVodeSetJacFnB(a.mem->mem, a.which, AdjointJacobian), "CVodeSetJacFnB");
+    N_VConst(0.0, a.qb->v);
+    Check(CVodeQuadInitB(a.mem->mem, a.which, AdjointQuadrature, a.qb->v), "CVodeQuadInitB");
+    Check(CVodeQuadSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, opt.absolute_tolerance),
+          "CVodeQuadSStolerancesB");
+    Check(CVodeSetQuadErrConB(a.mem->mem, a.which, SUNTRUE), "CVodeSetQuadErrConB");
+    CVodeSetErrHandlerFn(CVodeGetAdjCVodeBmem(a.mem->mem, a.which), ErrorHandler, this);
+    a.kq = kq;
+  } else {
+    if (a.kq != kq) throw NumericalFailure("internal: the adjoint quadrature size changed");
+    View(a.yb->v) = lambda_end;
+    Check(CVodeReInitB(a.mem->mem, a.which, seg.h, a.yb->v), "CVodeReInitB");
+    N_VConst(0.0, a.qb->v);
+    Check(CVodeQuadReInitB(a.mem->mem, a.which, a.qb->v), "CVodeQuadReInitB");
+  }
+  realtype t = 0;
+  Check(CVodeB(a.mem->mem, 0.0, CV_NORMAL), "CVodeB");
+  Check(CVodeGetB(a.mem->mem, a.which, &t, a.yb->v), "CVodeGetB");
+  *lambda_start = View(a.yb->v);
+  if (k > 0) {
+    Check(CVodeGetQuadB(a.mem->mem, a.which, &t, a.qb->v), "CVodeGetQuadB");
+    *q = View(a.qb->v).transpose();
+  }
+  long bsteps = 0;
+  CVodeGetNumSteps(CVodeGetAdjCVodeBmem(a.mem->mem, a.which), &bsteps);
+  stats.backward_steps += bsteps;
+}
+
 void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
                                   const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                                   Eigen::RowVectorXd* q) {
   Impl& d = *impl_;
-  const int k = static_cast<int>(in.dtheta.cols());
   *lambda_start = lambda_end;
-  q->setZero(k);
+  q->setZero(in.dtheta.cols());
   if (in.h <= 0) return;
-  d.in = &in;
-  d.k = k;
-  d.with_loss = false;
-  if (!d.adjoint) {
-    d.adjoint.reset(new Impl::Adjoint);
-    Impl::Adjoint& a = *d.adjoint;
-    a.y.reset(new Vector(d.n, d.context.ctx));
-    a.mem.reset(new Memory(d.context.ctx));
-    a.ls.reset(new LinearSolver(a.y->v, d.n, d.context.ctx));
-    View(a.y->v) = x0;
-    d.Configure(a.mem->mem, a.y->v, a.ls.get());
-    d.Check(CVodeAdjInit(a.mem->mem, d.opt.checkpoint_steps, CV_HERMITE), "CVodeAdjInit");
-  }
-  Impl::Adjoint& a = *d.adjoint;
+  if (!d.adjoint) d.adjoint.reset(new Impl::Adjoint);
   // Forward over this segment only: checkpoints never straddle a jump.
-  View(a.y->v) = x0;
-  d.Check(CVodeReInit(a.mem->mem, 0.0, a.y->v), "CVodeReInit");
-  d.Check(CVodeAdjReInit(a.mem->mem), "CVodeAdjReInit");
-  d.Check(CVodeSetStopTime(a.mem->mem, in.h), "CVodeSetStopTime");
-  realtype t = 0;
-  int ncheck = 0;
-  d.Check(CVodeF(a.mem->mem, in.h, a.y->v, &t, CV_NORMAL, &ncheck), "CVodeF");
-  long steps = 0;
-  CVodeGetNumSteps(a.mem->mem, &steps);
-  d.stats.steps += steps;
-  const long stored = std::min<long>(steps, d.opt.checkpoint_steps) * 2 * d.n + (ncheck + 1) * 6L * d.n;
-  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, stored * static_cast<long>(sizeof(double)));
+  d.ForwardStore(*d.adjoint, in, x0, nullptr);
+  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes + d.adjoint->bytes);
+  d.Backward(*d.adjoint, in, lambda_end, lambda_start, q);
+}
 
-  const int kq = std::max(k, 1);
-  if (a.which < 0 || a.kq != kq) {
-    if (a.which >= 0) throw NumericalFailure("internal: the adjoint quadrature size changed");
-    a.yb.reset(new Vector(d.n, d.context.ctx));
-    a.qb.reset(new Vector(kq, d.context.ctx));
-    View(a.yb->v) = lambda_end;
-    d.Check(CVodeCreateB(a.mem->mem, CV_BDF, &a.which), "CVodeCreateB");
-    d.Check(CVodeInitB(a.mem->mem, a.which, Impl::AdjointRhs, in.h, a.yb->v), "CVodeInitB");
-    d.Check(CVodeSStolerancesB(a.mem->mem, a.which, d.opt.relative_tolerance, d.opt.absolute_tolerance),
-            "CVodeSStolerancesB");
-    d.Check(CVodeSetUserDataB(a.mem->mem, a.which, &d), "CVodeSetUserDataB");
-    d.Check(CVodeSetMaxNumStepsB(a.mem->mem, a.which, d.opt.max_steps), "CVodeSetMaxNumStepsB");
-    a.lsb.reset(new LinearSolver(a.yb->v, d.n, d.context.ctx));
-    d.Check(CVodeSetLinearSolverB(a.mem->mem, a.which, a.lsb->ls, a.lsb->a), "CVodeSetLinearSolverB");
-    d.Check(CVodeSetJacFnB(a.mem->mem, a.which, Impl::AdjointJacobian), "CVodeSetJacFnB");
-    N_VConst(0.0, a.qb->v);
-    d.Check(CVodeQuadInitB(a.mem->mem, a.which, Impl::AdjointQuadrature, a.qb->v), "CVodeQuadInitB");
-    d.Check(CVodeQuadSStolerancesB(a.mem->mem, a.which, d.opt.relative_tolerance, d.opt.absolute_tolerance),
-            "CVodeQuadSStolerancesB");
-    d.Check(CVodeSetQuadErrConB(a.mem->mem, a.which, SUNTRUE), "CVodeSetQuadErrConB");
-    void* memb = CVodeGetAdjCVodeBmem(a.mem->mem, a.which);
-    CVodeSetErrHandlerFn(memb, Impl::ErrorHandler, &d);
-    a.kq = kq;
-  } else {
-    View(a.yb->v) = lambda_end;
-    d.Check(CVodeReInitB(a.mem->mem, a.which, in.h, a.yb->v), "CVodeReInitB");
-    N_VConst(0.0, a.qb->v);
-    d.Check(CVodeQuadReInitB(a.mem->mem, a.which, a.qb->v), "CVodeQuadReInitB");
-  }
-  if (k == 0) d.k = 0;
-  d.Check(CVodeB(a.mem->mem, 0.0, CV_NORMAL), "CVodeB");
-  d.Check(CVodeGetB(a.mem->mem, a.which, &t, a.yb->v), "CVodeGetB");
-  *lambda_start = View(a.yb->v);
-  if (k > 0) {
-    d.Check(CVodeGetQuadB(a.mem->mem, a.which, &t, a.qb->v), "CVodeGetQuadB");
-    *q = View(a.qb->v).transpose();
-  }
-  void* memb = CVodeGetAdjCVodeBmem(a.mem->mem, a.which);
-  long bsteps = 0;
-  CVodeGetNumSteps(memb, &bsteps);
-  d.stats.backward_steps += bsteps;
+int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
+  Impl& d = *impl_;
+  if (in.h <= 0) return -1;
+  d.stored.push_back(d.Borrow(std::max<int>(static_cast<int>(in.dtheta.cols()), 1)));
+  Impl::Adjoint& a = *d.stored.back();
+  a.segment = in;
+  d.ForwardStore(a, a.segment, *x, x);
+  d.stored_bytes += a.bytes;
+  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
+  return static_cast<int>(d.stored.size()) - 1;
+}
+
+void CvodesSolver::BackwardStored(int handle, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                                  Eigen::RowVectorXd* q) {
+  Impl& d = *impl_;
+  Impl::Adjoint& a = *d.stored.at(handle);
+  d.Backward(a, a.segment, lambda_end, lambda_start, q);
 }
 
 }  // namespace internal

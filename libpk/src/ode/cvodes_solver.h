@@ -38,15 +38,7 @@ struct SegmentInput {
   int auc_key = 0;          ///< output integrated by Advance(…, auc)
 };
 
-struct OdeStatistics {
-  long steps = 0;
-  long rhs_evaluations = 0;
-  long jacobian_evaluations = 0;
-  long backward_steps = 0;
-  /// Largest adjoint storage held at once: CVODES's Hermite data (y and ẏ per
-  /// step, checkpoint_steps steps) plus its checkpoints (a Nordsieck array each).
-  long peak_adjoint_bytes = 0;
-};
+using OdeStatistics = pk::OdeStatistics;
 
 class CvodesSolver {
  public:
@@ -73,6 +65,15 @@ class CvodesSolver {
   ///   q = ∫₀ʰ λᵀ(f_θ ∂θ/∂p + ∂u/∂p) + Σ w (y − y_m) g_θ ∂θ/∂p ds   (1×k).
   void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const Eigen::VectorXd& lambda_end,
                       Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
+
+  /// The same in two halves, keeping every segment's trajectory: the forward
+  /// pass integrates x over the segment (x ← x(h)) and stores its CVODES
+  /// adjoint memory, returning a handle (-1 for an empty segment); the sweep
+  /// then runs backward on it. One forward pass instead of two, at the price
+  /// of holding all segments at once.
+  int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x);
+  void BackwardStored(int handle, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                      Eigen::RowVectorXd* q);
 
   const OdeStatistics& statistics() const;
 

@@ -66,6 +66,7 @@ struct TapeStep {
   std::vector<TapeStep> cycle;      // kSteadyState: the cycle from x* (bolus, then segments)
   std::vector<TapeStep> to_record;  // kSteadyState: from x* to the record time
   int sample = -1, key = 0, set = 0;  // kSample
+  int handle = -1;            // kAdvance: the solver's stored trajectory, or -1 (recompute)
 };
 
 template <typename T>
@@ -102,6 +103,8 @@ class OdePropagator {
     if (sens_) {
       solver_.AdvanceSensitivity(seg, &x_, &s_, cont ? &loss_ : nullptr, &dloss_);
       s_ += FlowAtEnd(seg) * Derivatives(h, p_).transpose();
+    } else if (tape_on_ && options_.adjoint_store_all_segments && seg.continuous.empty() && !auc) {
+      step.handle = solver_.StoreSegment(seg, &x_);
     } else {
       solver_.Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr);
     }

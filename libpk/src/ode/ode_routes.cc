@@ -126,7 +126,11 @@ struct OdeAdjoint::Impl {
     }
     Eigen::VectorXd lambda0;
     Eigen::RowVectorXd q;
-    prop.solver().AdjointSegment(step.segment, step.x0, *lambda, &lambda0, &q);
+    if (step.handle >= 0) {
+      prop.solver().BackwardStored(step.handle, *lambda, &lambda0, &q);
+    } else {
+      prop.solver().AdjointSegment(step.segment, step.x0, *lambda, &lambda0, &q);
+    }
     if (q.size()) *g += q.transpose();
     *lambda = lambda0;
   }
