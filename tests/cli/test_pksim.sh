@@ -8,7 +8,20 @@ fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 
 # The catalogue.
 n=$("$pksim" --list-models | wc -l)
-[ "$n" -eq 10 ] || fail "--list-models printed $n models, expected 10 (six compartmental, tf1..tf4)"
+[ "$n" -eq 15 ] || fail "--list-models printed $n models, expected 15 (6 compartmental, tf1..tf4, transit, 4 nonlinear)"
+
+# The ODE propagator: a linear model agrees with the exact one; a nonlinear model has its outputs as columns.
+"$pksim" --model 2cmt_oral --dose 100 --ii 12 --doses 3 --times 0:2:36 --out "$work/exact.csv" || fail "exact run"
+"$pksim" --model 2cmt_oral --dose 100 --ii 12 --doses 3 --times 0:2:36 --propagator ode --rtol 1e-10 --atol 1e-12 \
+  --out "$work/ode.csv" || fail "ode run"
+paste -d, "$work/exact.csv" "$work/ode.csv" | awk -F, 'NR>1 { d = $4 - $11; if (d < 0) d = -d; if (d > 1e-8 * ($4 + 1e-6)) bad = 1 }
+  END { exit bad }' || fail "ode and exact CP differ"
+"$pksim" --model 1cmt_iv_emax --dose 100 --times 0:1:12 --out "$work/emax.csv" || fail "emax run"
+head -1 "$work/emax.csv" | grep -qx "ID,TIME,EVID,CP,EFFECT,A1,A2" || fail "emax header"
+"$pksim" --model 1cmt_oral_transit:NTR=5 --dose 100 --times 0:1:12 --out "$work/transit.csv" || fail "transit NTR=5"
+head -1 "$work/transit.csv" | grep -q ",A7$" || fail "NTR=5 should give 7 compartments"
+"$pksim" --model 1cmt_oral_transit:NTR=0 --dose 100 --times 0:1:2 >/dev/null 2>&1
+[ $? -eq 2 ] || fail "NTR=0 should be an input error"
 
 # A regimen from flags: 1cmt_iv bolus, CP(t) = 100/30 exp(-0.1 t).
 "$pksim" --model 1cmt_iv --dose 100 --param CL=3 --param V=30 --times 0:1:10 --out "$work/bolus.csv" ||
