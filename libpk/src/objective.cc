@@ -321,7 +321,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       // Only the transfer function's coefficients (layout entries 0..2n−1).
       const int order = d.linear == nullptr || ode ? 0 : d.linear->transfer_function_order();
       if (order == 0) {
-        throw internal::NumericalFailure("the companion route applies to tf<n> models with the exact propagator only");
+        throw internal::NumericalFailure("the companion route applies to tf<n> models only (with the exact propagator)");
       }
       for (int i : model_free) {
         if (i >= 2 * order) {
