@@ -1,6 +1,7 @@
 #include "cvodes_solver.h"
 
 #include <cmath>
+#include <limits>
 #include <map>
 #include <sstream>
 #include <string>
@@ -253,15 +254,29 @@ struct CvodesSolver::Impl {
     return df.allFinite() ? 0 : 1;
   }
 
+  // λᵀf_x and λᵀf_θ at (t, x, λ). CVODES usually calls the backward right-hand
+  // side and the quadrature at the same point, so one reverse pass serves both.
+  struct VjpCache {
+    double t = std::numeric_limits<double>::quiet_NaN();
+    Eigen::VectorXd x, lambda, wfx, wft;
+  } vjp;
+  void Vjp(double t, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda) {
+    if (t == vjp.t && x == vjp.x && lambda == vjp.lambda) return;
+    Eigen::VectorXd f;
+    sys.RhsVectorJacobian(x, in->theta, lambda, &f, &vjp.wfx, &vjp.wft);
+    vjp.t = t;
+    vjp.x = x;
+    vjp.lambda = lambda;
+  }
+
   // Backward: dλ/dt = −f_xᵀλ − Σ g_xᵀ w (y − y_m).
   static int AdjointRhs(realtype t, N_Vector y, N_Vector yb, N_Vector ybdot, void* data) {
     Impl& d = *static_cast<Impl*>(data);
     ++d.stats.rhs_evaluations;
     const Eigen::VectorXd x = View(y);
     Map out = View(ybdot);
-    Eigen::VectorXd f, wfx, wft;
-    d.sys.RhsVectorJacobian(x, d.in->theta, View(yb), &f, &wfx, &wft);
-    out = -wfx;
+    d.Vjp(t, x, View(yb));
+    out = -d.vjp.wfx;
     if (!d.in->continuous.empty()) {
       Eigen::VectorXd dl;
       d.LossIntegrand(t, x, &dl);
@@ -295,9 +310,8 @@ struct CvodesSolver::Impl {
     const Eigen::VectorXd x = View(y);
     const Map lambda = View(yb);
     // λᵀ(f_θ ∂θ/∂p + ∂u/∂p) from one reverse pass: (λᵀf_θ) ∂θ/∂p.
-    Eigen::VectorXd f, wfx, wft;
-    d.sys.RhsVectorJacobian(x, d.in->theta, lambda, &f, &wfx, &wft);
-    Eigen::RowVectorXd q = wft.transpose() * d.in->dtheta;
+    d.Vjp(t, x, lambda);
+    Eigen::RowVectorXd q = d.vjp.wft.transpose() * d.in->dtheta;
     if (d.in->du.cols() == d.k) q += lambda.transpose() * d.in->du;
     if (!d.in->continuous.empty()) {
       Eigen::VectorXd dl;
@@ -461,6 +475,7 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
 void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& lambda_end,
                                   Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   in = &seg;
+  vjp.t = std::numeric_limits<double>::quiet_NaN();
   k = static_cast<int>(seg.dtheta.cols());
   with_loss = false;
   const int kq = std::max(k, 1);
