@@ -14,6 +14,11 @@ build/apps/pkfit --model 1cmt_oral --data datasets/theophylline.csv --output-dir
 echo "open out/theophylline/report.html for the fits, plots, standard errors and correlations"
 echo
 
+echo "== pkfit: Michaelis-Menten elimination (synthetic, 6 subjects), 1cmt_iv_mm through CVODES =="
+build/apps/pkfit --model 1cmt_iv_mm --data datasets/mm_synthetic.csv --output-dir out/mm
+echo "(the truth per subject is in datasets/mm_synthetic_truth.csv)"
+echo
+
 echo "== pksim: 2cmt_oral, 1000 mg loading dose then 500 mg every 12 h for a week =="
 cat > out/regimen.csv <<'CSV'
 ID,TIME,AMT,II,ADDL,EVID,CMT
