@@ -71,6 +71,25 @@ struct Memory {
 
 }  // namespace
 
+double ContinuousLoss(const OdeSystem& sys, const SegmentInput& in, double t, const Eigen::VectorXd& x,
+                      Eigen::VectorXd* dl_dy, double* lt, Eigen::VectorXd* dlt_dy) {
+  double sum = 0;
+  if (dl_dy) dl_dy->resize(in.continuous.size());
+  if (dlt_dy) dlt_dy->resize(in.continuous.size());
+  if (lt) *lt = 0;
+  for (size_t i = 0; i < in.continuous.size(); ++i) {
+    const ContinuousTerm& c = in.continuous[i];
+    const double r = sys.Observe(c.key, x, in.theta) - (c.ym0 + c.ym_slope * t);
+    const double w = c.w0 + c.w_slope * t;
+    sum += 0.5 * w * r * r;
+    const Eigen::Index k = static_cast<Eigen::Index>(i);
+    if (dl_dy) (*dl_dy)(k) = w * r;
+    if (lt) *lt += 0.5 * c.w_slope * r * r - w * r * c.ym_slope;
+    if (dlt_dy) (*dlt_dy)(k) = c.w_slope * r - w * c.ym_slope;
+  }
+  return sum;
+}
+
 struct CvodesSolver::Impl {
   const OdeSystem& sys;
   OdeOptions opt;
@@ -81,7 +100,7 @@ struct CvodesSolver::Impl {
   // The segment being integrated.
   const SegmentInput* in = nullptr;
   int k = 0;
-  bool with_loss = false;  // state carries the continuous loss as entry n
+  bool with_loss = false;  // state carries the continuous loss as entry n, ∫∂L/∂t as entry n+1
   bool with_auc = false;   // state carries ∫ y_auc_key dt as its last entry
 
   // One CVODES instance per configuration: plain (with/without loss state),
@@ -168,17 +187,12 @@ struct CvodesSolver::Impl {
 
   // The continuous loss integrand ½ w (y − y_m)² at local time t and its
   // derivative with respect to y, summed over the terms.
-  double LossIntegrand(double t, const Eigen::VectorXd& x, Eigen::VectorXd* dl_dy = nullptr) const {
-    double sum = 0;
-    if (dl_dy) dl_dy->resize(in->continuous.size());
-    for (size_t i = 0; i < in->continuous.size(); ++i) {
-      const ContinuousTerm& c = in->continuous[i];
-      const double r = sys.Observe(c.key, x, in->theta) - (c.ym0 + c.ym_slope * t);
-      const double w = c.w0 + c.w_slope * t;
-      sum += 0.5 * w * r * r;
-      if (dl_dy) (*dl_dy)(static_cast<Eigen::Index>(i)) = w * r;
-    }
-    return sum;
+  // The continuous loss integrand L = Σ ½ w (y − y_m)² at local time t, its
+  // derivatives ∂L/∂y per term, its explicit time derivative
+  // L_t = Σ ½ w' r² − w r y_m' and ∂L_t/∂y per term (r = y − y_m).
+  double LossIntegrand(double t, const Eigen::VectorXd& x, Eigen::VectorXd* dl_dy = nullptr, double* lt = nullptr,
+                       Eigen::VectorXd* dlt_dy = nullptr) const {
+    return ContinuousLoss(sys, *in, t, x, dl_dy, lt, dlt_dy);
   }
 
   static int Rhs(realtype t, N_Vector y, N_Vector ydot, void* data) {
@@ -189,7 +203,11 @@ struct CvodesSolver::Impl {
     d.sys.Rhs(x, d.in->theta, &f);
     Map out = View(ydot);
     out.head(d.n) = f + d.in->u;
-    if (d.with_loss) out(d.n) = d.LossIntegrand(t, x);
+    if (d.with_loss) {
+      double lt = 0;
+      out(d.n) = d.LossIntegrand(t, x, nullptr, &lt);
+      out(d.n + 1) = lt;
+    }
     if (d.with_auc) out(out.size() - 1) = d.sys.Observe(d.in->auc_key, x, d.in->theta);
     return out.allFinite() ? 0 : 1;
   }
@@ -202,15 +220,17 @@ struct CvodesSolver::Impl {
     j.setZero();
     j.topLeftCorner(d.n, d.n) = d.sys.StateJacobian(x, d.in->theta);
     if (d.with_loss) {
-      // ∂/∂x of ½ w (y − y_m)² = w (y − y_m) g_x.
-      Eigen::VectorXd dl;
-      d.LossIntegrand(t, x, &dl);
+      // ∂/∂x of ½ w (y − y_m)² = w (y − y_m) g_x, and likewise for L_t.
+      Eigen::VectorXd dl, dlt;
+      double lt;
+      d.LossIntegrand(t, x, &dl, &lt, &dlt);
       for (size_t i = 0; i < d.in->continuous.size(); ++i) {
         double yv;
         Eigen::RowVectorXd gx;
         d.sys.ObserveDirectional(d.in->continuous[i].key, x, d.in->theta, Eigen::MatrixXd::Identity(d.n, d.n),
                                  Eigen::MatrixXd::Zero(d.sys.num_theta(), d.n), &yv, &gx);
         j.row(d.n).head(d.n) += dl(static_cast<Eigen::Index>(i)) * gx;
+        j.row(d.n + 1).head(d.n) += dlt(static_cast<Eigen::Index>(i)) * gx;
       }
     }
     if (d.with_auc) {
@@ -249,7 +269,10 @@ struct CvodesSolver::Impl {
     for (int i = 0; i < k; ++i) {
       Map out = View(ysdot[i]);
       out.head(d.n) = df.col(i);
-      if (d.with_loss) out(d.n) = dloss(i);
+      if (d.with_loss) {
+        out(d.n) = dloss(i);
+        out(d.n + 1) = 0;  // ∫L_t is needed as a value only
+      }
     }
     return df.allFinite() ? 0 : 1;
   }
@@ -343,7 +366,7 @@ struct CvodesSolver::Impl {
     auto it = forward.find(key);
     if (it != forward.end()) return it->second;
     Forward& f = forward[key];
-    const int size = n + (loss ? 1 : 0) + (auc ? 1 : 0);
+    const int size = n + (loss ? 2 : 0) + (auc ? 1 : 0);
     f.y.reset(new Vector(size, context.ctx));
     f.mem.reset(new Memory(context.ctx));
     if (f.mem->mem == nullptr) throw NumericalFailure("CVODES: out of memory");
@@ -377,7 +400,8 @@ CvodesSolver::~CvodesSolver() {
 }
 const OdeStatistics& CvodesSolver::statistics() const { return impl_->stats; }
 
-void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc) {
+void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc,
+                           double* loss_time) {
   Impl& d = *impl_;
   if (in.h <= 0) return;
   d.in = &in;
@@ -391,18 +415,21 @@ void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* l
   d.Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
   d.Integrate(f.mem->mem, in.h, f.y->v);
   *x = y.head(d.n);
-  if (d.with_loss) *loss += y(d.n);
+  if (d.with_loss) {
+    *loss += y(d.n);
+    if (loss_time) *loss_time += y(d.n + 1);
+  }
   if (d.with_auc) *auc += y(y.size() - 1);
   d.with_auc = false;
 }
 
 void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, double* loss,
-                                      Eigen::RowVectorXd* dloss) {
+                                      Eigen::RowVectorXd* dloss, double* loss_time) {
   Impl& d = *impl_;
   const int k = static_cast<int>(s->cols());
   if (in.h <= 0) return;
   if (k == 0) {
-    Advance(in, x, loss);
+    Advance(in, x, loss, nullptr, loss_time);
     return;
   }
   d.in = &in;
@@ -411,11 +438,11 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
   Impl::Forward& f = d.GetForward(k, d.with_loss);
   Map y = View(f.y->v);
   y.head(d.n) = *x;
-  if (d.with_loss) y(d.n) = 0;
+  y.tail(y.size() - d.n).setZero();
   for (int i = 0; i < k; ++i) {
     Map si = View(f.ys->v[i]);
     si.head(d.n) = s->col(i);
-    if (d.with_loss) si(d.n) = 0;
+    si.tail(si.size() - d.n).setZero();
   }
   d.Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
   d.Check(CVodeSensReInit(f.mem->mem, CV_STAGGERED, f.ys->v), "CVodeSensReInit");
@@ -426,6 +453,7 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
   for (int i = 0; i < k; ++i) s->col(i) = View(f.ys->v[i]).head(d.n);
   if (d.with_loss) {
     *loss += y(d.n);
+    if (loss_time) *loss_time += y(d.n + 1);
     for (int i = 0; i < k; ++i) (*dloss)(i) += View(f.ys->v[i])(d.n);
   }
 }

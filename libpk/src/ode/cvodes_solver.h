@@ -40,6 +40,11 @@ struct SegmentInput {
 
 using OdeStatistics = pk::OdeStatistics;
 
+/// The continuous loss integrand L = Σ ½ w (y − y_m)² of a segment at local time
+/// t, with (optionally) ∂L/∂y per term, L_t = ∂L/∂t and ∂L_t/∂y per term.
+double ContinuousLoss(const OdeSystem& sys, const SegmentInput& in, double t, const Eigen::VectorXd& x,
+                      Eigen::VectorXd* dl_dy = nullptr, double* lt = nullptr, Eigen::VectorXd* dlt_dy = nullptr);
+
 class CvodesSolver {
  public:
   CvodesSolver(const OdeSystem& system, const OdeOptions& options);
@@ -50,13 +55,16 @@ class CvodesSolver {
   /// x ← x(h). Adds the continuous records' loss over the segment to *loss,
   /// and ∫ y_auc_key dt to *auc (when given). Throws NumericalFailure when
   /// CVODES fails.
-  void Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss = nullptr, double* auc = nullptr);
+  /// With `loss_time`, also adds ∫ ∂L/∂t ds, the integrand's explicit time
+  /// derivative (needed when the segment's start time moves with p).
+  void Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss = nullptr, double* auc = nullptr,
+               double* loss_time = nullptr);
 
   /// x ← x(h) and S ← S(h), dS/dt = f_x S + f_θ ∂θ/∂p + ∂u/∂p (the seed's
   /// forward sensitivity equations, k = S.cols()), with error control on S.
   /// With continuous records, also the loss and its gradient (1×k).
   void AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, double* loss = nullptr,
-                          Eigen::RowVectorXd* dloss = nullptr);
+                          Eigen::RowVectorXd* dloss = nullptr, double* loss_time = nullptr);
 
   /// The adjoint over one segment (the seed's §4): from x0, CVodeF stores the
   /// trajectory with checkpoints; then λ runs backward from λ(h) = lambda_end,

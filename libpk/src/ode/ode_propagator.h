@@ -89,6 +89,8 @@ class OdePropagator {
     x_ = Eigen::VectorXd::Zero(n_);
     s_ = Eigen::MatrixXd::Zero(n_, sens_ ? p_ : 0);
     dloss_ = Eigen::RowVectorXd::Zero(sens_ ? p_ : 0);
+    dloss_time_ = Eigen::RowVectorXd::Zero(p_);
+    dt_ = Eigen::RowVectorXd::Zero(p_);
   }
 
   // ---- EventEngine visitor interface ----
@@ -100,15 +102,25 @@ class OdePropagator {
     if (auc) seg.auc_key = sys_.central_key();
     TapeStep step;
     if (tape_on_) step.x0 = x_;
+    const Eigen::RowVectorXd dh = Derivatives(h, p_).transpose();
+    double loss_time = 0;
     if (sens_) {
-      solver_.AdvanceSensitivity(seg, &x_, &s_, cont ? &loss_ : nullptr, &dloss_);
-      s_ += FlowAtEnd(seg) * Derivatives(h, p_).transpose();
+      solver_.AdvanceSensitivity(seg, &x_, &s_, cont ? &loss_ : nullptr, &dloss_, &loss_time);
+      s_ += FlowAtEnd(seg) * dh;
     } else if (tape_on_ && options_.adjoint_store_all_segments && seg.continuous.empty() && !auc) {
       step.handle = solver_.StoreSegment(seg, &x_);
     } else {
-      solver_.Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr);
+      solver_.Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr, &loss_time);
+    }
+    if (!seg.continuous.empty() && p_ > 0) {
+      // The loss integral ∫_{t0}^{t0+h} L(t, x) dt in the segment's own frame
+      // misses what moving its ends does: L(t0+h)·∂h/∂p + ∂t0/∂p·∫L_t ds (the
+      // state's part is already in S or in the adjoint's forcing).
+      const double l_end = ContinuousLoss(sys_, seg, seg.h, x_);
+      dloss_time_ += l_end * dh + loss_time * dt_;
     }
     t_ += seg.h;
+    dt_ += dh;
     if (tape_on_) {
       step.kind = TapeStep::kAdvance;
       step.x1 = x_;
@@ -237,7 +249,13 @@ class OdePropagator {
   double auc() const { return auc_; }
   double continuous_loss() const { return loss_; }
   const Eigen::RowVectorXd& continuous_loss_gradient() const { return dloss_; }
-  void set_time(double t) { t_ = t; }
+  /// Record times are data: the time after a record carries no derivative.
+  void set_time(double t) {
+    t_ = t;
+    dt_.setZero();
+  }
+  /// ∂/∂p of the continuous loss through moving segment ends (see Advance).
+  const Eigen::RowVectorXd& continuous_loss_time_gradient() const { return dloss_time_; }
   std::vector<TapeStep>& tape() { return tape_; }
   void TapeSample(int sample, int key, int set) {
     if (!tape_on_) return;
@@ -370,6 +388,8 @@ class OdePropagator {
   double auc_ = 0;
   double loss_ = 0;
   Eigen::RowVectorXd dloss_;
+  Eigen::RowVectorXd dloss_time_;
+  Eigen::RowVectorXd dt_;  // ∂t/∂p of the current time
   std::vector<TapeStep> tape_;
 };
 

@@ -102,7 +102,7 @@ void OdeForwardSensitivities(const OdeSubject& o, const PreparedSubject& s, cons
   EventEngine<Dual, Collector<Dual>> engine(s, *o.layout, sets, &c);
   engine.Run();
   *continuous_loss = prop.continuous_loss();
-  *continuous_gradient = prop.continuous_loss_gradient();
+  *continuous_gradient = prop.continuous_loss_gradient() + prop.continuous_loss_time_gradient();
   Accumulate(prop.solver().statistics(), stats);
 }
 
@@ -208,7 +208,7 @@ Eigen::VectorXd OdeAdjoint::Gradient(const Eigen::VectorXd& dl_dyhat) {
   Eigen::VectorXd lambda = Eigen::VectorXd::Zero(d.o.system->n());
   Eigen::VectorXd g = Eigen::VectorXd::Zero(d.p);
   d.Sweep(d.prop.tape(), dl_dyhat, &lambda, &g);
-  return g;
+  return g + d.prop.continuous_loss_time_gradient().transpose();
 }
 
 const OdeStatistics& OdeAdjoint::statistics() const { return impl_->prop.solver().statistics(); }
