@@ -1,5 +1,7 @@
 #include "pk/initial_estimates.h"
 
+#include "pk/catalogue.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -187,6 +189,26 @@ void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* 
 }
 
 InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, int subject) {
+  const std::string& model_name = model.name();
+  if (model_name.size() > 3 && model_name.compare(model_name.size() - 3, 3, "_mm") == 0) {
+    // Michaelis-Menten: the linear counterpart's clearance CL at the median
+    // observed concentration C̃, with KM = C̃ (half-saturated there):
+    // VMAX·C̃/(KM + C̃) = CL·C̃ gives VMAX = CL·(KM + C̃).
+    InitialEstimate out = EstimateInitialValues(*MakeModel(model_name.substr(0, model_name.size() - 3)), data, subject);
+    if (!out.ok) return out;
+    std::vector<double> c;
+    for (const Record& r : data.subjects[subject].records) {
+      if (r.IsSample() && r.dv > 0) c.push_back(r.dv);
+    }
+    std::sort(c.begin(), c.end());
+    const double median = c[c.size() / 2];
+    const double cl = out.values.at("CL");
+    out.values.erase("CL");
+    out.values["KM"] = median;
+    out.values["VMAX"] = cl * 2 * median;
+    out.method += " on the linear model; KM = median concentration, VMAX = CL (KM + median)";
+    return out;
+  }
   InitialEstimate out;
   out.method = "terminal log-linear regression, exponential grid with linear amplitudes";
   const std::string& name = model.name();
