@@ -12,6 +12,7 @@
 #include "pk/catalogue.h"
 #include "pk/error.h"
 #include "pk/fit.h"
+#include "pk/initial_estimates.h"
 #include "pk/objective.h"
 #include "pk/ode_model.h"
 #include "pk/simulate.h"
@@ -516,4 +517,27 @@ TEST_CASE("a continuous effect record identifies the PD parameters", "[ode][fit]
     INFO(e.name);
     CHECK(e.estimate == Approx(truth.at(e.name)).epsilon(2e-3));
   }
+}
+
+TEST_CASE("Michaelis-Menten starting values come from the linear counterpart", "[ode][initial]") {
+  const auto data = pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/mm_synthetic.csv");
+  for (const char* name : {"1cmt_iv_mm", "2cmt_iv_mm"}) {
+    INFO(name);
+    const auto model = pk::MakeModel(name);
+    const pk::InitialEstimate e = pk::EstimateInitialValues(*model, data, 0);
+    INFO(e.message);
+    REQUIRE(e.ok);
+    REQUIRE(e.values.size() == static_cast<size_t>(model->num_parameters()));
+    for (const std::string& p : model->parameter_names()) {
+      REQUIRE(e.values.count(p) == 1);
+      CHECK(e.values.at(p) > 0);
+    }
+    // KM is the median concentration; the truth's KM (3.0) is of that order, VMAX/KM ≈ 2 CL.
+    CHECK(e.values.at("KM") > 1);
+    CHECK(e.values.at("KM") < 20);
+  }
+  // Subject 1's truth (datasets/mm_synthetic_truth.csv): V = 21.2; the linear fit sees a similar volume.
+  const pk::InitialEstimate e = pk::EstimateInitialValues(*pk::MakeModel("1cmt_iv_mm"), data, 0);
+  CHECK(e.values.at("V") > 0.5 * 21.2);
+  CHECK(e.values.at("V") < 2 * 21.2);
 }
