@@ -506,7 +506,13 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
   for (ParameterEstimate& est : summary.estimates) est.estimate = summary.values(objective.ParameterIndex(est.name));
   if (n > 0 && std::isfinite(best.value)) {
     const Objective::Evaluation ev = pb.Eval(best.phi, Need::kJacobian);
-    summary.gradient = pb.route();
+    // The standard errors need the Jacobian; say so when that route differs
+    // from the one the optimiser used.
+    if (summary.gradient == "none") {
+      summary.gradient = pb.route();
+    } else if (pb.route() != summary.gradient) {
+      summary.gradient += " (SE: " + pb.route() + ")";
+    }
     const int nobs = objective.num_samples();
     if (!ev.ok) {
       summary.covariance_message = "the Jacobian could not be evaluated at the estimate: " + ev.message;
