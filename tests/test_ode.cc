@@ -541,3 +541,40 @@ TEST_CASE("Michaelis-Menten starting values come from the linear counterpart", "
   CHECK(e.values.at("V") > 0.5 * 21.2);
   CHECK(e.values.at("V") < 2 * 21.2);
 }
+
+TEST_CASE("pksim through CVODES: AUC and amounts equal the exact propagator's", "[ode][simulate]") {
+  const auto model = pk::MakeModel("2cmt_oral");
+  auto data = Parse("ID,TIME,AMT,RATE,II,ADDL,SS,EVID\n1,0,100,0,12,3,0,1\n1,5,0,0,0,0,0,2\n1,20,0,0,0,0,0,2\n"
+                    "1,30,50,25,0,0,0,1\n1,40,0,0,0,0,0,2\n1,60,0,0,0,0,0,2\n");
+  const pk::ParameterValues p = {{"KA", 1.3}, {"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}};
+  pk::SimulationOptions exact;
+  exact.propagator = pk::Propagator::kExact;
+  const auto a = pk::SimulateSubject(*model, *data, 0, p, exact);
+  const auto b = pk::SimulateSubject(*model, *data, 0, p, TightOde());
+  REQUIRE(a.ok);
+  REQUIRE(b.ok);
+  REQUIRE(a.rows.size() == b.rows.size());
+  for (size_t k = 0; k < a.rows.size(); ++k) {
+    INFO("t = " << a.rows[k].time);
+    CHECK(b.rows[k].auc == Approx(a.rows[k].auc).epsilon(1e-9));
+    CHECK(b.rows[k].cp == Approx(a.rows[k].cp).epsilon(1e-9));
+    for (int c = 0; c < 3; ++c) CHECK(b.rows[k].amounts(c) == Approx(a.rows[k].amounts(c)).epsilon(1e-9).margin(1e-12));
+  }
+  // The exposure metrics see the same doses.
+  REQUIRE(a.doses.size() == b.doses.size());
+  for (size_t k = 0; k < a.doses.size(); ++k) CHECK(b.doses[k].auc_before == Approx(a.doses[k].auc_before).epsilon(1e-9));
+}
+
+TEST_CASE("finite differences through CVODES use a step matched to the tolerance", "[ode][gradient]") {
+  const auto model = pk::MakeModel("1cmt_iv_mm");
+  auto data = Parse("ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,1,0,0,3\n1,4,0,0,2\n1,8,0,0,1\n1,12,0,0,0.5\n");
+  pk::ObjectiveOptions oo;  // rtol 1e-8: the automatic step is 1e-8^(1/3) ≈ 2e-3
+  const pk::Objective obj(model, data, 0, oo);
+  const auto fd = obj.Evaluate(obj.DefaultValues(), {0, 1, 2}, pk::Objective::Need::kGradient,
+                               pk::GradientRoute::kFiniteDifference);
+  const auto fwd = obj.Evaluate(obj.DefaultValues(), {0, 1, 2}, pk::Objective::Need::kGradient,
+                                pk::GradientRoute::kForward);
+  REQUIRE(fd.ok);
+  REQUIRE(fwd.ok);
+  CHECK((fd.gradient - fwd.gradient).cwiseAbs().maxCoeff() < 1e-4 * fwd.gradient.cwiseAbs().maxCoeff());
+}

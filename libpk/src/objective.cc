@@ -60,7 +60,9 @@ bool ObjectiveOptions::IsValid(std::string* error) const {
   if (error_model != ErrorModel::kLeastSquares && weighting != Weighting::kUniform) {
     return fail("weights apply to least squares; maximum likelihood weights samples by its error model");
   }
-  if (!(fd_relative_step > 0 && fd_relative_step < 0.1)) return fail("fd_relative_step must be in (0, 0.1)");
+  if (!(fd_relative_step >= 0 && fd_relative_step < 0.1)) {
+    return fail("fd_relative_step must be in (0, 0.1), or 0 for automatic");
+  }
   return ode.IsValid(error);
 }
 
@@ -90,6 +92,10 @@ struct Objective::Impl {
       : model(std::move(m)), data(std::move(d)), subject(subj), options(o), layout(*model) {}
 
   int L() const { return layout.size(); }
+  double FdStep() const {
+    if (options.fd_relative_step > 0) return options.fd_relative_step;
+    return propagator == Propagator::kOde ? std::cbrt(options.ode.relative_tolerance) : 1e-5;
+  }
 };
 
 Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data, int subject,
@@ -352,7 +358,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     if (route == GradientRoute::kFiniteDifference && need == Need::kJacobian) {
       for (int a = 0; a < pm; ++a) {
         const int i = model_free[a];
-        const double h = std::max(std::fabs(values(i)), 1e-8) * d.options.fd_relative_step;
+        const double h = std::max(std::fabs(values(i)), 1e-8) * d.FdStep();
         Eigen::VectorXd vp = values, vm = values, yp, ym;
         vp(i) += h;
         vm(i) -= h;
@@ -416,7 +422,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   if (route == GradientRoute::kFiniteDifference && need == Need::kGradient) {
     for (int k = 0; k < P; ++k) {
       const int i = free[k];
-      const double h = std::max(std::fabs(values(i)), 1e-8) * d.options.fd_relative_step;
+      const double h = std::max(std::fabs(values(i)), 1e-8) * d.FdStep();
       Eigen::VectorXd vp = values, vm = values;
       vp(i) += h;
       vm(i) -= h;

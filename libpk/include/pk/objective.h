@@ -59,7 +59,11 @@ struct ObjectiveOptions {
   std::string weight_column;                  ///< the data column for Weighting::kColumn
   ErrorModel error_model = ErrorModel::kLeastSquares;
   GradientRoute gradient = GradientRoute::kAuto;
-  double fd_relative_step = 1e-5;             ///< central-difference step, relative to |θ| (floor 1e-8)
+  /// Central-difference step relative to |θ| (floor 1e-8). 0 (the default)
+  /// picks it: 1e-5 for the exact propagator; for the ODE propagator
+  /// rtol^(1/3), which balances the solver's noise (≈ rtol/step) against the
+  /// truncation error (≈ step²).
+  double fd_relative_step = 0;
   Propagator propagator = Propagator::kAuto;  ///< exact (Φ/Γ, linear models) or ode (CVODES)
   OdeOptions ode;                             ///< tolerances etc. of the ODE propagator
 
