@@ -9,59 +9,20 @@
 namespace pk {
 namespace {
 
-// Forwards the engine's calls to the exact propagator and records the outputs.
+// Forwards the engine's calls to a propagator (exact or ODE) and records the
+// outputs. Observations go through OdeSystem, which reads a linear model's
+// output by compartment and a nonlinear model's by DVID.
+template <typename Propagator>
 class Recorder {
  public:
-  Recorder(const LinearModel& model, const internal::PreparedSubject& s, bool track_auc, SubjectSimulation* out)
-      : model_(model), s_(s), prop_(model, s.sets, track_auc), out_(out) {}
-
-  void Advance(double h, const Eigen::VectorXd& u, int set) { prop_.Advance(h, u, set); }
-  void Bolus(int cmt, double amount, int set) { prop_.Bolus(cmt, amount, set); }
-  void Reset() { prop_.Reset(); }
-  void SteadyState(const internal::SteadyStateCycle<double>& c, int set, bool add) { prop_.SteadyState(c, set, add); }
-  void SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) { prop_.SteadyInfusion(u, set, add); }
-
-  void DoseEntered(double time, int set) {
-    out_->doses.push_back({time, Concentration(model_.central_compartment(), set), prop_.auc()});
-  }
-
-  void RecordDone(int r, int set) {
-    const Record& rec = s_.records()[r];
-    if (rec.evid != Evid::kObservation && rec.evid != Evid::kOther) return;
-    SimulatedRecord row;
-    row.record = r;
-    row.time = rec.time;
-    row.evid = rec.evid;
-    row.cp = Concentration(model_.central_compartment(), set);
-    row.pred = Concentration(s_.cmt[r] + 1, set);
-    row.auc = prop_.auc();
-    row.amounts = prop_.state().head(model_.num_compartments());
-    out_->rows.push_back(std::move(row));
-  }
-
- private:
-  double Concentration(int cmt, int set) const {
-    return model_.Output(cmt, prop_.state().head(model_.num_compartments()),
-                         s_.sets[set].head(model_.num_parameters()));
-  }
-
-  const LinearModel& model_;
-  const internal::PreparedSubject& s_;
-  internal::ExactPropagator prop_;
-  SubjectSimulation* out_;
-};
-
-// The same for the ODE propagator.
-class OdeRecorder {
- public:
-  OdeRecorder(const internal::OdeSystem& sys, const ParameterLayout& layout, const internal::PreparedSubject& s,
-              const SimulationOptions& options, SubjectSimulation* out)
+  Recorder(const internal::OdeSystem& sys, const internal::PreparedSubject& s, Propagator* prop,
+           SubjectSimulation* out)
       : sys_(sys),
         s_(s),
         ode_(dynamic_cast<const OdeModel*>(&sys.model())),
-        prop_(sys, layout, s.sets, 0, options.ode, false, false, options.track_auc),
-        out_(out) {
-    dvid_ = s.data->ExtraColumn("DVID");
+        prop_(*prop),
+        out_(out),
+        dvid_(s.data->ExtraColumn("DVID")) {
     if (!s.records().empty()) prop_.set_time(s.records()[0].time);
   }
 
@@ -71,7 +32,7 @@ class OdeRecorder {
   void SteadyState(const internal::SteadyStateCycle<double>& c, int set, bool add) { prop_.SteadyState(c, set, add); }
   void SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) { prop_.SteadyInfusion(u, set, add); }
   void DoseEntered(double time, int set) {
-    out_->doses.push_back({time, sys_.Observe(sys_.central_key(), prop_.state(), Theta(set)), prop_.auc()});
+    out_->doses.push_back({time, sys_.Observe(sys_.central_key(), Amounts(), Theta(set)), prop_.auc()});
   }
 
   void RecordDone(int r, int set) {
@@ -83,18 +44,20 @@ class OdeRecorder {
     row.record = r;
     row.time = rec.time;
     row.evid = rec.evid;
-    row.cp = sys_.Observe(sys_.central_key(), prop_.state(), theta);
-    row.pred = sys_.Observe(Key(r), prop_.state(), theta);
+    row.amounts = Amounts();
+    row.cp = sys_.Observe(sys_.central_key(), row.amounts, theta);
+    row.pred = sys_.Observe(Key(r), row.amounts, theta);
     row.auc = prop_.auc();
-    row.amounts = prop_.state();
     if (ode_) {
       row.outputs.resize(ode_->num_outputs());
-      for (int k = 0; k < ode_->num_outputs(); ++k) row.outputs(k) = ode_->OutputValue(k + 1, prop_.state(), theta);
+      for (int k = 0; k < ode_->num_outputs(); ++k) row.outputs(k) = ode_->OutputValue(k + 1, row.amounts, theta);
     }
     out_->rows.push_back(std::move(row));
   }
 
  private:
+  // The exact propagator's state carries the AUC after the amounts.
+  Eigen::VectorXd Amounts() const { return prop_.state().head(sys_.n()); }
   Eigen::VectorXd Theta(int set) const { return s_.sets[set].head(sys_.num_theta()); }
   // Nonlinear models: the DVID's output; linear models: the record's compartment.
   int Key(int r) const {
@@ -105,10 +68,18 @@ class OdeRecorder {
   const internal::OdeSystem& sys_;
   const internal::PreparedSubject& s_;
   const OdeModel* ode_;
-  internal::OdePropagator<double> prop_;
+  Propagator& prop_;
   SubjectSimulation* out_;
   int dvid_ = -1;
 };
+
+template <typename Propagator>
+void Run(const internal::OdeSystem& sys, const ParameterLayout& layout, const internal::PreparedSubject& s,
+         Propagator* prop, SubjectSimulation* out) {
+  Recorder<Propagator> recorder(sys, s, prop, out);
+  internal::EventEngine<double, Recorder<Propagator>> engine(s, layout, s.sets, &recorder);
+  engine.Run();
+}
 
 }  // namespace
 
@@ -126,15 +97,13 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
   SubjectSimulation out;
   out.id = data.subjects[subject].id;
   try {
+    const internal::OdeSystem sys(model);
     if (propagator == Propagator::kExact) {
-      Recorder recorder(*linear, s, options.track_auc, &out);
-      internal::EventEngine<double, Recorder> engine(s, layout, s.sets, &recorder);
-      engine.Run();
+      internal::ExactPropagator prop(*linear, s.sets, options.track_auc);
+      Run(sys, layout, s, &prop, &out);
     } else {
-      const internal::OdeSystem sys(model);
-      OdeRecorder recorder(sys, layout, s, options, &out);
-      internal::EventEngine<double, OdeRecorder> engine(s, layout, s.sets, &recorder);
-      engine.Run();
+      internal::OdePropagator<double> prop(sys, layout, s.sets, 0, options.ode, false, false, options.track_auc);
+      Run(sys, layout, s, &prop, &out);
     }
   } catch (const internal::NumericalFailure& e) {
     out.ok = false;

@@ -40,6 +40,8 @@ class ExactPropagator {
   /// Amounts (first n entries) and, with AUC tracking, the AUC last.
   const Eigen::VectorXd& state() const { return x_; }
   double auc() const { return track_auc_ ? x_(n_) : 0.0; }
+  /// Exact steps need no clock (the ODE propagator's interface has one).
+  void set_time(double) {}
 
  private:
   // Per parameter set: A (augmented with the AUC row, N = n + 1) and its steps.
