@@ -1,20 +1,15 @@
 // Every gradient route against central finite differences and against each
 // other, on every catalogue model × every event type.
-#include <sstream>
 
 #include <catch2/catch.hpp>
 
 #include "pk/catalogue.h"
 #include "pk/objective.h"
+#include "test_util.h"
 
 namespace {
 
-struct Scenario {
-  const char* name;
-  const char* doses;  // CSV rows (ID,TIME,AMT,RATE,II,ADDL,SS,EVID,DV) before the samples
-  std::vector<std::string> extra_free;  // dose modifiers to estimate, with their values
-  std::vector<double> extra_values;
-};
+using pk_test::Scenario;
 
 const std::vector<Scenario>& Scenarios() {
   static const std::vector<Scenario> s = {
@@ -37,14 +32,6 @@ const std::vector<Scenario>& Scenarios() {
   return s;
 }
 
-std::shared_ptr<pk::Dataset> MakeData(const Scenario& sc) {
-  std::ostringstream csv;
-  csv << "ID,TIME,AMT,RATE,II,ADDL,SS,EVID,DV\n" << sc.doses;
-  const double times[] = {0.25, 0.9, 1.7, 3.1, 5.3, 7.9, 11.2, 15.5, 23.6};
-  for (int k = 0; k < 9; ++k) csv << "1," << times[k] << ",0,0,0,0,0,0," << 0.5 + 0.4 * k * (k % 3) << "\n";
-  return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), sc.name));
-}
-
 double MaxAbs(const Eigen::VectorXd& v) { return v.cwiseAbs().maxCoeff(); }
 
 }  // namespace
@@ -58,7 +45,7 @@ TEST_CASE("gradient routes agree: forward, adjoint and finite differences", "[gr
     INFO(model_name << " / " << sc.name << " / " << pk::ToString(error_model));
     pk::ObjectiveOptions options;
     options.error_model = error_model;
-    const pk::Objective objective(model, MakeData(sc), 0, options);
+    const pk::Objective objective(model, pk_test::ScenarioData(sc), 0, options);
     Eigen::VectorXd values = objective.DefaultValues();
     std::vector<int> free;
     for (int i = 0; i < model->num_parameters(); ++i) {
@@ -106,7 +93,7 @@ TEST_CASE("gradient routes agree: forward, adjoint and finite differences", "[gr
 TEST_CASE("flip-flop (KA = CL/V): defective A falls back to block exponentials and stays exact", "[gradient]") {
   const auto model = pk::MakeModel("1cmt_oral");
   Scenario sc{"flip-flop", "1,0,100,0,8,2,0,1,.\n", {}, {}};
-  const pk::Objective objective(model, MakeData(sc), 0, pk::ObjectiveOptions());
+  const pk::Objective objective(model, pk_test::ScenarioData(sc), 0, pk::ObjectiveOptions());
   Eigen::VectorXd values = objective.DefaultValues();
   values(0) = 0.1;  // KA
   values(1) = 3.0;  // CL
@@ -137,7 +124,7 @@ TEST_CASE("companion route: tf1..tf4 agree with forward, adjoint and finite diff
   for (const Scenario& sc : Scenarios()) {
     if (!sc.extra_free.empty()) continue;  // the companion route differentiates a_i, b_i only
     INFO(model_name << " / " << sc.name);
-    const pk::Objective objective(model, MakeData(sc), 0, pk::ObjectiveOptions());
+    const pk::Objective objective(model, pk_test::ScenarioData(sc), 0, pk::ObjectiveOptions());
     Eigen::VectorXd values = objective.DefaultValues();
     std::vector<int> free;
     for (int i = 0; i < 2 * n; ++i) {
@@ -168,7 +155,7 @@ TEST_CASE("companion route: tf1..tf4 agree with forward, adjoint and finite diff
 TEST_CASE("companion route refuses what it cannot differentiate", "[gradient][companion]") {
   {
     const Scenario sc0{"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}};
-    const pk::Objective tf0(pk::MakeModel("tf2"), MakeData(sc0), 0, pk::ObjectiveOptions());
+    const pk::Objective tf0(pk::MakeModel("tf2"), pk_test::ScenarioData(sc0), 0, pk::ObjectiveOptions());
     Eigen::VectorXd v = tf0.DefaultValues();
     v(tf0.ParameterIndex("X0_1")) = 3;
     const auto ev0 = tf0.Evaluate(v, {0, 1}, pk::Objective::Need::kGradient, pk::GradientRoute::kCompanion);
@@ -176,12 +163,12 @@ TEST_CASE("companion route refuses what it cannot differentiate", "[gradient][co
     CHECK_THAT(ev0.message, Catch::Contains("zero initial state"));
   }
   const Scenario sc{"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}};
-  const pk::Objective compartmental(pk::MakeModel("2cmt_iv"), MakeData(sc), 0, pk::ObjectiveOptions());
+  const pk::Objective compartmental(pk::MakeModel("2cmt_iv"), pk_test::ScenarioData(sc), 0, pk::ObjectiveOptions());
   const auto ev = compartmental.Evaluate(compartmental.DefaultValues(), {0, 1}, pk::Objective::Need::kGradient,
                                          pk::GradientRoute::kCompanion);
   CHECK(!ev.ok);
   CHECK_THAT(ev.message, Catch::Contains("tf<n> models only"));
-  const pk::Objective tf(pk::MakeModel("tf2"), MakeData(sc), 0, pk::ObjectiveOptions());
+  const pk::Objective tf(pk::MakeModel("tf2"), pk_test::ScenarioData(sc), 0, pk::ObjectiveOptions());
   const auto lag = tf.Evaluate(tf.DefaultValues(), {0, tf.ParameterIndex("F1")}, pk::Objective::Need::kGradient,
                                pk::GradientRoute::kCompanion);
   CHECK(!lag.ok);

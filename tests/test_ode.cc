@@ -16,15 +16,11 @@
 #include "pk/objective.h"
 #include "pk/ode_model.h"
 #include "pk/simulate.h"
+#include "test_util.h"
 
 namespace {
 
-struct Scenario {
-  const char* name;
-  const char* doses;  // CSV rows (ID,TIME,AMT,RATE,II,ADDL,SS,EVID,DV) before the samples
-  std::vector<std::string> extra_free;
-  std::vector<double> extra_values;
-};
+using pk_test::Scenario;
 
 const std::vector<Scenario>& Scenarios() {
   static const std::vector<Scenario> s = {
@@ -45,26 +41,6 @@ const std::vector<Scenario>& Scenarios() {
       {"initial state", "1,0,100,0,6,2,0,1,.\n", {"X0_1"}, {30.0}},
   };
   return s;
-}
-
-// The scenario's dose rows merged by time with nine samples (doses first at equal times).
-std::shared_ptr<pk::Dataset> MakeData(const Scenario& sc) {
-  std::vector<std::pair<double, std::string>> rows;
-  std::istringstream doses(sc.doses);
-  for (std::string line; std::getline(doses, line);) {
-    rows.push_back({std::stod(line.substr(line.find(',') + 1)), line});
-  }
-  const double times[] = {0.25, 0.9, 1.7, 3.1, 5.3, 7.9, 11.2, 15.5, 23.6};
-  for (int k = 0; k < 9; ++k) {
-    std::ostringstream row;
-    row << "1," << times[k] << ",0,0,0,0,0,0," << 0.5 + 0.4 * k * (k % 3);
-    rows.push_back({times[k], row.str()});
-  }
-  std::stable_sort(rows.begin(), rows.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-  std::ostringstream csv;
-  csv << "ID,TIME,AMT,RATE,II,ADDL,SS,EVID,DV\n";
-  for (const auto& r : rows) csv << r.second << "\n";
-  return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), sc.name));
 }
 
 pk::ObjectiveOptions OdeOptions(pk::ErrorModel e = pk::ErrorModel::kLeastSquares) {
@@ -128,7 +104,7 @@ TEST_CASE("ODE propagator agrees with the exact propagator on every linear model
   const auto model = pk::MakeModel(name);
   for (const Scenario& sc : Scenarios()) {
     INFO(name << " / " << sc.name);
-    const auto data = MakeData(sc);
+    const auto data = pk_test::ScenarioData(sc);
     pk::ObjectiveOptions exact_options;
     exact_options.propagator = pk::Propagator::kExact;
     const pk::Objective exact(model, data, 0, exact_options);
@@ -155,7 +131,7 @@ TEST_CASE("ODE routes agree: forward sensitivities, adjoint and finite differenc
   for (const Scenario& sc : Scenarios()) {
     const auto error_model = GENERATE(pk::ErrorModel::kLeastSquares, pk::ErrorModel::kCombined);
     INFO(name << " / " << sc.name << " / " << pk::ToString(error_model));
-    const pk::Objective obj(model, MakeData(sc), 0, OdeOptions(error_model));
+    const pk::Objective obj(model, pk_test::ScenarioData(sc), 0, OdeOptions(error_model));
     Eigen::VectorXd values;
     std::vector<int> free;
     Setup(obj, sc, &values, &free);
