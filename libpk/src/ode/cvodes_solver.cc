@@ -102,6 +102,8 @@ struct CvodesSolver::Impl {
   int k = 0;
   bool with_loss = false;  // state carries the continuous loss as entry n, ∫∂L/∂t as entry n+1
   bool with_auc = false;   // state carries ∫ y_auc_key dt as its last entry
+  Eigen::VectorXd x_buf, f_buf;  // scratch of the right-hand sides
+  Eigen::MatrixXd s_buf, df_buf;
 
   // One CVODES instance per configuration: plain (with/without loss state),
   // forward sensitivities with k directions, and the adjoint.
@@ -198,11 +200,11 @@ struct CvodesSolver::Impl {
   static int Rhs(realtype t, N_Vector y, N_Vector ydot, void* data) {
     Impl& d = *static_cast<Impl*>(data);
     ++d.stats.rhs_evaluations;
-    const Eigen::VectorXd x = View(y).head(d.n);
-    Eigen::VectorXd f;
-    d.sys.Rhs(x, d.in->theta, &f);
+    Eigen::VectorXd& x = d.x_buf;  // reused: no allocation per call
+    x = View(y).head(d.n);
+    d.sys.Rhs(x, d.in->theta, &d.f_buf);
     Map out = View(ydot);
-    out.head(d.n) = f + d.in->u;
+    out.head(d.n) = d.f_buf + d.in->u;
     if (d.with_loss) {
       double lt = 0;
       out(d.n) = d.LossIntegrand(t, x, nullptr, &lt);
@@ -248,12 +250,13 @@ struct CvodesSolver::Impl {
   static int SensitivityRhs(int k, realtype t, N_Vector y, N_Vector, N_Vector* ys, N_Vector* ysdot, void* data,
                             N_Vector, N_Vector) {
     Impl& d = *static_cast<Impl*>(data);
-    const Eigen::VectorXd x = View(y).head(d.n);
-    Eigen::MatrixXd s(d.n, k);
+    Eigen::VectorXd& x = d.x_buf;
+    x = View(y).head(d.n);
+    Eigen::MatrixXd& s = d.s_buf;
+    s.resize(d.n, k);
     for (int i = 0; i < k; ++i) s.col(i) = View(ys[i]).head(d.n);
-    Eigen::VectorXd f;
-    Eigen::MatrixXd df;
-    d.sys.RhsDirectional(x, d.in->theta, s, d.in->dtheta, &f, &df);
+    Eigen::MatrixXd& df = d.df_buf;
+    d.sys.RhsDirectional(x, d.in->theta, s, d.in->dtheta, &d.f_buf, &df);
     if (d.in->du.cols() == k) df += d.in->du;
     Eigen::RowVectorXd dloss = Eigen::RowVectorXd::Zero(k);
     if (d.with_loss) {

@@ -72,11 +72,9 @@ struct TapeStep {
 template <typename T>
 class OdePropagator {
  public:
-  OdePropagator(const OdeSystem& sys, const ParameterLayout& layout, const std::vector<Vec<T>>& sets, int p,
-                const OdeOptions& options, bool sensitivities, bool tape, bool track_auc,
-                const ContinuousRecords* continuous = nullptr)
+  OdePropagator(const OdeSystem& sys, const std::vector<Vec<T>>& sets, int p, const OdeOptions& options,
+                bool sensitivities, bool tape, bool track_auc, const ContinuousRecords* continuous = nullptr)
       : sys_(sys),
-        layout_(layout),
         sets_(sets),
         p_(p),
         n_(sys.n()),
@@ -95,7 +93,7 @@ class OdePropagator {
 
   // ---- EventEngine visitor interface ----
   void Advance(const T& h, const Vec<T>& u, int set) {
-    SegmentInput seg = MakeSegment(h, u, set, p_);
+    SegmentInput seg = MakeSegment(h, u, set);
     const ContinuousRecords* cont = continuous_;
     const bool auc = track_auc_;
     if (cont) seg.continuous = cont->Terms(t_, seg.h);
@@ -178,7 +176,7 @@ class OdePropagator {
       }
     }
     CheckPhysical(x, "the constant infusion");
-    const SegmentInput seg = MakeSegment(T(0.0), u, set, p_);
+    const SegmentInput seg = MakeSegment(T(0.0), u, set);
     Eigen::VectorXd f;
     Eigen::MatrixXd forcing;
     sys_.RhsDirectional(x, theta, Eigen::MatrixXd::Zero(n_, p_), seg.dtheta, &f, &forcing);
@@ -268,7 +266,6 @@ class OdePropagator {
     tape_.push_back(std::move(step));
   }
   CvodesSolver& solver() { return solver_; }
-  const OdeSystem& system() const { return sys_; }
   /// θ and ∂θ/∂p of a parameter set.
   void Theta(int set, Eigen::VectorXd* theta, Eigen::MatrixXd* dtheta) const {
     const Vec<T> th = sets_[set].head(sys_.num_theta());
@@ -284,13 +281,12 @@ class OdePropagator {
   }
 
  private:
-  SegmentInput MakeSegment(const T& h, const Vec<T>& u, int set, int k) const {
+  SegmentInput MakeSegment(const T& h, const Vec<T>& u, int set) const {
     SegmentInput seg;
     seg.h = Value(h);
     seg.u = Values(u);
-    seg.du = DerivativeMatrix(u, k);
+    seg.du = DerivativeMatrix(u, p_);
     Theta(set, &seg.theta, &seg.dtheta);
-    if (k != p_) seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), k);
     return seg;
   }
 
@@ -336,7 +332,7 @@ class OdePropagator {
   // directions, or no columns at all for values only.
   void AdvanceAux(const T& h, const Vec<T>& u, int set, int offset, Eigen::VectorXd* x, Eigen::MatrixXd* s,
                   std::vector<TapeStep>* steps) {
-    const SegmentInput seg_p = MakeSegment(h, u, set, p_);
+    const SegmentInput seg_p = MakeSegment(h, u, set);
     TapeStep step;
     if (steps) step.x0 = *x;
     const Eigen::RowVectorXd dh = Derivatives(h, p_).transpose();
@@ -372,7 +368,6 @@ class OdePropagator {
   }
 
   const OdeSystem& sys_;
-  const ParameterLayout& layout_;
   const std::vector<Vec<T>>& sets_;
   const int p_;
   const int n_;
