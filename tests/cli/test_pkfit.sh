@@ -91,6 +91,11 @@ grep -q "nonlinear" "$work/exact.err" || fail "no clear message for --propagator
 [ "$(awk -F, 'NR>1 && $5==1 && $9=="ode"' "$work/mm/summary.csv" | wc -l)" -eq 6 ] ||
   fail "all 6 MM fits should converge with the ode propagator"
 grep -q "propagator ode, gradient forward" "$work/mm.txt" || fail "pkfit does not report the ODE propagator and route"
+# BFGS on the adjoint: the summary names that route, and the forward one that the SEs needed.
+"$pkfit" --model 1cmt_iv_mm --data "$root/datasets/mm_synthetic.csv" --subject 1 --optimizer bfgs --gradient adjoint \
+  -o "$work/mm_bfgs" -q || fail "1cmt_iv_mm with bfgs and the adjoint failed"
+grep -q "^1,.*,adjoint (SE: forward),bfgs,.*,ode$" "$work/mm_bfgs/summary.csv" ||
+  fail "summary does not report the adjoint route and the SE route"
 # A linear model through CVODES reaches the exact propagator's objective.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --propagator ode --rtol 1e-10 \
   --atol 1e-12 -o "$work/theo_ode" -q || fail "1cmt_oral with --propagator ode failed"
