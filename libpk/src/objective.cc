@@ -137,8 +137,8 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
   d.ode.sample_of_record.assign(records.size(), -1);
   for (size_t ri = 0; ri < records.size(); ++ri) {
     const Record& r = records[ri];
-    if (ode_model) d.ode.key_of_record[ri] = internal::OutputOfRecord(*ode_model, *d.data, r, dvid_col);
-    if (!ode_model) d.ode.key_of_record[ri] = d.prepared.cmt[ri] + 1;
+    d.ode.key_of_record[ri] = ode_model ? internal::OutputOfRecord(*ode_model, *d.data, r, dvid_col)
+                                        : d.prepared.cmt[ri] + 1;
     if (!r.IsSample()) continue;
     const bool continuous = cont_col >= 0 && r.extra[cont_col] == 1;
     if (continuous && d.propagator != Propagator::kOde) {

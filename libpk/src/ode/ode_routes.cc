@@ -1,5 +1,7 @@
 #include "ode_routes.h"
 
+#include <algorithm>
+
 #include <Eigen/Dense>
 
 namespace pk {
@@ -9,17 +11,18 @@ std::vector<ContinuousTerm> ContinuousRecords::Terms(double t0, double h) const 
   std::vector<ContinuousTerm> terms;
   const double mid = t0 + 0.5 * h;
   for (const Series& s : series) {
-    for (size_t i = 0; i + 1 < s.t.size(); ++i) {
-      if (!(s.t[i] <= mid && mid < s.t[i + 1])) continue;
-      const double span = s.t[i + 1] - s.t[i];
-      ContinuousTerm c;
-      c.key = s.key;
-      c.ym_slope = (s.y[i + 1] - s.y[i]) / span;
-      c.ym0 = s.y[i] + c.ym_slope * (t0 - s.t[i]);
-      c.w_slope = (s.w[i + 1] - s.w[i]) / span;
-      c.w0 = s.w[i] + c.w_slope * (t0 - s.t[i]);
-      terms.push_back(c);
-    }
+    // The record interval [t_i, t_{i+1}) holding the segment (segments never straddle a record).
+    const size_t i = static_cast<size_t>(std::upper_bound(s.t.begin(), s.t.end(), mid) - s.t.begin());
+    if (i == 0 || i == s.t.size()) continue;
+    const size_t a = i - 1;
+    const double span = s.t[i] - s.t[a];
+    ContinuousTerm c;
+    c.key = s.key;
+    c.ym_slope = (s.y[i] - s.y[a]) / span;
+    c.ym0 = s.y[a] + c.ym_slope * (t0 - s.t[a]);
+    c.w_slope = (s.w[i] - s.w[a]) / span;
+    c.w0 = s.w[a] + c.w_slope * (t0 - s.t[a]);
+    terms.push_back(c);
   }
   return terms;
 }
