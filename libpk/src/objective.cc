@@ -3,12 +3,14 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <mutex>
 
 #include "autodiff.h"
 #include "events.h"
 #include "exact/exact_propagator.h"
 #include "exact/companion_route.h"
 #include "exact/exact_routes.h"
+#include "exact/modal.h"
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
@@ -92,6 +94,49 @@ struct Objective::Impl {
       : model(std::move(m)), data(std::move(d)), subject(subj), options(o), layout(*model) {}
 
   int L() const { return layout.size(); }
+  // The event schedule for the modal path, recorded for the dose-modifier values it was last asked for.
+  mutable std::mutex schedule_mutex;
+  mutable std::shared_ptr<const internal::EventSchedule> schedule;
+
+  std::shared_ptr<const internal::EventSchedule> Schedule(const Eigen::VectorXd& values) const {
+    const int m = model->num_parameters();
+    const Eigen::VectorXd key = values.segment(m, L() - m);
+    {
+      std::lock_guard<std::mutex> lock(schedule_mutex);
+      // Unused modifiers are NaN: NaN matches NaN.
+      if (schedule && schedule->key.size() == key.size() &&
+          std::equal(key.data(), key.data() + key.size(), schedule->key.data(),
+                     [](double a, double b) { return a == b || (std::isnan(a) && std::isnan(b)); })) {
+        return schedule;
+      }
+    }
+    internal::PreparedSubject s = prepared;
+    internal::RebindParameters(layout, values.head(L()), &s);
+    auto made = std::make_shared<internal::EventSchedule>(internal::RecordSchedule(layout, s, m));
+    made->key = key;
+    std::lock_guard<std::mutex> lock(schedule_mutex);
+    schedule = made;
+    return made;
+  }
+
+  // The modal evaluator at `values` (null when some set's A is unsuitable; see exact/modal.h).
+  std::unique_ptr<internal::ModalEvaluator> Modal(const internal::EventSchedule& sched, const Eigen::VectorXd& values,
+                                                  const std::vector<int>& model_free) const {
+    const int m = model->num_parameters();
+    std::vector<Eigen::VectorXd> theta(prepared.sets.size());
+    std::vector<std::vector<std::pair<int, int>>> free(prepared.sets.size());
+    for (size_t k = 0; k < theta.size(); ++k) {
+      theta[k] = values.head(m);
+      for (int i = 0; i < m; ++i) {
+        if (prepared.from_data[k][i]) theta[k](i) = prepared.sets[k](i);
+      }
+      for (size_t a = 0; a < model_free.size(); ++a) {
+        if (!prepared.from_data[k][model_free[a]]) free[k].emplace_back(model_free[a], static_cast<int>(a));
+      }
+    }
+    return internal::MakeModalEvaluator(*linear, sched, theta, free, static_cast<int>(model_free.size()));
+  }
+
   double FdStep() const {
     if (options.fd_relative_step > 0) return options.fd_relative_step;
     return propagator == Propagator::kOde ? std::cbrt(options.ode.relative_tolerance) : 1e-5;
@@ -289,10 +334,10 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     return ev;
   }
 
-  internal::PreparedSubject s = d.prepared;
   Eigen::VectorXd yhat;
   Eigen::MatrixXd jm;  // N × pm, ∂ŷ/∂(free model parameters)
   std::unique_ptr<internal::DiscreteAdjoint> adjoint;
+  std::unique_ptr<internal::ModalEvaluator> modal;  // route (b) in eigen-coordinates
   std::unique_ptr<internal::OdeAdjoint> ode_adjoint;
   double cont_loss = 0;                                    // ½∫ w (y − y_m)² of the continuous records
   Eigen::RowVectorXd cont_grad = Eigen::RowVectorXd::Zero(pm);
@@ -307,8 +352,38 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       internal::Predict(*d.linear, d.layout, sv, y);
     }
   };
+  // Dose modifiers move event times and amounts; model parameters do not.
+  bool events_depend = false;
+  for (int i : model_free) events_depend = events_depend || i >= d.model->num_parameters();
+  const bool modal_route =
+      route == GradientRoute::kAuto || route == GradientRoute::kForward || route == GradientRoute::kAdjoint;
+  bool done = false;
+  if (!ode && d.linear && d.options.modal_propagation && !events_depend && modal_route &&
+      values.head(d.model->num_parameters()).allFinite()) {
+    try {
+      const auto sched = d.Schedule(values);
+      std::unique_ptr<internal::ModalEvaluator> ev_modal = d.Modal(*sched, values, model_free);
+      if (ev_modal) {
+        if (route == GradientRoute::kForward && pm > 0) {
+          ev_modal->Jacobian(&yhat, &jm);
+        } else if (route == GradientRoute::kAdjoint && pm > 0) {
+          ev_modal->AdjointForward(&yhat);
+          modal = std::move(ev_modal);
+        } else {
+          ev_modal->Predict(&yhat);
+          jm = Eigen::MatrixXd::Zero(N, pm);
+        }
+        done = true;
+      }
+    } catch (const internal::NumericalFailure& e) {
+      ev.ok = false;
+      ev.message = e.what();
+      return ev;
+    }
+  }
+  internal::PreparedSubject s = d.prepared;
   try {
-    internal::RebindParameters(d.layout, values.head(L), &s);
+    if (!done) internal::RebindParameters(d.layout, values.head(L), &s);
     auto dual_sets = [&]() {
       std::vector<internal::DualVector> sets(s.sets.size());
       for (size_t k = 0; k < s.sets.size(); ++k) {
@@ -320,10 +395,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       }
       return sets;
     };
-    // Dose modifiers move event times and amounts; model parameters do not.
-    bool events_depend = false;
-    for (int i : model_free) events_depend = events_depend || i >= d.model->num_parameters();
-    if (route == GradientRoute::kCompanion) {
+    if (done) {
+    } else if (route == GradientRoute::kCompanion) {
       // Only the transfer function's coefficients (layout entries 0..2n−1).
       const int order = d.linear == nullptr || ode ? 0 : d.linear->transfer_function_order();
       if (order == 0) {
@@ -440,6 +513,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::VectorXd gm = Eigen::VectorXd::Zero(pm);
   if (adjoint) {
     gm = adjoint->Gradient(dl_dy);
+  } else if (modal) {
+    gm = modal->AdjointGradient(dl_dy);
   } else if (ode_adjoint) {
     try {
       gm = ode_adjoint->Gradient(dl_dy);  // includes the continuous records' term

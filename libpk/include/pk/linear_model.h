@@ -66,6 +66,18 @@ class LinearModel final : public Model {
                                                       int transfer_function_order = 0);
 
   const std::vector<LinearTerm>& system_terms() const { return a_terms_; }
+  /// The terms of the output row C_c(θ) of compartment `cmt` (1-based).
+  const std::vector<LinearTerm>& output_terms(int cmt) const { return c_terms_[cmt - 1]; }
+
+  /// The value of one term, sign · θ[numerator] / θ[denominator], for any
+  /// scalar type; `theta(i)` gives θ_i as that type.
+  template <typename T, typename Theta>
+  static T TermValue(const LinearTerm& t, const Theta& theta) {
+    T v(t.sign);
+    if (t.numerator >= 0) v = v * theta(t.numerator);
+    if (t.denominator >= 0) v = v / theta(t.denominator);
+    return v;
+  }
   /// n for the companion-form transfer-function models tf<n>, else 0.
   int transfer_function_order() const { return tf_order_; }
 
@@ -76,7 +88,7 @@ class LinearModel final : public Model {
     const int n = num_compartments();
     Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> a =
         Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>::Zero(n, n);
-    for (const LinearTerm& t : a_terms_) a(t.row, t.col) += TermValue(t, theta);
+    for (const LinearTerm& t : a_terms_) a(t.row, t.col) += TermValue<T>(t, theta);
     return a;
   }
 
@@ -87,7 +99,7 @@ class LinearModel final : public Model {
   T ContractSystemMatrix(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta, const Eigen::MatrixXd& g) const {
     T sum(0.0);
     for (const LinearTerm& t : a_terms_) {
-      if (g(t.row, t.col) != 0) sum += TermValue(t, theta) * g(t.row, t.col);
+      if (g(t.row, t.col) != 0) sum += TermValue<T>(t, theta) * g(t.row, t.col);
     }
     return sum;
   }
@@ -100,7 +112,7 @@ class LinearModel final : public Model {
                                                 const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
     Eigen::Matrix<T, 1, Eigen::Dynamic> c =
         Eigen::Matrix<T, 1, Eigen::Dynamic>::Zero(num_compartments());
-    for (const LinearTerm& t : c_terms_[cmt - 1]) c(t.col) += TermValue(t, theta);
+    for (const LinearTerm& t : c_terms_[cmt - 1]) c(t.col) += TermValue<T>(t, theta);
     return c;
   }
 
@@ -109,14 +121,6 @@ class LinearModel final : public Model {
   LinearModel(std::string name, std::string description, std::vector<std::string> compartments,
               std::vector<std::string> parameters, Eigen::VectorXd defaults, int central, int default_dose,
               std::vector<LinearTerm> a_terms, std::vector<std::vector<LinearTerm>> c_terms, int tf_order);
-
-  template <typename T>
-  static T TermValue(const LinearTerm& t, const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) {
-    T v(t.sign);
-    if (t.numerator >= 0) v = v * theta(t.numerator);
-    if (t.denominator >= 0) v = v / theta(t.denominator);
-    return v;
-  }
 
   std::vector<LinearTerm> a_terms_;
   std::vector<std::vector<LinearTerm>> c_terms_;

@@ -66,6 +66,12 @@ struct ObjectiveOptions {
   double fd_relative_step = 0;
   Propagator propagator = Propagator::kAuto;  ///< exact (Φ/Γ, linear models) or ode (CVODES)
   OdeOptions ode;                             ///< tolerances etc. of the ODE propagator
+  /// Linear models, exact propagator: evaluate the loss and its derivatives in
+  /// eigen-coordinates (Φ = V e^{Λh} V⁻¹) when A(θ) has real eigenvalues and a
+  /// well-conditioned eigenbasis, which costs n scalar exponentials per step
+  /// instead of a matrix exponential. Otherwise, or when false, the Padé
+  /// exponentials are used. Both are exact; they agree to rounding (docs/gradients.md).
+  bool modal_propagation = true;
 
   bool IsValid(std::string* error) const;
 };

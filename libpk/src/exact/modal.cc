@@ -1,0 +1,656 @@
+#include "modal.h"
+
+#include <cmath>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/Jacobi>
+#include <Eigen/LU>
+#include <unsupported/Eigen/AutoDiff>
+
+#include "exact_routes.h"
+#include "numerical_failure.h"
+
+namespace pk {
+namespace internal {
+
+// ---------------------------------------------------------------------------
+// Recording the schedule.
+
+namespace {
+
+class ScheduleRecorder {
+ public:
+  ScheduleRecorder(const PreparedSubject& s, EventSchedule* out) : s_(s), out_(*out) {
+    sample_ = SampleIndex(s, &out_.num_samples);
+  }
+  void Advance(double h, const Eigen::VectorXd& u, int set) { Push(ScheduleOp::kAdvance, set, Intern(u)).value = h; }
+  void Bolus(int cmt, double amount, int set) {
+    ScheduleOp& op = Push(ScheduleOp::kBolus, set, -1);
+    op.cmt = cmt;
+    op.value = amount;
+  }
+  void Reset() { Push(ScheduleOp::kReset, last_set_, -1); }
+  void SteadyState(const SteadyStateCycle<double>& c, int set, bool add) {
+    ScheduleCycle cycle;
+    cycle.cmt = c.cmt;
+    cycle.bolus = c.bolus;
+    for (const Segment<double>& seg : c.period) cycle.period.emplace_back(seg.duration, Intern(seg.rate));
+    for (const Segment<double>& seg : c.to_record) cycle.to_record.emplace_back(seg.duration, Intern(seg.rate));
+    out_.cycles.push_back(std::move(cycle));
+    Push(ScheduleOp::kSteadyState, set, static_cast<int>(out_.cycles.size()) - 1).add = add;
+  }
+  void SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) {
+    Push(ScheduleOp::kSteadyInfusion, set, Intern(u)).add = add;
+  }
+  void DoseEntered(double, int) {}
+  void RecordDone(int r, int set) {
+    if (sample_[r] < 0) return;
+    Push(ScheduleOp::kSample, set, sample_[r]).cmt = s_.cmt[r] + 1;
+  }
+
+ private:
+  int Intern(const Eigen::VectorXd& u) {
+    if (u.isZero(0.0)) return -1;
+    for (size_t i = 0; i < out_.inputs.size(); ++i) {
+      if (out_.inputs[i] == u) return static_cast<int>(i);
+    }
+    out_.inputs.push_back(u);
+    return static_cast<int>(out_.inputs.size()) - 1;
+  }
+  ScheduleOp& Push(ScheduleOp::Kind kind, int set, int index) {
+    ScheduleOp op;
+    op.kind = kind;
+    op.set = set;
+    op.index = index;
+    last_set_ = set;
+    out_.ops.push_back(op);
+    return out_.ops.back();
+  }
+
+  const PreparedSubject& s_;
+  EventSchedule& out_;
+  std::vector<int> sample_;
+  int last_set_ = 0;
+};
+
+// sinh(d)/d, accurate near 0.
+double Sinhc(double d) {
+  if (std::fabs(d) < 1e-3) return 1 + d * d / 6 * (1 + d * d / 20);
+  return std::sinh(d) / d;
+}
+
+}  // namespace
+
+EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubject& subject,
+                             int num_model_parameters) {
+  EventSchedule out;
+  out.num_sets = static_cast<int>(subject.sets.size());
+  ScheduleRecorder recorder(subject, &out);
+  EventEngine<double, ScheduleRecorder> engine(subject, layout, subject.sets, &recorder);
+  engine.Run();
+  const int tail = layout.size() - num_model_parameters;
+  out.key = subject.sets.empty() ? Eigen::VectorXd() : Eigen::VectorXd(subject.sets[0].tail(tail));
+  return out;
+}
+
+// ---------------------------------------------------------------------------
+// Divided differences of f(λ) = e^{λh}.
+
+double DividedExp2(double a, double b, double ea, double eb, double h) {
+  const double d = a - b;
+  // Differences lose about ε/|dh| relative: below |dh| = 0.1 the sinh form is exact to rounding.
+  if (std::fabs(d) * h >= 0.1) return (ea - eb) / d;
+  return h * std::sqrt(ea) * std::sqrt(eb) * Sinhc(0.5 * d * h);
+}
+
+double DividedExp3(double a, double b, double ea, double eb, double h) {
+  const double sab = std::fabs(a - b), sa = std::fabs(a), sb = std::fabs(b);
+  const double smax = std::max(sab, std::max(sa, sb));
+  if (smax * h >= 0.1) {
+    // Recurrence on the two points farthest apart: f[x, y, z] = (f[x, z] − f[y, z]) / (x − y).
+    if (sab == smax) return (DividedExp2(a, 0, ea, 1, h) - DividedExp2(b, 0, eb, 1, h)) / (a - b);
+    const double fab = DividedExp2(a, b, ea, eb, h);
+    if (sa == smax) return (fab - DividedExp2(b, 0, eb, 1, h)) / a;
+    return (fab - DividedExp2(a, 0, ea, 1, h)) / b;
+  }
+  // All three points within 0.1/h: Taylor series about their centroid c,
+  // f[a, b, 0] = e^{ch} h² Σ_k h_k(α, β, γ)/(k+2)!, with α = (a − c)h, β = (b − c)h,
+  // γ = −ch and h_k the complete homogeneous symmetric polynomials.
+  const double c = (a + b) / 3, al = (a - c) * h, be = (b - c) * h, ga = -c * h;
+  // |α|, |β|, |γ| ≤ 0.1 bound the k-th term by C(k+2, 2) 0.1^k/(k+2)!, below 1e-20 at k = 12.
+  // (h_1 = α + β + γ vanishes by the choice of c, so the terms are not monotone.)
+  double p1 = 1, p2 = 1, p3 = 1, fact = 2, sum = 0.5;
+  for (int k = 1; k <= 12; ++k) {
+    p1 *= al;
+    p2 = p1 + be * p2;
+    p3 = p2 + ga * p3;
+    fact *= k + 2;
+    sum += p3 / fact;
+  }
+  return std::exp(c * h) * h * h * sum;
+}
+
+// ---------------------------------------------------------------------------
+// The evaluator.
+
+namespace {
+
+using Ad1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+
+// ∂(term)/∂θ_j by automatic differentiation of the term.
+double TermPartial(const LinearTerm& t, const std::vector<double>& theta, int j) {
+  const auto seeded = [&](int i) { return Ad1(theta[i], Eigen::Matrix<double, 1, 1>::Constant(i == j ? 1.0 : 0.0)); };
+  return LinearModel::TermValue<Ad1>(t, seeded).derivatives()(0);
+}
+
+template <int MaxN>
+class Modal final : public ModalEvaluator {
+ public:
+  using Mat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, MaxN, MaxN>;
+  using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, MaxN, 1>;
+
+  Modal(const LinearModel& model, const EventSchedule& schedule, int num_free)
+      : model_(model), sched_(schedule), n_(model.num_compartments()), p_(num_free) {}
+
+  // Builds every set's decomposition; false when one is unsuitable.
+  bool Setup(const std::vector<Eigen::VectorXd>& theta, const std::vector<std::vector<std::pair<int, int>>>& free) {
+    sets_.resize(theta.size());
+    for (size_t k = 0; k < theta.size(); ++k) {
+      Set& s = sets_[k];
+      if (!theta[k].allFinite()) return false;
+      s.theta.assign(theta[k].data(), theta[k].data() + theta[k].size());
+      s.active = free[k];
+      Mat a = Mat::Zero(n_, n_);
+      const auto value = [&](int i) { return s.theta[i]; };
+      for (const LinearTerm& t : model_.system_terms()) a(t.row, t.col) += LinearModel::TermValue<double>(t, value);
+      if (!a.allFinite() || !Decompose(a, &s)) return false;
+      for (size_t act = 0; act < s.active.size(); ++act) {
+        for (const LinearTerm& t : model_.system_terms()) {
+          if (t.numerator != s.active[act].first && t.denominator != s.active[act].first) continue;
+          s.da.push_back({t.row, t.col, static_cast<int>(act), TermPartial(t, s.theta, s.active[act].first)});
+        }
+      }
+      s.uhat.resize(sched_.inputs.size());
+    }
+    return true;
+  }
+
+  void Predict(Eigen::VectorXd* yhat) override {
+    yhat->setZero(sched_.num_samples);
+    Run(yhat, nullptr, nullptr);
+  }
+
+  void Jacobian(Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) override {
+    yhat->setZero(sched_.num_samples);
+    jacobian->setZero(sched_.num_samples, p_);
+    for (Set& s : sets_) {
+      if (!s.ahat.empty() || s.active.empty()) continue;
+      // Â_j = V⁻¹ (∂A/∂θ_j) V, one rank-one term per entry of ∂A/∂θ_j.
+      s.ahat.assign(s.active.size(), Mat::Zero(n_, n_));
+      for (const DTerm& d : s.da) s.ahat[d.act].noalias() += d.d * s.w.col(d.row) * s.v.row(d.col);
+    }
+    Run(yhat, jacobian, nullptr);
+  }
+
+  void AdjointForward(Eigen::VectorXd* yhat) override {
+    yhat->setZero(sched_.num_samples);
+    tape_.clear();
+    Run(yhat, nullptr, &tape_);
+  }
+
+  Eigen::VectorXd AdjointGradient(const Eigen::VectorXd& dl_dy) override {
+    for (Set& s : sets_) {
+      s.z = Mat::Zero(n_, n_);
+      for (Output& o : s.outputs) o.xacc = Vec::Zero(n_);
+    }
+    size_t cursor = tape_.size();
+    const auto pop = [&](Vec* v) {
+      cursor -= n_;
+      *v = Eigen::Map<const Eigen::VectorXd>(tape_.data() + cursor, n_);
+    };
+    Vec mu = Vec::Zero(n_), z(n_), e(n_);
+    const std::vector<ScheduleOp>& ops = sched_.ops;
+    // Back through one step z⁺ = e ∘ z + g ∘ û: Z += D_f ∘ (μ̂ zᵀ) + D_g ∘ (μ̂ ûᵀ), then μ̂ ← e ∘ μ̂.
+    const auto back_step = [&](Set& s, double h, int input, Vec* m) {
+      pop(&e);
+      pop(&z);
+      for (int i = 0; i < n_; ++i) {
+        if ((*m)(i) == 0) continue;
+        for (int k = 0; k < n_; ++k) {
+          s.z(i, k) += (*m)(i) * DividedF(s, i, k, e, h) * z(k);
+          if (input >= 0) s.z(i, k) += (*m)(i) * DividedExp3(s.lambda(i), s.lambda(k), e(i), e(k), h) * Uhat(s, input)(k);
+        }
+      }
+      *m = m->cwiseProduct(e);
+    };
+    for (int i = static_cast<int>(ops.size()) - 1; i >= 0; --i) {
+      const ScheduleOp& op = ops[i];
+      Set& s = sets_[op.set];
+      switch (op.kind) {
+        case ScheduleOp::kSample: {
+          pop(&z);
+          const double g = dl_dy(op.index);
+          if (g == 0) break;
+          Output& o = GetOutput(s, op.cmt);
+          mu += g * o.chat;
+          o.xacc += g * z;
+          break;
+        }
+        case ScheduleOp::kAdvance:
+          back_step(s, op.value, op.index, &mu);
+          break;
+        case ScheduleOp::kBolus:
+          break;
+        case ScheduleOp::kReset:
+          mu.setZero();
+          break;
+        case ScheduleOp::kSteadyInfusion: {
+          // z = −Λ⁻¹û: μᵀ ∂z/∂θ_j = ⟨−(μ̂/λ) ẑᵀ, Â_j⟩.
+          const Vec zs = -Uhat(s, op.index).cwiseQuotient(s.lambda);
+          s.z.noalias() -= mu.cwiseQuotient(s.lambda) * zs.transpose();
+          if (!op.add) mu.setZero();
+          break;
+        }
+        case ScheduleOp::kSteadyState: {
+          const ScheduleCycle& cycle = sched_.cycles[op.index];
+          Vec m(n_);
+          pop(&m);
+          Vec rho = mu;
+          for (auto it = cycle.to_record.rbegin(); it != cycle.to_record.rend(); ++it) {
+            back_step(s, it->first, it->second, &rho);
+          }
+          // Implicit function theorem on z* = m ∘ z* + r: ρ̂ = μ̂ / (1 − m), then back through one period.
+          rho = rho.cwiseQuotient((Vec::Ones(n_) - m));
+          for (auto it = cycle.period.rbegin(); it != cycle.period.rend(); ++it) {
+            back_step(s, it->first, it->second, &rho);
+          }
+          if (!op.add) mu.setZero();
+          break;
+        }
+      }
+      // The forward pass changed coordinates before op i: z_i = W_i V_{i−1} z_{i−1}.
+      if (i > 0 && ops[i - 1].set != op.set) {
+        mu = sets_[ops[i - 1].set].v.transpose() * (s.w.transpose() * mu);
+      }
+    }
+    // ⟨V⁻ᵀ Z Vᵀ, ∂A/∂θ_j⟩ and the output rows' ∂c/∂θ_j · x.
+    Eigen::VectorXd grad = Eigen::VectorXd::Zero(p_);
+    for (Set& s : sets_) {
+      if (!s.z.isZero(0.0)) {
+        const Mat g = s.w.transpose() * s.z * s.v.transpose();
+        for (const DTerm& d : s.da) grad(s.active[d.act].second) += g(d.row, d.col) * d.d;
+      }
+      for (Output& o : s.outputs) {
+        if (o.dc.empty() || o.xacc.isZero(0.0)) continue;
+        const Vec x = s.v * o.xacc;
+        for (const DTerm& d : o.dc) grad(s.active[d.act].second) += d.d * x(d.col);
+      }
+    }
+    return grad;
+  }
+
+ private:
+  struct DTerm {
+    int row, col, act;
+    double d;
+  };
+  struct Output {
+    int cmt;
+    Vec chat;               // (C V)ᵀ
+    std::vector<DTerm> dc;  // ∂C/∂θ_j entries (row unused)
+    Vec xacc;               // Σ ∂ℓ/∂ŷ_k z_k, for the ∂C terms
+  };
+  struct Set {
+    std::vector<double> theta;
+    std::vector<std::pair<int, int>> active;
+    Vec lambda;
+    Mat v, w;
+    std::vector<DTerm> da;
+    std::vector<Output> outputs;
+    std::vector<Vec> uhat;
+    std::vector<Mat> ahat;
+    Mat z;
+  };
+
+  // Eigendecomposition by compartment structure (see the header).
+  bool Decompose(const Mat& a, Set* s) const {
+    const int n = n_;
+    Eigen::Matrix<int, Eigen::Dynamic, 1, 0, MaxN, 1> src(n), rest(n);
+    int ns = 0, nr = 0;
+    for (int i = 0; i < n; ++i) {
+      bool source = true;
+      for (int k = 0; k < n && source; ++k) source = k == i || a(i, k) == 0;
+      if (source) {
+        src(ns++) = i;
+      } else {
+        rest(nr++) = i;
+      }
+    }
+    Mat arr(nr, nr);
+    for (int i = 0; i < nr; ++i) {
+      for (int k = 0; k < nr; ++k) arr(i, k) = a(rest(i), rest(k));
+    }
+    Vec lr(nr), t;
+    Mat vr(nr, nr), wr(nr, nr);
+    if (nr > 0) {
+      if (Symmetrizing(arr, &t)) {
+        Mat sym = t.cwiseInverse().asDiagonal() * arr * t.asDiagonal();
+        sym = 0.5 * (sym + sym.transpose()).eval();
+        Mat q;
+        if (nr <= 4) {
+          Jacobi(sym, &lr, &q);
+        } else {
+          const Eigen::SelfAdjointEigenSolver<Mat> es(sym);
+          if (es.info() != Eigen::Success) return false;
+          lr = es.eigenvalues();
+          q = es.eigenvectors();
+        }
+        vr = t.asDiagonal() * q;
+        wr = q.transpose() * t.cwiseInverse().asDiagonal();
+      } else {
+        const Eigen::EigenSolver<Mat> es(arr);
+        if (es.info() != Eigen::Success) return false;
+        const double scale = std::max(arr.cwiseAbs().maxCoeff(), 1e-300);
+        if (es.eigenvalues().imag().cwiseAbs().maxCoeff() > 1e-12 * scale) return false;
+        lr = es.eigenvalues().real();
+        vr = es.eigenvectors().real();
+        const Eigen::PartialPivLU<Mat> lu(vr);
+        wr = lu.inverse();
+      }
+    }
+    s->lambda.resize(n);
+    s->v = Mat::Zero(n, n);
+    s->w = Mat::Zero(n, n);
+    for (int r = 0; r < nr; ++r) {
+      s->lambda(ns + r) = lr(r);
+      for (int i = 0; i < nr; ++i) {
+        s->v(rest(i), ns + r) = vr(i, r);
+        s->w(ns + r, rest(i)) = wr(r, i);
+      }
+    }
+    // A depot's mode: (A_RR − λ_s) x = −a_Rs, x = −V_R c with c = (λ_R − λ_s)⁻¹ W_R a_Rs,
+    // and V⁻¹ = [[I, 0], [−W_R X, W_R]] puts c in the depot's column.
+    for (int q = 0; q < ns; ++q) {
+      const int sq = src(q);
+      const double ls = a(sq, sq);
+      s->lambda(q) = ls;
+      s->v(sq, q) = 1;
+      s->w(q, sq) = 1;
+      if (nr == 0) continue;
+      Vec ars(nr);
+      for (int i = 0; i < nr; ++i) ars(i) = a(rest(i), sq);
+      if (ars.isZero(0.0)) continue;
+      Vec c = wr * ars;
+      for (int r = 0; r < nr; ++r) {
+        if (lr(r) == ls) return false;
+        c(r) /= lr(r) - ls;
+      }
+      const Vec x = -(vr * c);
+      for (int i = 0; i < nr; ++i) s->v(rest(i), q) = x(i);
+      for (int r = 0; r < nr; ++r) s->w(ns + r, sq) = c(r);
+    }
+    // Derivatives carry errors of about κ²ε; κ ≤ 1e3 keeps them near 1e-10 (as discretization.h).
+    const double kappa = s->v.cwiseAbs().colwise().sum().maxCoeff() * s->w.cwiseAbs().colwise().sum().maxCoeff();
+    return kappa <= 1e3 && s->w.allFinite() && s->lambda.allFinite();
+  }
+
+  // A diagonal T with T⁻¹AT symmetric (reversible exchange), found along the graph's edges.
+  static bool Symmetrizing(const Mat& a, Vec* t) {
+    const int n = static_cast<int>(a.rows());
+    *t = Vec::Zero(n);
+    for (int root = 0; root < n; ++root) {
+      if ((*t)(root) != 0) continue;
+      (*t)(root) = 1;
+      // Graph search without a heap: the visited set grows until no edge adds to it.
+      for (bool grew = true; grew;) {
+        grew = false;
+        for (int i = 0; i < n; ++i) {
+          if ((*t)(i) == 0) continue;
+          for (int j = 0; j < n; ++j) {
+            if (j == i || (a(i, j) == 0 && a(j, i) == 0)) continue;
+            if (!(a(i, j) * a(j, i) > 0)) return false;
+            const double tj = (*t)(i) * std::sqrt(a(j, i) / a(i, j));
+            if ((*t)(j) == 0) {
+              (*t)(j) = tj;
+              grew = true;
+            } else if (std::fabs((*t)(j) - tj) > 1e-12 * tj) {
+              return false;
+            }
+          }
+        }
+      }
+    }
+    return true;
+  }
+
+  // Cyclic Jacobi rotations (Eigen's JacobiRotation) for a small symmetric S = Q diag(d) Qᵀ.
+  static void Jacobi(Mat s, Vec* d, Mat* q) {
+    const int n = static_cast<int>(s.rows());
+    *q = Mat::Identity(n, n);
+    for (int sweep = 0; sweep < 30; ++sweep) {
+      bool rotated = false;
+      for (int i = 0; i < n; ++i) {
+        for (int k = i + 1; k < n; ++k) {
+          // An entry below rounding relative to its diagonal pair changes the eigenvalues by O(ε²).
+          if (std::fabs(s(i, k)) <= 2.3e-16 * std::sqrt(std::fabs(s(i, i) * s(k, k)))) continue;
+          rotated = true;
+          Eigen::JacobiRotation<double> rot;
+          rot.makeJacobi(s, i, k);
+          s.applyOnTheLeft(i, k, rot.adjoint());
+          s.applyOnTheRight(i, k, rot);
+          q->applyOnTheRight(i, k, rot);
+          s(i, k) = s(k, i) = 0;  // zero by construction of the rotation
+        }
+      }
+      if (!rotated) break;
+    }
+    *d = s.diagonal();
+  }
+
+  const Vec& Uhat(Set& s, int input) {
+    Vec& u = s.uhat[input];
+    if (u.size() == 0) {
+      const Eigen::VectorXd& in = sched_.inputs[input];
+      u = Vec::Zero(n_);
+      for (int c = 0; c < n_; ++c) {
+        if (in(c) != 0) u += in(c) * s.w.col(c);
+      }
+    }
+    return u;
+  }
+
+  Output& GetOutput(Set& s, int cmt) {
+    for (Output& o : s.outputs) {
+      if (o.cmt == cmt) return o;
+    }
+    Output o;
+    o.cmt = cmt;
+    Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor, 1, MaxN> c =
+        Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor, 1, MaxN>::Zero(n_);
+    const auto value = [&](int i) { return s.theta[i]; };
+    for (const LinearTerm& t : model_.output_terms(cmt)) {
+      c(t.col) += LinearModel::TermValue<double>(t, value);
+      for (size_t act = 0; act < s.active.size(); ++act) {
+        const int j = s.active[act].first;
+        if (t.numerator == j || t.denominator == j) o.dc.push_back({0, t.col, static_cast<int>(act), TermPartial(t, s.theta, j)});
+      }
+    }
+    o.chat = (c * s.v).transpose();
+    o.xacc = Vec::Zero(n_);
+    s.outputs.push_back(std::move(o));
+    return s.outputs.back();
+  }
+
+  static double DividedF(const Set& s, int i, int k, const Vec& e, double h) {
+    return i == k ? h * e(i) : DividedExp2(s.lambda(i), s.lambda(k), e(i), e(k), h);
+  }
+
+  void Push(const Vec& v) { tape_.insert(tape_.end(), v.data(), v.data() + n_); }
+
+  // One step of length h with input `input` (-1: none), with the sensitivities
+  // (route a) or the tape (route b) when asked.
+  void Step(Set& s, double h, int input, Vec* z, Eigen::MatrixXd* sens, std::vector<double>* tape) {
+    Vec e(n_);
+    for (int r = 0; r < n_; ++r) e(r) = std::exp(s.lambda(r) * h);
+    if (tape) {
+      Push(*z);
+      Push(e);
+    }
+    if (sens) {
+      // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
+      Mat df(n_, n_), dg;
+      for (int i = 0; i < n_; ++i) {
+        for (int k = 0; k < n_; ++k) df(i, k) = DividedF(s, i, k, e, h);
+      }
+      if (input >= 0) {
+        dg.resize(n_, n_);
+        for (int i = 0; i < n_; ++i) {
+          for (int k = 0; k < n_; ++k) dg(i, k) = DividedExp3(s.lambda(i), s.lambda(k), e(i), e(k), h);
+        }
+      }
+      for (int c = 0; c < sens->cols(); ++c) sens->col(c).array() *= e.array();
+      for (size_t act = 0; act < s.active.size(); ++act) {
+        Vec t = df.cwiseProduct(s.ahat[act]) * *z;
+        if (input >= 0) t.noalias() += dg.cwiseProduct(s.ahat[act]) * Uhat(s, input);
+        sens->col(s.active[act].second) += t;
+      }
+    }
+    *z = z->cwiseProduct(e);
+    if (input >= 0) {
+      const Vec& u = Uhat(s, input);
+      for (int r = 0; r < n_; ++r) (*z)(r) += DividedExp2(s.lambda(r), 0, e(r), 1, h) * u(r);
+    }
+  }
+
+  void Run(Eigen::VectorXd* yhat, Eigen::MatrixXd* jac, std::vector<double>* tape) {
+    const std::vector<ScheduleOp>& ops = sched_.ops;
+    Vec z = Vec::Zero(n_);
+    Eigen::MatrixXd sens;
+    if (jac) sens = Eigen::MatrixXd::Zero(n_, p_);
+    for (size_t i = 0; i < ops.size(); ++i) {
+      const ScheduleOp& op = ops[i];
+      Set& s = sets_[op.set];
+      if (i > 0 && ops[i - 1].set != op.set) {
+        const Set& from = sets_[ops[i - 1].set];
+        z = s.w * (from.v * z);
+        if (jac) sens = s.w * (from.v * sens);
+      }
+      switch (op.kind) {
+        case ScheduleOp::kAdvance:
+          Step(s, op.value, op.index, &z, jac ? &sens : nullptr, tape);
+          break;
+        case ScheduleOp::kBolus:
+          z += op.value * s.w.col(op.cmt);
+          break;
+        case ScheduleOp::kReset:
+          z.setZero();
+          if (jac) sens.setZero();
+          break;
+        case ScheduleOp::kSample: {
+          const Output& o = GetOutput(s, op.cmt);
+          (*yhat)(op.index) = o.chat.dot(z);
+          if (tape) Push(z);
+          if (jac) {
+            jac->row(op.index) = o.chat.transpose() * sens;
+            if (!o.dc.empty()) {
+              const Vec x = s.v * z;
+              for (const DTerm& d : o.dc) (*jac)(op.index, s.active[d.act].second) += d.d * x(d.col);
+            }
+          }
+          break;
+        }
+        case ScheduleOp::kSteadyInfusion: {
+          const Vec& u = Uhat(s, op.index);
+          const double scale = s.lambda.cwiseAbs().maxCoeff();
+          if (!(s.lambda.cwiseAbs().minCoeff() > 1e-13 * scale)) {
+            throw NumericalFailure("no steady state for a constant infusion");
+          }
+          const Vec zs = -u.cwiseQuotient(s.lambda);
+          Eigen::MatrixXd ss;
+          if (jac) {
+            // ∂z = −A⁻¹ Σ_j ∂A/∂θ_j z ∂θ_j/∂p, i.e. −Λ⁻¹ Â_j ẑ in modal coordinates.
+            ss = Eigen::MatrixXd::Zero(n_, p_);
+            for (size_t act = 0; act < s.active.size(); ++act) {
+              ss.col(s.active[act].second) -= (s.ahat[act] * zs).cwiseQuotient(s.lambda);
+            }
+          }
+          SetOrAdd(zs, ss, op.add, &z, jac ? &sens : nullptr);
+          break;
+        }
+        case ScheduleOp::kSteadyState:
+          SteadyState(s, sched_.cycles[op.index], op.add, &z, jac ? &sens : nullptr, tape);
+          break;
+      }
+    }
+  }
+
+  static void SetOrAdd(const Vec& z, const Eigen::MatrixXd& sz, bool add, Vec* state, Eigen::MatrixXd* sens) {
+    if (add) {
+      *state += z;
+      if (sens) *sens += sz;
+    } else {
+      *state = z;
+      if (sens) *sens = sz;
+    }
+  }
+
+  // One period maps z to m ∘ (z + b̂) + w; its fixed point is z* = (m ∘ b̂ + w) / (1 − m).
+  void SteadyState(Set& s, const ScheduleCycle& cycle, bool add, Vec* state, Eigen::MatrixXd* sens,
+                   std::vector<double>* tape) {
+    const Vec b = cycle.bolus * s.w.col(cycle.cmt);
+    Vec r = b, m = Vec::Ones(n_);
+    for (const auto& seg : cycle.period) {
+      Step(s, seg.first, seg.second, &r, nullptr, nullptr);
+      for (int i = 0; i < n_; ++i) m(i) *= std::exp(s.lambda(i) * seg.first);
+    }
+    if (!((Vec::Ones(n_) - m).minCoeff() > 1e-13)) {
+      throw NumericalFailure(
+          "no steady state: the dosing-interval map has an eigenvalue at 1 (is drug eliminated from every "
+          "compartment it reaches?)");
+    }
+    const Vec x_star = r.cwiseQuotient(Vec::Ones(n_) - m);
+    Eigen::MatrixXd s_star;
+    if (sens || tape) {
+      // ∂_p P at z* (route a) or the period's tape (route b), from z* + b̂.
+      Vec x = x_star + b;
+      if (sens) s_star = Eigen::MatrixXd::Zero(n_, p_);
+      for (const auto& seg : cycle.period) Step(s, seg.first, seg.second, &x, sens ? &s_star : nullptr, tape);
+      // Implicit function theorem: Ŝ* = (I − m)⁻¹ ∂_p P.
+      if (sens) s_star = (s_star.array().colwise() / (Vec::Ones(n_) - m).array()).matrix();
+    }
+    Vec z = x_star + b;
+    for (const auto& seg : cycle.to_record) Step(s, seg.first, seg.second, &z, sens ? &s_star : nullptr, tape);
+    if (tape) Push(m);
+    SetOrAdd(z, s_star, add, state, sens);
+  }
+
+  const LinearModel& model_;
+  const EventSchedule& sched_;
+  const int n_;
+  const int p_;
+  std::vector<Set> sets_;
+  std::vector<double> tape_;
+};
+
+template <int MaxN>
+std::unique_ptr<ModalEvaluator> Make(const LinearModel& model, const EventSchedule& schedule,
+                                     const std::vector<Eigen::VectorXd>& theta,
+                                     const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) {
+  std::unique_ptr<Modal<MaxN>> m(new Modal<MaxN>(model, schedule, num_free));
+  if (!m->Setup(theta, free)) return nullptr;
+  return m;
+}
+
+}  // namespace
+
+std::unique_ptr<ModalEvaluator> MakeModalEvaluator(const LinearModel& model, const EventSchedule& schedule,
+                                                   const std::vector<Eigen::VectorXd>& theta,
+                                                   const std::vector<std::vector<std::pair<int, int>>>& free,
+                                                   int num_free) {
+  // Up to 6 states the matrices live on the stack (no allocation per step).
+  if (model.num_compartments() <= 6) return Make<6>(model, schedule, theta, free, num_free);
+  return Make<Eigen::Dynamic>(model, schedule, theta, free, num_free);
+}
+
+}  // namespace internal
+}  // namespace pk

@@ -1,0 +1,112 @@
+// The Φ/Γ recursion in eigen-coordinates (the modal form), not installed.
+//
+// When A = V Λ V⁻¹ with real eigenvalues and a well-conditioned V, the exact
+// discretisation of a step of length h with constant input u is diagonal in
+// z = V⁻¹x:
+//
+//   z⁺ = e^{Λh} z + g(Λ) V⁻¹u,   g(λ) = (e^{λh} − 1)/λ = f[λ, 0],  f(λ) = e^{λh},
+//
+// which is Φ = V e^{Λh} V⁻¹ and Γ = V g(Λ) V⁻¹ (seed §5) at n exponentials and
+// O(n) work per step. Derivatives come from the Daleckii–Krein formula: for any
+// analytic φ, ∂φ(A)/∂θ_j = V (D_φ ∘ Â_j) V⁻¹ with Â_j = V⁻¹ (∂A/∂θ_j) V and
+// D_φ the matrix of divided differences φ[λ_i, λ_k]. With D_f = f[λ_i, λ_k] and
+// D_g = f[λ_i, λ_k, 0]:
+//
+//  (a) forward: Ŝ = V⁻¹ ∂x/∂p evolves as
+//        Ŝ⁺ = e^{Λh} Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p,   û = V⁻¹u;
+//  (b) adjoint: μ̂ = Vᵀμ evolves as μ̂ ← e^{Λh} μ̂⁺, and the θ terms of all steps
+//        Σ μ⁺ᵀ(∂Φ/∂θ_j x + ∂Γ/∂θ_j u) = ⟨V⁻ᵀ Z Vᵀ, ∂A/∂θ_j⟩,
+//        Z = Σ D_f ∘ (μ̂⁺ zᵀ) + D_g ∘ (μ̂⁺ ûᵀ),
+//      one n×n matrix per parameter set whatever the number of θ_j.
+// Steady states are diagonal too: the dosing-interval map is z ↦ m ∘ z + r with
+// m = Π e^{λh}, so z* = r / (1 − m), and the implicit-function adjoint is μ̂ / (1 − m).
+//
+// The decomposition exploits compartment structure: depots (states with no
+// inflow) are one-state source blocks whose eigenvalue is their diagonal, and
+// the remaining block is symmetrisable when exchange is reversible (clearance
+// flows), so a symmetric eigensolver applies (discretization.h). Anything else
+// uses the general real eigensolver. The modal form is used only when
+// κ₁(V) ≤ 1e3; callers fall back to the Padé path otherwise. It is normwise
+// accurate (as closed-form sums of exponentials are), which suits a loss and its
+// derivatives; simulations keep the Padé path for element-wise accuracy.
+//
+// It runs over an EventSchedule: the event engine's calls for fixed dose
+// modifiers, recorded once and replayed for every θ (modifiers that are
+// estimated move the schedule, and those evaluations take the general path).
+#ifndef PK_SRC_EXACT_MODAL_H_
+#define PK_SRC_EXACT_MODAL_H_
+
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "../events.h"
+#include "pk/linear_model.h"
+#include "pk/parameters.h"
+
+namespace pk {
+namespace internal {
+
+/// One visitor call of the event engine, in state coordinates of parameter set `set`.
+struct ScheduleOp {
+  enum Kind : unsigned char { kAdvance, kBolus, kReset, kSteadyState, kSteadyInfusion, kSample };
+  Kind kind = kAdvance;
+  bool add = false;  ///< steady states: SS=2 adds to the state
+  int set = 0;       ///< the parameter set in force (for kReset: that of the previous op)
+  int index = -1;    ///< kAdvance, kSteadyInfusion: input vector (-1: none); kSteadyState: cycle; kSample: sample
+  int cmt = 0;       ///< kBolus: 0-based compartment; kSample: 1-based output compartment
+  double value = 0;  ///< kAdvance: h; kBolus: amount
+};
+
+struct ScheduleCycle {
+  int cmt = 0;
+  double bolus = 0;
+  std::vector<std::pair<double, int>> period, to_record;  ///< (h, input index)
+};
+
+struct EventSchedule {
+  std::vector<ScheduleOp> ops;
+  std::vector<Eigen::VectorXd> inputs;
+  std::vector<ScheduleCycle> cycles;
+  int num_samples = 0;
+  int num_sets = 0;
+  Eigen::VectorXd key;  ///< the layout values it was recorded with (entries from num_parameters() on)
+};
+
+/// Runs the event engine once on `subject` (already bound to its values).
+EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubject& subject, int num_model_parameters);
+
+/// Evaluates ŷ, and ∂ŷ/∂p or the adjoint gradient, by modal propagation.
+class ModalEvaluator {
+ public:
+  virtual ~ModalEvaluator() = default;
+  /// ŷ only.
+  virtual void Predict(Eigen::VectorXd* yhat) = 0;
+  /// ŷ and the N×P Jacobian ∂ŷ/∂p (route (a)).
+  virtual void Jacobian(Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) = 0;
+  /// ŷ, keeping what the backward sweep needs (route (b)) ...
+  virtual void AdjointForward(Eigen::VectorXd* yhat) = 0;
+  /// ... and Σ_k ∂ℓ/∂ŷ_k ∂ŷ_k/∂p.
+  virtual Eigen::VectorXd AdjointGradient(const Eigen::VectorXd& dl_dyhat) = 0;
+};
+
+/// `theta[s]` are the model parameters of set s; `free[s]` lists, per set, the
+/// pairs (θ index j, free position a) with ∂θ_j/∂p_a = 1 (all other derivatives
+/// are zero); `num_free` is P. Returns null when some set's A has complex
+/// eigenvalues or an ill-conditioned eigenbasis, or a value is not finite: the
+/// caller then takes the Padé path. Steady states without one throw NumericalFailure.
+std::unique_ptr<ModalEvaluator> MakeModalEvaluator(const LinearModel& model, const EventSchedule& schedule,
+                                                   const std::vector<Eigen::VectorXd>& theta,
+                                                   const std::vector<std::vector<std::pair<int, int>>>& free,
+                                                   int num_free);
+
+/// The divided differences of f(λ) = e^{λh} used above, exposed for tests:
+/// f[a, b] from e^{ah} and e^{bh}, and f[a, b, 0].
+double DividedExp2(double a, double b, double ea, double eb, double h);
+double DividedExp3(double a, double b, double ea, double eb, double h);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_EXACT_MODAL_H_
