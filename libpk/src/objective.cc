@@ -374,6 +374,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
           jm = Eigen::MatrixXd::Zero(N, pm);
         }
         done = true;
+        ev.modal = true;
       }
     } catch (const internal::NumericalFailure& e) {
       ev.ok = false;

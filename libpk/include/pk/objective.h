@@ -106,6 +106,8 @@ class Objective {
     Eigen::MatrixXd information;
     const char* route = "";       ///< the route that computed the derivatives
     const char* propagator = "";  ///< "exact" or "ode"
+    /// Exact propagator: whether Φ/Γ ran in eigen-coordinates (ObjectiveOptions::modal_propagation).
+    bool modal = false;
     OdeStatistics ode_statistics;  ///< the ODE propagator's work (ode only)
   };
 

@@ -26,8 +26,9 @@
 // the remaining block is symmetrisable when exchange is reversible (clearance
 // flows), so a symmetric eigensolver applies (discretization.h). Anything else
 // uses the general real eigensolver. The modal form is used only when
-// κ₁(V) ≤ 1e3; callers fall back to the Padé path otherwise. It is normwise
-// accurate (as closed-form sums of exponentials are), which suits a loss and its
+// ‖|V||V⁻¹|‖_∞ ≤ 1e3 (a condition number of the modal sum that does not depend
+// on how eigenvectors are scaled); callers fall back to the Padé path
+// otherwise. It is normwise accurate (as closed-form sums of exponentials are), which suits a loss and its
 // derivatives; simulations keep the Padé path for element-wise accuracy.
 //
 // It runs over an EventSchedule: the event engine's calls for fixed dose

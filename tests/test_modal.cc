@@ -1,0 +1,197 @@
+// The modal (eigen-coordinate) form of the Φ/Γ recursion against the Padé
+// path: loss, predictions, forward Jacobian and adjoint gradient, on every
+// linear catalogue model × event scenario, with parameter sets that change over
+// time; and its divided differences against an independent matrix exponential.
+#include <catch2/catch.hpp>
+
+#include <unsupported/Eigen/MatrixFunctions>
+
+#include "exact/modal.h"
+#include "pk/catalogue.h"
+#include "pk/objective.h"
+#include "test_util.h"
+
+namespace {
+
+using Need = pk::Objective::Need;
+
+double MaxRel(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+  const double scale = std::max(b.cwiseAbs().maxCoeff(), 1e-300);
+  return (a - b).cwiseAbs().maxCoeff() / scale;
+}
+
+// Fixed (not estimated) dose modifiers: the schedule is recorded with them.
+const std::vector<pk_test::Scenario>& Scenarios() {
+  static const std::vector<pk_test::Scenario> s = {
+      {"bolus", "1,0,100,0,0,0,0,1,.\n", {"F1"}, {1.0}},
+      {"infusion", "1,0,100,40,0,0,0,1,.\n", {"F1"}, {1.0}},
+      {"addl", "1,0,100,0,6,3,0,1,.\n", {"F1"}, {1.0}},
+      {"ss1 bolus", "1,0,100,0,12,0,1,1,.\n", {"F1"}, {1.0}},
+      {"ss2 on a dose", "1,0,50,0,0,0,0,1,.\n1,0.2,100,0,12,0,2,1,.\n", {"F1"}, {1.0}},
+      {"ss1 infusion longer than II", "1,0,100,5,8,0,1,1,.\n", {"F1"}, {1.0}},
+      {"ss constant infusion", "1,0,0,10,0,0,1,1,.\n", {"F1"}, {1.0}},
+      {"lag (fixed)", "1,0,100,0,6,2,0,1,.\n", {"ALAG1"}, {0.7}},
+      {"F (fixed)", "1,0,100,30,0,0,0,1,.\n", {"F1"}, {0.8}},
+      {"D (fixed)", "1,0,100,-2,0,0,0,1,.\n", {"D1"}, {2.2}},
+      {"ss1 with lag (fixed)", "1,0,100,0,12,0,1,1,.\n", {"ALAG1"}, {1.3}},
+      {"initial state (fixed)", "1,0,100,0,6,2,0,1,.\n", {"X0_1"}, {30.0}},
+  };
+  return s;
+}
+
+struct Routes {
+  pk::Objective::Evaluation value, forward, adjoint, jacobian;
+};
+
+Routes EvaluateAll(const pk::Objective& objective, const Eigen::VectorXd& values, const std::vector<int>& free) {
+  Routes r;
+  r.value = objective.Evaluate(values, free, Need::kValue);
+  r.forward = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+  r.adjoint = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  r.jacobian = objective.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kForward);
+  return r;
+}
+
+void CheckAgree(const Routes& modal, const Routes& pade) {
+  for (const auto* e : {&modal.value, &modal.forward, &modal.adjoint, &modal.jacobian, &pade.value, &pade.forward,
+                        &pade.adjoint, &pade.jacobian}) {
+    REQUIRE(e->ok);
+  }
+  // The comparison is between two paths only if they were taken.
+  CHECK(modal.value.modal);
+  CHECK(modal.adjoint.modal);
+  CHECK(modal.jacobian.modal);
+  CHECK_FALSE(pade.value.modal);
+  CHECK_FALSE(pade.adjoint.modal);
+  CHECK(modal.value.value == Approx(pade.value.value).epsilon(1e-12));
+  CHECK(MaxRel(modal.value.predictions, pade.value.predictions) < 1e-12);
+  INFO("modal forward " << modal.forward.gradient.transpose() << "\nmodal adjoint " << modal.adjoint.gradient.transpose()
+                        << "\nPadé           " << pade.adjoint.gradient.transpose());
+  CHECK(MaxRel(modal.forward.gradient, pade.adjoint.gradient) < 1e-10);
+  CHECK(MaxRel(modal.adjoint.gradient, pade.adjoint.gradient) < 1e-10);
+  // Least squares returns the residual Jacobian; maximum likelihood the information built from ∂ŷ/∂p.
+  REQUIRE(modal.jacobian.jacobian.size() == pade.jacobian.jacobian.size());
+  if (pade.jacobian.jacobian.size() > 0) CHECK(MaxRel(modal.jacobian.jacobian, pade.jacobian.jacobian) < 1e-10);
+  CHECK(MaxRel(modal.jacobian.information, pade.jacobian.information) < 1e-10);
+}
+
+}  // namespace
+
+TEST_CASE("divided differences of exp match the exponential of a bidiagonal matrix", "[modal]") {
+  // Opitz: exp(h [[a, 1, 0], [0, b, 1], [0, 0, 0]]) has f[a, b] and f[a, b, 0] in its first row.
+  const std::vector<double> points = {0.0, -1e-9, -1e-4, -0.03, -0.05, -0.1, -0.35, -0.351, -1.0, -1.0 + 1e-7,
+                                      -2.5, -7.0, -40.0, 0.02};
+  for (double h : {0.01, 0.3, 1.0, 6.0, 24.0}) {
+    for (double a : points) {
+      for (double b : points) {
+        Eigen::Matrix3d m;
+        m << a, 1, 0, 0, b, 1, 0, 0, 0;
+        const Eigen::Matrix3d e = (m * h).exp();
+        const double ea = std::exp(a * h), eb = std::exp(b * h);
+        // With superdiagonal h, the divided differences of e^x at (ah, bh, 0) times h and h² are
+        // exactly f[a, b] and f[a, b, 0] of f(λ) = e^{λh}. Padé is accurate relative to ‖exp(hM)‖.
+        const double margin = 1e-15 * e.cwiseAbs().maxCoeff();
+        INFO("h " << h << " a " << a << " b " << b);
+        CHECK(pk::internal::DividedExp2(a, b, ea, eb, h) == Approx(e(0, 1)).epsilon(1e-12).margin(margin));
+        CHECK(pk::internal::DividedExp3(a, b, ea, eb, h) == Approx(e(0, 2)).epsilon(1e-12).margin(margin));
+      }
+    }
+  }
+}
+
+TEST_CASE("modal and Padé paths agree on every linear model and event scenario", "[modal]") {
+  const auto model_name = GENERATE(as<std::string>{}, "1cmt_iv", "1cmt_oral", "2cmt_iv", "2cmt_oral", "3cmt_iv",
+                                   "3cmt_oral");
+  const auto model = pk::MakeModel(model_name);
+  for (const pk_test::Scenario& sc : Scenarios()) {
+    const auto error_model = GENERATE(pk::ErrorModel::kLeastSquares, pk::ErrorModel::kCombined);
+    INFO(model_name << " / " << sc.name << " / " << pk::ToString(error_model));
+    pk::ObjectiveOptions on, off;
+    on.error_model = off.error_model = error_model;
+    off.modal_propagation = false;
+    const auto data = pk_test::ScenarioData(sc);
+    const pk::Objective modal(model, data, 0, on), pade(model, data, 0, off);
+    Eigen::VectorXd values = modal.DefaultValues();
+    std::vector<int> free;
+    for (int i = 0; i < model->num_parameters(); ++i) {
+      values(i) *= 1.0 + 0.1 * i;
+      free.push_back(i);
+    }
+    for (size_t e = 0; e < sc.extra_free.size(); ++e) values(modal.ParameterIndex(sc.extra_free[e])) = sc.extra_values[e];
+    if (error_model != pk::ErrorModel::kLeastSquares) free.push_back(modal.ParameterIndex("SIGMA_PROP"));
+    CheckAgree(EvaluateAll(modal, values, free), EvaluateAll(pade, values, free));
+  }
+}
+
+TEST_CASE("modal path: a new schedule when fixed modifiers change", "[modal]") {
+  const auto model = pk::MakeModel("2cmt_oral");
+  const auto data = pk_test::ScenarioData({"lag", "1,0,100,0,6,2,0,1,.\n", {}, {}});
+  pk::ObjectiveOptions off;
+  off.modal_propagation = false;
+  const pk::Objective modal(model, data, 0, pk::ObjectiveOptions()), pade(model, data, 0, off);
+  Eigen::VectorXd values = modal.DefaultValues();
+  const std::vector<int> free{0, 1, 2, 3, 4};
+  const int lag = modal.ParameterIndex("ALAG1");
+  for (double alag : {0.0, 0.7, 2.9, 0.7}) {
+    values(lag) = alag;
+    INFO("ALAG1 " << alag);
+    CheckAgree(EvaluateAll(modal, values, free), EvaluateAll(pade, values, free));
+  }
+}
+
+TEST_CASE("modal path: parameter sets from a data column switch coordinates", "[modal]") {
+  // CL changes at t = 4 and t = 10 (a time-varying covariate), with an infusion
+  // running across the first change and a steady-state dose after it.
+  const std::string csv =
+      "ID,TIME,AMT,RATE,II,SS,EVID,CL,DV\n"
+      "1,0,100,30,0,0,1,2.0,.\n"
+      "1,1,0,0,0,0,0,2.0,1.5\n"
+      "1,3,0,0,0,0,0,2.0,2.5\n"
+      "1,5,0,0,0,0,0,3.5,2.0\n"
+      "1,6,50,0,8,2,1,3.5,.\n"
+      "1,8,0,0,0,0,0,3.5,2.2\n"
+      "1,12,0,0,0,0,0,1.2,1.1\n"
+      "1,20,0,0,0,0,0,1.2,0.6\n";
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv, "cov.csv"));
+  const auto model_name = GENERATE(as<std::string>{}, "1cmt_iv", "2cmt_oral", "3cmt_iv");
+  INFO(model_name);
+  const auto model = pk::MakeModel(model_name);
+  pk::ObjectiveOptions off;
+  off.modal_propagation = false;
+  const pk::Objective modal(model, data, 0, pk::ObjectiveOptions()), pade(model, data, 0, off);
+  Eigen::VectorXd values = modal.DefaultValues();
+  std::vector<int> free;
+  for (int i = 0; i < model->num_parameters(); ++i) {
+    values(i) *= 1.0 + 0.07 * i;
+    free.push_back(i);  // CL comes from the data: its column of the Jacobian is zero
+  }
+  const Routes m = EvaluateAll(modal, values, free), p = EvaluateAll(pade, values, free);
+  CheckAgree(m, p);
+  const int cl = modal.ParameterIndex("CL");
+  CHECK(m.adjoint.gradient(cl) == 0);
+  CHECK(m.jacobian.jacobian.col(cl).isZero(0.0));
+}
+
+TEST_CASE("modal path steps aside where the eigenbasis is ill-conditioned or events move", "[modal]") {
+  const auto model = pk::MakeModel("1cmt_oral");
+  const auto data = pk_test::ScenarioData({"addl", "1,0,100,0,8,2,0,1,.\n", {}, {}});
+  const pk::Objective objective(model, data, 0, pk::ObjectiveOptions());
+  Eigen::VectorXd values = objective.DefaultValues();
+  std::vector<int> free{0, 1, 2};
+  // Flip-flop KA = CL/V: a double eigenvalue, defective A.
+  values(0) = 0.1;
+  values(1) = 3.0;
+  values(2) = 30.0;
+  const auto flip = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  REQUIRE(flip.ok);
+  CHECK_FALSE(flip.modal);
+  // An estimated lag moves the schedule with θ.
+  values(0) = 1.1;
+  free.push_back(objective.ParameterIndex("ALAG1"));
+  values(free.back()) = 0.4;
+  const auto lag = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  REQUIRE(lag.ok);
+  CHECK_FALSE(lag.modal);
+  free.pop_back();
+  CHECK(objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint).modal);
+}
