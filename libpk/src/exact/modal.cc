@@ -195,6 +195,8 @@ class Modal final : public ModalEvaluator {
   void AdjointForward(Eigen::VectorXd* yhat) override {
     yhat->setZero(sched_.num_samples);
     tape_.clear();
+    // Two n-vectors per step and one per sample; steady states add their cycles.
+    tape_.reserve(2 * n_ * (sched_.ops.size() + 4 * sched_.cycles.size()));
     Run(yhat, nullptr, &tape_);
   }
 
