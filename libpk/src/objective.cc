@@ -337,7 +337,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::VectorXd yhat;
   Eigen::MatrixXd jm;  // N × pm, ∂ŷ/∂(free model parameters)
   std::unique_ptr<internal::DiscreteAdjoint> adjoint;
-  std::unique_ptr<internal::ModalEvaluator> modal;  // route (b) in eigen-coordinates
+  std::shared_ptr<const internal::EventSchedule> modal_schedule;  // what `modal` replays; outlives it
+  std::unique_ptr<internal::ModalEvaluator> modal;                // route (b) in eigen-coordinates
   std::unique_ptr<internal::OdeAdjoint> ode_adjoint;
   double cont_loss = 0;                                    // ½∫ w (y − y_m)² of the continuous records
   Eigen::RowVectorXd cont_grad = Eigen::RowVectorXd::Zero(pm);
@@ -361,8 +362,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   if (!ode && d.linear && d.options.modal_propagation && !events_depend && modal_route &&
       values.head(d.model->num_parameters()).allFinite()) {
     try {
-      const auto sched = d.Schedule(values);
-      std::unique_ptr<internal::ModalEvaluator> ev_modal = d.Modal(*sched, values, model_free);
+      modal_schedule = d.Schedule(values);
+      std::unique_ptr<internal::ModalEvaluator> ev_modal = d.Modal(*modal_schedule, values, model_free);
       if (ev_modal) {
         if (route == GradientRoute::kForward && pm > 0) {
           ev_modal->Jacobian(&yhat, &jm);
