@@ -20,43 +20,12 @@ T* Find(std::vector<std::pair<double, T>>& cache, double h) {
   return nullptr;
 }
 
-// sinh(d)/d, accurate near 0.
+}  // namespace
+
 double Sinhc(double d) {
   if (std::fabs(d) < 1e-3) return 1 + d * d / 6 * (1 + d * d / 20);
   return std::sinh(d) / d;
 }
-
-// A diagonal T with T⁻¹AT symmetric, when one exists: reversible exchange
-// (clearance flows between compartments with volumes) gives A_ij t_j/t_i =
-// A_ji t_i/t_j, so t_j = t_i sqrt(A_ji/A_ij) along every edge of the graph.
-bool SymmetrizingDiagonal(const Eigen::MatrixXd& a, Eigen::VectorXd* t) {
-  const int n = static_cast<int>(a.rows());
-  t->setZero(n);
-  std::vector<int> stack;
-  for (int root = 0; root < n; ++root) {
-    if ((*t)(root) != 0) continue;
-    (*t)(root) = 1;
-    stack.push_back(root);
-    while (!stack.empty()) {
-      const int i = stack.back();
-      stack.pop_back();
-      for (int j = 0; j < n; ++j) {
-        if (j == i || (a(i, j) == 0 && a(j, i) == 0)) continue;
-        if (!(a(i, j) * a(j, i) > 0)) return false;  // one-way flow (a depot): not symmetrisable
-        const double tj = (*t)(i) * std::sqrt(a(j, i) / a(i, j));
-        if ((*t)(j) == 0) {
-          (*t)(j) = tj;
-          stack.push_back(j);
-        } else if (std::fabs((*t)(j) - tj) > 1e-12 * tj) {
-          return false;
-        }
-      }
-    }
-  }
-  return true;
-}
-
-}  // namespace
 
 Discretization::Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen)
     : a_(std::move(a)), n_(static_cast<int>(a_.rows())), n_in_(n_in), allow_eigen_(allow_eigen) {}

@@ -34,6 +34,7 @@
 #ifndef PK_SRC_EXACT_DISCRETIZATION_H_
 #define PK_SRC_EXACT_DISCRETIZATION_H_
 
+#include <cmath>
 #include <map>
 #include <vector>
 
@@ -42,6 +43,42 @@
 
 namespace pk {
 namespace internal {
+
+/// sinh(d)/d, accurate near 0.
+double Sinhc(double d);
+
+/// A diagonal T with T⁻¹AT symmetric, when one exists: reversible exchange
+/// (clearance flows between compartments with volumes) gives A_ij t_j/t_i =
+/// A_ji t_i/t_j, so t_j = t_i sqrt(A_ji/A_ij) along every edge of the graph.
+/// False for one-way flow (a depot) or an inconsistent cycle.
+template <typename Mat, typename Vec>
+bool SymmetrizingDiagonal(const Mat& a, Vec* t) {
+  const int n = static_cast<int>(a.rows());
+  *t = Vec::Zero(n);
+  for (int root = 0; root < n; ++root) {
+    if ((*t)(root) != 0) continue;
+    (*t)(root) = 1;
+    // Graph search without a heap: the visited set grows until no edge adds to it.
+    for (bool grew = true; grew;) {
+      grew = false;
+      for (int i = 0; i < n; ++i) {
+        if ((*t)(i) == 0) continue;
+        for (int j = 0; j < n; ++j) {
+          if (j == i || (a(i, j) == 0 && a(j, i) == 0)) continue;
+          if (!(a(i, j) * a(j, i) > 0)) return false;
+          const double tj = (*t)(i) * std::sqrt(a(j, i) / a(i, j));
+          if ((*t)(j) == 0) {
+            (*t)(j) = tj;
+            grew = true;
+          } else if (std::fabs((*t)(j) - tj) > 1e-12 * tj) {
+            return false;
+          }
+        }
+      }
+    }
+  }
+  return true;
+}
 
 class Discretization {
  public:

@@ -7,6 +7,7 @@
 #include <Eigen/LU>
 #include <unsupported/Eigen/AutoDiff>
 
+#include "discretization.h"
 #include "exact_routes.h"
 #include "numerical_failure.h"
 
@@ -72,12 +73,6 @@ class ScheduleRecorder {
   std::vector<int> sample_;
   int last_set_ = 0;
 };
-
-// sinh(d)/d, accurate near 0.
-double Sinhc(double d) {
-  if (std::fabs(d) < 1e-3) return 1 + d * d / 6 * (1 + d * d / 20);
-  return std::sinh(d) / d;
-}
 
 }  // namespace
 
@@ -335,7 +330,7 @@ class Modal final : public ModalEvaluator {
     Vec lr(nr), t;
     Mat vr(nr, nr), wr(nr, nr);
     if (nr > 0) {
-      if (Symmetrizing(arr, &t)) {
+      if (SymmetrizingDiagonal(arr, &t)) {
         Mat sym = t.cwiseInverse().asDiagonal() * arr * t.asDiagonal();
         sym = 0.5 * (sym + sym.transpose()).eval();
         Mat q;
@@ -401,35 +396,6 @@ class Modal final : public ModalEvaluator {
       kappa = std::max(kappa, row);
     }
     return kappa <= 1e3 && s->w.allFinite() && s->lambda.allFinite();
-  }
-
-  // A diagonal T with T⁻¹AT symmetric (reversible exchange), found along the graph's edges.
-  static bool Symmetrizing(const Mat& a, Vec* t) {
-    const int n = static_cast<int>(a.rows());
-    *t = Vec::Zero(n);
-    for (int root = 0; root < n; ++root) {
-      if ((*t)(root) != 0) continue;
-      (*t)(root) = 1;
-      // Graph search without a heap: the visited set grows until no edge adds to it.
-      for (bool grew = true; grew;) {
-        grew = false;
-        for (int i = 0; i < n; ++i) {
-          if ((*t)(i) == 0) continue;
-          for (int j = 0; j < n; ++j) {
-            if (j == i || (a(i, j) == 0 && a(j, i) == 0)) continue;
-            if (!(a(i, j) * a(j, i) > 0)) return false;
-            const double tj = (*t)(i) * std::sqrt(a(j, i) / a(i, j));
-            if ((*t)(j) == 0) {
-              (*t)(j) = tj;
-              grew = true;
-            } else if (std::fabs((*t)(j) - tj) > 1e-12 * tj) {
-              return false;
-            }
-          }
-        }
-      }
-    }
-    return true;
   }
 
   // Cyclic Jacobi rotations (Eigen's JacobiRotation) for a small symmetric S = Q diag(d) Qᵀ.
