@@ -8,7 +8,9 @@ namespace pk {
 
 struct OdeOptions {
   double relative_tolerance = 1e-8;
-  /// Absolute tolerance on the amounts (and on sensitivities and adjoints).
+  /// Absolute tolerance on the amounts and their sensitivities. The adjoint λ
+  /// (loss per amount) uses rtol·‖λ‖_∞ at the start of each backward segment
+  /// instead, never less than this.
   double absolute_tolerance = 1e-10;
   /// Step limit per integration between two events; beyond it the evaluation
   /// fails with "too much work" instead of running on.

@@ -517,8 +517,6 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Eig
     View(a.yb->v) = lambda_end;
     Check(CVodeCreateB(a.mem->mem, CV_BDF, &a.which), "CVodeCreateB");
     Check(CVodeInitB(a.mem->mem, a.which, AdjointRhs, seg.h, a.yb->v), "CVodeInitB");
-    Check(CVodeSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, opt.absolute_tolerance),
-          "CVodeSStolerancesB");
     Check(CVodeSetUserDataB(a.mem->mem, a.which, this), "CVodeSetUserDataB");
     Check(CVodeSetMaxNumStepsB(a.mem->mem, a.which, opt.max_steps), "CVodeSetMaxNumStepsB");
     a.lsb.reset(new LinearSolver(a.yb->v, n, ctx));
@@ -538,6 +536,15 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Eig
     N_VConst(0.0, a.qb->v);
     Check(CVodeQuadReInitB(a.mem->mem, a.which, a.qb->v), "CVodeQuadReInitB");
   }
+  // λ is measured in loss per amount, not in amounts, so the amounts' absolute
+  // tolerance means nothing for it. Its error is controlled relative to its
+  // size on this segment instead: atol_λ = rtol·‖λ(h)‖_∞ (never below the
+  // amounts' atol). Once a sample's jump has decayed below that, its tail adds
+  // less than rtol of the segment's own share of the gradient, and CVODES no
+  // longer follows it through every e-fold (see docs/ode_routes.md).
+  const double lambda_scale = lambda_end.lpNorm<Eigen::Infinity>();
+  const double atol_b = std::max(opt.absolute_tolerance, opt.relative_tolerance * lambda_scale);
+  Check(CVodeSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, atol_b), "CVodeSStolerancesB");
   realtype t = 0;
   Check(CVodeB(a.mem->mem, 0.0, CV_NORMAL), "CVodeB");
   Check(CVodeGetB(a.mem->mem, a.which, &t, a.yb->v), "CVodeGetB");
