@@ -363,7 +363,9 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       values.head(d.model->num_parameters()).allFinite()) {
     try {
       modal_schedule = d.Schedule(values);
-      std::unique_ptr<internal::ModalEvaluator> ev_modal = d.Modal(*modal_schedule, values, model_free);
+      // A value alone needs no partials of A.
+      std::unique_ptr<internal::ModalEvaluator> ev_modal =
+          d.Modal(*modal_schedule, values, need == Need::kValue ? std::vector<int>() : model_free);
       if (ev_modal) {
         if (route == GradientRoute::kForward && pm > 0) {
           ev_modal->Jacobian(&yhat, &jm);
@@ -383,9 +385,12 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       return ev;
     }
   }
-  internal::PreparedSubject s = d.prepared;
+  internal::PreparedSubject s;  // the subject at `values`, for the other paths
   try {
-    if (!done) internal::RebindParameters(d.layout, values.head(L), &s);
+    if (!done) {
+      s = d.prepared;
+      internal::RebindParameters(d.layout, values.head(L), &s);
+    }
     auto dual_sets = [&]() {
       std::vector<internal::DualVector> sets(s.sets.size());
       for (size_t k = 0; k < s.sets.size(); ++k) {

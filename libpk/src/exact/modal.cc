@@ -24,7 +24,11 @@ class ScheduleRecorder {
   ScheduleRecorder(const PreparedSubject& s, EventSchedule* out) : s_(s), out_(*out) {
     sample_ = SampleIndex(s, &out_.num_samples);
   }
-  void Advance(double h, const Eigen::VectorXd& u, int set) { Push(ScheduleOp::kAdvance, set, Intern(u)).value = h; }
+  void Advance(double h, const Eigen::VectorXd& u, int set) {
+    ScheduleOp& op = Push(ScheduleOp::kAdvance, set, Intern(u));
+    op.value = h;
+    op.step = Step(h);
+  }
   void Bolus(int cmt, double amount, int set) {
     ScheduleOp& op = Push(ScheduleOp::kBolus, set, -1);
     op.cmt = cmt;
@@ -35,8 +39,8 @@ class ScheduleRecorder {
     ScheduleCycle cycle;
     cycle.cmt = c.cmt;
     cycle.bolus = c.bolus;
-    for (const Segment<double>& seg : c.period) cycle.period.emplace_back(seg.duration, Intern(seg.rate));
-    for (const Segment<double>& seg : c.to_record) cycle.to_record.emplace_back(seg.duration, Intern(seg.rate));
+    for (const Segment<double>& seg : c.period) cycle.period.push_back({Step(seg.duration), Intern(seg.rate)});
+    for (const Segment<double>& seg : c.to_record) cycle.to_record.push_back({Step(seg.duration), Intern(seg.rate)});
     out_.cycles.push_back(std::move(cycle));
     Push(ScheduleOp::kSteadyState, set, static_cast<int>(out_.cycles.size()) - 1).add = add;
   }
@@ -50,6 +54,13 @@ class ScheduleRecorder {
   }
 
  private:
+  int Step(double h) {
+    for (size_t i = 0; i < out_.steps.size(); ++i) {
+      if (out_.steps[i] == h) return static_cast<int>(i);
+    }
+    out_.steps.push_back(h);
+    return static_cast<int>(out_.steps.size()) - 1;
+  }
   int Intern(const Eigen::VectorXd& u) {
     if (u.isZero(0.0)) return -1;
     for (size_t i = 0; i < out_.inputs.size(); ++i) {
@@ -166,6 +177,7 @@ class Modal final : public ModalEvaluator {
         }
       }
       s.uhat.resize(sched_.inputs.size());
+      s.steps.assign(sched_.steps.size(), StepCache());
     }
     return true;
   }
@@ -190,8 +202,8 @@ class Modal final : public ModalEvaluator {
   void AdjointForward(Eigen::VectorXd* yhat) override {
     yhat->setZero(sched_.num_samples);
     tape_.clear();
-    // Two n-vectors per step and one per sample; steady states add their cycles.
-    tape_.reserve(2 * n_ * (sched_.ops.size() + 4 * sched_.cycles.size()));
+    // One n-vector per step and per sample; steady states add their cycles.
+    tape_.reserve(n_ * (sched_.ops.size() + 4 * sched_.cycles.size()));
     Run(yhat, nullptr, &tape_);
   }
 
@@ -205,20 +217,17 @@ class Modal final : public ModalEvaluator {
       cursor -= n_;
       *v = Eigen::Map<const Eigen::VectorXd>(tape_.data() + cursor, n_);
     };
-    Vec mu = Vec::Zero(n_), z(n_), e(n_);
+    Vec mu = Vec::Zero(n_), z(n_);
     const std::vector<ScheduleOp>& ops = sched_.ops;
     // Back through one step z⁺ = e ∘ z + g ∘ û: Z += D_f ∘ (μ̂ zᵀ) + D_g ∘ (μ̂ ûᵀ), then μ̂ ← e ∘ μ̂.
-    const auto back_step = [&](Set& s, double h, int input, Vec* m) {
-      pop(&e);
+    const auto back_step = [&](Set& s, int step, int input, Vec* m) {
       pop(&z);
-      for (int i = 0; i < n_; ++i) {
-        if ((*m)(i) == 0) continue;
-        for (int k = 0; k < n_; ++k) {
-          s.z(i, k) += (*m)(i) * DividedF(s, i, k, e, h) * z(k);
-          if (input >= 0) s.z(i, k) += (*m)(i) * DividedExp3(s.lambda(i), s.lambda(k), e(i), e(k), h) * Uhat(s, input)(k);
-        }
+      const StepCache& c = Cached(s, step, input >= 0, true);
+      if (!m->isZero(0.0)) {
+        s.z.noalias() += ((*m) * z.transpose()).cwiseProduct(c.df);
+        if (input >= 0) s.z.noalias() += ((*m) * Uhat(s, input).transpose()).cwiseProduct(c.dg);
       }
-      *m = m->cwiseProduct(e);
+      *m = m->cwiseProduct(c.e);
     };
     for (int i = static_cast<int>(ops.size()) - 1; i >= 0; --i) {
       const ScheduleOp& op = ops[i];
@@ -234,7 +243,7 @@ class Modal final : public ModalEvaluator {
           break;
         }
         case ScheduleOp::kAdvance:
-          back_step(s, op.value, op.index, &mu);
+          back_step(s, op.step, op.index, &mu);
           break;
         case ScheduleOp::kBolus:
           break;
@@ -254,12 +263,12 @@ class Modal final : public ModalEvaluator {
           pop(&m);
           Vec rho = mu;
           for (auto it = cycle.to_record.rbegin(); it != cycle.to_record.rend(); ++it) {
-            back_step(s, it->first, it->second, &rho);
+            back_step(s, it->step, it->input, &rho);
           }
           // Implicit function theorem on z* = m ∘ z* + r: ρ̂ = μ̂ / (1 − m), then back through one period.
           rho = rho.cwiseQuotient((Vec::Ones(n_) - m));
           for (auto it = cycle.period.rbegin(); it != cycle.period.rend(); ++it) {
-            back_step(s, it->first, it->second, &rho);
+            back_step(s, it->step, it->input, &rho);
           }
           if (!op.add) mu.setZero();
           break;
@@ -297,6 +306,12 @@ class Modal final : public ModalEvaluator {
     std::vector<DTerm> dc;  // ∂C/∂θ_j entries (row unused)
     Vec xacc;               // Σ ∂ℓ/∂ŷ_k z_k, for the ∂C terms
   };
+  // What a step of length h needs, computed on first use per set.
+  struct StepCache {
+    bool have_e = false, have_g = false, have_df = false, have_dg = false;
+    Vec e, g;    // e^{λh}; the input's weight f[λ, 0] = (e^{λh} − 1)/λ
+    Mat df, dg;  // f[λ_i, λ_k] and f[λ_i, λ_k, 0], the Daleckii–Krein weights
+  };
   struct Set {
     std::vector<double> theta;
     std::vector<std::pair<int, int>> active;
@@ -307,6 +322,7 @@ class Modal final : public ModalEvaluator {
     std::vector<Vec> uhat;
     std::vector<Mat> ahat;
     Mat z;
+    std::vector<StepCache> steps;  // per EventSchedule::steps entry
   };
 
   // Eigendecomposition by compartment structure (see the header).
@@ -462,39 +478,56 @@ class Modal final : public ModalEvaluator {
 
   void Push(const Vec& v) { tape_.insert(tape_.end(), v.data(), v.data() + n_); }
 
-  // One step of length h with input `input` (-1: none), with the sensitivities
-  // (route a) or the tape (route b) when asked.
-  void Step(Set& s, double h, int input, Vec* z, Eigen::MatrixXd* sens, std::vector<double>* tape) {
-    Vec e(n_);
-    for (int r = 0; r < n_; ++r) e(r) = std::exp(s.lambda(r) * h);
-    if (tape) {
-      Push(*z);
-      Push(e);
+  // e^{Λh} for schedule step `step`, with the input weights and the divided
+  // differences when asked. Both f[λ_i, λ_k] and f[λ_i, λ_k, 0] are symmetric.
+  const StepCache& Cached(Set& s, int step, bool input, bool derivatives) {
+    StepCache& c = s.steps[step];
+    const double h = sched_.steps[step];
+    if (!c.have_e) {
+      c.e.resize(n_);
+      for (int r = 0; r < n_; ++r) c.e(r) = std::exp(s.lambda(r) * h);
+      c.have_e = true;
     }
-    if (sens) {
-      // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
-      Mat df(n_, n_), dg;
+    if (input && !c.have_g) {
+      c.g.resize(n_);
+      for (int r = 0; r < n_; ++r) c.g(r) = DividedExp2(s.lambda(r), 0, c.e(r), 1, h);
+      c.have_g = true;
+    }
+    if (derivatives && !c.have_df) {
+      c.df.resize(n_, n_);
       for (int i = 0; i < n_; ++i) {
-        for (int k = 0; k < n_; ++k) df(i, k) = DividedF(s, i, k, e, h);
+        for (int k = 0; k <= i; ++k) c.df(i, k) = c.df(k, i) = DividedF(s, i, k, c.e, h);
       }
-      if (input >= 0) {
-        dg.resize(n_, n_);
-        for (int i = 0; i < n_; ++i) {
-          for (int k = 0; k < n_; ++k) dg(i, k) = DividedExp3(s.lambda(i), s.lambda(k), e(i), e(k), h);
+      c.have_df = true;
+    }
+    if (derivatives && input && !c.have_dg) {
+      c.dg.resize(n_, n_);
+      for (int i = 0; i < n_; ++i) {
+        for (int k = 0; k <= i; ++k) {
+          c.dg(i, k) = c.dg(k, i) = DividedExp3(s.lambda(i), s.lambda(k), c.e(i), c.e(k), h);
         }
       }
-      for (int c = 0; c < sens->cols(); ++c) sens->col(c).array() *= e.array();
+      c.have_dg = true;
+    }
+    return c;
+  }
+
+  // One step (schedule step `step`) with input `input` (-1: none), with the
+  // sensitivities (route a) or the tape (route b) when asked.
+  void Step(Set& s, int step, int input, Vec* z, Eigen::MatrixXd* sens, std::vector<double>* tape) {
+    const StepCache& c = Cached(s, step, input >= 0, sens != nullptr);
+    if (tape) Push(*z);
+    if (sens) {
+      // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
+      for (int col = 0; col < sens->cols(); ++col) sens->col(col).array() *= c.e.array();
       for (size_t act = 0; act < s.active.size(); ++act) {
-        Vec t = df.cwiseProduct(s.ahat[act]) * *z;
-        if (input >= 0) t.noalias() += dg.cwiseProduct(s.ahat[act]) * Uhat(s, input);
+        Vec t = c.df.cwiseProduct(s.ahat[act]) * *z;
+        if (input >= 0) t.noalias() += c.dg.cwiseProduct(s.ahat[act]) * Uhat(s, input);
         sens->col(s.active[act].second) += t;
       }
     }
-    *z = z->cwiseProduct(e);
-    if (input >= 0) {
-      const Vec& u = Uhat(s, input);
-      for (int r = 0; r < n_; ++r) (*z)(r) += DividedExp2(s.lambda(r), 0, e(r), 1, h) * u(r);
-    }
+    *z = z->cwiseProduct(c.e);
+    if (input >= 0) *z += c.g.cwiseProduct(Uhat(s, input));
   }
 
   void Run(Eigen::VectorXd* yhat, Eigen::MatrixXd* jac, std::vector<double>* tape) {
@@ -512,7 +545,7 @@ class Modal final : public ModalEvaluator {
       }
       switch (op.kind) {
         case ScheduleOp::kAdvance:
-          Step(s, op.value, op.index, &z, jac ? &sens : nullptr, tape);
+          Step(s, op.step, op.index, &z, jac ? &sens : nullptr, tape);
           break;
         case ScheduleOp::kBolus:
           z += op.value * s.w.col(op.cmt);
@@ -574,9 +607,9 @@ class Modal final : public ModalEvaluator {
                    std::vector<double>* tape) {
     const Vec b = cycle.bolus * s.w.col(cycle.cmt);
     Vec r = b, m = Vec::Ones(n_);
-    for (const auto& seg : cycle.period) {
-      Step(s, seg.first, seg.second, &r, nullptr, nullptr);
-      for (int i = 0; i < n_; ++i) m(i) *= std::exp(s.lambda(i) * seg.first);
+    for (const ScheduleSegment& seg : cycle.period) {
+      Step(s, seg.step, seg.input, &r, nullptr, nullptr);
+      m = m.cwiseProduct(s.steps[seg.step].e);
     }
     if (!((Vec::Ones(n_) - m).minCoeff() > 1e-13)) {
       throw NumericalFailure(
@@ -589,12 +622,12 @@ class Modal final : public ModalEvaluator {
       // ∂_p P at z* (route a) or the period's tape (route b), from z* + b̂.
       Vec x = x_star + b;
       if (sens) s_star = Eigen::MatrixXd::Zero(n_, p_);
-      for (const auto& seg : cycle.period) Step(s, seg.first, seg.second, &x, sens ? &s_star : nullptr, tape);
+      for (const ScheduleSegment& seg : cycle.period) Step(s, seg.step, seg.input, &x, sens ? &s_star : nullptr, tape);
       // Implicit function theorem: Ŝ* = (I − m)⁻¹ ∂_p P.
       if (sens) s_star = (s_star.array().colwise() / (Vec::Ones(n_) - m).array()).matrix();
     }
     Vec z = x_star + b;
-    for (const auto& seg : cycle.to_record) Step(s, seg.first, seg.second, &z, sens ? &s_star : nullptr, tape);
+    for (const ScheduleSegment& seg : cycle.to_record) Step(s, seg.step, seg.input, &z, sens ? &s_star : nullptr, tape);
     if (tape) Push(m);
     SetOrAdd(z, s_star, add, state, sens);
   }

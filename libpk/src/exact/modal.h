@@ -57,17 +57,27 @@ struct ScheduleOp {
   int set = 0;       ///< the parameter set in force (for kReset: that of the previous op)
   int index = -1;    ///< kAdvance, kSteadyInfusion: input vector (-1: none); kSteadyState: cycle; kSample: sample
   int cmt = 0;       ///< kBolus: 0-based compartment; kSample: 1-based output compartment
+  int step = -1;     ///< kAdvance: index of h in EventSchedule::steps
   double value = 0;  ///< kAdvance: h; kBolus: amount
+};
+
+struct ScheduleSegment {
+  int step = -1;   ///< index of the duration in EventSchedule::steps
+  int input = -1;  ///< input vector (-1: none)
 };
 
 struct ScheduleCycle {
   int cmt = 0;
   double bolus = 0;
-  std::vector<std::pair<double, int>> period, to_record;  ///< (h, input index)
+  std::vector<ScheduleSegment> period, to_record;
 };
 
 struct EventSchedule {
   std::vector<ScheduleOp> ops;
+  /// The distinct step lengths. e^{Λh} and its divided differences depend on h
+  /// alone, so each is computed once per parameter set and step length, not
+  /// once per step (sampling designs repeat a few intervals).
+  std::vector<double> steps;
   std::vector<Eigen::VectorXd> inputs;
   std::vector<ScheduleCycle> cycles;
   int num_samples = 0;
