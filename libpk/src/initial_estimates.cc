@@ -39,32 +39,59 @@ struct Candidate {
   Eigen::VectorXd amplitudes;
 };
 
-// Weighted linear least squares for the amplitudes at fixed rates; rejects
-// non-positive amplitudes.
-bool SolveAmplitudes(const std::vector<DoseInput>& doses, const std::vector<double>& t, const std::vector<double>& c,
-                     const std::vector<double>& rates, double ka, Candidate* out) {
-  const int n = static_cast<int>(t.size()), m = static_cast<int>(rates.size());
-  Eigen::MatrixXd x(n, m);
-  Eigen::VectorXd y(n);
-  for (int k = 0; k < n; ++k) {
-    const double w = 1 / c[k];
-    y(k) = 1;  // c_k·w
-    for (int i = 0; i < m; ++i) {
-      double sum = 0;
-      for (const DoseInput& d : doses) sum += KernelResponse(d, t[k], rates[i], ka);
-      x(k, i) = sum * w;
+// The weighted kernel columns x_k = Σ_d K(d, t_k; λ, ka)/c_k of the grid search,
+// each computed on first use and kept: a column depends on (λ, ka) alone, and the
+// search meets each pair in many combinations.
+class KernelColumns {
+ public:
+  KernelColumns(const std::vector<DoseInput>& doses, const std::vector<double>& t, const std::vector<double>& c,
+                const std::vector<double>& rates)
+      : doses_(doses), t_(t), c_(c), rates_(rates), grid_(static_cast<int>(rates.size())),
+        columns_(static_cast<size_t>(grid_) * (grid_ + 1)) {}
+
+  // Rate index i; absorption rate index j (-1: none).
+  const Eigen::VectorXd& Get(int i, int j) {
+    Eigen::VectorXd& col = columns_[static_cast<size_t>(i) * (grid_ + 1) + (j + 1)];
+    if (col.size() == 0) {
+      const int n = static_cast<int>(t_.size());
+      const double ka = j < 0 ? 0.0 : rates_[j];
+      col.resize(n);
+      for (int k = 0; k < n; ++k) {
+        const double w = 1 / c_[k];
+        double sum = 0;
+        for (const DoseInput& d : doses_) sum += KernelResponse(d, t_[k], rates_[i], ka);
+        col(k) = sum * w;
+      }
     }
+    return col;
   }
-  const Eigen::VectorXd a = x.colPivHouseholderQr().solve(y);
-  if (!a.allFinite() || (a.array() <= 0).any()) return false;
-  const double cost = (x * a - y).squaredNorm();
-  if (!(cost < out->cost)) return false;
-  out->cost = cost;
-  out->rates = rates;
-  out->ka = ka;
-  out->amplitudes = a;
-  return true;
-}
+
+ private:
+  const std::vector<DoseInput>& doses_;
+  const std::vector<double>& t_;
+  const std::vector<double>& c_;
+  const std::vector<double>& rates_;
+  const int grid_;
+  std::vector<Eigen::VectorXd> columns_;
+};
+
+// Weighted linear least squares for the amplitudes at fixed rates (the columns
+// of x); false for non-positive amplitudes. The work space is reused from call
+// to call.
+struct AmplitudeSolver {
+  Eigen::MatrixXd x;
+  Eigen::VectorXd y, a;
+  Eigen::ColPivHouseholderQR<Eigen::MatrixXd> qr;
+
+  bool Solve(double* cost) {
+    y.setOnes(x.rows());  // c_k·w_k
+    qr.compute(x);
+    a = qr.solve(y);
+    if (!a.allFinite() || (a.array() <= 0).any()) return false;
+    *cost = (x * a - y).squaredNorm();
+    return *cost < std::numeric_limits<double>::infinity();
+  }
+};
 
 // Terminal-phase log-linear regression, as in non-compartmental analysis: over
 // the last k points after the peak (k = 3, 4, …), the slope of log c against
@@ -282,23 +309,33 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
   std::vector<int> current;
   Combinations(grid_size, phases, 0, &current, &combos);
 
-  // Keep the best few candidates, so an infeasible conversion can fall back to the next.
+  // Keep the best few candidates, in order of cost, so an infeasible conversion can fall back to the next.
+  const size_t kKeep = 20;
   std::vector<Candidate> best;
-  auto consider = [&](const std::vector<double>& lambdas, double ka) {
+  KernelColumns columns(doses, ts, cs, rates);
+  AmplitudeSolver solver;
+  solver.x.resize(static_cast<Eigen::Index>(ts.size()), phases);
+  auto consider = [&](const std::vector<int>& idx, int ka_index) {
+    for (int i = 0; i < phases; ++i) solver.x.col(i) = columns.Get(idx[i], ka_index);
+    double cost;
+    if (!solver.Solve(&cost)) return;
+    if (best.size() == kKeep && !(cost < best.back().cost)) return;
+    const auto at = std::upper_bound(best.begin(), best.end(), cost,
+                                     [](double c, const Candidate& b) { return c < b.cost; });
     Candidate cand;
-    if (!SolveAmplitudes(doses, ts, cs, lambdas, ka, &cand)) return;
-    best.push_back(cand);
-    std::sort(best.begin(), best.end(), [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; });
-    if (best.size() > 20) best.pop_back();
+    cand.cost = cost;
+    for (int i : idx) cand.rates.push_back(rates[i]);
+    cand.ka = ka_index < 0 ? 0.0 : rates[ka_index];
+    cand.amplitudes = solver.a;
+    best.insert(at, std::move(cand));
+    if (best.size() > kKeep) best.pop_back();
   };
   for (const std::vector<int>& idx : combos) {
-    std::vector<double> lambdas;
-    for (int i : idx) lambdas.push_back(rates[i]);
     if (!oral) {
-      consider(lambdas, 0);
+      consider(idx, -1);
     } else {
       // Absorption faster than every disposition rate (the usual, non-flip-flop branch).
-      for (int j = idx.back() + 1; j < grid_size; ++j) consider(lambdas, rates[j]);
+      for (int j = idx.back() + 1; j < grid_size; ++j) consider(idx, j);
     }
   }
   for (const Candidate& cand : best) {
