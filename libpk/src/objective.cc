@@ -119,22 +119,62 @@ struct Objective::Impl {
     return made;
   }
 
-  // The modal evaluator at `values` (null when some set's A is unsuitable; see exact/modal.h).
-  std::unique_ptr<internal::ModalEvaluator> Modal(const internal::EventSchedule& sched, const Eigen::VectorXd& values,
-                                                  const std::vector<int>& model_free) const {
-    const int m = model->num_parameters();
-    std::vector<Eigen::VectorXd> theta(prepared.sets.size());
-    std::vector<std::vector<std::pair<int, int>>> free(prepared.sets.size());
-    for (size_t k = 0; k < theta.size(); ++k) {
-      theta[k] = values.head(m);
-      for (int i = 0; i < m; ++i) {
-        if (prepared.from_data[k][i]) theta[k](i) = prepared.sets[k](i);
-      }
-      for (size_t a = 0; a < model_free.size(); ++a) {
-        if (!prepared.from_data[k][model_free[a]]) free[k].emplace_back(model_free[a], static_cast<int>(a));
+  // Modal evaluators with their inputs, kept between evaluations for their
+  // storage (one per concurrent evaluation).
+  struct ModalWork {
+    std::unique_ptr<internal::ModalEvaluator> evaluator;
+    std::vector<Eigen::VectorXd> theta;
+    std::vector<std::vector<std::pair<int, int>>> free;
+  };
+  mutable std::mutex modal_mutex;
+  mutable std::vector<std::unique_ptr<ModalWork>> modal_pool;
+
+  // Hands a ModalWork back to the pool when the evaluation ends.
+  struct ModalLease {
+    const Impl* owner = nullptr;
+    std::unique_ptr<ModalWork> work;
+    ModalLease() = default;
+    ModalLease(const ModalLease&) = delete;
+    ModalLease& operator=(const ModalLease&) = delete;
+    ~ModalLease() {
+      if (owner == nullptr || !work) return;
+      std::lock_guard<std::mutex> lock(owner->modal_mutex);
+      owner->modal_pool.push_back(std::move(work));
+    }
+  };
+
+  // The modal evaluator at `values`, leased into `lease` (null when some set's A
+  // is unsuitable; see exact/modal.h).
+  internal::ModalEvaluator* Modal(const internal::EventSchedule& sched, const Eigen::VectorXd& values,
+                                  const std::vector<int>& model_free, ModalLease* lease) const {
+    {
+      std::lock_guard<std::mutex> lock(modal_mutex);
+      if (!modal_pool.empty()) {
+        lease->work = std::move(modal_pool.back());
+        modal_pool.pop_back();
       }
     }
-    return internal::MakeModalEvaluator(*linear, sched, theta, free, static_cast<int>(model_free.size()));
+    if (!lease->work) {
+      lease->work.reset(new ModalWork);
+      lease->work->evaluator = internal::NewModalEvaluator(*linear);
+    }
+    lease->owner = this;
+    ModalWork& w = *lease->work;
+    const int m = model->num_parameters();
+    w.theta.resize(prepared.sets.size());
+    w.free.resize(prepared.sets.size());
+    for (size_t k = 0; k < w.theta.size(); ++k) {
+      w.theta[k] = values.head(m);
+      for (int i = 0; i < m; ++i) {
+        if (prepared.from_data[k][i]) w.theta[k](i) = prepared.sets[k](i);
+      }
+      w.free[k].clear();
+      for (size_t a = 0; a < model_free.size(); ++a) {
+        if (!prepared.from_data[k][model_free[a]]) w.free[k].emplace_back(model_free[a], static_cast<int>(a));
+      }
+    }
+    if (!w.evaluator->Reset(sched, w.theta, w.free, static_cast<int>(model_free.size()))) return nullptr;
+    return w.evaluator.get();
   }
 
   double FdStep() const {
@@ -306,6 +346,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   // Free layout parameters get dual-number seeds; σ are handled analytically.
   std::vector<int> model_free;          // layout indices
   std::vector<int> model_pos;           // their positions in `free`
+  model_free.reserve(P);
+  model_pos.reserve(P);
   for (int k = 0; k < P; ++k) {
     if (free[k] < L) {
       model_free.push_back(free[k]);
@@ -338,7 +380,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::MatrixXd jm;  // N × pm, ∂ŷ/∂(free model parameters)
   std::unique_ptr<internal::DiscreteAdjoint> adjoint;
   std::shared_ptr<const internal::EventSchedule> modal_schedule;  // what `modal` replays; outlives it
-  std::unique_ptr<internal::ModalEvaluator> modal;                // route (b) in eigen-coordinates
+  Impl::ModalLease modal_lease;                                   // holds the modal evaluator
+  internal::ModalEvaluator* modal = nullptr;                      // route (b) in eigen-coordinates
   std::unique_ptr<internal::OdeAdjoint> ode_adjoint;
   double cont_loss = 0;                                    // ½∫ w (y − y_m)² of the continuous records
   Eigen::RowVectorXd cont_grad = Eigen::RowVectorXd::Zero(pm);
@@ -364,14 +407,14 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     try {
       modal_schedule = d.Schedule(values);
       // A value alone needs no partials of A.
-      std::unique_ptr<internal::ModalEvaluator> ev_modal =
-          d.Modal(*modal_schedule, values, need == Need::kValue ? std::vector<int>() : model_free);
+      internal::ModalEvaluator* ev_modal =
+          d.Modal(*modal_schedule, values, need == Need::kValue ? std::vector<int>() : model_free, &modal_lease);
       if (ev_modal) {
         if (route == GradientRoute::kForward && pm > 0) {
           ev_modal->Jacobian(&yhat, &jm);
         } else if (route == GradientRoute::kAdjoint && pm > 0) {
           ev_modal->AdjointForward(&yhat);
-          modal = std::move(ev_modal);
+          modal = ev_modal;
         } else {
           ev_modal->Predict(&yhat);
           jm = Eigen::MatrixXd::Zero(N, pm);
@@ -463,7 +506,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   // Per-sample loss terms: value, ∂ℓ/∂ŷ, and ∂ℓ/∂σ for ML.
   const Eigen::VectorXd r = d.y - yhat;
   Eigen::VectorXd dl_dy(N);
-  Eigen::VectorXd sigma2(N), ds2_dy(N);
+  Eigen::VectorXd sigma2, ds2_dy;  // maximum likelihood only
   double value = 0;
   const double a = d.sigma_add >= 0 ? values(d.sigma_add) : 0.0;
   const double b = d.sigma_prop >= 0 ? values(d.sigma_prop) : 0.0;
@@ -472,6 +515,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     value = 0.5 * (d.w.array() * r.array().square()).sum();
     dl_dy = -(d.w.array() * r.array()).matrix();
   } else {
+    sigma2.resize(N);
+    ds2_dy.resize(N);
     for (int k = 0; k < N; ++k) {
       sigma2(k) = a * a + b * b * yhat(k) * yhat(k);
       ds2_dy(k) = 2 * b * b * yhat(k);
@@ -536,8 +581,10 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   }
   for (int a2 = 0; a2 < pm; ++a2) ev.gradient(model_pos[a2]) = gm(a2);
   // σ and the priors.
-  Eigen::VectorXd ds2_dsigma_add(N), ds2_dsigma_prop(N);
+  Eigen::VectorXd ds2_dsigma_add, ds2_dsigma_prop;
   if (ml) {
+    ds2_dsigma_add.resize(N);
+    ds2_dsigma_prop.resize(N);
     for (int k = 0; k < N; ++k) {
       ds2_dsigma_add(k) = 2 * a;
       ds2_dsigma_prop(k) = 2 * b * yhat(k) * yhat(k);

@@ -155,14 +155,23 @@ class Modal final : public ModalEvaluator {
   using Mat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, MaxN, MaxN>;
   using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, MaxN, 1>;
 
-  Modal(const LinearModel& model, const EventSchedule& schedule, int num_free)
-      : model_(model), sched_(schedule), n_(model.num_compartments()), p_(num_free) {}
+  explicit Modal(const LinearModel& model) : model_(model), n_(model.num_compartments()) {}
 
   // Builds every set's decomposition; false when one is unsuitable.
-  bool Setup(const std::vector<Eigen::VectorXd>& theta, const std::vector<std::vector<std::pair<int, int>>>& free) {
+  bool Reset(const EventSchedule& schedule, const std::vector<Eigen::VectorXd>& theta,
+             const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) override {
+    sched_ = &schedule;
+    p_ = num_free;
     sets_.resize(theta.size());
     for (size_t k = 0; k < theta.size(); ++k) {
       Set& s = sets_[k];
+      // What the previous use left: cleared, capacity kept.
+      s.da.clear();
+      s.ahat.clear();
+      for (Output& o : s.outputs) {
+        o.cmt = -1;
+        o.dc.clear();
+      }
       if (!theta[k].allFinite()) return false;
       s.theta.assign(theta[k].data(), theta[k].data() + theta[k].size());
       s.active = free[k];
@@ -176,20 +185,20 @@ class Modal final : public ModalEvaluator {
           s.da.push_back({t.row, t.col, static_cast<int>(act), TermPartial(t, s.theta, s.active[act].first)});
         }
       }
-      s.uhat.resize(sched_.inputs.size());
-      s.steps.assign(sched_.steps.size(), StepCache());
+      s.uhat.assign(sched_->inputs.size(), Vec());
+      s.steps.assign(sched_->steps.size(), StepCache());
     }
     return true;
   }
 
   void Predict(Eigen::VectorXd* yhat) override {
-    yhat->setZero(sched_.num_samples);
+    yhat->setZero(sched_->num_samples);
     Run(yhat, nullptr, nullptr);
   }
 
   void Jacobian(Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) override {
-    yhat->setZero(sched_.num_samples);
-    jacobian->setZero(sched_.num_samples, p_);
+    yhat->setZero(sched_->num_samples);
+    jacobian->setZero(sched_->num_samples, p_);
     for (Set& s : sets_) {
       if (!s.ahat.empty() || s.active.empty()) continue;
       // Â_j = V⁻¹ (∂A/∂θ_j) V, one rank-one term per entry of ∂A/∂θ_j.
@@ -200,10 +209,10 @@ class Modal final : public ModalEvaluator {
   }
 
   void AdjointForward(Eigen::VectorXd* yhat) override {
-    yhat->setZero(sched_.num_samples);
+    yhat->setZero(sched_->num_samples);
     tape_.clear();
     // One n-vector per step and per sample; steady states add their cycles.
-    tape_.reserve(n_ * (sched_.ops.size() + 4 * sched_.cycles.size()));
+    tape_.reserve(n_ * (sched_->ops.size() + 4 * sched_->cycles.size()));
     Run(yhat, nullptr, &tape_);
   }
 
@@ -218,7 +227,7 @@ class Modal final : public ModalEvaluator {
       *v = Eigen::Map<const Eigen::VectorXd>(tape_.data() + cursor, n_);
     };
     Vec mu = Vec::Zero(n_), z(n_);
-    const std::vector<ScheduleOp>& ops = sched_.ops;
+    const std::vector<ScheduleOp>& ops = sched_->ops;
     // Back through one step z⁺ = e ∘ z + g ∘ û: Z += D_f ∘ (μ̂ zᵀ) + D_g ∘ (μ̂ ûᵀ), then μ̂ ← e ∘ μ̂.
     const auto back_step = [&](Set& s, int step, int input, Vec* m) {
       pop(&z);
@@ -258,7 +267,7 @@ class Modal final : public ModalEvaluator {
           break;
         }
         case ScheduleOp::kSteadyState: {
-          const ScheduleCycle& cycle = sched_.cycles[op.index];
+          const ScheduleCycle& cycle = sched_->cycles[op.index];
           Vec m(n_);
           pop(&m);
           Vec rho = mu;
@@ -301,7 +310,7 @@ class Modal final : public ModalEvaluator {
     double d;
   };
   struct Output {
-    int cmt;
+    int cmt = -1;  // -1: unused (kept for its storage)
     Vec chat;               // (C V)ᵀ
     std::vector<DTerm> dc;  // ∂C/∂θ_j entries (row unused)
     Vec xacc;               // Σ ∂ℓ/∂ŷ_k z_k, for the ∂C terms
@@ -441,7 +450,7 @@ class Modal final : public ModalEvaluator {
   const Vec& Uhat(Set& s, int input) {
     Vec& u = s.uhat[input];
     if (u.size() == 0) {
-      const Eigen::VectorXd& in = sched_.inputs[input];
+      const Eigen::VectorXd& in = sched_->inputs[input];
       u = Vec::Zero(n_);
       for (int c = 0; c < n_; ++c) {
         if (in(c) != 0) u += in(c) * s.w.col(c);
@@ -451,10 +460,16 @@ class Modal final : public ModalEvaluator {
   }
 
   Output& GetOutput(Set& s, int cmt) {
+    Output* free_entry = nullptr;
     for (Output& o : s.outputs) {
       if (o.cmt == cmt) return o;
+      if (o.cmt < 0 && free_entry == nullptr) free_entry = &o;
     }
-    Output o;
+    if (free_entry == nullptr) {
+      s.outputs.emplace_back();
+      free_entry = &s.outputs.back();
+    }
+    Output& o = *free_entry;
     o.cmt = cmt;
     Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor, 1, MaxN> c =
         Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor, 1, MaxN>::Zero(n_);
@@ -468,8 +483,7 @@ class Modal final : public ModalEvaluator {
     }
     o.chat = (c * s.v).transpose();
     o.xacc = Vec::Zero(n_);
-    s.outputs.push_back(std::move(o));
-    return s.outputs.back();
+    return o;
   }
 
   static double DividedF(const Set& s, int i, int k, const Vec& e, double h) {
@@ -482,7 +496,7 @@ class Modal final : public ModalEvaluator {
   // differences when asked. Both f[λ_i, λ_k] and f[λ_i, λ_k, 0] are symmetric.
   const StepCache& Cached(Set& s, int step, bool input, bool derivatives) {
     StepCache& c = s.steps[step];
-    const double h = sched_.steps[step];
+    const double h = sched_->steps[step];
     if (!c.have_e) {
       c.e.resize(n_);
       for (int r = 0; r < n_; ++r) c.e(r) = std::exp(s.lambda(r) * h);
@@ -519,11 +533,19 @@ class Modal final : public ModalEvaluator {
     if (tape) Push(*z);
     if (sens) {
       // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
-      for (int col = 0; col < sens->cols(); ++col) sens->col(col).array() *= c.e.array();
+      sens->array().colwise() *= c.e.array();
+      const Vec* u = input >= 0 ? &Uhat(s, input) : nullptr;
       for (size_t act = 0; act < s.active.size(); ++act) {
-        Vec t = c.df.cwiseProduct(s.ahat[act]) * *z;
-        if (input >= 0) t.noalias() += c.dg.cwiseProduct(s.ahat[act]) * Uhat(s, input);
-        sens->col(s.active[act].second) += t;
+        const Mat& ah = s.ahat[act];
+        double* out = sens->col(s.active[act].second).data();
+        for (int i = 0; i < n_; ++i) {
+          double t = 0;
+          for (int k = 0; k < n_; ++k) t += c.df(i, k) * ah(i, k) * (*z)(k);
+          if (u) {
+            for (int k = 0; k < n_; ++k) t += c.dg(i, k) * ah(i, k) * (*u)(k);
+          }
+          out[i] += t;
+        }
       }
     }
     *z = z->cwiseProduct(c.e);
@@ -531,7 +553,7 @@ class Modal final : public ModalEvaluator {
   }
 
   void Run(Eigen::VectorXd* yhat, Eigen::MatrixXd* jac, std::vector<double>* tape) {
-    const std::vector<ScheduleOp>& ops = sched_.ops;
+    const std::vector<ScheduleOp>& ops = sched_->ops;
     Vec z = Vec::Zero(n_);
     Eigen::MatrixXd sens;
     if (jac) sens = Eigen::MatrixXd::Zero(n_, p_);
@@ -586,7 +608,7 @@ class Modal final : public ModalEvaluator {
           break;
         }
         case ScheduleOp::kSteadyState:
-          SteadyState(s, sched_.cycles[op.index], op.add, &z, jac ? &sens : nullptr, tape);
+          SteadyState(s, sched_->cycles[op.index], op.add, &z, jac ? &sens : nullptr, tape);
           break;
       }
     }
@@ -633,31 +655,28 @@ class Modal final : public ModalEvaluator {
   }
 
   const LinearModel& model_;
-  const EventSchedule& sched_;
+  const EventSchedule* sched_ = nullptr;
   const int n_;
-  const int p_;
+  int p_ = 0;
   std::vector<Set> sets_;
   std::vector<double> tape_;
 };
 
-template <int MaxN>
-std::unique_ptr<ModalEvaluator> Make(const LinearModel& model, const EventSchedule& schedule,
-                                     const std::vector<Eigen::VectorXd>& theta,
-                                     const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) {
-  std::unique_ptr<Modal<MaxN>> m(new Modal<MaxN>(model, schedule, num_free));
-  if (!m->Setup(theta, free)) return nullptr;
-  return m;
-}
-
 }  // namespace
+
+std::unique_ptr<ModalEvaluator> NewModalEvaluator(const LinearModel& model) {
+  // Up to 6 states the matrices live on the stack (no allocation per step).
+  if (model.num_compartments() <= 6) return std::unique_ptr<ModalEvaluator>(new Modal<6>(model));
+  return std::unique_ptr<ModalEvaluator>(new Modal<Eigen::Dynamic>(model));
+}
 
 std::unique_ptr<ModalEvaluator> MakeModalEvaluator(const LinearModel& model, const EventSchedule& schedule,
                                                    const std::vector<Eigen::VectorXd>& theta,
                                                    const std::vector<std::vector<std::pair<int, int>>>& free,
                                                    int num_free) {
-  // Up to 6 states the matrices live on the stack (no allocation per step).
-  if (model.num_compartments() <= 6) return Make<6>(model, schedule, theta, free, num_free);
-  return Make<Eigen::Dynamic>(model, schedule, theta, free, num_free);
+  std::unique_ptr<ModalEvaluator> m = NewModalEvaluator(model);
+  if (!m->Reset(schedule, theta, free, num_free)) return nullptr;
+  return m;
 }
 
 }  // namespace internal

@@ -92,6 +92,12 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
 class ModalEvaluator {
  public:
   virtual ~ModalEvaluator() = default;
+  /// Prepares the evaluator for `schedule` at per-set model parameters `theta`,
+  /// with free[k] = (model parameter j, position in p) for set k. False when some
+  /// set's A is unsuitable (see above). Storage is kept from the previous use, so
+  /// an evaluator reused across evaluations allocates little.
+  virtual bool Reset(const EventSchedule& schedule, const std::vector<Eigen::VectorXd>& theta,
+                     const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) = 0;
   /// ŷ only.
   virtual void Predict(Eigen::VectorXd* yhat) = 0;
   /// ŷ and the N×P Jacobian ∂ŷ/∂p (route (a)).
@@ -107,6 +113,10 @@ class ModalEvaluator {
 /// are zero); `num_free` is P. Returns null when some set's A has complex
 /// eigenvalues or an ill-conditioned eigenbasis, or a value is not finite: the
 /// caller then takes the Padé path. Steady states without one throw NumericalFailure.
+/// An evaluator for `model`, to be Reset before use.
+std::unique_ptr<ModalEvaluator> NewModalEvaluator(const LinearModel& model);
+
+/// NewModalEvaluator and Reset in one; null when Reset fails.
 std::unique_ptr<ModalEvaluator> MakeModalEvaluator(const LinearModel& model, const EventSchedule& schedule,
                                                    const std::vector<Eigen::VectorXd>& theta,
                                                    const std::vector<std::vector<std::pair<int, int>>>& free,
