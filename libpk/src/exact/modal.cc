@@ -226,17 +226,24 @@ class Modal final : public ModalEvaluator {
       cursor -= n_;
       *v = Eigen::Map<const Eigen::VectorXd>(tape_.data() + cursor, n_);
     };
-    Vec mu = Vec::Zero(n_), z(n_);
+    Vec mu = Vec::Zero(n_), z(n_);  // z: a sample's state
     const std::vector<ScheduleOp>& ops = sched_->ops;
     // Back through one step z⁺ = e ∘ z + g ∘ û: Z += D_f ∘ (μ̂ zᵀ) + D_g ∘ (μ̂ ûᵀ), then μ̂ ← e ∘ μ̂.
     const auto back_step = [&](Set& s, int step, int input, Vec* m) {
-      pop(&z);
+      cursor -= n_;
+      const double* zt = tape_.data() + cursor;
       const StepCache& c = Cached(s, step, input >= 0, true);
-      if (!m->isZero(0.0)) {
-        s.z.noalias() += ((*m) * z.transpose()).cwiseProduct(c.df);
-        if (input >= 0) s.z.noalias() += ((*m) * Uhat(s, input).transpose()).cwiseProduct(c.dg);
+      const Vec* u = input >= 0 ? &Uhat(s, input) : nullptr;
+      for (int i = 0; i < n_; ++i) {
+        const double mi = (*m)(i);
+        if (mi == 0) continue;
+        for (int k = 0; k < n_; ++k) {
+          double t = c.df(i, k) * zt[k];
+          if (u) t += c.dg(i, k) * (*u)(k);
+          s.z(i, k) += mi * t;
+        }
+        (*m)(i) = mi * c.e(i);
       }
-      *m = m->cwiseProduct(c.e);
     };
     for (int i = static_cast<int>(ops.size()) - 1; i >= 0; --i) {
       const ScheduleOp& op = ops[i];
