@@ -100,7 +100,7 @@ struct Objective::Impl {
 
   std::shared_ptr<const internal::EventSchedule> Schedule(const Eigen::VectorXd& values) const {
     const int m = model->num_parameters();
-    const Eigen::VectorXd key = values.segment(m, L() - m);
+    const auto key = values.segment(m, L() - m);
     {
       std::lock_guard<std::mutex> lock(schedule_mutex);
       // Unused modifiers are NaN: NaN matches NaN.
@@ -376,7 +376,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     return ev;
   }
 
-  Eigen::VectorXd yhat;
+  Eigen::VectorXd& yhat = ev.predictions;  // ŷ (emptied again if the evaluation fails)
   Eigen::MatrixXd jm;  // N × pm, ∂ŷ/∂(free model parameters)
   std::unique_ptr<internal::DiscreteAdjoint> adjoint;
   std::shared_ptr<const internal::EventSchedule> modal_schedule;  // what `modal` replays; outlives it
@@ -384,7 +384,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   internal::ModalEvaluator* modal = nullptr;                      // route (b) in eigen-coordinates
   std::unique_ptr<internal::OdeAdjoint> ode_adjoint;
   double cont_loss = 0;                                    // ½∫ w (y − y_m)² of the continuous records
-  Eigen::RowVectorXd cont_grad = Eigen::RowVectorXd::Zero(pm);
+  Eigen::RowVectorXd cont_grad;                            // its gradient (ODE forward route)
   // Predictions alone at other values (finite differences).
   auto predict = [&](const Eigen::VectorXd& v, Eigen::VectorXd* y, double* cl) {
     internal::PreparedSubject sv = d.prepared;
@@ -425,6 +425,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     } catch (const internal::NumericalFailure& e) {
       ev.ok = false;
       ev.message = e.what();
+      yhat.resize(0);
       return ev;
     }
   }
@@ -494,14 +495,15 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   } catch (const internal::NumericalFailure& e) {
     ev.ok = false;
     ev.message = e.what();
+    yhat.resize(0);
     return ev;
   }
   if (!yhat.allFinite()) {
     ev.ok = false;
     ev.message = "a prediction is not finite";
+    yhat.resize(0);
     return ev;
   }
-  ev.predictions = yhat;
 
   // Per-sample loss terms: value, ∂ℓ/∂ŷ, and ∂ℓ/∂σ for ML.
   const Eigen::VectorXd r = d.y - yhat;
@@ -562,7 +564,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     return ev;
   }
   // ∂V/∂θ for the model parameters: the adjoint gives Σ ∂ℓ/∂ŷ ∂ŷ/∂θ directly.
-  Eigen::VectorXd gm = Eigen::VectorXd::Zero(pm);
+  Eigen::VectorXd gm;
   if (adjoint) {
     gm = adjoint->Gradient(dl_dy);
   } else if (modal) {
@@ -577,7 +579,10 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       return ev;
     }
   } else if (pm > 0) {
-    gm = jm.transpose() * dl_dy + cont_grad.transpose();
+    gm = jm.transpose() * dl_dy;
+    if (cont_grad.size()) gm += cont_grad.transpose();
+  } else {
+    gm.setZero(pm);
   }
   for (int a2 = 0; a2 < pm; ++a2) ev.gradient(model_pos[a2]) = gm(a2);
   // σ and the priors.
@@ -597,13 +602,14 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       ev.gradient(k) += 0.5 * (1 / sigma2(j) - r(j) * r(j) / (sigma2(j) * sigma2(j))) * ds2(j);
     }
   }
-  Eigen::VectorXd prior_hess = Eigen::VectorXd::Zero(P);
+  Eigen::VectorXd prior_hess;  // for the information matrix
+  if (need == Need::kJacobian) prior_hess.setZero(P);
   for (const Impl::Prior& p : d.priors) {
     for (int k = 0; k < P; ++k) {
       if (free[k] != p.index) continue;
       const double th = values(p.index);
       ev.gradient(k) += (std::log(th) - p.log_median) / (p.sd * p.sd * th);
-      prior_hess(k) += 1 / (p.sd * p.sd * th * th);
+      if (prior_hess.size()) prior_hess(k) += 1 / (p.sd * p.sd * th * th);
     }
   }
   if (need != Need::kJacobian) return ev;
