@@ -363,6 +363,26 @@ TEST_CASE("the exact propagator refuses nonlinear models; solver failures are re
   CHECK(ev.message.find("ODE solver failed") != std::string::npos);
 }
 
+TEST_CASE("gradient auto with the ODE propagator: forward sensitivities for few parameters, the adjoint beyond",
+          "[ode][gradient]") {
+  // pk::kOdeAdjointThreshold is the crossover pkbench measures (docs/performance.md).
+  const auto model = pk::MakeModel("1cmt_iv_emax");  // CL, V, KE0, E0, EMAX, EC50, HILL
+  auto data = Parse("ID,TIME,AMT,EVID,DVID,DV\n1,0,100,1,1,.\n1,1,0,0,1,3\n1,2,0,0,2,40\n1,6,0,0,1,1\n");
+  const pk::Objective obj(model, data, 0, pk::ObjectiveOptions());
+  using Need = pk::Objective::Need;
+  for (int m = 1; m <= 7; ++m) {
+    std::vector<int> free;
+    for (int i = 0; i < m; ++i) free.push_back(i);
+    INFO("m = " << m);
+    const auto ev = obj.Evaluate(obj.DefaultValues(), free, Need::kGradient, pk::GradientRoute::kAuto);
+    REQUIRE(ev.ok);
+    CHECK(std::string(ev.route) == (m > pk::kOdeAdjointThreshold ? "adjoint" : "forward"));
+    // The Jacobian always comes from forward sensitivities.
+    CHECK(std::string(obj.Evaluate(obj.DefaultValues(), free, Need::kJacobian, pk::GradientRoute::kAuto).route) ==
+          "forward");
+  }
+}
+
 TEST_CASE("noisy Michaelis-Menten fits reach R's optimum (optim + deSolve)", "[ode][fit][reference]") {
   // tests/reference/make_mm_reference.R wrote the reference objectives.
   std::ifstream in(std::string(PK_SOURCE_DIR) + "/tests/reference/mm_optim_reference.csv");
