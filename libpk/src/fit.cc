@@ -130,19 +130,29 @@ class Problem {
     return phi;
   }
 
-  // Evaluates on the φ scale: chain rule with D = diag(dθ/dφ).
+  // Evaluates on the φ scale: chain rule with D = diag(dθ/dφ). The last two
+  // evaluations are remembered: Fit asks again for the start and for the
+  // optimiser's final point, where the optimiser has usually just evaluated.
   Objective::Evaluation Eval(const Eigen::VectorXd& phi, Need need) {
+    for (const Memo& m : memo_) {
+      if (m.need >= need && m.phi.size() == phi.size() && m.phi == phi) return m.ev;
+    }
     ++evaluations_;
     Objective::Evaluation ev = obj_.Evaluate(Values(phi), free_, need);
-    if (!ev.ok || need == Need::kValue) return ev;
-    const Eigen::VectorXd d = Dtheta(phi);
-    route_ = ev.route;
-    propagator_ = ev.propagator;
-    ev.gradient = ev.gradient.cwiseProduct(d);
-    if (need == Need::kJacobian) {
-      if (ev.jacobian.size()) ev.jacobian = ev.jacobian * d.asDiagonal();
-      ev.information = d.asDiagonal() * ev.information * d.asDiagonal();
+    if (ev.ok && need != Need::kValue) {
+      const Eigen::VectorXd d = Dtheta(phi);
+      route_ = ev.route;
+      propagator_ = ev.propagator;
+      ev.gradient = ev.gradient.cwiseProduct(d);
+      if (need == Need::kJacobian) {
+        if (ev.jacobian.size()) ev.jacobian = ev.jacobian * d.asDiagonal();
+        ev.information = d.asDiagonal() * ev.information * d.asDiagonal();
+      }
     }
+    std::swap(memo_[0], memo_[1]);
+    memo_[0].phi = phi;
+    memo_[0].need = need;
+    memo_[0].ev = ev;
     return ev;
   }
 
@@ -156,6 +166,12 @@ class Problem {
   std::vector<Transform> tr_;
   Eigen::VectorXd base_;
   int evaluations_ = 0;
+  struct Memo {
+    Eigen::VectorXd phi;  // empty: unused
+    Need need = Need::kValue;
+    Objective::Evaluation ev;
+  };
+  Memo memo_[2];
   std::string propagator_ = ToString(obj_.propagator());
   std::string route_ = "none";
 };
