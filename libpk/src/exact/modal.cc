@@ -210,9 +210,10 @@ class Modal final : public ModalEvaluator {
 
   void AdjointForward(Eigen::VectorXd* yhat) override {
     yhat->setZero(sched_->num_samples);
-    tape_.clear();
-    // One n-vector per step and per sample; steady states add their cycles.
-    tape_.reserve(n_ * (sched_->ops.size() + 4 * sched_->cycles.size()));
+    // One n-vector per step and per sample; steady states add their cycles (Push grows it).
+    tape_used_ = 0;
+    const size_t size = n_ * (sched_->ops.size() + 4 * sched_->cycles.size());
+    if (tape_.size() < size) tape_.resize(size);
     Run(yhat, nullptr, &tape_);
   }
 
@@ -221,7 +222,7 @@ class Modal final : public ModalEvaluator {
       s.z = Mat::Zero(n_, n_);
       for (Output& o : s.outputs) o.xacc = Vec::Zero(n_);
     }
-    size_t cursor = tape_.size();
+    size_t cursor = tape_used_;
     const auto pop = [&](Vec* v) {
       cursor -= n_;
       *v = Eigen::Map<const Eigen::VectorXd>(tape_.data() + cursor, n_);
@@ -339,6 +340,7 @@ class Modal final : public ModalEvaluator {
     std::vector<Mat> ahat;
     Mat z;
     std::vector<StepCache> steps;  // per EventSchedule::steps entry
+    size_t last_output = 0;        // GetOutput's last answer
   };
 
   // Eigendecomposition by compartment structure (see the header).
@@ -467,9 +469,16 @@ class Modal final : public ModalEvaluator {
   }
 
   Output& GetOutput(Set& s, int cmt) {
+    // Samples of one output follow each other: try the last one first.
+    if (s.last_output < s.outputs.size() && s.outputs[s.last_output].cmt == cmt) return s.outputs[s.last_output];
     Output* free_entry = nullptr;
+    for (size_t i = 0; i < s.outputs.size(); ++i) {
+      if (s.outputs[i].cmt == cmt) {
+        s.last_output = i;
+        return s.outputs[i];
+      }
+    }
     for (Output& o : s.outputs) {
-      if (o.cmt == cmt) return o;
       if (o.cmt < 0 && free_entry == nullptr) free_entry = &o;
     }
     if (free_entry == nullptr) {
@@ -477,6 +486,7 @@ class Modal final : public ModalEvaluator {
       free_entry = &s.outputs.back();
     }
     Output& o = *free_entry;
+    s.last_output = static_cast<size_t>(free_entry - s.outputs.data());
     o.cmt = cmt;
     Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor, 1, MaxN> c =
         Eigen::Matrix<double, 1, Eigen::Dynamic, Eigen::RowMajor, 1, MaxN>::Zero(n_);
@@ -497,7 +507,11 @@ class Modal final : public ModalEvaluator {
     return i == k ? h * e(i) : DividedExp2(s.lambda(i), s.lambda(k), e(i), e(k), h);
   }
 
-  void Push(const Vec& v) { tape_.insert(tape_.end(), v.data(), v.data() + n_); }
+  void Push(const Vec& v) {
+    if (tape_used_ + n_ > tape_.size()) tape_.resize(2 * (tape_used_ + n_));
+    std::copy(v.data(), v.data() + n_, tape_.data() + tape_used_);
+    tape_used_ += n_;
+  }
 
   // e^{Λh} for schedule step `step`, with the input weights and the divided
   // differences when asked. Both f[λ_i, λ_k] and f[λ_i, λ_k, 0] are symmetric.
@@ -666,7 +680,8 @@ class Modal final : public ModalEvaluator {
   const int n_;
   int p_ = 0;
   std::vector<Set> sets_;
-  std::vector<double> tape_;
+  std::vector<double> tape_;  // route (b)'s record of the forward pass: tape_used_ entries
+  size_t tape_used_ = 0;
 };
 
 }  // namespace
