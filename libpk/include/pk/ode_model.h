@@ -127,11 +127,16 @@ class AutoDiffOdeModel final : public OdeModel {
     const Eigen::Index m = theta.size();
     Tape& tape = Tape::Active();
     tape.Clear();
-    std::vector<TapeScalar> xt(n), tt(m), ft(n);
+    // Per-thread scratch: the backward solve calls this at every step.
+    static thread_local std::vector<TapeScalar> xt, tt, ft;
+    static thread_local std::vector<double> adj;
+    xt.resize(n);
+    tt.resize(m);
+    ft.assign(n, TapeScalar());
     for (int i = 0; i < n; ++i) xt[i] = TapeScalar::Variable(x(i));
     for (Eigen::Index j = 0; j < m; ++j) tt[j] = TapeScalar::Variable(theta(j));
     f_.Rhs(xt.data(), tt.data(), ft.data());
-    std::vector<double> adj(tape.size(), 0.0);
+    adj.assign(tape.size(), 0.0);
     f->resize(n);
     for (int i = 0; i < n; ++i) {
       (*f)(i) = ft[i].value();

@@ -284,12 +284,12 @@ struct CvodesSolver::Impl {
   // side and the quadrature at the same point, so one reverse pass serves both.
   struct VjpCache {
     double t = std::numeric_limits<double>::quiet_NaN();
-    Eigen::VectorXd x, lambda, wfx, wft;
+    Eigen::VectorXd x, lambda, wfx, wft, f;
+    Eigen::RowVectorXd q;  // the quadrature's integrand (scratch)
   } vjp;
   void Vjp(double t, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda) {
     if (t == vjp.t && x == vjp.x && lambda == vjp.lambda) return;
-    Eigen::VectorXd f;
-    sys.RhsVectorJacobian(x, in->theta, lambda, &f, &vjp.wfx, &vjp.wft);
+    sys.RhsVectorJacobian(x, in->theta, lambda, &vjp.f, &vjp.wfx, &vjp.wft);
     vjp.t = t;
     vjp.x = x;
     vjp.lambda = lambda;
@@ -299,7 +299,8 @@ struct CvodesSolver::Impl {
   static int AdjointRhs(realtype t, N_Vector y, N_Vector yb, N_Vector ybdot, void* data) {
     Impl& d = *static_cast<Impl*>(data);
     ++d.stats.rhs_evaluations;
-    const Eigen::VectorXd x = View(y);
+    Eigen::VectorXd& x = d.x_buf;  // reused: no allocation per call
+    x = View(y);
     Map out = View(ybdot);
     d.Vjp(t, x, View(yb));
     out = -d.vjp.wfx;
@@ -333,11 +334,13 @@ struct CvodesSolver::Impl {
       N_VConst(0.0, qbdot);
       return 0;
     }
-    const Eigen::VectorXd x = View(y);
+    Eigen::VectorXd& x = d.x_buf;
+    x = View(y);
     const Map lambda = View(yb);
     // λᵀ(f_θ ∂θ/∂p + ∂u/∂p) from one reverse pass: (λᵀf_θ) ∂θ/∂p.
     d.Vjp(t, x, lambda);
-    Eigen::RowVectorXd q = d.vjp.wft.transpose() * d.in->dtheta;
+    Eigen::RowVectorXd& q = d.vjp.q;
+    q.noalias() = d.vjp.wft.transpose() * d.in->dtheta;
     if (d.in->du.cols() == d.k) q += lambda.transpose() * d.in->du;
     if (!d.in->continuous.empty()) {
       Eigen::VectorXd dl;
