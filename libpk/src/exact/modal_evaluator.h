@@ -1,0 +1,595 @@
+// The modal evaluator (see modal.h), a class template over the number of
+// states. modal.cc instantiates it for sizes known only at run time and
+// modal_fixed.cc for 2 to 4 states, in separate translation units so that the
+// two compile in parallel.
+#ifndef PK_SRC_EXACT_MODAL_EVALUATOR_H_
+#define PK_SRC_EXACT_MODAL_EVALUATOR_H_
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/Jacobi>
+#include <Eigen/LU>
+#include <unsupported/Eigen/AutoDiff>
+
+#include "discretization.h"
+#include "modal.h"
+#include "numerical_failure.h"
+
+namespace pk {
+namespace internal {
+
+// ---------------------------------------------------------------------------
+// The evaluator.
+
+namespace modal_detail {
+
+using Ad1 = Eigen::AutoDiffScalar<Eigen::Matrix<double, 1, 1>>;
+
+// ∂(term)/∂θ_j by automatic differentiation of the term.
+inline double TermPartial(const LinearTerm& t, const std::vector<double>& theta, int j) {
+  const auto seeded = [&](int i) { return Ad1(theta[i], Eigen::Matrix<double, 1, 1>::Constant(i == j ? 1.0 : 0.0)); };
+  return LinearModel::TermValue<Ad1>(t, seeded).derivatives()(0);
+}
+
+// N: the number of states when fixed at compile time (small models: loops
+// unroll and nothing is allocated), or Eigen::Dynamic with at most MaxN.
+template <int N, int MaxN>
+class Modal final : public ModalEvaluator {
+ public:
+  using Mat = Eigen::Matrix<double, N, N, 0, MaxN, MaxN>;
+  using Vec = Eigen::Matrix<double, N, 1, 0, MaxN, 1>;
+  using RowVec = Eigen::Matrix<double, 1, N, Eigen::RowMajor, 1, MaxN>;
+  // Blocks of the decomposition (size below n): one type for all small N, so
+  // that Eigen's eigensolvers are instantiated once.
+  static constexpr int kSubMax = MaxN == Eigen::Dynamic ? Eigen::Dynamic : 6;
+  using SubMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kSubMax, kSubMax>;
+  using SubVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kSubMax, 1>;
+
+  explicit Modal(const LinearModel& model) : model_(model), n_(model.num_compartments()) {}
+
+  // The number of states, a compile-time constant when N is fixed.
+  int n() const { return N == Eigen::Dynamic ? n_ : N; }
+
+  // Builds every set's decomposition; false when one is unsuitable.
+  bool Reset(const EventSchedule& schedule, const std::vector<Eigen::VectorXd>& theta,
+             const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) override {
+    sched_ = &schedule;
+    p_ = num_free;
+    sets_.resize(theta.size());
+    for (size_t k = 0; k < theta.size(); ++k) {
+      Set& s = sets_[k];
+      // What the previous use left: cleared, capacity kept.
+      s.da.clear();
+      s.ahat.clear();
+      for (Output& o : s.outputs) {
+        o.cmt = -1;
+        o.dc.clear();
+      }
+      if (!theta[k].allFinite()) return false;
+      s.theta.assign(theta[k].data(), theta[k].data() + theta[k].size());
+      s.active = free[k];
+      Mat a = Mat::Zero(n(), n());
+      const auto value = [&](int i) { return s.theta[i]; };
+      for (const LinearTerm& t : model_.system_terms()) a(t.row, t.col) += LinearModel::TermValue<double>(t, value);
+      if (!a.allFinite() || !Decompose(a, &s)) return false;
+      for (size_t act = 0; act < s.active.size(); ++act) {
+        for (const LinearTerm& t : model_.system_terms()) {
+          if (t.numerator != s.active[act].first && t.denominator != s.active[act].first) continue;
+          s.da.push_back({t.row, t.col, static_cast<int>(act), TermPartial(t, s.theta, s.active[act].first)});
+        }
+      }
+      s.uhat.resize(sched_->inputs.size());
+      s.uhat_ready.assign(sched_->inputs.size(), 0);
+      s.steps.assign(sched_->steps.size(), StepCache());
+    }
+    return true;
+  }
+
+  void Predict(Eigen::VectorXd* yhat) override {
+    yhat->setZero(sched_->num_samples);
+    Run(yhat, nullptr, nullptr);
+  }
+
+  void Jacobian(Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) override {
+    yhat->setZero(sched_->num_samples);
+    jacobian->setZero(sched_->num_samples, p_);
+    for (Set& s : sets_) {
+      if (!s.ahat.empty() || s.active.empty()) continue;
+      // Â_j = V⁻¹ (∂A/∂θ_j) V, one rank-one term per entry of ∂A/∂θ_j.
+      s.ahat.assign(s.active.size(), Mat::Zero(n(), n()));
+      for (const DTerm& d : s.da) s.ahat[d.act].noalias() += d.d * s.w.col(d.row) * s.v.row(d.col);
+    }
+    Run(yhat, jacobian, nullptr);
+  }
+
+  void AdjointForward(Eigen::VectorXd* yhat) override {
+    yhat->setZero(sched_->num_samples);
+    // One n-vector per step and per sample; steady states add their cycles (Push grows it).
+    tape_used_ = 0;
+    const size_t size = n() * (sched_->ops.size() + 4 * sched_->cycles.size());
+    if (tape_.size() < size) tape_.resize(size);
+    Run(yhat, nullptr, &tape_);
+  }
+
+  Eigen::VectorXd AdjointGradient(const Eigen::VectorXd& dl_dy) override {
+    for (Set& s : sets_) {
+      s.z = Mat::Zero(n(), n());
+      for (Output& o : s.outputs) o.xacc = Vec::Zero(n());
+    }
+    size_t cursor = tape_used_;
+    const auto pop = [&](Vec* v) {
+      cursor -= n();
+      *v = Eigen::Map<const Eigen::VectorXd>(tape_.data() + cursor, n());
+    };
+    Vec mu = Vec::Zero(n()), z(n());  // z: a sample's state
+    const std::vector<ScheduleOp>& ops = sched_->ops;
+    // Back through one step z⁺ = e ∘ z + g ∘ û: Z += D_f ∘ (μ̂ zᵀ) + D_g ∘ (μ̂ ûᵀ), then μ̂ ← e ∘ μ̂.
+    const auto back_step = [&](Set& s, int step, int input, Vec* m) {
+      cursor -= n();
+      const double* zt = tape_.data() + cursor;
+      const StepCache& c = Cached(s, step, input >= 0, true);
+      const Vec* u = input >= 0 ? &Uhat(s, input) : nullptr;
+      for (int i = 0; i < n(); ++i) {
+        const double mi = (*m)(i);
+        if (mi == 0) continue;
+        for (int k = 0; k < n(); ++k) {
+          double t = c.df(i, k) * zt[k];
+          if (u) t += c.dg(i, k) * (*u)(k);
+          s.z(i, k) += mi * t;
+        }
+        (*m)(i) = mi * c.e(i);
+      }
+    };
+    for (int i = static_cast<int>(ops.size()) - 1; i >= 0; --i) {
+      const ScheduleOp& op = ops[i];
+      Set& s = sets_[op.set];
+      switch (op.kind) {
+        case ScheduleOp::kSample: {
+          pop(&z);
+          const double g = dl_dy(op.index);
+          if (g == 0) break;
+          Output& o = GetOutput(s, op.cmt);
+          mu += g * o.chat;
+          o.xacc += g * z;
+          break;
+        }
+        case ScheduleOp::kAdvance:
+          back_step(s, op.step, op.index, &mu);
+          break;
+        case ScheduleOp::kBolus:
+          break;
+        case ScheduleOp::kReset:
+          mu.setZero();
+          break;
+        case ScheduleOp::kSteadyInfusion: {
+          // z = −Λ⁻¹û: μᵀ ∂z/∂θ_j = ⟨−(μ̂/λ) ẑᵀ, Â_j⟩.
+          const Vec zs = -Uhat(s, op.index).cwiseQuotient(s.lambda);
+          s.z.noalias() -= mu.cwiseQuotient(s.lambda) * zs.transpose();
+          if (!op.add) mu.setZero();
+          break;
+        }
+        case ScheduleOp::kSteadyState: {
+          const ScheduleCycle& cycle = sched_->cycles[op.index];
+          Vec m(n());
+          pop(&m);
+          Vec rho = mu;
+          for (auto it = cycle.to_record.rbegin(); it != cycle.to_record.rend(); ++it) {
+            back_step(s, it->step, it->input, &rho);
+          }
+          // Implicit function theorem on z* = m ∘ z* + r: ρ̂ = μ̂ / (1 − m), then back through one period.
+          rho = rho.cwiseQuotient((Vec::Ones(n()) - m));
+          for (auto it = cycle.period.rbegin(); it != cycle.period.rend(); ++it) {
+            back_step(s, it->step, it->input, &rho);
+          }
+          if (!op.add) mu.setZero();
+          break;
+        }
+      }
+      // The forward pass changed coordinates before op i: z_i = W_i V_{i−1} z_{i−1}.
+      if (i > 0 && ops[i - 1].set != op.set) {
+        mu = sets_[ops[i - 1].set].v.transpose() * (s.w.transpose() * mu);
+      }
+    }
+    // ⟨V⁻ᵀ Z Vᵀ, ∂A/∂θ_j⟩ and the output rows' ∂c/∂θ_j · x.
+    Eigen::VectorXd grad = Eigen::VectorXd::Zero(p_);
+    for (Set& s : sets_) {
+      if (!s.z.isZero(0.0)) {
+        const Mat g = s.w.transpose() * s.z * s.v.transpose();
+        for (const DTerm& d : s.da) grad(s.active[d.act].second) += g(d.row, d.col) * d.d;
+      }
+      for (Output& o : s.outputs) {
+        if (o.dc.empty() || o.xacc.isZero(0.0)) continue;
+        const Vec x = s.v * o.xacc;
+        for (const DTerm& d : o.dc) grad(s.active[d.act].second) += d.d * x(d.col);
+      }
+    }
+    return grad;
+  }
+
+ private:
+  struct DTerm {
+    int row, col, act;
+    double d;
+  };
+  struct Output {
+    int cmt = -1;  // -1: unused (kept for its storage)
+    Vec chat;               // (C V)ᵀ
+    std::vector<DTerm> dc;  // ∂C/∂θ_j entries (row unused)
+    Vec xacc;               // Σ ∂ℓ/∂ŷ_k z_k, for the ∂C terms
+  };
+  // What a step of length h needs, computed on first use per set.
+  struct StepCache {
+    bool have_e = false, have_g = false, have_df = false, have_dg = false;
+    Vec e, g;    // e^{λh}; the input's weight f[λ, 0] = (e^{λh} − 1)/λ
+    Mat df, dg;  // f[λ_i, λ_k] and f[λ_i, λ_k, 0], the Daleckii–Krein weights
+  };
+  struct Set {
+    std::vector<double> theta;
+    std::vector<std::pair<int, int>> active;
+    Vec lambda;
+    Mat v, w;
+    std::vector<DTerm> da;
+    std::vector<Output> outputs;
+    std::vector<Vec> uhat;        // W u per schedule input, when uhat_ready
+    std::vector<char> uhat_ready;
+    std::vector<Mat> ahat;
+    Mat z;
+    std::vector<StepCache> steps;  // per EventSchedule::steps entry
+    size_t last_output = 0;        // GetOutput's last answer
+  };
+
+  // Eigendecomposition by compartment structure (see the header).
+  bool Decompose(const Mat& a, Set* s) const {
+    const int n = this->n();
+    Eigen::Matrix<int, Eigen::Dynamic, 1, 0, MaxN, 1> src(n), rest(n);
+    int ns = 0, nr = 0;
+    for (int i = 0; i < n; ++i) {
+      bool source = true;
+      for (int k = 0; k < n && source; ++k) source = k == i || a(i, k) == 0;
+      if (source) {
+        src(ns++) = i;
+      } else {
+        rest(nr++) = i;
+      }
+    }
+    SubMat arr(nr, nr);
+    for (int i = 0; i < nr; ++i) {
+      for (int k = 0; k < nr; ++k) arr(i, k) = a(rest(i), rest(k));
+    }
+    SubVec lr(nr), t;
+    SubMat vr(nr, nr), wr(nr, nr);
+    if (nr > 0) {
+      if (SymmetrizingDiagonal(arr, &t)) {
+        SubMat sym = t.cwiseInverse().asDiagonal() * arr * t.asDiagonal();
+        sym = 0.5 * (sym + sym.transpose()).eval();
+        SubMat q;
+        if (nr <= 4) {
+          Jacobi(sym, &lr, &q);
+        } else {
+          const Eigen::SelfAdjointEigenSolver<Mat> es(sym);
+          if (es.info() != Eigen::Success) return false;
+          lr = es.eigenvalues();
+          q = es.eigenvectors();
+        }
+        vr = t.asDiagonal() * q;
+        wr = q.transpose() * t.cwiseInverse().asDiagonal();
+      } else {
+        const Eigen::EigenSolver<Mat> es(arr);
+        if (es.info() != Eigen::Success) return false;
+        const double scale = std::max(arr.cwiseAbs().maxCoeff(), 1e-300);
+        if (es.eigenvalues().imag().cwiseAbs().maxCoeff() > 1e-12 * scale) return false;
+        lr = es.eigenvalues().real();
+        vr = es.eigenvectors().real();
+        const Eigen::PartialPivLU<Mat> lu(vr);
+        wr = lu.inverse();
+      }
+    }
+    s->lambda.resize(n);
+    s->v = Mat::Zero(n, n);
+    s->w = Mat::Zero(n, n);
+    for (int r = 0; r < nr; ++r) {
+      s->lambda(ns + r) = lr(r);
+      for (int i = 0; i < nr; ++i) {
+        s->v(rest(i), ns + r) = vr(i, r);
+        s->w(ns + r, rest(i)) = wr(r, i);
+      }
+    }
+    // A depot's mode: (A_RR − λ_s) x = −a_Rs, x = −V_R c with c = (λ_R − λ_s)⁻¹ W_R a_Rs,
+    // and V⁻¹ = [[I, 0], [−W_R X, W_R]] puts c in the depot's column.
+    for (int q = 0; q < ns; ++q) {
+      const int sq = src(q);
+      const double ls = a(sq, sq);
+      s->lambda(q) = ls;
+      s->v(sq, q) = 1;
+      s->w(q, sq) = 1;
+      if (nr == 0) continue;
+      SubVec ars(nr);
+      for (int i = 0; i < nr; ++i) ars(i) = a(rest(i), sq);
+      if (ars.isZero(0.0)) continue;
+      SubVec c = wr * ars;
+      for (int r = 0; r < nr; ++r) {
+        if (lr(r) == ls) return false;
+        c(r) /= lr(r) - ls;
+      }
+      const SubVec x = -(vr * c);
+      for (int i = 0; i < nr; ++i) s->v(rest(i), q) = x(i);
+      for (int r = 0; r < nr; ++r) s->w(ns + r, sq) = c(r);
+    }
+    // A modal sum Σ_r v_r e^{λ_r h} (w_r·x) loses ε‖|V||W|‖_∞ ‖x‖ to rounding, whatever the
+    // scaling of the eigenvectors; derivatives about the square of that. 1e3 keeps them near 1e-10.
+    // ‖|V||W|‖_∞ = max_i Σ_j |v_ij| Σ_k |w_jk|.
+    double kappa = 0;
+    for (int i = 0; i < n; ++i) {
+      double row = 0;
+      for (int j = 0; j < n; ++j) row += std::fabs(s->v(i, j)) * s->w.row(j).cwiseAbs().sum();
+      kappa = std::max(kappa, row);
+    }
+    return kappa <= 1e3 && s->w.allFinite() && s->lambda.allFinite();
+  }
+
+  // Cyclic Jacobi rotations (Eigen's JacobiRotation) for a small symmetric S = Q diag(d) Qᵀ.
+  static void Jacobi(SubMat s, SubVec* d, SubMat* q) {
+    const int n = static_cast<int>(s.rows());
+    *q = SubMat::Identity(n, n);
+    for (int sweep = 0; sweep < 30; ++sweep) {
+      bool rotated = false;
+      for (int i = 0; i < n; ++i) {
+        for (int k = i + 1; k < n; ++k) {
+          // An entry below rounding relative to its diagonal pair changes the eigenvalues by O(ε²).
+          if (std::fabs(s(i, k)) <= 2.3e-16 * std::sqrt(std::fabs(s(i, i) * s(k, k)))) continue;
+          rotated = true;
+          Eigen::JacobiRotation<double> rot;
+          rot.makeJacobi(s, i, k);
+          s.applyOnTheLeft(i, k, rot.adjoint());
+          s.applyOnTheRight(i, k, rot);
+          q->applyOnTheRight(i, k, rot);
+          s(i, k) = s(k, i) = 0;  // zero by construction of the rotation
+        }
+      }
+      if (!rotated) break;
+    }
+    *d = s.diagonal();
+  }
+
+  const Vec& Uhat(Set& s, int input) {
+    Vec& u = s.uhat[input];
+    if (!s.uhat_ready[input]) {
+      s.uhat_ready[input] = 1;
+      const Eigen::VectorXd& in = sched_->inputs[input];
+      u = Vec::Zero(n());
+      for (int c = 0; c < n(); ++c) {
+        if (in(c) != 0) u += in(c) * s.w.col(c);
+      }
+    }
+    return u;
+  }
+
+  Output& GetOutput(Set& s, int cmt) {
+    // Samples of one output follow each other: try the last one first.
+    if (s.last_output < s.outputs.size() && s.outputs[s.last_output].cmt == cmt) return s.outputs[s.last_output];
+    Output* free_entry = nullptr;
+    for (size_t i = 0; i < s.outputs.size(); ++i) {
+      if (s.outputs[i].cmt == cmt) {
+        s.last_output = i;
+        return s.outputs[i];
+      }
+    }
+    for (Output& o : s.outputs) {
+      if (o.cmt < 0 && free_entry == nullptr) free_entry = &o;
+    }
+    if (free_entry == nullptr) {
+      s.outputs.emplace_back();
+      free_entry = &s.outputs.back();
+    }
+    Output& o = *free_entry;
+    s.last_output = static_cast<size_t>(free_entry - s.outputs.data());
+    o.cmt = cmt;
+    RowVec c = RowVec::Zero(n());
+    const auto value = [&](int i) { return s.theta[i]; };
+    for (const LinearTerm& t : model_.output_terms(cmt)) {
+      c(t.col) += LinearModel::TermValue<double>(t, value);
+      for (size_t act = 0; act < s.active.size(); ++act) {
+        const int j = s.active[act].first;
+        if (t.numerator == j || t.denominator == j) o.dc.push_back({0, t.col, static_cast<int>(act), TermPartial(t, s.theta, j)});
+      }
+    }
+    o.chat = (c * s.v).transpose();
+    o.xacc = Vec::Zero(n());
+    return o;
+  }
+
+  static double DividedF(const Set& s, int i, int k, const Vec& e, double h) {
+    return i == k ? h * e(i) : DividedExp2(s.lambda(i), s.lambda(k), e(i), e(k), h);
+  }
+
+  void Push(const Vec& v) {
+    if (tape_used_ + n() > tape_.size()) tape_.resize(2 * (tape_used_ + n()));
+    std::copy(v.data(), v.data() + n(), tape_.data() + tape_used_);
+    tape_used_ += n();
+  }
+
+  // e^{Λh} for schedule step `step`, with the input weights and the divided
+  // differences when asked. Both f[λ_i, λ_k] and f[λ_i, λ_k, 0] are symmetric.
+  const StepCache& Cached(Set& s, int step, bool input, bool derivatives) {
+    StepCache& c = s.steps[step];
+    const double h = sched_->steps[step];
+    if (!c.have_e) {
+      c.e.resize(n());
+      for (int r = 0; r < n(); ++r) c.e(r) = std::exp(s.lambda(r) * h);
+      c.have_e = true;
+    }
+    if (input && !c.have_g) {
+      c.g.resize(n());
+      for (int r = 0; r < n(); ++r) c.g(r) = DividedExp2(s.lambda(r), 0, c.e(r), 1, h);
+      c.have_g = true;
+    }
+    if (derivatives && !c.have_df) {
+      c.df.resize(n(), n());
+      for (int i = 0; i < n(); ++i) {
+        for (int k = 0; k <= i; ++k) c.df(i, k) = c.df(k, i) = DividedF(s, i, k, c.e, h);
+      }
+      c.have_df = true;
+    }
+    if (derivatives && input && !c.have_dg) {
+      c.dg.resize(n(), n());
+      for (int i = 0; i < n(); ++i) {
+        for (int k = 0; k <= i; ++k) {
+          c.dg(i, k) = c.dg(k, i) = DividedExp3(s.lambda(i), s.lambda(k), c.e(i), c.e(k), h);
+        }
+      }
+      c.have_dg = true;
+    }
+    return c;
+  }
+
+  // One step (schedule step `step`) with input `input` (-1: none), with the
+  // sensitivities (route a) or the tape (route b) when asked.
+  void Step(Set& s, int step, int input, Vec* z, Eigen::MatrixXd* sens, std::vector<double>* tape) {
+    const StepCache& c = Cached(s, step, input >= 0, sens != nullptr);
+    if (tape) Push(*z);
+    if (sens) {
+      // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
+      sens->array().colwise() *= c.e.array();
+      const Vec* u = input >= 0 ? &Uhat(s, input) : nullptr;
+      for (size_t act = 0; act < s.active.size(); ++act) {
+        const Mat& ah = s.ahat[act];
+        double* out = sens->col(s.active[act].second).data();
+        for (int i = 0; i < n(); ++i) {
+          double t = 0;
+          for (int k = 0; k < n(); ++k) t += c.df(i, k) * ah(i, k) * (*z)(k);
+          if (u) {
+            for (int k = 0; k < n(); ++k) t += c.dg(i, k) * ah(i, k) * (*u)(k);
+          }
+          out[i] += t;
+        }
+      }
+    }
+    *z = z->cwiseProduct(c.e);
+    if (input >= 0) *z += c.g.cwiseProduct(Uhat(s, input));
+  }
+
+  void Run(Eigen::VectorXd* yhat, Eigen::MatrixXd* jac, std::vector<double>* tape) {
+    const std::vector<ScheduleOp>& ops = sched_->ops;
+    Vec z = Vec::Zero(n());
+    Eigen::MatrixXd sens;
+    if (jac) sens = Eigen::MatrixXd::Zero(n(), p_);
+    for (size_t i = 0; i < ops.size(); ++i) {
+      const ScheduleOp& op = ops[i];
+      Set& s = sets_[op.set];
+      if (i > 0 && ops[i - 1].set != op.set) {
+        const Set& from = sets_[ops[i - 1].set];
+        z = s.w * (from.v * z);
+        if (jac) sens = s.w * (from.v * sens);
+      }
+      switch (op.kind) {
+        case ScheduleOp::kAdvance:
+          Step(s, op.step, op.index, &z, jac ? &sens : nullptr, tape);
+          break;
+        case ScheduleOp::kBolus:
+          z += op.value * s.w.col(op.cmt);
+          break;
+        case ScheduleOp::kReset:
+          z.setZero();
+          if (jac) sens.setZero();
+          break;
+        case ScheduleOp::kSample: {
+          const Output& o = GetOutput(s, op.cmt);
+          (*yhat)(op.index) = o.chat.dot(z);
+          if (tape) Push(z);
+          if (jac) {
+            jac->row(op.index) = o.chat.transpose() * sens;
+            if (!o.dc.empty()) {
+              const Vec x = s.v * z;
+              for (const DTerm& d : o.dc) (*jac)(op.index, s.active[d.act].second) += d.d * x(d.col);
+            }
+          }
+          break;
+        }
+        case ScheduleOp::kSteadyInfusion: {
+          const Vec& u = Uhat(s, op.index);
+          const double scale = s.lambda.cwiseAbs().maxCoeff();
+          if (!(s.lambda.cwiseAbs().minCoeff() > 1e-13 * scale)) {
+            throw NumericalFailure("no steady state for a constant infusion");
+          }
+          const Vec zs = -u.cwiseQuotient(s.lambda);
+          Eigen::MatrixXd ss;
+          if (jac) {
+            // ∂z = −A⁻¹ Σ_j ∂A/∂θ_j z ∂θ_j/∂p, i.e. −Λ⁻¹ Â_j ẑ in modal coordinates.
+            ss = Eigen::MatrixXd::Zero(n(), p_);
+            for (size_t act = 0; act < s.active.size(); ++act) {
+              ss.col(s.active[act].second) -= (s.ahat[act] * zs).cwiseQuotient(s.lambda);
+            }
+          }
+          SetOrAdd(zs, ss, op.add, &z, jac ? &sens : nullptr);
+          break;
+        }
+        case ScheduleOp::kSteadyState:
+          SteadyState(s, sched_->cycles[op.index], op.add, &z, jac ? &sens : nullptr, tape);
+          break;
+      }
+    }
+  }
+
+  static void SetOrAdd(const Vec& z, const Eigen::MatrixXd& sz, bool add, Vec* state, Eigen::MatrixXd* sens) {
+    if (add) {
+      *state += z;
+      if (sens) *sens += sz;
+    } else {
+      *state = z;
+      if (sens) *sens = sz;
+    }
+  }
+
+  // One period maps z to m ∘ (z + b̂) + w; its fixed point is z* = (m ∘ b̂ + w) / (1 − m).
+  void SteadyState(Set& s, const ScheduleCycle& cycle, bool add, Vec* state, Eigen::MatrixXd* sens,
+                   std::vector<double>* tape) {
+    const Vec b = cycle.bolus * s.w.col(cycle.cmt);
+    Vec r = b, m = Vec::Ones(n());
+    for (const ScheduleSegment& seg : cycle.period) {
+      Step(s, seg.step, seg.input, &r, nullptr, nullptr);
+      m = m.cwiseProduct(s.steps[seg.step].e);
+    }
+    if (!((Vec::Ones(n()) - m).minCoeff() > 1e-13)) {
+      throw NumericalFailure(
+          "no steady state: the dosing-interval map has an eigenvalue at 1 (is drug eliminated from every "
+          "compartment it reaches?)");
+    }
+    const Vec x_star = r.cwiseQuotient(Vec::Ones(n()) - m);
+    Eigen::MatrixXd s_star;
+    if (sens || tape) {
+      // ∂_p P at z* (route a) or the period's tape (route b), from z* + b̂.
+      Vec x = x_star + b;
+      if (sens) s_star = Eigen::MatrixXd::Zero(n(), p_);
+      for (const ScheduleSegment& seg : cycle.period) Step(s, seg.step, seg.input, &x, sens ? &s_star : nullptr, tape);
+      // Implicit function theorem: Ŝ* = (I − m)⁻¹ ∂_p P.
+      if (sens) s_star = (s_star.array().colwise() / (Vec::Ones(n()) - m).array()).matrix();
+    }
+    Vec z = x_star + b;
+    for (const ScheduleSegment& seg : cycle.to_record) Step(s, seg.step, seg.input, &z, sens ? &s_star : nullptr, tape);
+    if (tape) Push(m);
+    SetOrAdd(z, s_star, add, state, sens);
+  }
+
+  const LinearModel& model_;
+  const EventSchedule* sched_ = nullptr;
+  const int n_;
+  int p_ = 0;
+  std::vector<Set> sets_;
+  std::vector<double> tape_;  // route (b)'s record of the forward pass: tape_used_ entries
+  size_t tape_used_ = 0;
+};
+
+}  // namespace modal_detail
+
+/// A modal evaluator with its size fixed at compile time, for 2 to 4 states
+/// (modal_fixed.cc); null for other sizes.
+std::unique_ptr<ModalEvaluator> NewFixedSizeModal(const LinearModel& model);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_EXACT_MODAL_EVALUATOR_H_
