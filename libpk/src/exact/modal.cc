@@ -2,6 +2,10 @@
 
 #include <cmath>
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/Jacobi>
+#include <Eigen/LU>
+
 #include "discretization.h"
 #include "exact_routes.h"
 #include "modal_evaluator.h"
@@ -130,6 +134,137 @@ double DividedExp3(double a, double b, double ea, double eb, double h) {
   }
   return std::exp(c * h) * h * h * sum;
 }
+
+// ---------------------------------------------------------------------------
+// The eigendecomposition (modal_evaluator.h).
+
+namespace modal_detail {
+namespace {
+
+// Cyclic Jacobi rotations (Eigen's JacobiRotation) for a small symmetric S = Q diag(d) Qᵀ.
+template <typename M, typename V>
+void Jacobi(M s, V* d, M* q) {
+  const int n = static_cast<int>(s.rows());
+  *q = M::Identity(n, n);
+  for (int sweep = 0; sweep < 30; ++sweep) {
+    bool rotated = false;
+    for (int i = 0; i < n; ++i) {
+      for (int k = i + 1; k < n; ++k) {
+        // An entry below rounding relative to its diagonal pair changes the eigenvalues by O(ε²).
+        if (std::fabs(s(i, k)) <= 2.3e-16 * std::sqrt(std::fabs(s(i, i) * s(k, k)))) continue;
+        rotated = true;
+        Eigen::JacobiRotation<double> rot;
+        rot.makeJacobi(s, i, k);
+        s.applyOnTheLeft(i, k, rot.adjoint());
+        s.applyOnTheRight(i, k, rot);
+        q->applyOnTheRight(i, k, rot);
+        s(i, k) = s(k, i) = 0;  // zero by construction of the rotation
+      }
+    }
+    if (!rotated) break;
+  }
+  *d = s.diagonal();
+}
+
+template <typename M, typename V>
+bool DecomposeImpl(const M& a, V* lambda, M* v, M* w) {
+  const int n = static_cast<int>(a.rows());
+  Eigen::Matrix<int, Eigen::Dynamic, 1, 0, M::MaxRowsAtCompileTime, 1> src(n), rest(n);
+  int ns = 0, nr = 0;
+  for (int i = 0; i < n; ++i) {
+    bool source = true;
+    for (int k = 0; k < n && source; ++k) source = k == i || a(i, k) == 0;
+    if (source) {
+      src(ns++) = i;
+    } else {
+      rest(nr++) = i;
+    }
+  }
+  M arr(nr, nr);
+  for (int i = 0; i < nr; ++i) {
+    for (int k = 0; k < nr; ++k) arr(i, k) = a(rest(i), rest(k));
+  }
+  V lr(nr), t;
+  M vr(nr, nr), wr(nr, nr);
+  if (nr > 0) {
+    if (SymmetrizingDiagonal(arr, &t)) {
+      M sym = t.cwiseInverse().asDiagonal() * arr * t.asDiagonal();
+      sym = 0.5 * (sym + sym.transpose()).eval();
+      M q;
+      if (nr <= 4) {
+        Jacobi(sym, &lr, &q);
+      } else {
+        const Eigen::SelfAdjointEigenSolver<M> es(sym);
+        if (es.info() != Eigen::Success) return false;
+        lr = es.eigenvalues();
+        q = es.eigenvectors();
+      }
+      vr = t.asDiagonal() * q;
+      wr = q.transpose() * t.cwiseInverse().asDiagonal();
+    } else {
+      const Eigen::EigenSolver<M> es(arr);
+      if (es.info() != Eigen::Success) return false;
+      const double scale = std::max(arr.cwiseAbs().maxCoeff(), 1e-300);
+      if (es.eigenvalues().imag().cwiseAbs().maxCoeff() > 1e-12 * scale) return false;
+      lr = es.eigenvalues().real();
+      vr = es.eigenvectors().real();
+      const Eigen::PartialPivLU<M> lu(vr);
+      wr = lu.inverse();
+    }
+  }
+  lambda->resize(n);
+  *v = M::Zero(n, n);
+  *w = M::Zero(n, n);
+  for (int r = 0; r < nr; ++r) {
+    (*lambda)(ns + r) = lr(r);
+    for (int i = 0; i < nr; ++i) {
+      (*v)(rest(i), ns + r) = vr(i, r);
+      (*w)(ns + r, rest(i)) = wr(r, i);
+    }
+  }
+  // A depot's mode: (A_RR − λ_s) x = −a_Rs, x = −V_R c with c = (λ_R − λ_s)⁻¹ W_R a_Rs,
+  // and V⁻¹ = [[I, 0], [−W_R X, W_R]] puts c in the depot's column.
+  for (int q = 0; q < ns; ++q) {
+    const int sq = src(q);
+    const double ls = a(sq, sq);
+    (*lambda)(q) = ls;
+    (*v)(sq, q) = 1;
+    (*w)(q, sq) = 1;
+    if (nr == 0) continue;
+    V ars(nr);
+    for (int i = 0; i < nr; ++i) ars(i) = a(rest(i), sq);
+    if (ars.isZero(0.0)) continue;
+    V c = wr * ars;
+    for (int r = 0; r < nr; ++r) {
+      if (lr(r) == ls) return false;
+      c(r) /= lr(r) - ls;
+    }
+    const V x = -(vr * c);
+    for (int i = 0; i < nr; ++i) (*v)(rest(i), q) = x(i);
+    for (int r = 0; r < nr; ++r) (*w)(ns + r, sq) = c(r);
+  }
+  // A modal sum Σ_r v_r e^{λ_r h} (w_r·x) loses ε‖|V||W|‖_∞ ‖x‖ to rounding, whatever the
+  // scaling of the eigenvectors; derivatives about the square of that. 1e3 keeps them near 1e-10.
+  // ‖|V||W|‖_∞ = max_i Σ_j |v_ij| Σ_k |w_jk|.
+  double kappa = 0;
+  for (int i = 0; i < n; ++i) {
+    double row = 0;
+    for (int j = 0; j < n; ++j) row += std::fabs((*v)(i, j)) * w->row(j).cwiseAbs().sum();
+    kappa = std::max(kappa, row);
+  }
+  return kappa <= 1e3 && w->allFinite() && lambda->allFinite();
+}
+
+}  // namespace
+
+bool Decompose(const SmallMat& a, SmallVec* lambda, SmallMat* v, SmallMat* w) {
+  return DecomposeImpl(a, lambda, v, w);
+}
+bool Decompose(const Eigen::MatrixXd& a, Eigen::VectorXd* lambda, Eigen::MatrixXd* v, Eigen::MatrixXd* w) {
+  return DecomposeImpl(a, lambda, v, w);
+}
+
+}  // namespace modal_detail
 
 std::unique_ptr<ModalEvaluator> NewModalEvaluator(const LinearModel& model) {
   using modal_detail::Modal;

@@ -8,14 +8,12 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <type_traits>
 #include <vector>
 
-#include <Eigen/Eigenvalues>
-#include <Eigen/Jacobi>
-#include <Eigen/LU>
+#include <Eigen/Core>
 #include <unsupported/Eigen/AutoDiff>
 
-#include "discretization.h"
 #include "modal.h"
 #include "numerical_failure.h"
 
@@ -35,6 +33,18 @@ inline double TermPartial(const LinearTerm& t, const std::vector<double>& theta,
   return LinearModel::TermValue<Ad1>(t, seeded).derivatives()(0);
 }
 
+// Up to 6 states on the stack.
+using SmallMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 6, 6>;
+using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 6, 1>;
+
+// A = V diag(λ) W by compartment structure (modal.h): depots are peeled off,
+// the reversible remainder is symmetrised and diagonalised by Jacobi rotations
+// (up to 4 states) or Eigen's symmetric solver, anything else by Eigen's real
+// solver. False for complex eigenvalues or ‖|V||W|‖_∞ > 1e3. Compiled once, in
+// modal.cc, for every instance of Modal.
+bool Decompose(const SmallMat& a, SmallVec* lambda, SmallMat* v, SmallMat* w);
+bool Decompose(const Eigen::MatrixXd& a, Eigen::VectorXd* lambda, Eigen::MatrixXd* v, Eigen::MatrixXd* w);
+
 // N: the number of states when fixed at compile time (small models: loops
 // unroll and nothing is allocated), or Eigen::Dynamic with at most MaxN.
 template <int N, int MaxN>
@@ -43,11 +53,6 @@ class Modal final : public ModalEvaluator {
   using Mat = Eigen::Matrix<double, N, N, 0, MaxN, MaxN>;
   using Vec = Eigen::Matrix<double, N, 1, 0, MaxN, 1>;
   using RowVec = Eigen::Matrix<double, 1, N, Eigen::RowMajor, 1, MaxN>;
-  // Blocks of the decomposition (size below n): one type for all small N, so
-  // that Eigen's eigensolvers are instantiated once.
-  static constexpr int kSubMax = MaxN == Eigen::Dynamic ? Eigen::Dynamic : 6;
-  using SubMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kSubMax, kSubMax>;
-  using SubVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kSubMax, 1>;
 
   explicit Modal(const LinearModel& model) : model_(model), n_(model.num_compartments()) {}
 
@@ -242,117 +247,17 @@ class Modal final : public ModalEvaluator {
     size_t last_output = 0;        // GetOutput's last answer
   };
 
-  // Eigendecomposition by compartment structure (see the header).
+  // Eigendecomposition by compartment structure (modal_detail::Decompose).
   bool Decompose(const Mat& a, Set* s) const {
-    const int n = this->n();
-    Eigen::Matrix<int, Eigen::Dynamic, 1, 0, MaxN, 1> src(n), rest(n);
-    int ns = 0, nr = 0;
-    for (int i = 0; i < n; ++i) {
-      bool source = true;
-      for (int k = 0; k < n && source; ++k) source = k == i || a(i, k) == 0;
-      if (source) {
-        src(ns++) = i;
-      } else {
-        rest(nr++) = i;
-      }
-    }
-    SubMat arr(nr, nr);
-    for (int i = 0; i < nr; ++i) {
-      for (int k = 0; k < nr; ++k) arr(i, k) = a(rest(i), rest(k));
-    }
-    SubVec lr(nr), t;
-    SubMat vr(nr, nr), wr(nr, nr);
-    if (nr > 0) {
-      if (SymmetrizingDiagonal(arr, &t)) {
-        SubMat sym = t.cwiseInverse().asDiagonal() * arr * t.asDiagonal();
-        sym = 0.5 * (sym + sym.transpose()).eval();
-        SubMat q;
-        if (nr <= 4) {
-          Jacobi(sym, &lr, &q);
-        } else {
-          const Eigen::SelfAdjointEigenSolver<Mat> es(sym);
-          if (es.info() != Eigen::Success) return false;
-          lr = es.eigenvalues();
-          q = es.eigenvectors();
-        }
-        vr = t.asDiagonal() * q;
-        wr = q.transpose() * t.cwiseInverse().asDiagonal();
-      } else {
-        const Eigen::EigenSolver<Mat> es(arr);
-        if (es.info() != Eigen::Success) return false;
-        const double scale = std::max(arr.cwiseAbs().maxCoeff(), 1e-300);
-        if (es.eigenvalues().imag().cwiseAbs().maxCoeff() > 1e-12 * scale) return false;
-        lr = es.eigenvalues().real();
-        vr = es.eigenvectors().real();
-        const Eigen::PartialPivLU<Mat> lu(vr);
-        wr = lu.inverse();
-      }
-    }
-    s->lambda.resize(n);
-    s->v = Mat::Zero(n, n);
-    s->w = Mat::Zero(n, n);
-    for (int r = 0; r < nr; ++r) {
-      s->lambda(ns + r) = lr(r);
-      for (int i = 0; i < nr; ++i) {
-        s->v(rest(i), ns + r) = vr(i, r);
-        s->w(ns + r, rest(i)) = wr(r, i);
-      }
-    }
-    // A depot's mode: (A_RR − λ_s) x = −a_Rs, x = −V_R c with c = (λ_R − λ_s)⁻¹ W_R a_Rs,
-    // and V⁻¹ = [[I, 0], [−W_R X, W_R]] puts c in the depot's column.
-    for (int q = 0; q < ns; ++q) {
-      const int sq = src(q);
-      const double ls = a(sq, sq);
-      s->lambda(q) = ls;
-      s->v(sq, q) = 1;
-      s->w(q, sq) = 1;
-      if (nr == 0) continue;
-      SubVec ars(nr);
-      for (int i = 0; i < nr; ++i) ars(i) = a(rest(i), sq);
-      if (ars.isZero(0.0)) continue;
-      SubVec c = wr * ars;
-      for (int r = 0; r < nr; ++r) {
-        if (lr(r) == ls) return false;
-        c(r) /= lr(r) - ls;
-      }
-      const SubVec x = -(vr * c);
-      for (int i = 0; i < nr; ++i) s->v(rest(i), q) = x(i);
-      for (int r = 0; r < nr; ++r) s->w(ns + r, sq) = c(r);
-    }
-    // A modal sum Σ_r v_r e^{λ_r h} (w_r·x) loses ε‖|V||W|‖_∞ ‖x‖ to rounding, whatever the
-    // scaling of the eigenvectors; derivatives about the square of that. 1e3 keeps them near 1e-10.
-    // ‖|V||W|‖_∞ = max_i Σ_j |v_ij| Σ_k |w_jk|.
-    double kappa = 0;
-    for (int i = 0; i < n; ++i) {
-      double row = 0;
-      for (int j = 0; j < n; ++j) row += std::fabs(s->v(i, j)) * s->w.row(j).cwiseAbs().sum();
-      kappa = std::max(kappa, row);
-    }
-    return kappa <= 1e3 && s->w.allFinite() && s->lambda.allFinite();
-  }
-
-  // Cyclic Jacobi rotations (Eigen's JacobiRotation) for a small symmetric S = Q diag(d) Qᵀ.
-  static void Jacobi(SubMat s, SubVec* d, SubMat* q) {
-    const int n = static_cast<int>(s.rows());
-    *q = SubMat::Identity(n, n);
-    for (int sweep = 0; sweep < 30; ++sweep) {
-      bool rotated = false;
-      for (int i = 0; i < n; ++i) {
-        for (int k = i + 1; k < n; ++k) {
-          // An entry below rounding relative to its diagonal pair changes the eigenvalues by O(ε²).
-          if (std::fabs(s(i, k)) <= 2.3e-16 * std::sqrt(std::fabs(s(i, i) * s(k, k)))) continue;
-          rotated = true;
-          Eigen::JacobiRotation<double> rot;
-          rot.makeJacobi(s, i, k);
-          s.applyOnTheLeft(i, k, rot.adjoint());
-          s.applyOnTheRight(i, k, rot);
-          q->applyOnTheRight(i, k, rot);
-          s(i, k) = s(k, i) = 0;  // zero by construction of the rotation
-        }
-      }
-      if (!rotated) break;
-    }
-    *d = s.diagonal();
+    using Full = std::conditional_t<MaxN == Eigen::Dynamic, Eigen::MatrixXd, SmallMat>;
+    using FullVec = std::conditional_t<MaxN == Eigen::Dynamic, Eigen::VectorXd, SmallVec>;
+    Full v, w;
+    FullVec lambda;
+    if (!modal_detail::Decompose(Full(a), &lambda, &v, &w)) return false;
+    s->lambda = lambda;
+    s->v = v;
+    s->w = w;
+    return true;
   }
 
   const Vec& Uhat(Set& s, int input) {
