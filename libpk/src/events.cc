@@ -36,11 +36,7 @@ void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base
       }
     }
     // Unused modifiers (R, D of compartments nobody infuses into) are NaN: NaN matches NaN here.
-    const auto same = [&](const Eigen::VectorXd& a) {
-      return std::equal(a.data(), a.data() + a.size(), v.data(),
-                        [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); });
-    };
-    if (s->sets.empty() || !same(s->sets.back()) || s->from_data.back() != data_flags) {
+    if (s->sets.empty() || !SameValues(s->sets.back(), v) || s->from_data.back() != data_flags) {
       s->sets.push_back(v);
       s->from_data.push_back(std::move(data_flags));
     }

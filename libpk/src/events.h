@@ -87,6 +87,13 @@ struct PreparedSubject {
 PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
                                int subject, const Eigen::VectorXd& base, bool check_modifiers = true);
 
+/// Equal parameter vectors, where NaN (an unused modifier) matches NaN.
+inline bool SameValues(const Eigen::Ref<const Eigen::VectorXd>& a, const Eigen::Ref<const Eigen::VectorXd>& b) {
+  return a.size() == b.size() && std::equal(a.data(), a.data() + a.size(), b.data(), [](double x, double y) {
+           return x == y || (std::isnan(x) && std::isnan(y));
+         });
+}
+
 /// Replaces the base values of a prepared subject (the data columns still override).
 void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base, PreparedSubject* s);
 

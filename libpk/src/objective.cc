@@ -104,11 +104,7 @@ struct Objective::Impl {
     {
       std::lock_guard<std::mutex> lock(schedule_mutex);
       // Unused modifiers are NaN: NaN matches NaN.
-      if (schedule && schedule->key.size() == key.size() &&
-          std::equal(key.data(), key.data() + key.size(), schedule->key.data(),
-                     [](double a, double b) { return a == b || (std::isnan(a) && std::isnan(b)); })) {
-        return schedule;
-      }
+      if (schedule && internal::SameValues(schedule->key, key)) return schedule;
     }
     internal::PreparedSubject s = prepared;
     internal::RebindParameters(layout, values.head(L()), &s);
@@ -447,6 +443,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       return sets;
     };
     if (done) {
+      // The modal path above has ŷ (and ∂ŷ/∂p, or the adjoint's record).
     } else if (route == GradientRoute::kCompanion) {
       // Only the transfer function's coefficients (layout entries 0..2n−1).
       const int order = d.linear == nullptr || ode ? 0 : d.linear->transfer_function_order();

@@ -24,9 +24,7 @@ class ScheduleRecorder {
     sample_ = SampleIndex(s, &out_.num_samples);
   }
   void Advance(double h, const Eigen::VectorXd& u, int set) {
-    ScheduleOp& op = Push(ScheduleOp::kAdvance, set, Intern(u));
-    op.value = h;
-    op.step = Step(h);
+    Push(ScheduleOp::kAdvance, set, Intern(u)).step = Step(h);
   }
   void Bolus(int cmt, double amount, int set) {
     ScheduleOp& op = Push(ScheduleOp::kBolus, set, -1);
@@ -89,7 +87,6 @@ class ScheduleRecorder {
 EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubject& subject,
                              int num_model_parameters) {
   EventSchedule out;
-  out.num_sets = static_cast<int>(subject.sets.size());
   ScheduleRecorder recorder(subject, &out);
   EventEngine<double, ScheduleRecorder> engine(subject, layout, subject.sets, &recorder);
   engine.Run();

@@ -58,7 +58,7 @@ struct ScheduleOp {
   int index = -1;    ///< kAdvance, kSteadyInfusion: input vector (-1: none); kSteadyState: cycle; kSample: sample
   int cmt = 0;       ///< kBolus: 0-based compartment; kSample: 1-based output compartment
   int step = -1;     ///< kAdvance: index of h in EventSchedule::steps
-  double value = 0;  ///< kAdvance: h; kBolus: amount
+  double value = 0;  ///< kBolus: amount
 };
 
 struct ScheduleSegment {
@@ -81,7 +81,6 @@ struct EventSchedule {
   std::vector<Eigen::VectorXd> inputs;
   std::vector<ScheduleCycle> cycles;
   int num_samples = 0;
-  int num_sets = 0;
   Eigen::VectorXd key;  ///< the layout values it was recorded with (entries from num_parameters() on)
 };
 

@@ -276,22 +276,17 @@ class Modal final : public ModalEvaluator {
   Output& GetOutput(Set& s, int cmt) {
     // Samples of one output follow each other: try the last one first.
     if (s.last_output < s.outputs.size() && s.outputs[s.last_output].cmt == cmt) return s.outputs[s.last_output];
-    Output* free_entry = nullptr;
+    size_t unused = s.outputs.size();  // an entry kept for its storage, else a new one
     for (size_t i = 0; i < s.outputs.size(); ++i) {
       if (s.outputs[i].cmt == cmt) {
         s.last_output = i;
         return s.outputs[i];
       }
+      if (s.outputs[i].cmt < 0 && unused == s.outputs.size()) unused = i;
     }
-    for (Output& o : s.outputs) {
-      if (o.cmt < 0 && free_entry == nullptr) free_entry = &o;
-    }
-    if (free_entry == nullptr) {
-      s.outputs.emplace_back();
-      free_entry = &s.outputs.back();
-    }
-    Output& o = *free_entry;
-    s.last_output = static_cast<size_t>(free_entry - s.outputs.data());
+    if (unused == s.outputs.size()) s.outputs.emplace_back();
+    s.last_output = unused;
+    Output& o = s.outputs[unused];
     o.cmt = cmt;
     RowVec c = RowVec::Zero(n());
     const auto value = [&](int i) { return s.theta[i]; };
