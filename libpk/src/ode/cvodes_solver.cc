@@ -115,12 +115,13 @@ struct CvodesSolver::Impl {
   };
   std::map<std::pair<int, int>, Forward> forward;  // (k, with_loss + 2·with_auc)
   struct Adjoint {
-    std::unique_ptr<Vector> y, yb, qb;
+    std::unique_ptr<Vector> y, yb, qb, atolb;
     std::unique_ptr<Memory> mem;
     std::unique_ptr<LinearSolver> ls, lsb;
     int which = -1;
     int kq = 0;
     long bytes = 0;        // CVODES's storage for this segment's trajectory
+    Eigen::VectorXd xmax;  // max |x_i| over the segment's steps
     SegmentInput segment;  // stored segments keep their own input
     std::shared_ptr<Context> context;  // pooled memories carry their own context
   };
@@ -169,7 +170,7 @@ struct CvodesSolver::Impl {
     if (!a || !a->mem) return;
     Pools()[Key(std::max(a->kq, 1))].free.push_back(std::move(a));
   }
-  void Backward(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& lambda_end,
+  void Backward(Adjoint& a, const SegmentInput& seg, double gradient_scale, const Eigen::VectorXd& lambda_end,
                 Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
   Impl(const OdeSystem& s, const OdeOptions& o) : sys(s), opt(o), n(s.n()) {}
@@ -496,7 +497,14 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
   Check(CVodeSetStopTime(a.mem->mem, seg.h), "CVodeSetStopTime");
   realtype t = 0;
   int ncheck = 0;
-  Check(CVodeF(a.mem->mem, seg.h, a.y->v, &t, CV_NORMAL, &ncheck), "CVodeF");
+  // Step by step, to record the largest |x_i| the segment reaches (it weights
+  // λ's error control in Backward).
+  a.xmax = x0.cwiseAbs();
+  for (int flag = CV_SUCCESS; flag != CV_TSTOP_RETURN;) {
+    flag = CVodeF(a.mem->mem, seg.h, a.y->v, &t, CV_ONE_STEP, &ncheck);
+    Check(flag, "CVodeF");
+    a.xmax = a.xmax.cwiseMax(View(a.y->v).cwiseAbs());
+  }
   if (x_end) *x_end = View(a.y->v);
   long steps = 0;
   CVodeGetNumSteps(a.mem->mem, &steps);
@@ -506,7 +514,8 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
 }
 
 // The backward half: λ from λ(h) = lambda_end to λ(0), with the quadrature.
-void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& lambda_end,
+void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double gradient_scale,
+                                  const Eigen::VectorXd& lambda_end,
                                   Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   in = &seg;
   vjp.t = std::numeric_limits<double>::quiet_NaN();
@@ -540,14 +549,35 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Eig
     Check(CVodeQuadReInitB(a.mem->mem, a.which, a.qb->v), "CVodeQuadReInitB");
   }
   // λ is measured in loss per amount, not in amounts, so the amounts' absolute
-  // tolerance means nothing for it. Its error is controlled relative to its
-  // size on this segment instead: atol_λ = rtol·‖λ(h)‖_∞ (never below the
-  // amounts' atol). Once a sample's jump has decayed below that, its tail adds
-  // less than rtol of the segment's own share of the gradient, and CVODES no
-  // longer follows it through every e-fold (see docs/ode_routes.md).
+  // tolerance means nothing for it. Its absolute tolerance is the looser of:
+  //  - rtol·‖λ(h)‖_∞ (never below the amounts' atol): once a sample's jump has
+  //    decayed below that, its tail adds less than rtol of the segment's share.
+  //  - rtol·S/(c·X_i), from what an error of λ_i can do to the gradient. An
+  //    error δλ made at t changes the gradient by exactly δλ(t)ᵀx_p(t), because
+  //    d/dt(δλᵀx_p) = δλᵀf_p along the homogeneous adjoint. |x_p,i| is of the
+  //    order of X_i, the largest |x_i| on the segment (times θt for a rate
+  //    constant, hence the margin c = 100), and S = Σ_k |Δλ_k|ᵀ|x(t_k)| over all
+  //    samples is the scale of the gradient's terms. Where the drug is gone, X
+  //    is small and λ's transients after each sample are not followed.
+  // See docs/ode_routes.md.
   const double lambda_scale = lambda_end.lpNorm<Eigen::Infinity>();
   const double atol_b = std::max(opt.absolute_tolerance, opt.relative_tolerance * lambda_scale);
-  Check(CVodeSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, atol_b), "CVodeSStolerancesB");
+  if (gradient_scale > 0 && seg.continuous.empty() && a.xmax.size() == n) {
+    if (!a.atolb) a.atolb.reset(new Vector(n, a.context ? a.context->ctx : context.ctx));
+    constexpr double kSafety = 100.0;  // c: |x_p,i| may exceed X_i (a factor θt for elimination)
+    constexpr double kRelativeFloor = 1e-3;  // X_i ≥ 1e-3 ‖X‖_∞, for a state near 0 whose x_p is not
+    const double floor = kRelativeFloor * a.xmax.lpNorm<Eigen::Infinity>();
+    const double cap = 1e100 * std::max(1.0, lambda_scale);
+    Map atol = View(a.atolb->v);
+    for (int i = 0; i < n; ++i) {
+      const double x = std::max(a.xmax(i), floor);
+      const double bound = x > 0 ? opt.relative_tolerance * gradient_scale / (kSafety * x) : cap;
+      atol(i) = std::max(atol_b, std::min(bound, cap));
+    }
+    Check(CVodeSVtolerancesB(a.mem->mem, a.which, opt.relative_tolerance, a.atolb->v), "CVodeSVtolerancesB");
+  } else {
+    Check(CVodeSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, atol_b), "CVodeSStolerancesB");
+  }
   realtype t = 0;
   Check(CVodeB(a.mem->mem, 0.0, CV_NORMAL), "CVodeB");
   Check(CVodeGetB(a.mem->mem, a.which, &t, a.yb->v), "CVodeGetB");
@@ -561,7 +591,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Eig
   stats.backward_steps += bsteps;
 }
 
-void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
+void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, double gradient_scale,
                                   const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                                   Eigen::RowVectorXd* q) {
   Impl& d = *impl_;
@@ -572,7 +602,7 @@ void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd&
   // Forward over this segment only: checkpoints never straddle a jump.
   d.ForwardStore(*d.adjoint, in, x0, nullptr);
   d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes + d.adjoint->bytes);
-  d.Backward(*d.adjoint, in, lambda_end, lambda_start, q);
+  d.Backward(*d.adjoint, in, gradient_scale, lambda_end, lambda_start, q);
 }
 
 int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
@@ -587,11 +617,11 @@ int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   return static_cast<int>(d.stored.size()) - 1;
 }
 
-void CvodesSolver::BackwardStored(int handle, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+void CvodesSolver::BackwardStored(int handle, double gradient_scale, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                                   Eigen::RowVectorXd* q) {
   Impl& d = *impl_;
   Impl::Adjoint& a = *d.stored.at(handle);
-  d.Backward(a, a.segment, lambda_end, lambda_start, q);
+  d.Backward(a, a.segment, gradient_scale, lambda_end, lambda_start, q);
 }
 
 }  // namespace internal

@@ -71,8 +71,11 @@ class CvodesSolver {
   ///   dλ/dt = −f_xᵀλ − Σ g_xᵀ w (y − y_m),
   /// to λ(0), and the quadrature
   ///   q = ∫₀ʰ λᵀ(f_θ ∂θ/∂p + ∂u/∂p) + Σ w (y − y_m) g_θ ∂θ/∂p ds   (1×k).
-  void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const Eigen::VectorXd& lambda_end,
-                      Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
+  /// gradient_scale S = Σ |Δλ_k|ᵀ|x(t_k)| over the samples after this segment
+  /// (0: unknown) lets λ's error control ignore states the segment leaves
+  /// empty (see Impl::Backward).
+  void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, double gradient_scale,
+                      const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
   /// The same in two halves, keeping every segment's trajectory: the forward
   /// pass integrates x over the segment (x ← x(h)) and stores its CVODES
@@ -80,8 +83,8 @@ class CvodesSolver {
   /// then runs backward on it. One forward pass instead of two, at the price
   /// of holding all segments at once.
   int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x);
-  void BackwardStored(int handle, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
-                      Eigen::RowVectorXd* q);
+  void BackwardStored(int handle, double gradient_scale, const Eigen::VectorXd& lambda_end,
+                      Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
   const OdeStatistics& statistics() const;
 

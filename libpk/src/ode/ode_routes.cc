@@ -115,6 +115,28 @@ struct OdeAdjoint::Impl {
   std::vector<DualVector> sets;
   int p;
   OdePropagator<Dual> prop;
+  double scale = 0;  // S = Σ_k |Δλ_k|ᵀ|x(t_k)| (the backward solves' error control)
+
+  // S over every sample of a tape, Δλ_k = g_xᵀ ∂ℓ_k/∂y.
+  double GradientScale(const std::vector<TapeStep>& tape, const Eigen::VectorXd& dl_dy) {
+    const int n = o.system->n();
+    double sum = 0;
+    for (const TapeStep& step : tape) {
+      if (step.kind == TapeStep::kSteadyState) {
+        sum += GradientScale(step.to_record, dl_dy) + GradientScale(step.cycle, dl_dy);
+      }
+      if (step.kind != TapeStep::kSample || dl_dy(step.sample) == 0) continue;
+      Eigen::VectorXd theta;
+      Eigen::MatrixXd dtheta;
+      prop.Theta(step.set, &theta, &dtheta);
+      double y;
+      Eigen::RowVectorXd dy;
+      o.system->ObserveDirectional(step.key, step.x1, theta, Eigen::MatrixXd::Identity(n, n),
+                                   Eigen::MatrixXd::Zero(theta.size(), n), &y, &dy);
+      sum += std::fabs(dl_dy(step.sample)) * dy.cwiseAbs().dot(step.x1.cwiseAbs());
+    }
+    return sum;
+  }
 
   Impl(const OdeSubject& oo, const PreparedSubject& ss, const std::vector<DualVector>& st, int pp)
       : o(oo), s(ss), sets(st), p(pp), prop(*oo.system, sets, pp, oo.options, false, true, false,
@@ -130,9 +152,9 @@ struct OdeAdjoint::Impl {
     Eigen::VectorXd lambda0;
     Eigen::RowVectorXd q;
     if (step.handle >= 0) {
-      prop.solver().BackwardStored(step.handle, *lambda, &lambda0, &q);
+      prop.solver().BackwardStored(step.handle, scale, *lambda, &lambda0, &q);
     } else {
-      prop.solver().AdjointSegment(step.segment, step.x0, *lambda, &lambda0, &q);
+      prop.solver().AdjointSegment(step.segment, step.x0, scale, *lambda, &lambda0, &q);
     }
     if (q.size()) *g += q.transpose();
     *lambda = lambda0;
@@ -210,6 +232,7 @@ Eigen::VectorXd OdeAdjoint::Gradient(const Eigen::VectorXd& dl_dyhat) {
   Impl& d = *impl_;
   Eigen::VectorXd lambda = Eigen::VectorXd::Zero(d.o.system->n());
   Eigen::VectorXd g = Eigen::VectorXd::Zero(d.p);
+  d.scale = d.GradientScale(d.prop.tape(), dl_dyhat);
   d.Sweep(d.prop.tape(), dl_dyhat, &lambda, &g);
   return g + d.prop.continuous_loss_time_gradient().transpose();
 }
