@@ -45,6 +45,14 @@ using OdeStatistics = pk::OdeStatistics;
 double ContinuousLoss(const OdeSystem& sys, const SegmentInput& in, double t, const Eigen::VectorXd& x,
                       Eigen::VectorXd* dl_dy = nullptr, double* lt = nullptr, Eigen::VectorXd* dlt_dy = nullptr);
 
+/// What the adjoint's backward solves need to know of the whole gradient (see
+/// CvodesSolver::Impl::Backward): S = Σ_k |Δλ_k|ᵀ|x(t_k)| over all samples
+/// (0: unknown), and the gradient accumulated so far (null: none).
+struct AdjointScales {
+  double state = 0;
+  const Eigen::VectorXd* gradient = nullptr;
+};
+
 class CvodesSolver {
  public:
   CvodesSolver(const OdeSystem& system, const OdeOptions& options);
@@ -71,10 +79,8 @@ class CvodesSolver {
   ///   dλ/dt = −f_xᵀλ − Σ g_xᵀ w (y − y_m),
   /// to λ(0), and the quadrature
   ///   q = ∫₀ʰ λᵀ(f_θ ∂θ/∂p + ∂u/∂p) + Σ w (y − y_m) g_θ ∂θ/∂p ds   (1×k).
-  /// gradient_scale S = Σ |Δλ_k|ᵀ|x(t_k)| over the samples after this segment
-  /// (0: unknown) lets λ's error control ignore states the segment leaves
-  /// empty (see Impl::Backward).
-  void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, double gradient_scale,
+  /// `scales` set the error control of λ and of q (see AdjointScales).
+  void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales& scales,
                       const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
   /// The same in two halves, keeping every segment's trajectory: the forward
@@ -83,7 +89,7 @@ class CvodesSolver {
   /// then runs backward on it. One forward pass instead of two, at the price
   /// of holding all segments at once.
   int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x);
-  void BackwardStored(int handle, double gradient_scale, const Eigen::VectorXd& lambda_end,
+  void BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
                       Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
   const OdeStatistics& statistics() const;

@@ -151,10 +151,13 @@ struct OdeAdjoint::Impl {
     }
     Eigen::VectorXd lambda0;
     Eigen::RowVectorXd q;
+    AdjointScales scales;
+    scales.state = scale;
+    scales.gradient = g;
     if (step.handle >= 0) {
-      prop.solver().BackwardStored(step.handle, scale, *lambda, &lambda0, &q);
+      prop.solver().BackwardStored(step.handle, scales, *lambda, &lambda0, &q);
     } else {
-      prop.solver().AdjointSegment(step.segment, step.x0, scale, *lambda, &lambda0, &q);
+      prop.solver().AdjointSegment(step.segment, step.x0, scales, *lambda, &lambda0, &q);
     }
     if (q.size()) *g += q.transpose();
     *lambda = lambda0;
