@@ -112,7 +112,36 @@ struct CvodesSolver::Impl {
     std::unique_ptr<Memory> mem;
     std::unique_ptr<LinearSolver> ls;
     std::unique_ptr<VectorArray> ys;
+    // Where the last segment ended, to continue without a restart (Continues).
+    bool at_end = false;
+    double t = 0;
+    long steps = 0;  // CVodeGetNumSteps at t (it counts from the last CVodeReInit)
+    Eigen::VectorXd theta, u, x;
+    Eigen::MatrixXd dtheta, du, s;
   };
+
+  // A segment that starts where the last one of the same configuration ended,
+  // with the same state (and sensitivities) and the same θ and inputs, is the
+  // same initial value problem continued: a sample between them is not a
+  // discontinuity. CVODES then carries on with its step size and order instead
+  // of restarting at order 1 with a tiny step. Segments with continuous records
+  // or AUC carry per-segment quadrature states and always restart.
+  static bool Continues(const Forward& f, const SegmentInput& in, const Eigen::VectorXd& x,
+                        const Eigen::MatrixXd* s) {
+    return f.at_end && in.continuous.empty() && f.x == x && f.theta == in.theta && f.u == in.u &&
+           (s == nullptr || (f.s == *s && f.dtheta == in.dtheta && f.du == in.du));
+  }
+  static void Remember(Forward& f, const SegmentInput& in, const Eigen::VectorXd& x, const Eigen::MatrixXd* s) {
+    f.at_end = true;
+    f.x = x;
+    f.theta = in.theta;
+    f.u = in.u;
+    if (s) {
+      f.s = *s;
+      f.dtheta = in.dtheta;
+      f.du = in.du;
+    }
+  }
   std::map<std::pair<int, int>, Forward> forward;  // (k, with_loss + 2·with_auc)
   struct Adjoint {
     std::unique_ptr<Vector> y, yb, qb, atolb;
@@ -405,14 +434,24 @@ struct CvodesSolver::Impl {
     return f;
   }
 
-  void Integrate(void* mem, double h, N_Vector y) {
-    Check(CVodeSetStopTime(mem, h), "CVodeSetStopTime");
+  // From f.t (0 after CVodeReInit) to f.t + h.
+  void Integrate(Forward& f, double h) {
+    f.at_end = false;
+    const double t_end = f.t + h;
+    Check(CVodeSetStopTime(f.mem->mem, t_end), "CVodeSetStopTime");
     realtype t = 0;
-    Check(CVode(mem, h, y, &t, CV_NORMAL), "CVode");
-    if (std::fabs(t - h) > 1e-12 * std::max(1.0, h)) throw NumericalFailure("the ODE solver stopped early");
+    Check(CVode(f.mem->mem, t_end, f.y->v, &t, CV_NORMAL), "CVode");
+    if (std::fabs(t - t_end) > 1e-12 * std::max(1.0, t_end)) throw NumericalFailure("the ODE solver stopped early");
+    f.t = t_end;
     long steps = 0;
-    CVodeGetNumSteps(mem, &steps);
-    stats.steps += steps;
+    CVodeGetNumSteps(f.mem->mem, &steps);
+    stats.steps += steps - f.steps;
+    f.steps = steps;
+  }
+  void Restart(Forward& f) {
+    Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
+    f.t = 0;
+    f.steps = 0;
   }
 };
 
@@ -434,11 +473,15 @@ void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* l
   d.with_auc = auc != nullptr;
   Impl::Forward& f = d.GetForward(0, d.with_loss, d.with_auc);
   Map y = View(f.y->v);
-  y.head(d.n) = *x;
-  y.tail(y.size() - d.n).setZero();
-  d.Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
-  d.Integrate(f.mem->mem, in.h, f.y->v);
+  const bool plain = !d.with_loss && !d.with_auc;
+  if (!plain || !Impl::Continues(f, in, *x, nullptr)) {
+    y.head(d.n) = *x;
+    y.tail(y.size() - d.n).setZero();
+    d.Restart(f);
+  }
+  d.Integrate(f, in.h);
   *x = y.head(d.n);
+  if (plain) Impl::Remember(f, in, *x, nullptr);
   if (d.with_loss) {
     *loss += y(d.n);
     if (loss_time) *loss_time += y(d.n + 1);
@@ -461,20 +504,23 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
   d.with_loss = loss != nullptr && !in.continuous.empty();
   Impl::Forward& f = d.GetForward(k, d.with_loss);
   Map y = View(f.y->v);
-  y.head(d.n) = *x;
-  y.tail(y.size() - d.n).setZero();
-  for (int i = 0; i < k; ++i) {
-    Map si = View(f.ys->v[i]);
-    si.head(d.n) = s->col(i);
-    si.tail(si.size() - d.n).setZero();
+  if (d.with_loss || !Impl::Continues(f, in, *x, s)) {
+    y.head(d.n) = *x;
+    y.tail(y.size() - d.n).setZero();
+    for (int i = 0; i < k; ++i) {
+      Map si = View(f.ys->v[i]);
+      si.head(d.n) = s->col(i);
+      si.tail(si.size() - d.n).setZero();
+    }
+    d.Restart(f);
+    d.Check(CVodeSensReInit(f.mem->mem, CV_STAGGERED, f.ys->v), "CVodeSensReInit");
   }
-  d.Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
-  d.Check(CVodeSensReInit(f.mem->mem, CV_STAGGERED, f.ys->v), "CVodeSensReInit");
-  d.Integrate(f.mem->mem, in.h, f.y->v);
+  d.Integrate(f, in.h);
   realtype t = 0;
   d.Check(CVodeGetSens(f.mem->mem, &t, f.ys->v), "CVodeGetSens");
   *x = y.head(d.n);
   for (int i = 0; i < k; ++i) s->col(i) = View(f.ys->v[i]).head(d.n);
+  if (!d.with_loss) Impl::Remember(f, in, *x, s);
   if (d.with_loss) {
     *loss += y(d.n);
     if (loss_time) *loss_time += y(d.n + 1);
