@@ -78,7 +78,7 @@ struct ObjectiveOptions {
 
 /// With the ODE propagator and GradientRoute::kAuto, gradients over more free
 /// model parameters than this use the adjoint (measured by pkbench; docs/performance.md).
-constexpr int kOdeAdjointThreshold = 7;
+constexpr int kOdeAdjointThreshold = 3;
 
 /// A normal prior on log θ: adds ½((log θ − log median)/sd_log)² to V.
 struct LogNormalPrior {

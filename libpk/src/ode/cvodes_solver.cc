@@ -149,16 +149,35 @@ struct CvodesSolver::Impl {
     std::unique_ptr<LinearSolver> ls, lsb;
     int which = -1;
     int kq = 0;
-    long bytes = 0;        // CVODES's storage for this segment's trajectory
-    Eigen::VectorXd xmax;  // max |x_i| over the segment's steps
-    SegmentInput segment;  // stored segments keep their own input
+    long bytes = 0;        // CVODES's storage for this memory's trajectory
+    Eigen::VectorXd xmax;  // recompute mode: max |x_i| over the segment's steps
     std::shared_ptr<Context> context;  // pooled memories carry their own context
+    // Where the forward pass stands (ForwardStore), and what it integrated
+    // last, so that the next segment can continue it (StoreSegment).
+    double t = 0;
+    long steps = 0;
+    int pool_kq = 0;
+    bool at_end = false;
+    Eigen::VectorXd x_end, theta, u;
   };
   std::unique_ptr<Adjoint> adjoint;               // reused: recompute mode
-  std::vector<std::unique_ptr<Adjoint>> stored;   // one per segment: store mode
+  // Store mode: the memories, and the segments (pieces) of their trajectories.
+  // Consecutive segments that continue the same initial value problem (a
+  // sample between them) share one memory, as in CvodesSolver::Advance.
+  std::vector<std::unique_ptr<Adjoint>> stored;
+  struct Piece {
+    int memory = -1;
+    double t0 = 0, t1 = 0;  // in the memory's time
+    SegmentInput segment;
+    Eigen::VectorXd xmax;   // max |x_i| over the piece's steps
+  };
+  std::vector<Piece> pieces;
   long stored_bytes = 0;
 
-  void ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0, Eigen::VectorXd* x_end);
+  // Forward from the memory's time a.t over seg.h (from 0 and x0 when
+  // `restart`), recording max |x_i| over the steps in *xmax.
+  void ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0, Eigen::VectorXd* x_end,
+                    bool restart, Eigen::VectorXd* xmax);
 
   // The quadrature q = ∫λᵀf_p starts at zero on every segment, where its
   // absolute tolerance alone would govern: CVODES then starts the backward
@@ -216,8 +235,9 @@ struct CvodesSolver::Impl {
     if (!a || !a->mem) return;
     Pools()[Key(std::max(a->kq, 1))].free.push_back(std::move(a));
   }
-  void Backward(Adjoint& a, const SegmentInput& seg, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
-                Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
+  void Backward(Adjoint& a, const SegmentInput& seg, double t0, double t1, const Eigen::VectorXd& xmax,
+                const AdjointScales& scales, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                Eigen::RowVectorXd* q);
 
   Impl(const OdeSystem& s, const OdeOptions& o) : sys(s), opt(o), n(s.n()) {}
 
@@ -531,7 +551,7 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
 // The forward half of the adjoint on one segment: CVodeF from x0 to h, storing
 // the trajectory (Hermite data, checkpoints every checkpoint_steps steps).
 void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0,
-                                      Eigen::VectorXd* x_end) {
+                                      Eigen::VectorXd* x_end, bool restart, Eigen::VectorXd* xmax) {
   in = &seg;
   k = static_cast<int>(seg.dtheta.cols());
   with_loss = false;
@@ -554,30 +574,50 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
       CVodeSetErrHandlerFn(CVodeGetAdjCVodeBmem(a.mem->mem, a.which), ErrorHandler, this);
     }
   }
-  View(a.y->v) = x0;
-  Check(CVodeReInit(a.mem->mem, 0.0, a.y->v), "CVodeReInit");
-  Check(CVodeAdjReInit(a.mem->mem), "CVodeAdjReInit");
-  Check(CVodeSetStopTime(a.mem->mem, seg.h), "CVodeSetStopTime");
-  realtype t = 0;
-  int ncheck = 0;
-  // Step by step, to record the largest |x_i| the segment reaches (it weights
-  // λ's error control in Backward).
-  a.xmax = x0.cwiseAbs();
-  for (int flag = CV_SUCCESS; flag != CV_TSTOP_RETURN;) {
-    flag = CVodeF(a.mem->mem, seg.h, a.y->v, &t, CV_ONE_STEP, &ncheck);
-    Check(flag, "CVodeF");
-    a.xmax = a.xmax.cwiseMax(View(a.y->v).cwiseAbs());
+  a.at_end = false;
+  if (restart) {
+    View(a.y->v) = x0;
+    Check(CVodeReInit(a.mem->mem, 0.0, a.y->v), "CVodeReInit");
+    Check(CVodeAdjReInit(a.mem->mem), "CVodeAdjReInit");
+    a.t = 0;
+    a.steps = 0;
   }
+  // Step by step, to record the largest |x_i| the segment reaches (it weights
+  // λ's error control in Backward), without a stop time: CVODES rebuilds the
+  // stored trajectory between checkpoints by integrating again from each one,
+  // and only the steps it took without intermediate stop times can be
+  // reproduced that way. The last step may pass t_end; x(t_end) is
+  // interpolated, and the next segment of the same memory continues from there.
+  const double t_end = a.t + seg.h;
+  realtype t = 0;
+  Check(CVodeGetCurrentTime(a.mem->mem, &t), "CVodeGetCurrentTime");  // past a.t after a continued segment
+  int ncheck = 0;
+  *xmax = x0.cwiseAbs();
+  // One step per call, so CVODES's own limit of steps per call never applies.
+  for (long taken = 0; t < t_end; ++taken) {
+    if (taken >= opt.max_steps) {
+      std::ostringstream os;
+      os << "the ODE solver failed (CVodeF): at t = " << t << ", mxstep steps taken before reaching tout";
+      throw NumericalFailure(os.str());
+    }
+    Check(CVodeF(a.mem->mem, t_end, a.y->v, &t, CV_ONE_STEP, &ncheck), "CVodeF");
+    *xmax = xmax->cwiseMax(View(a.y->v).cwiseAbs());
+  }
+  Check(CVodeGetDky(a.mem->mem, t_end, 0, a.y->v), "CVodeGetDky");
+  *xmax = xmax->cwiseMax(View(a.y->v).cwiseAbs());
+  a.t = t_end;
   if (x_end) *x_end = View(a.y->v);
   long steps = 0;
   CVodeGetNumSteps(a.mem->mem, &steps);
-  stats.steps += steps;
+  stats.steps += steps - a.steps;
+  a.steps = steps;
   a.bytes = (std::min<long>(steps, opt.checkpoint_steps) * 2 * n + (ncheck + 1) * 6L * n) *
             static_cast<long>(sizeof(double));
 }
 
-// The backward half: λ from λ(h) = lambda_end to λ(0), with the quadrature.
-void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const AdjointScales& scales,
+// The backward half: λ from λ(t1) = lambda_end to λ(t0), with the quadrature.
+void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0, double t1,
+                                  const Eigen::VectorXd& xmax, const AdjointScales& scales,
                                   const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                                   Eigen::RowVectorXd* q) {
   in = &seg;
@@ -591,7 +631,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Adj
     a.qb.reset(new Vector(kq, ctx));
     View(a.yb->v) = lambda_end;
     Check(CVodeCreateB(a.mem->mem, CV_BDF, &a.which), "CVodeCreateB");
-    Check(CVodeInitB(a.mem->mem, a.which, AdjointRhs, seg.h, a.yb->v), "CVodeInitB");
+    Check(CVodeInitB(a.mem->mem, a.which, AdjointRhs, t1, a.yb->v), "CVodeInitB");
     Check(CVodeSetUserDataB(a.mem->mem, a.which, this), "CVodeSetUserDataB");
     Check(CVodeSetMaxNumStepsB(a.mem->mem, a.which, opt.max_steps), "CVodeSetMaxNumStepsB");
     a.lsb.reset(new LinearSolver(a.yb->v, n, ctx));
@@ -607,7 +647,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Adj
   } else {
     if (a.kq != kq) throw NumericalFailure("internal: the adjoint quadrature size changed");
     View(a.yb->v) = lambda_end;
-    Check(CVodeReInitB(a.mem->mem, a.which, seg.h, a.yb->v), "CVodeReInitB");
+    Check(CVodeReInitB(a.mem->mem, a.which, t1, a.yb->v), "CVodeReInitB");
     SetQuadratureStart(a, scales, k);
     Check(CVodeQuadReInitB(a.mem->mem, a.which, a.qb->v), "CVodeQuadReInitB");
   }
@@ -625,15 +665,15 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Adj
   // See docs/ode_routes.md.
   const double lambda_scale = lambda_end.lpNorm<Eigen::Infinity>();
   const double atol_b = std::max(opt.absolute_tolerance, opt.relative_tolerance * lambda_scale);
-  if (scales.state > 0 && seg.continuous.empty() && a.xmax.size() == n) {
+  if (scales.state > 0 && seg.continuous.empty() && xmax.size() == n) {
     if (!a.atolb) a.atolb.reset(new Vector(n, a.context ? a.context->ctx : context.ctx));
     constexpr double kSafety = 100.0;  // c: |x_p,i| may exceed X_i (a factor θt for elimination)
     constexpr double kRelativeFloor = 1e-3;  // X_i ≥ 1e-3 ‖X‖_∞, for a state near 0 whose x_p is not
-    const double floor = kRelativeFloor * a.xmax.lpNorm<Eigen::Infinity>();
+    const double floor = kRelativeFloor * xmax.lpNorm<Eigen::Infinity>();
     const double cap = 1e100 * std::max(1.0, lambda_scale);
     Map atol = View(a.atolb->v);
     for (int i = 0; i < n; ++i) {
-      const double x = std::max(a.xmax(i), floor);
+      const double x = std::max(xmax(i), floor);
       const double bound = x > 0 ? opt.relative_tolerance * scales.state / (kSafety * x) : cap;
       atol(i) = std::max(atol_b, std::min(bound, cap));
     }
@@ -642,7 +682,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, const Adj
     Check(CVodeSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, atol_b), "CVodeSStolerancesB");
   }
   realtype t = 0;
-  Check(CVodeB(a.mem->mem, 0.0, CV_NORMAL), "CVodeB");
+  Check(CVodeB(a.mem->mem, t0, CV_NORMAL), "CVodeB");
   Check(CVodeGetB(a.mem->mem, a.which, &t, a.yb->v), "CVodeGetB");
   *lambda_start = View(a.yb->v);
   if (k > 0) {
@@ -664,28 +704,48 @@ void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd&
   if (in.h <= 0) return;
   if (!d.adjoint) d.adjoint.reset(new Impl::Adjoint);
   // Forward over this segment only: checkpoints never straddle a jump.
-  d.ForwardStore(*d.adjoint, in, x0, nullptr);
-  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes + d.adjoint->bytes);
-  d.Backward(*d.adjoint, in, scales, lambda_end, lambda_start, q);
+  Impl::Adjoint& a = *d.adjoint;
+  d.ForwardStore(a, in, x0, nullptr, true, &a.xmax);
+  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes + a.bytes);
+  d.Backward(a, in, 0.0, in.h, a.xmax, scales, lambda_end, lambda_start, q);
 }
 
 int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl& d = *impl_;
   if (in.h <= 0) return -1;
-  d.stored.push_back(d.Borrow(std::max<int>(static_cast<int>(in.dtheta.cols()), 1)));
+  const int kq = std::max<int>(static_cast<int>(in.dtheta.cols()), 1);
+  const Impl::Adjoint* last = d.stored.empty() ? nullptr : d.stored.back().get();
+  // The same initial value problem continued (see Advance): one trajectory.
+  const bool continues = last && last->at_end && last->pool_kq == kq && in.continuous.empty() &&
+                         last->x_end == *x && last->theta == in.theta && last->u == in.u;
+  if (!continues) {
+    d.stored.push_back(d.Borrow(kq));
+    d.stored.back()->pool_kq = kq;
+  }
   Impl::Adjoint& a = *d.stored.back();
-  a.segment = in;
-  d.ForwardStore(a, a.segment, *x, x);
+  Impl::Piece piece;
+  piece.memory = static_cast<int>(d.stored.size()) - 1;
+  piece.t0 = continues ? a.t : 0.0;
+  piece.segment = in;
+  d.stored_bytes -= continues ? a.bytes : 0;
+  d.ForwardStore(a, piece.segment, *x, x, !continues, &piece.xmax);
+  piece.t1 = a.t;
+  a.at_end = true;
+  a.x_end = *x;
+  a.theta = in.theta;
+  a.u = in.u;
   d.stored_bytes += a.bytes;
   d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
-  return static_cast<int>(d.stored.size()) - 1;
+  d.pieces.push_back(std::move(piece));
+  return static_cast<int>(d.pieces.size()) - 1;
 }
 
 void CvodesSolver::BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
                                   Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   Impl& d = *impl_;
-  Impl::Adjoint& a = *d.stored.at(handle);
-  d.Backward(a, a.segment, scales, lambda_end, lambda_start, q);
+  const Impl::Piece& piece = d.pieces.at(handle);
+  d.Backward(*d.stored.at(piece.memory), piece.segment, piece.t0, piece.t1, piece.xmax, scales, lambda_end,
+             lambda_start, q);
 }
 
 }  // namespace internal
