@@ -178,7 +178,7 @@ TEST_CASE("ODE routes agree: forward sensitivities, adjoint and finite differenc
 // (and so x_p) is negligible cannot reach the gradient. The gradient must stay
 // as accurate as where the drug is present, and the backward solve must not
 // take more steps than the forward one (it took 1.0-2.2 times as many when λ
-// was followed to rtol of its own size after every sample; now 0.5-0.75).
+// was followed to rtol of its own size after every sample; now 0.64-0.86).
 TEST_CASE("ODE adjoint: samples after the drug is gone keep the gradient's accuracy and cost few steps",
           "[ode][gradient]") {
   const auto name = GENERATE(as<std::string>{}, "1cmt_iv_mm", "1cmt_oral_mm", "2cmt_iv_mm", "1cmt_iv_emax",
