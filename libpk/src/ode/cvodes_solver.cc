@@ -105,6 +105,47 @@ struct CvodesSolver::Impl {
   Eigen::VectorXd x_buf, f_buf;  // scratch of the right-hand sides
   Eigen::MatrixXd s_buf, df_buf;
 
+  // Where a CVODES memory's last segment ended. A segment that starts there,
+  // with the same state (and sensitivities), θ and inputs, is the same initial
+  // value problem continued: a sample between them is not a discontinuity.
+  // CVODES then carries on with its step size and order instead of restarting
+  // at order 1 with a tiny step. Segments with continuous records or AUC carry
+  // per-segment quadrature states and always restart.
+  struct Continuation {
+    bool at_end = false;
+    double t = 0;    // the memory's time at the end
+    long steps = 0;  // CVodeGetNumSteps there (it counts from the last CVodeReInit)
+    Eigen::VectorXd x, theta, u;
+    Eigen::MatrixXd s, dtheta, du;
+
+    bool Continues(const SegmentInput& in, const Eigen::VectorXd& x0, const Eigen::MatrixXd* s0) const {
+      return at_end && in.continuous.empty() && x == x0 && theta == in.theta && u == in.u &&
+             (s0 == nullptr || (s == *s0 && dtheta == in.dtheta && du == in.du));
+    }
+    void Remember(const SegmentInput& in, const Eigen::VectorXd& x1, const Eigen::MatrixXd* s1) {
+      at_end = true;
+      x = x1;
+      theta = in.theta;
+      u = in.u;
+      if (s1) {
+        s = *s1;
+        dtheta = in.dtheta;
+        du = in.du;
+      }
+    }
+    void Restarted() {
+      t = 0;
+      steps = 0;
+    }
+    // Adds the steps taken since the last count to *total.
+    void CountSteps(void* mem, long* total) {
+      long now = 0;
+      CVodeGetNumSteps(mem, &now);
+      *total += now - steps;
+      steps = now;
+    }
+  };
+
   // One CVODES instance per configuration: plain (with/without loss state),
   // forward sensitivities with k directions, and the adjoint.
   struct Forward {
@@ -112,36 +153,9 @@ struct CvodesSolver::Impl {
     std::unique_ptr<Memory> mem;
     std::unique_ptr<LinearSolver> ls;
     std::unique_ptr<VectorArray> ys;
-    // Where the last segment ended, to continue without a restart (Continues).
-    bool at_end = false;
-    double t = 0;
-    long steps = 0;  // CVodeGetNumSteps at t (it counts from the last CVodeReInit)
-    Eigen::VectorXd theta, u, x;
-    Eigen::MatrixXd dtheta, du, s;
+    Continuation run;
   };
 
-  // A segment that starts where the last one of the same configuration ended,
-  // with the same state (and sensitivities) and the same θ and inputs, is the
-  // same initial value problem continued: a sample between them is not a
-  // discontinuity. CVODES then carries on with its step size and order instead
-  // of restarting at order 1 with a tiny step. Segments with continuous records
-  // or AUC carry per-segment quadrature states and always restart.
-  static bool Continues(const Forward& f, const SegmentInput& in, const Eigen::VectorXd& x,
-                        const Eigen::MatrixXd* s) {
-    return f.at_end && in.continuous.empty() && f.x == x && f.theta == in.theta && f.u == in.u &&
-           (s == nullptr || (f.s == *s && f.dtheta == in.dtheta && f.du == in.du));
-  }
-  static void Remember(Forward& f, const SegmentInput& in, const Eigen::VectorXd& x, const Eigen::MatrixXd* s) {
-    f.at_end = true;
-    f.x = x;
-    f.theta = in.theta;
-    f.u = in.u;
-    if (s) {
-      f.s = *s;
-      f.dtheta = in.dtheta;
-      f.du = in.du;
-    }
-  }
   std::map<std::pair<int, int>, Forward> forward;  // (k, with_loss + 2·with_auc)
   struct Adjoint {
     std::unique_ptr<Vector> y, yb, qb, atolb;
@@ -152,13 +166,8 @@ struct CvodesSolver::Impl {
     long bytes = 0;        // CVODES's storage for this memory's trajectory
     Eigen::VectorXd xmax;  // recompute mode: max |x_i| over the segment's steps
     std::shared_ptr<Context> context;  // pooled memories carry their own context
-    // Where the forward pass stands (ForwardStore), and what it integrated
-    // last, so that the next segment can continue it (StoreSegment).
-    double t = 0;
-    long steps = 0;
+    Continuation run;  // where the forward pass stands (ForwardStore, StoreSegment)
     int pool_kq = 0;
-    bool at_end = false;
-    Eigen::VectorXd x_end, theta, u;
   };
   std::unique_ptr<Adjoint> adjoint;               // reused: recompute mode
   // Store mode: the memories, and the segments (pieces) of their trajectories.
@@ -174,7 +183,7 @@ struct CvodesSolver::Impl {
   std::vector<Piece> pieces;
   long stored_bytes = 0;
 
-  // Forward from the memory's time a.t over seg.h (from 0 and x0 when
+  // Forward from the memory's time a.run.t over seg.h (from 0 and x0 when
   // `restart`), recording max |x_i| over the steps in *xmax.
   void ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0, Eigen::VectorXd* x_end,
                     bool restart, Eigen::VectorXd* xmax);
@@ -188,9 +197,12 @@ struct CvodesSolver::Impl {
   // is subtracted again. The 10 keeps the adjoint as accurate as the forward
   // route at the same rtol; with 1 it was up to 7 times less accurate.
   static constexpr double kQuadratureMargin = 10.0;
-  static void SetQuadratureStart(Adjoint& a, const AdjointScales& scales, int k) {
-    if (scales.gradient && scales.gradient->size() == k) {
-      View(a.qb->v) = *scales.gradient / kQuadratureMargin;
+  static const Eigen::VectorXd* QuadratureOffset(const AdjointScales& scales, int k) {
+    return scales.gradient && scales.gradient->size() == k ? scales.gradient : nullptr;
+  }
+  static void SetQuadratureStart(Adjoint& a, const Eigen::VectorXd* offset) {
+    if (offset) {
+      View(a.qb->v) = *offset / kQuadratureMargin;
     } else {
       N_VConst(0.0, a.qb->v);
     }
@@ -454,24 +466,20 @@ struct CvodesSolver::Impl {
     return f;
   }
 
-  // From f.t (0 after CVodeReInit) to f.t + h.
+  // From f.run.t (0 after CVodeReInit) to f.run.t + h.
   void Integrate(Forward& f, double h) {
-    f.at_end = false;
-    const double t_end = f.t + h;
+    f.run.at_end = false;
+    const double t_end = f.run.t + h;
     Check(CVodeSetStopTime(f.mem->mem, t_end), "CVodeSetStopTime");
     realtype t = 0;
     Check(CVode(f.mem->mem, t_end, f.y->v, &t, CV_NORMAL), "CVode");
     if (std::fabs(t - t_end) > 1e-12 * std::max(1.0, t_end)) throw NumericalFailure("the ODE solver stopped early");
-    f.t = t_end;
-    long steps = 0;
-    CVodeGetNumSteps(f.mem->mem, &steps);
-    stats.steps += steps - f.steps;
-    f.steps = steps;
+    f.run.t = t_end;
+    f.run.CountSteps(f.mem->mem, &stats.steps);
   }
   void Restart(Forward& f) {
     Check(CVodeReInit(f.mem->mem, 0.0, f.y->v), "CVodeReInit");
-    f.t = 0;
-    f.steps = 0;
+    f.run.Restarted();
   }
 };
 
@@ -494,14 +502,14 @@ void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* l
   Impl::Forward& f = d.GetForward(0, d.with_loss, d.with_auc);
   Map y = View(f.y->v);
   const bool plain = !d.with_loss && !d.with_auc;
-  if (!plain || !Impl::Continues(f, in, *x, nullptr)) {
+  if (!plain || !f.run.Continues(in, *x, nullptr)) {
     y.head(d.n) = *x;
     y.tail(y.size() - d.n).setZero();
     d.Restart(f);
   }
   d.Integrate(f, in.h);
   *x = y.head(d.n);
-  if (plain) Impl::Remember(f, in, *x, nullptr);
+  if (plain) f.run.Remember(in, *x, nullptr);
   if (d.with_loss) {
     *loss += y(d.n);
     if (loss_time) *loss_time += y(d.n + 1);
@@ -524,7 +532,7 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
   d.with_loss = loss != nullptr && !in.continuous.empty();
   Impl::Forward& f = d.GetForward(k, d.with_loss);
   Map y = View(f.y->v);
-  if (d.with_loss || !Impl::Continues(f, in, *x, s)) {
+  if (d.with_loss || !f.run.Continues(in, *x, s)) {
     y.head(d.n) = *x;
     y.tail(y.size() - d.n).setZero();
     for (int i = 0; i < k; ++i) {
@@ -540,7 +548,7 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
   d.Check(CVodeGetSens(f.mem->mem, &t, f.ys->v), "CVodeGetSens");
   *x = y.head(d.n);
   for (int i = 0; i < k; ++i) s->col(i) = View(f.ys->v[i]).head(d.n);
-  if (!d.with_loss) Impl::Remember(f, in, *x, s);
+  if (!d.with_loss) f.run.Remember(in, *x, s);
   if (d.with_loss) {
     *loss += y(d.n);
     if (loss_time) *loss_time += y(d.n + 1);
@@ -548,8 +556,8 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
   }
 }
 
-// The forward half of the adjoint on one segment: CVodeF from x0 to h, storing
-// the trajectory (Hermite data, checkpoints every checkpoint_steps steps).
+// The forward half of the adjoint on one segment: CVodeF over h, storing the
+// trajectory (Hermite data, checkpoints every checkpoint_steps steps).
 void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0,
                                       Eigen::VectorXd* x_end, bool restart, Eigen::VectorXd* xmax) {
   in = &seg;
@@ -574,13 +582,12 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
       CVodeSetErrHandlerFn(CVodeGetAdjCVodeBmem(a.mem->mem, a.which), ErrorHandler, this);
     }
   }
-  a.at_end = false;
+  a.run.at_end = false;
   if (restart) {
     View(a.y->v) = x0;
     Check(CVodeReInit(a.mem->mem, 0.0, a.y->v), "CVodeReInit");
     Check(CVodeAdjReInit(a.mem->mem), "CVodeAdjReInit");
-    a.t = 0;
-    a.steps = 0;
+    a.run.Restarted();
   }
   // Step by step, to record the largest |x_i| the segment reaches (it weights
   // λ's error control in Backward), without a stop time: CVODES rebuilds the
@@ -588,9 +595,9 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
   // and only the steps it took without intermediate stop times can be
   // reproduced that way. The last step may pass t_end; x(t_end) is
   // interpolated, and the next segment of the same memory continues from there.
-  const double t_end = a.t + seg.h;
+  const double t_end = a.run.t + seg.h;
   realtype t = 0;
-  Check(CVodeGetCurrentTime(a.mem->mem, &t), "CVodeGetCurrentTime");  // past a.t after a continued segment
+  Check(CVodeGetCurrentTime(a.mem->mem, &t), "CVodeGetCurrentTime");  // past run.t after a continued segment
   int ncheck = 0;
   *xmax = x0.cwiseAbs();
   // One step per call, so CVODES's own limit of steps per call never applies.
@@ -605,13 +612,10 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
   }
   Check(CVodeGetDky(a.mem->mem, t_end, 0, a.y->v), "CVodeGetDky");
   *xmax = xmax->cwiseMax(View(a.y->v).cwiseAbs());
-  a.t = t_end;
+  a.run.t = t_end;
   if (x_end) *x_end = View(a.y->v);
-  long steps = 0;
-  CVodeGetNumSteps(a.mem->mem, &steps);
-  stats.steps += steps - a.steps;
-  a.steps = steps;
-  a.bytes = (std::min<long>(steps, opt.checkpoint_steps) * 2 * n + (ncheck + 1) * 6L * n) *
+  a.run.CountSteps(a.mem->mem, &stats.steps);
+  a.bytes = (std::min<long>(a.run.steps, opt.checkpoint_steps) * 2 * n + (ncheck + 1) * 6L * n) *
             static_cast<long>(sizeof(double));
 }
 
@@ -625,6 +629,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
   k = static_cast<int>(seg.dtheta.cols());
   with_loss = false;
   const int kq = std::max(k, 1);
+  const Eigen::VectorXd* offset = QuadratureOffset(scales, k);
   if (a.which < 0) {
     SUNContext ctx = a.context ? a.context->ctx : context.ctx;
     a.yb.reset(new Vector(n, ctx));
@@ -637,7 +642,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
     a.lsb.reset(new LinearSolver(a.yb->v, n, ctx));
     Check(CVodeSetLinearSolverB(a.mem->mem, a.which, a.lsb->ls, a.lsb->a), "CVodeSetLinearSolverB");
     Check(CVodeSetJacFnB(a.mem->mem, a.which, AdjointJacobian), "CVodeSetJacFnB");
-    SetQuadratureStart(a, scales, k);
+    SetQuadratureStart(a, offset);
     Check(CVodeQuadInitB(a.mem->mem, a.which, AdjointQuadrature, a.qb->v), "CVodeQuadInitB");
     Check(CVodeQuadSStolerancesB(a.mem->mem, a.which, opt.relative_tolerance, opt.absolute_tolerance),
           "CVodeQuadSStolerancesB");
@@ -648,7 +653,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
     if (a.kq != kq) throw NumericalFailure("internal: the adjoint quadrature size changed");
     View(a.yb->v) = lambda_end;
     Check(CVodeReInitB(a.mem->mem, a.which, t1, a.yb->v), "CVodeReInitB");
-    SetQuadratureStart(a, scales, k);
+    SetQuadratureStart(a, offset);
     Check(CVodeQuadReInitB(a.mem->mem, a.which, a.qb->v), "CVodeQuadReInitB");
   }
   // λ is measured in loss per amount, not in amounts, so the amounts' absolute
@@ -688,7 +693,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
   if (k > 0) {
     Check(CVodeGetQuadB(a.mem->mem, a.which, &t, a.qb->v), "CVodeGetQuadB");
     *q = View(a.qb->v).transpose();
-    if (scales.gradient && scales.gradient->size() == k) *q -= scales.gradient->transpose() / kQuadratureMargin;
+    if (offset) *q -= offset->transpose() / kQuadratureMargin;
   }
   long bsteps = 0;
   CVodeGetNumSteps(CVodeGetAdjCVodeBmem(a.mem->mem, a.which), &bsteps);
@@ -716,8 +721,7 @@ int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   const int kq = std::max<int>(static_cast<int>(in.dtheta.cols()), 1);
   const Impl::Adjoint* last = d.stored.empty() ? nullptr : d.stored.back().get();
   // The same initial value problem continued (see Advance): one trajectory.
-  const bool continues = last && last->at_end && last->pool_kq == kq && in.continuous.empty() &&
-                         last->x_end == *x && last->theta == in.theta && last->u == in.u;
+  const bool continues = last && last->pool_kq == kq && last->run.Continues(in, *x, nullptr);
   if (!continues) {
     d.stored.push_back(d.Borrow(kq));
     d.stored.back()->pool_kq = kq;
@@ -725,15 +729,12 @@ int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl::Adjoint& a = *d.stored.back();
   Impl::Piece piece;
   piece.memory = static_cast<int>(d.stored.size()) - 1;
-  piece.t0 = continues ? a.t : 0.0;
+  piece.t0 = continues ? a.run.t : 0.0;
   piece.segment = in;
   d.stored_bytes -= continues ? a.bytes : 0;
   d.ForwardStore(a, piece.segment, *x, x, !continues, &piece.xmax);
-  piece.t1 = a.t;
-  a.at_end = true;
-  a.x_end = *x;
-  a.theta = in.theta;
-  a.u = in.u;
+  piece.t1 = a.run.t;
+  a.run.Remember(in, *x, nullptr);
   d.stored_bytes += a.bytes;
   d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
   d.pieces.push_back(std::move(piece));

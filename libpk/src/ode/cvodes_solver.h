@@ -84,10 +84,11 @@ class CvodesSolver {
                       const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
   /// The same in two halves, keeping every segment's trajectory: the forward
-  /// pass integrates x over the segment (x ← x(h)) and stores its CVODES
-  /// adjoint memory, returning a handle (-1 for an empty segment); the sweep
-  /// then runs backward on it. One forward pass instead of two, at the price
-  /// of holding all segments at once.
+  /// pass integrates x over the segment (x ← x(h)) into a CVODES adjoint
+  /// memory, returning a handle (-1 for an empty segment); the sweep then runs
+  /// backward on it. A segment that continues the previous one's initial value
+  /// problem (a sample between them) extends the same memory. One forward pass
+  /// instead of two, at the price of holding all segments at once.
   int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x);
   void BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
                       Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
