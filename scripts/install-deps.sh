@@ -4,9 +4,10 @@ set -euo pipefail
 
 packages=(
   g++ cmake make                    # toolchain
-  libeigen3-dev                     # linear algebra, matrix exponential, AutoDiff, Levenberg-Marquardt
+  libeigen3-dev                     # linear algebra, matrix exponential, AutoDiff
   libsundials-dev                   # CVODES (ODE propagator)
   libnlopt-cxx-dev                  # NLopt optimisers
+  libcminpack-dev                   # MINPACK's lmder (Levenberg-Marquardt)
   libboost-program-options-dev      # command-line parsing in the apps
   libfccp-dev                       # CSV line reading
   catch2                            # unit tests (Catch2 v2)

@@ -611,9 +611,6 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   }
   if (need != Need::kJacobian) return ev;
 
-  // The full ∂ŷ/∂θ over all free parameters (σ columns are zero).
-  Eigen::MatrixXd jy = Eigen::MatrixXd::Zero(N, P);
-  for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos[a2]) = jm.col(a2);
   if (!ml) {
     // Samples first, then one row per prior, so that ½‖r‖² = V exactly.
     const int np = static_cast<int>(d.priors.size());
@@ -621,7 +618,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     ev.residuals.resize(N + np);
     ev.jacobian = Eigen::MatrixXd::Zero(N + np, P);
     ev.residuals.head(N) = (sw * r.array()).matrix();
-    ev.jacobian.topRows(N) = -(jy.array().colwise() * sw).matrix();
+    for (int a2 = 0; a2 < pm; ++a2) ev.jacobian.col(model_pos[a2]).head(N) = -(jm.col(a2).array() * sw).matrix();
     for (int q = 0; q < np; ++q) {
       const Impl::Prior& p = d.priors[q];
       const double th = values(p.index);
@@ -633,6 +630,9 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     ev.information = ev.jacobian.transpose() * ev.jacobian;
     return ev;
   } else {
+    // The full ∂ŷ/∂θ over all free parameters (σ columns are zero).
+    Eigen::MatrixXd jy = Eigen::MatrixXd::Zero(N, P);
+    for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos[a2]) = jm.col(a2);
     // Expected information: Σ ∇ŷ∇ŷᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴).
     ev.information = Eigen::MatrixXd::Zero(P, P);
     for (int k = 0; k < N; ++k) {

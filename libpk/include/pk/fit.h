@@ -12,8 +12,9 @@
 // Parameters not listed in `params` keep the objective's default values.
 //
 // Optimisers:
-//   kLevenbergMarquardt  MINPACK's lmder, as ported in Eigen's unsupported
-//                        NonLinearOptimization module; least squares only
+//   kLevenbergMarquardt  MINPACK's lmder (cminpack, the C translation of the
+//                        Fortran original); least squares only. Iterations
+//                        are its Jacobian evaluations.
 //   kBfgs                NLopt's LD_LBFGS (limited-memory BFGS)
 //   kNewton              damped Newton with the Gauss–Newton matrix (least
 //                        squares) or the expected Fisher information (ML)

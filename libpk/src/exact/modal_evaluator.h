@@ -375,8 +375,8 @@ class Modal final : public ModalEvaluator {
   void Run(Eigen::VectorXd* yhat, Eigen::MatrixXd* jac, std::vector<double>* tape) {
     const std::vector<ScheduleOp>& ops = sched_->ops;
     Vec z = Vec::Zero(n());
-    Eigen::MatrixXd sens;
-    if (jac) sens = Eigen::MatrixXd::Zero(n(), p_);
+    Eigen::MatrixXd& sens = sens_;  // kept between runs for its storage
+    if (jac) sens.setZero(n(), p_);
     for (size_t i = 0; i < ops.size(); ++i) {
       const ScheduleOp& op = ops[i];
       Set& s = sets_[op.set];
@@ -401,7 +401,7 @@ class Modal final : public ModalEvaluator {
           (*yhat)(op.index) = o.chat.dot(z);
           if (tape) Push(z);
           if (jac) {
-            jac->row(op.index) = o.chat.transpose() * sens;
+            for (int j = 0; j < p_; ++j) (*jac)(op.index, j) = o.chat.dot(sens.col(j));
             if (!o.dc.empty()) {
               const Vec x = s.v * z;
               for (const DTerm& d : o.dc) (*jac)(op.index, s.active[d.act].second) += d.d * x(d.col);
@@ -481,6 +481,7 @@ class Modal final : public ModalEvaluator {
   std::vector<Set> sets_;
   std::vector<double> tape_;  // route (b)'s record of the forward pass: tape_used_ entries
   size_t tape_used_ = 0;
+  Eigen::MatrixXd sens_;      // route (a)'s Ŝ during Run
 };
 
 }  // namespace modal_detail
