@@ -111,6 +111,27 @@ TEST_CASE("model-dependent errors are raised when a dataset meets a model", "[re
   CHECK_THROWS_WITH(pk::MakeModel("4cmt"), Catch::Contains("unknown model '4cmt'"));
 }
 
+TEST_CASE("ADDL doses after the last record are dropped; absurd counts are errors, not exhaustion", "[reader]") {
+  // A billion implied doses every 24 h: only those up to the last record (48 h) exist.
+  const pk::ParameterValues values = {{"KA", 1.2}, {"CL", 3}, {"V", 30}};
+  const auto model = pk::MakeModel("1cmt_oral");
+  const auto huge = pk::Simulate(*model, pk::ParseDataset("ID,TIME,AMT,II,ADDL,DV\n1,0,100,24,1000000000,.\n1,49,0,0,0,1\n", "x.csv"), values);
+  const auto two = pk::Simulate(*model, pk::ParseDataset("ID,TIME,AMT,II,ADDL,DV\n1,0,100,24,2,.\n1,49,0,0,0,1\n", "x.csv"), values);
+  REQUIRE(huge.at(0).ok);
+  REQUIRE(two.at(0).ok);
+  CHECK(huge[0].rows.back().cp == two[0].rows.back().cp);
+  CHECK(huge[0].rows.back().cp > 0);
+  // A billion doses inside the observed span is not a regimen.
+  ExpectSimulationError("1cmt_oral", "ID,TIME,AMT,II,ADDL,DV\n1,0,100,1e-9,1000000000,.\n1,1,0,0,0,1\n", values, 2, 5,
+                        "implies more than 100000 doses before the subject's last record");
+  // A steady-state lag spanning 1e6 intervals is reported for the subject, not allocated.
+  const auto lagged = pk::Simulate(
+      *model, pk::ParseDataset("ID,TIME,AMT,II,SS,ALAG1,DV\n1,0,100,1e-6,1,1,.\n1,1,0,0,0,1,1\n", "x.csv"), values);
+  REQUIRE(lagged.size() == 1);
+  CHECK(!lagged[0].ok);
+  CHECK_THAT(lagged[0].message, Catch::Contains("spans more than 100000 dosing intervals"));
+}
+
 TEST_CASE("a file that cannot be opened is an input error naming it", "[reader]") {
   CHECK_THROWS_WITH(pk::ReadDataset("/nonexistent/data.csv"), Catch::Contains("/nonexistent/data.csv: cannot open"));
 }

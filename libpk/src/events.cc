@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include "internal_text.h"
 #include "pk/error.h"
@@ -9,6 +10,16 @@
 namespace pk {
 namespace internal {
 namespace {
+
+// More implied (ADDL) doses before a subject's last record than any regimen
+// needs (hourly for eleven years); a larger count is a data error, not a regimen.
+constexpr double kMaxImpliedDoses = 1e5;
+
+std::string FormatNumber(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
 
 std::string CompartmentList(const Model& model) {
   std::vector<std::string> items;
@@ -56,12 +67,22 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
   const std::vector<Record>& records = s.records();
   const int n = model.num_compartments();
   s.cmt.resize(records.size());
+  double end_time = -INFINITY;
+  for (const Record& rec : records) end_time = std::max(end_time, rec.time);
   for (size_t r = 0; r < records.size(); ++r) {
     const Record& rec = records[r];
     if (rec.cmt > n) {
       throw InputError(data.source, rec.line, data.ColumnNumber("CMT"),
                        "CMT " + std::to_string(rec.cmt) + " is out of range for model " + model.name() + " (" +
                            CompartmentList(model) + ")");
+    }
+    // Each implied dose up to the last record is an event of its own (later ones are dropped).
+    if (rec.IsDose() && rec.addl > 0 &&
+        std::min(static_cast<double>(rec.addl), std::floor((end_time - rec.time) / rec.ii)) > kMaxImpliedDoses) {
+      throw InputError(data.source, rec.line, data.ColumnNumber("ADDL"),
+                       "ADDL=" + std::to_string(rec.addl) + " with II=" + FormatNumber(rec.ii) +
+                           " implies more than " + std::to_string(static_cast<long>(kMaxImpliedDoses)) +
+                           " doses before the subject's last record");
     }
     const int c = rec.cmt > 0 ? rec.cmt - 1 : (rec.IsDose() ? model.default_dose_compartment() - 1
                                                             : model.central_compartment() - 1);

@@ -32,6 +32,7 @@
 #include <Eigen/Core>
 
 #include "autodiff.h"
+#include "exact/numerical_failure.h"
 #include "pk/dataset.h"
 #include "pk/model.h"
 #include "pk/parameters.h"
@@ -108,6 +109,8 @@ class EventEngine {
     const std::vector<Record>& records = s_.records();
     if (records.empty()) return;
     t_ = T(records[0].time);
+    end_time_ = records[0].time;
+    for (const Record& rec : records) end_time_ = std::max(end_time_, rec.time);
     // Initial amounts (X0_<n>) enter at the first record, as jumps of the state.
     const Vec<T>& first = sets_[s_.set_of_record[0]];
     for (int c = 0; c < n_; ++c) {
@@ -279,7 +282,8 @@ class EventEngine {
     } else {
       Schedule(start, dose);
     }
-    for (int k = 1; k <= rec.addl; ++k) Schedule(start + double(k) * ii, dose);
+    // Implied doses after the last record cannot affect anything (ADDL may be large).
+    for (int k = 1; k <= rec.addl && Value(start) + k * Value(ii) <= end_time_; ++k) Schedule(start + double(k) * ii, dose);
   }
 
   // The record's dose is the last of an infinite train at start times
@@ -289,6 +293,13 @@ class EventEngine {
   // ψ = k·II − lag ∈ (0, II] before t. Train infusions still running at t run
   // to their natural end; train doses at or after t (lag ≥ II) are scheduled.
   void SteadyStateDose(const DoseSpec& dose, const T& ii, const T& lag, int set, bool add) {
+    // Each train dose that overlaps the record (by its lag or its infusion) is a
+    // separate event; bound their number rather than exhaust memory.
+    constexpr double kMaxOverlap = 1e5;
+    if (!(Value(lag) / Value(ii) < kMaxOverlap) || !(Value(dose.duration) / Value(ii) < kMaxOverlap)) {
+      throw NumericalFailure("steady state with II = " + std::to_string(Value(ii)) +
+                             ": the lag or the infusion spans more than 100000 dosing intervals");
+    }
     const int k = static_cast<int>(std::floor(Value(lag) / Value(ii))) + 1;
     const T psi = double(k) * ii - lag;
     SteadyStateCycle<T> cycle;
@@ -330,6 +341,7 @@ class EventEngine {
   Visitor* v_;
   const int n_;
   T t_;
+  double end_time_ = 0;  // the latest record time
   std::vector<Infusion> active_;
   std::vector<Pending> pending_;
   long seq_ = 0;

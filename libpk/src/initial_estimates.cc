@@ -254,6 +254,8 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
   const Subject& s = data.subjects[subject];
   std::vector<DoseInput> doses;
   std::vector<double> t, c;
+  double end_time = -INFINITY;  // implied doses after the last record do not matter
+  for (const Record& r : s.records) end_time = std::max(end_time, r.time);
   for (const Record& r : s.records) {
     if (r.evid == Evid::kReset || r.evid == Evid::kResetDose || r.ss != 0 || r.rate < 0) {
       out.message = "steady-state doses, resets and modelled rates are not handled";
@@ -269,7 +271,9 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
         out.message = "infusions into the depot are not handled";
         return out;
       }
-      for (int k = 0; k <= r.addl; ++k) doses.push_back({r.time + k * r.ii, r.amt, duration});
+      for (int k = 0; k <= r.addl && (k == 0 || r.time + k * r.ii <= end_time); ++k) {
+        doses.push_back({r.time + k * r.ii, r.amt, duration});
+      }
     } else if (r.IsSample() && r.dv > 0 && (tf || r.cmt == 0 || r.cmt == model.central_compartment())) {
       t.push_back(r.time);
       c.push_back(r.dv);
