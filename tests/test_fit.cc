@@ -200,3 +200,38 @@ TEST_CASE("weighted residuals of FitSubjects: sqrt(W)(DV - PRED)/sigma and (DV -
     }
   }
 }
+
+TEST_CASE("L-BFGS does not extrapolate into a flat likelihood: remifentanil with proportional error", "[fit]") {
+  // Unbounded, L-BFGS's first line search on these subjects used to run to CL ~ 1e-141, V2 ~ 1e169 and
+  // sigma ~ 1e28 (a flat likelihood: zero prediction with a scaled error) and report convergence. SLSQP and MMA,
+  // which control their own steps, are the references.
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel("2cmt_iv");
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/remifentanil.csv"));
+  req.subjects = {2, 4, 7};  // IDs 3, 5 and 8
+  req.objective.error_model = pk::ErrorModel::kProportional;
+  for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+  req.parameters.push_back({"SIGMA_PROP", NAN});
+  req.jobs = 1;
+  req.curve_points = 2;
+  const auto fit_with = [&](pk::OptimizerType type, const std::string& algorithm) {
+    req.fit.optimizer = type;
+    req.fit.nlopt_algorithm = algorithm;
+    return pk::FitSubjects(req);
+  };
+  const auto bfgs = fit_with(pk::OptimizerType::kBfgs, "");
+  const auto slsqp = fit_with(pk::OptimizerType::kNlopt, "LD_SLSQP");
+  const auto mma = fit_with(pk::OptimizerType::kNlopt, "LD_MMA");
+  REQUIRE(bfgs.size() == 3);
+  for (size_t k = 0; k < bfgs.size(); ++k) {
+    INFO("ID " << bfgs[k].id << ": " << bfgs[k].summary.BriefReport());
+    REQUIRE(bfgs[k].ok);
+    CHECK(bfgs[k].summary.termination == pk::TerminationType::kConvergence);
+    CHECK(bfgs[k].summary.objective == Approx(slsqp[k].summary.objective).epsilon(1e-9));
+    CHECK(bfgs[k].summary.objective == Approx(mma[k].summary.objective).epsilon(1e-9));
+    for (const pk::ParameterEstimate& e : bfgs[k].summary.estimates) {
+      CHECK(e.estimate > 1e-2);
+      CHECK(e.estimate < 1e3);
+    }
+  }
+}

@@ -158,6 +158,12 @@ class Problem {
     return ev;
   }
 
+  // Whether φ_k is a log or logit of the parameter (else the parameter itself).
+  bool LogLike(int k) const {
+    return tr_[k].log || std::isfinite(tr_[k].sl) || std::isfinite(tr_[k].su);
+  }
+  const std::string& Name(int k) const { return obj_.parameter_names()[free_[k]]; }
+
   int evaluations() const { return evaluations_; }
   const std::string& route() const { return route_; }
   const std::string& propagator() const { return propagator_; }
@@ -277,6 +283,16 @@ double NloptObjective(const std::vector<double>& x, std::vector<double>& grad, v
   return ev.value;
 }
 
+// Lukšan's gradient-based NLopt algorithms run in a box around their start on the
+// unbounded scale, moved to the result when it ends on the box's edge. Without
+// it, L-BFGS's first line search may extrapolate by factors of 1e100 into a
+// region where the likelihood is flat (CL → 0 with V → ∞ and σ → ∞ fits a
+// constant) and stop there "converged". The box is a factor of 1000 either way
+// for log-scale parameters; a parameter that still runs to the edge after
+// kBoxMoves moves is reported as not determined by the data.
+constexpr double kBoxLogHalfWidth = 6.907755278982137;  // ln 1000
+constexpr int kBoxMoves = 6;
+
 RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::VectorXd& phi0, const FitOptions& o) {
   RunResult r;
   const int n = pb->n();
@@ -285,21 +301,45 @@ RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::Vecto
   opt.set_min_objective(NloptObjective, &data);
   opt.set_ftol_rel(o.function_tolerance);
   opt.set_xtol_rel(o.parameter_tolerance);
-  opt.set_maxeval(o.max_iterations);
   std::vector<double> x(phi0.data(), phi0.data() + n);
-  if (algorithm.rfind("G", 0) == 0) {
+  const bool global = algorithm.rfind("G", 0) == 0;
+  // Lukšan's line-search methods (L-BFGS, the variable-metric and truncated-Newton ones) extrapolate without
+  // limit; MMA, CCSAQ and SLSQP control their steps themselves, and their steps depend on the bounds.
+  const bool moving_box = algorithm.rfind("LD_LBFGS", 0) == 0 || algorithm.rfind("LD_VAR", 0) == 0 ||
+                          algorithm.rfind("LD_TNEWTON", 0) == 0;
+  std::vector<double> half(n), lo(n), hi(n);
+  for (int k = 0; k < n; ++k) {
     // Global algorithms need a finite box: e^±5 around the start on the unbounded scale.
-    std::vector<double> lo(n), hi(n);
+    half[k] = global ? 5.0 : (pb->LogLike(k) ? kBoxLogHalfWidth : 1000 * std::max(1.0, std::fabs(x[k])));
+  }
+  const auto center = [&](const std::vector<double>& c) {
     for (int k = 0; k < n; ++k) {
-      lo[k] = x[k] - 5;
-      hi[k] = x[k] + 5;
+      lo[k] = c[k] - half[k];
+      hi[k] = c[k] + half[k];
     }
     opt.set_lower_bounds(lo);
     opt.set_upper_bounds(hi);
-  }
+  };
+  if (global || moving_box) center(x);
+  const auto at_edge = [&]() {
+    for (int k = 0; k < n; ++k) {
+      const double tol = 1e-6 * half[k];
+      if (x[k] - lo[k] <= tol || hi[k] - x[k] <= tol) return k;
+    }
+    return -1;
+  };
+  int evaluations = 0, edge = -1;
   double fval = NAN;
   try {
-    const nlopt::result res = opt.optimize(x, fval);
+    nlopt::result res = nlopt::FAILURE;
+    for (int move = 0;; ++move) {
+      opt.set_maxeval(std::max(1, o.max_iterations - evaluations));
+      res = opt.optimize(x, fval);
+      evaluations += opt.get_numevals();
+      edge = moving_box ? at_edge() : -1;
+      if (edge < 0 || move == kBoxMoves || evaluations >= o.max_iterations) break;
+      center(x);
+    }
     switch (res) {
       case nlopt::SUCCESS:
       case nlopt::STOPVAL_REACHED:
@@ -319,12 +359,21 @@ RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::Vecto
   } catch (const nlopt::roundoff_limited&) {
     r.termination = TerminationType::kConvergence;
     r.message = "NLopt stopped: roundoff-limited (the optimum is resolved to machine precision)";
+    edge = moving_box ? at_edge() : -1;
   } catch (const std::exception& e) {
     r.termination = TerminationType::kFailure;
     r.message = std::string("NLopt failed: ") + e.what();
+    edge = -1;
+  }
+  if (edge >= 0 && r.termination != TerminationType::kFailure) {
+    r.termination = TerminationType::kNoConvergence;
+    r.message = pb->Name(edge) + " keeps moving towards " +
+                (x[edge] <= lo[edge] + 1e-6 * half[edge] ? "its lower end" : "its upper end") +
+                " without an optimum: the data do not determine it (try other --init values, --starts N or "
+                "--optimizer newton)";
   }
   r.phi = Eigen::Map<Eigen::VectorXd>(x.data(), n);
-  r.iterations = opt.get_numevals();
+  r.iterations = std::max(evaluations, opt.get_numevals());
   return r;
 }
 
