@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 
 #include "internal_text.h"
 #include "pk/error.h"
+#include "pk/output.h"
 
 namespace pk {
 namespace internal {
@@ -14,12 +14,6 @@ namespace {
 // More implied (ADDL) doses before a subject's last record than any regimen
 // needs (hourly for eleven years); a larger count is a data error, not a regimen.
 constexpr double kMaxImpliedDoses = 1e5;
-
-std::string FormatNumber(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
 
 std::string CompartmentList(const Model& model) {
   std::vector<std::string> items;

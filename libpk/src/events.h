@@ -35,6 +35,7 @@
 #include "exact/numerical_failure.h"
 #include "pk/dataset.h"
 #include "pk/model.h"
+#include "pk/output.h"
 #include "pk/parameters.h"
 
 namespace pk {
@@ -283,7 +284,9 @@ class EventEngine {
       Schedule(start, dose);
     }
     // Implied doses after the last record cannot affect anything (ADDL may be large).
-    for (int k = 1; k <= rec.addl && Value(start) + k * Value(ii) <= end_time_; ++k) Schedule(start + double(k) * ii, dose);
+    for (int k = 1; k <= rec.addl && Value(start) + k * Value(ii) <= end_time_; ++k) {
+      Schedule(start + double(k) * ii, dose);
+    }
   }
 
   // The record's dose is the last of an infinite train at start times
@@ -297,8 +300,9 @@ class EventEngine {
     // separate event; bound their number rather than exhaust memory.
     constexpr double kMaxOverlap = 1e5;
     if (!(Value(lag) / Value(ii) < kMaxOverlap) || !(Value(dose.duration) / Value(ii) < kMaxOverlap)) {
-      throw NumericalFailure("steady state with II = " + std::to_string(Value(ii)) +
-                             ": the lag or the infusion spans more than 100000 dosing intervals");
+      throw NumericalFailure("steady state with II = " + FormatNumber(Value(ii)) +
+                             ": the lag or the infusion spans more than " +
+                             std::to_string(static_cast<long>(kMaxOverlap)) + " dosing intervals");
     }
     const int k = static_cast<int>(std::floor(Value(lag) / Value(ii))) + 1;
     const T psi = double(k) * ii - lag;

@@ -321,10 +321,14 @@ RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::Vecto
     opt.set_upper_bounds(hi);
   };
   if (global || moving_box) center(x);
+  // The first parameter on the box's edge, and whether on its lower side; -1 for none.
+  bool edge_low = false;
   const auto at_edge = [&]() {
+    if (!moving_box) return -1;
     for (int k = 0; k < n; ++k) {
       const double tol = 1e-6 * half[k];
-      if (x[k] - lo[k] <= tol || hi[k] - x[k] <= tol) return k;
+      edge_low = x[k] - lo[k] <= tol;
+      if (edge_low || hi[k] - x[k] <= tol) return k;
     }
     return -1;
   };
@@ -336,7 +340,7 @@ RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::Vecto
       opt.set_maxeval(std::max(1, o.max_iterations - evaluations));
       res = opt.optimize(x, fval);
       evaluations += opt.get_numevals();
-      edge = moving_box ? at_edge() : -1;
+      edge = at_edge();
       if (edge < 0 || move == kBoxMoves || evaluations >= o.max_iterations) break;
       center(x);
     }
@@ -359,21 +363,22 @@ RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::Vecto
   } catch (const nlopt::roundoff_limited&) {
     r.termination = TerminationType::kConvergence;
     r.message = "NLopt stopped: roundoff-limited (the optimum is resolved to machine precision)";
-    edge = moving_box ? at_edge() : -1;
+    evaluations += opt.get_numevals();  // the round that threw
+    edge = at_edge();
   } catch (const std::exception& e) {
     r.termination = TerminationType::kFailure;
     r.message = std::string("NLopt failed: ") + e.what();
+    evaluations += opt.get_numevals();
     edge = -1;
   }
   if (edge >= 0 && r.termination != TerminationType::kFailure) {
     r.termination = TerminationType::kNoConvergence;
-    r.message = pb->Name(edge) + " keeps moving towards " +
-                (x[edge] <= lo[edge] + 1e-6 * half[edge] ? "its lower end" : "its upper end") +
+    r.message = pb->Name(edge) + " keeps moving towards " + (edge_low ? "its lower end" : "its upper end") +
                 " without an optimum: the data do not determine it (try other --init values, --starts N or "
                 "--optimizer newton)";
   }
   r.phi = Eigen::Map<Eigen::VectorXd>(x.data(), n);
-  r.iterations = std::max(evaluations, opt.get_numevals());
+  r.iterations = evaluations;
   return r;
 }
 
