@@ -201,6 +201,49 @@ TEST_CASE("weighted residuals of FitSubjects: sqrt(W)(DV - PRED)/sigma and (DV -
   }
 }
 
+TEST_CASE("Newton's trust region keeps maximum likelihood out of degenerate valleys: remifentanil", "[fit]") {
+  // From these subjects' starting values the Fisher scoring step is tens of units in log sigma. Newton with a
+  // line search along it used to land in a valley (predictions -> 0, sigma -> infinity, or V2 -> 0) and stop
+  // there, reported as converged: objectives 165.6, 176.2, 263.1, 179.1, 204.3 and 8194 with proportional error
+  // against 110.1, 98.6, 194.5, 107.5, 79.4 and 100.6, and 261.1 and 216.8 with the combined one against 139.6
+  // and 134.8. SLSQP, which controls its own steps, is the reference.
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel("2cmt_iv");
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/remifentanil.csv"));
+  req.jobs = 1;
+  req.curve_points = 2;
+  const auto fit_with = [&](pk::OptimizerType type, const std::string& algorithm) {
+    req.fit.optimizer = type;
+    req.fit.nlopt_algorithm = algorithm;
+    return pk::FitSubjects(req);
+  };
+  struct Case {
+    pk::ErrorModel error;
+    std::vector<int> subjects;  // indices: ID - 1
+    std::vector<std::string> sigmas;
+  };
+  const Case cases[] = {{pk::ErrorModel::kProportional, {2, 7, 9, 19, 22, 25}, {"SIGMA_PROP"}},
+                        {pk::ErrorModel::kCombined, {8, 9}, {"SIGMA_ADD", "SIGMA_PROP"}}};
+  for (const Case& c : cases) {
+    req.objective.error_model = c.error;
+    req.subjects = c.subjects;
+    req.parameters.clear();
+    for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+    for (const std::string& p : c.sigmas) req.parameters.push_back({p, NAN});
+    const auto newton = fit_with(pk::OptimizerType::kNewton, "");
+    const auto slsqp = fit_with(pk::OptimizerType::kNlopt, "LD_SLSQP");
+    REQUIRE(newton.size() == c.subjects.size());
+    for (size_t k = 0; k < newton.size(); ++k) {
+      INFO("ID " << newton[k].id << ": " << newton[k].summary.BriefReport());
+      REQUIRE(newton[k].ok);
+      REQUIRE(slsqp[k].ok);
+      CHECK(newton[k].summary.termination == pk::TerminationType::kConvergence);
+      CHECK(newton[k].summary.objective == Approx(slsqp[k].summary.objective).epsilon(1e-9));
+      CHECK(newton[k].summary.covariance_message.empty());  // standard errors exist: not a degenerate point
+    }
+  }
+}
+
 TEST_CASE("L-BFGS does not extrapolate into a flat likelihood: remifentanil with proportional error", "[fit]") {
   // Unbounded, L-BFGS's first line search on these subjects used to run to CL ~ 1e-141, V2 ~ 1e169 and
   // sigma ~ 1e28 (a flat likelihood: zero prediction with a scaled error) and report convergence. SLSQP and MMA,

@@ -4,10 +4,12 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <random>
 #include <sstream>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 #include <cminpack.h>
 #include <nlopt.hpp>
@@ -382,7 +384,65 @@ RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::Vecto
   return r;
 }
 
-// ---- Damped Newton with the Gauss–Newton matrix or the Fisher information.
+// ---- Newton with the Gauss–Newton matrix or the Fisher information, in a trust region.
+//
+// The model of V around φ is m(s) = V + gᵀs + ½sᵀHs, with H the Gauss–Newton matrix JᵀWJ (least squares) or the
+// expected information (maximum likelihood). Both are positive semidefinite and both underestimate the curvature
+// far from the optimum: with maximum likelihood, a start whose residuals are large against σ gives a Fisher
+// scoring step of tens of units in log σ. A line search along the full step accepts such a leap as soon as V
+// falls a little, and the iterates then walk down a degenerate valley (predictions → 0, σ → ∞) that ends at a
+// higher objective than the optimum. A trust region trusts the model only as far as it has predicted V
+// (Moré 1983; Nocedal and Wright, Numerical Optimization, Algorithm 4.1): the step solves
+//   min m(s) subject to ‖Ds‖ ≤ Δ,
+// and Δ grows or shrinks with ρ = (V(φ) − V(φ + s)) / (m(0) − m(s)).
+// D is 1 for log- and logit-scale parameters (their steps are relative changes) and 1/max(1, |φ₀|) for the others.
+
+// The subproblem's solution for a positive semidefinite H (Moré and Sorensen 1983): s = −(H + μD²)⁻¹g, with μ = 0
+// when the minimum-norm Newton step lies in the region, else the μ > 0 where ‖Ds(μ)‖ = Δ. In the eigenbasis
+// D⁻¹HD⁻¹ = QΛQᵀ, with c = QᵀD⁻¹g, ‖Ds(μ)‖² = Σ cᵢ²/(λᵢ + μ)²; μ comes from Newton's method on 1/‖Ds(μ)‖ − 1/Δ,
+// which is nearly linear in μ, safeguarded by bisection.
+Eigen::VectorXd TrustRegionStep(const Eigen::MatrixXd& h, const Eigen::VectorXd& g, const Eigen::VectorXd& d,
+                                double delta) {
+  const Eigen::VectorXd dinv = d.cwiseInverse();
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(dinv.asDiagonal() * h * dinv.asDiagonal());
+  const Eigen::VectorXd lambda = es.eigenvalues().cwiseMax(0.0);
+  const Eigen::VectorXd c = es.eigenvectors().transpose() * g.cwiseProduct(dinv);
+  const double zero = 64 * std::numeric_limits<double>::epsilon() * std::max(lambda.maxCoeff(), 0.0);
+  // ‖Ds(μ)‖ and its derivative in μ; at μ = 0 the null space of H is left out (minimum norm).
+  auto norm = [&](double mu, double* slope) {
+    double s2 = 0, s3 = 0;
+    for (Eigen::Index i = 0; i < c.size(); ++i) {
+      const double l = lambda(i) + mu;
+      if (l <= zero) continue;
+      s2 += c(i) * c(i) / (l * l);
+      s3 += c(i) * c(i) / (l * l * l);
+    }
+    const double nrm = std::sqrt(s2);
+    if (slope) *slope = nrm > 0 ? -s3 / nrm : 0;
+    return nrm;
+  };
+  double mu = 0;
+  if (norm(0, nullptr) > delta) {
+    double lo = 0, hi = c.norm() / delta;  // ‖Ds(μ)‖ ≤ ‖c‖/μ
+    mu = hi;
+    for (int it = 0; it < 60; ++it) {
+      double slope = 0;
+      const double nrm = norm(mu, &slope);
+      if (std::fabs(nrm - delta) <= 1e-3 * delta) break;
+      (nrm > delta ? lo : hi) = mu;
+      // Newton on ψ(μ) = 1/‖Ds‖ − 1/Δ: ψ' = −slope/‖Ds‖².
+      const double next = mu - (1 / nrm - 1 / delta) * nrm * nrm / -slope;
+      mu = (next > lo && next < hi && std::isfinite(next)) ? next : 0.5 * (lo + hi);
+    }
+  }
+  Eigen::VectorXd t = Eigen::VectorXd::Zero(c.size());
+  for (Eigen::Index i = 0; i < c.size(); ++i) {
+    const double l = lambda(i) + mu;
+    if (l > zero) t(i) = -c(i) / l;
+  }
+  return (es.eigenvectors() * t).cwiseProduct(dinv);
+}
+
 RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& o) {
   RunResult r;
   Eigen::VectorXd phi = phi0;
@@ -392,7 +452,17 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
     r.message = "the objective could not be evaluated at the start: " + ev.message;
     return r;
   }
-  double mu = 0;
+  const int n = pb->n();
+  Eigen::VectorXd d(n);
+  for (int k = 0; k < n; ++k) d(k) = pb->LogLike(k) ? 1.0 : 1.0 / std::max(1.0, std::fabs(phi0(k)));
+  // Δ₀ = 1: a first step changes a log-scale parameter by at most a factor e. Δ at most doubles per iteration,
+  // up to kMaxRadius (a factor e¹⁰ ≈ 22 000).
+  constexpr double kMaxRadius = 10;
+  double delta = 1;
+  // V at φ as a value-only evaluation computes it, the same way as at the trial points: an ODE solve with
+  // sensitivities takes other steps than one without, and differs from it by about the solver's tolerance,
+  // which near the optimum is more than the predicted decrease.
+  double value = ev.value;
   for (int it = 1; it <= o.max_iterations; ++it) {
     r.iterations = it;
     if (ev.gradient.cwiseAbs().maxCoeff() <= o.gradient_tolerance) {
@@ -400,39 +470,37 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
       r.message = "gradient below tolerance";
       break;
     }
-    bool accepted = false;
-    Objective::Evaluation trial;
-    Eigen::VectorXd next;
-    for (int damp = 0; damp < 30 && !accepted; ++damp) {
-      Eigen::MatrixXd h = ev.information;
-      const double scale = std::max(h.diagonal().cwiseAbs().maxCoeff(), 1e-300);
-      h.diagonal().array() += mu * scale;
-      const Eigen::LDLT<Eigen::MatrixXd> ldlt(h);
-      Eigen::VectorXd step = ldlt.info() == Eigen::Success ? Eigen::VectorXd(-ldlt.solve(ev.gradient))
-                                                           : Eigen::VectorXd(-ev.gradient / scale);
-      if (!step.allFinite() || step.dot(ev.gradient) >= 0) {
-        mu = std::max(mu * 10, 1e-8);
-        continue;
-      }
-      // Backtracking (Armijo) line search.
-      double alpha = 1;
-      for (int ls = 0; ls < 12; ++ls, alpha *= 0.25) {
-        next = phi + alpha * step;
-        trial = pb->Eval(next, Need::kValue);
-        if (trial.ok && trial.value <= ev.value + 1e-4 * alpha * step.dot(ev.gradient)) {
-          accepted = true;
-          break;
-        }
-      }
-      if (!accepted) mu = std::max(mu * 10, 1e-8);
-    }
-    if (!accepted) {
+    const Eigen::VectorXd step = TrustRegionStep(ev.information, ev.gradient, d, delta);
+    const double predicted = -(ev.gradient.dot(step) + 0.5 * step.dot(ev.information * step));
+    if (!step.allFinite() || !(predicted > 0)) {
       r.termination = TerminationType::kConvergence;
       r.message = "no descent step found: the objective is minimal to machine precision";
       break;
     }
-    const double decrease = ev.value - trial.value;
-    const double step_size = (next - phi).cwiseAbs().maxCoeff();
+    const Eigen::VectorXd next = phi + step;
+    const Objective::Evaluation& trial = pb->Eval(next, Need::kValue);
+    const double actual = trial.ok && std::isfinite(trial.value) ? value - trial.value : -HUGE_VAL;
+    const double rho = actual / predicted;
+    const double step_norm = step.cwiseProduct(d).norm();
+    if (rho < 0.25) {
+      delta = 0.25 * step_norm;
+    } else if (rho > 0.75 && step_norm >= 0.99 * delta) {
+      delta = std::min(2 * delta, kMaxRadius);
+    }
+    if (rho <= 1e-4) {
+      if (delta <= o.parameter_tolerance * (1 + phi.cwiseProduct(d).norm())) {
+        r.termination = TerminationType::kConvergence;
+        r.message = "no descent step found: the objective is minimal to machine precision";
+        break;
+      }
+      if (it == o.max_iterations) {
+        r.termination = TerminationType::kNoConvergence;
+        r.message = "iteration limit reached";
+      }
+      continue;
+    }
+    const double step_size = step.cwiseAbs().maxCoeff();
+    value = trial.value;
     phi = next;
     ev = pb->Eval(phi, Need::kJacobian);
     if (!ev.ok) {
@@ -440,8 +508,7 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
       r.termination = TerminationType::kFailure;
       break;
     }
-    mu = mu / 10 < 1e-10 ? 0 : mu / 10;
-    if (decrease <= o.function_tolerance * (std::fabs(ev.value) + o.function_tolerance) &&
+    if (actual <= o.function_tolerance * (std::fabs(value) + o.function_tolerance) &&
         step_size <= std::sqrt(o.parameter_tolerance) * (1 + phi.cwiseAbs().maxCoeff())) {
       r.termination = TerminationType::kConvergence;
       r.message = "relative reduction and parameter change below tolerance";

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <sstream>
 
 #include "autodiff.h"
 #include "events.h"
@@ -15,6 +16,7 @@
 #include "pk/error.h"
 #include "pk/linear_model.h"
 #include "pk/ode_model.h"
+#include "pk/output.h"
 #include "ode/ode_routes.h"
 #include "pk/parameters.h"
 #include "pk/regimen.h"
@@ -521,7 +523,11 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       ds2_dy(k) = 2 * b * b * yhat(k);
       if (!(sigma2(k) > 0)) {
         ev.ok = false;
-        ev.message = "the residual variance is zero (a σ of 0?)";
+        std::ostringstream os;
+        os << "the residual variance of the sample at TIME " << FormatNumber(d.times[static_cast<size_t>(k)])
+           << " is zero: " << (b > 0 && a == 0 ? "its prediction is 0 with a proportional error (give it MDV=1, "
+                                                 "or use a combined error)" : "a σ of 0");
+        ev.message = os.str();
         return ev;
       }
       value += 0.5 * (std::log(2 * M_PI * sigma2(k)) + r(k) * r(k) / sigma2(k));
