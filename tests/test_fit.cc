@@ -201,6 +201,33 @@ TEST_CASE("weighted residuals of FitSubjects: sqrt(W)(DV - PRED)/sigma and (DV -
   }
 }
 
+TEST_CASE("a proportional error with a zero prediction is a failed evaluation that names the sample (modal and Pade)",
+          "[fit]") {
+  // Theophylline's samples at TIME 0 come with the oral dose: the central compartment is empty, so the
+  // prediction is 0 (the Pade path) or about 1e-15 (the modal form, by rounding). Its proportional variance is
+  // zero; a value built on log(1e-30) would be rounding noise that optimisers chase.
+  const auto data =
+      std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/theophylline.csv"));
+  const std::vector<int> free{0, 1, 2, 3};
+  for (const bool modal : {true, false}) {
+    for (const pk::ErrorModel error : {pk::ErrorModel::kProportional, pk::ErrorModel::kCombined}) {
+      INFO("modal " << modal << ", combined " << (error == pk::ErrorModel::kCombined));
+      pk::ObjectiveOptions oo;
+      oo.modal_propagation = modal;
+      oo.error_model = error;
+      const pk::Objective objective(pk::MakeModel("1cmt_oral"), data, 1, oo);  // ID 2
+      const Eigen::VectorXd v = objective.DefaultValues();
+      const auto ev = objective.Evaluate(v, free, pk::Objective::Need::kValue);
+      if (error == pk::ErrorModel::kProportional) {
+        CHECK_FALSE(ev.ok);
+        CHECK_THAT(ev.message, Catch::Contains("sample at TIME 0 is zero") && Catch::Contains("MDV=1"));
+      } else {
+        CHECK(ev.ok);  // the additive part keeps the variance positive
+      }
+    }
+  }
+}
+
 TEST_CASE("Newton's trust region keeps maximum likelihood out of degenerate valleys: remifentanil", "[fit]") {
   // From these subjects' starting values the Fisher scoring step is tens of units in log sigma. Newton with a
   // line search along it used to land in a valley (predictions -> 0, sigma -> infinity, or V2 -> 0) and stop
