@@ -5,6 +5,7 @@
 #include <catch2/catch.hpp>
 
 #include "pk/exposure.h"
+#include "pk/regimen.h"
 #include "test_util.h"
 
 using pk_test::RelDiff;
@@ -180,6 +181,29 @@ TEST_CASE("resets, new subjects and time-varying parameters", "[events]") {
                                   {{"V", 10}});
     CHECK(RelDiff(sim.rows[1].cp, 10 * std::exp(-0.1 * 2) * std::exp(-0.2 * 2)) < 1e-13);
     CHECK(RelDiff(sim.rows[2].cp, sim.rows[1].cp) < 1e-15);  // zero-length interval
+  }
+}
+
+TEST_CASE("output times: a reset that sets TIME back gives the next period the grid again", "[events]") {
+  // Two periods of a crossover: 100 at 0, then a reset with 60 at TIME 0 again. Every period gets the
+  // output times; the first period's later ones come before the reset. (They all went to the first period.)
+  const pk::Dataset data =
+      pk::AddOutputTimes(pk::ParseDataset("ID,TIME,AMT,EVID\n1,0,100,1\n1,5,0,0\n1,0,60,4\n1,5,0,0\n", "t.csv"),
+                         {8, 1, 2});
+  const pk::SubjectSimulation sim = pk::SimulateSubject(*pk::MakeModel("1cmt_iv"), data, 0, {{"CL", 3}, {"V", 30}});
+  REQUIRE(sim.ok);
+  std::vector<std::pair<double, double>> added;  // (TIME, cp) of the added output records, in record order
+  for (const pk::SimulatedRecord& row : sim.rows) {
+    if (data.subjects[0].records[row.record].line == -1) added.emplace_back(row.time, row.cp);
+  }
+  REQUIRE(added.size() == 6);
+  const double times[3] = {1, 2, 8};
+  for (int period = 0; period < 2; ++period) {
+    for (int k = 0; k < 3; ++k) {
+      const auto& a = added[static_cast<size_t>(3 * period + k)];
+      CHECK(a.first == times[k]);
+      CHECK(RelDiff(a.second, (period == 0 ? 100.0 : 60.0) / 30 * std::exp(-0.1 * times[k])) < 1e-13);
+    }
   }
 }
 

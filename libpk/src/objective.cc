@@ -686,6 +686,8 @@ std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const st
   std::vector<double> out;
   if (!sim.ok) return std::vector<double>(times.size(), std::numeric_limits<double>::quiet_NaN());
   for (const SimulatedRecord& row : sim.rows) {
+    // A reset that sets TIME back gives each later period the times again: the curve is the first period's.
+    if (out.size() == times.size()) break;
     if (one.subjects[0].records[row.record].line != -1) continue;
     out.push_back(output > 1 && output <= row.outputs.size() ? row.outputs(output - 1) : row.cp);
   }

@@ -54,13 +54,29 @@ Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times) {
                                     : old.back().extra);
       return r;
     };
-    for (size_t i = 0; i < old.size(); ++i) {
-      // Output times before this record (strictly) come first; those at the
-      // same time follow it (they see the post-record state).
-      while (k < sorted.size() && sorted[k] < old[i].time) merged.push_back(make(sorted[k++], &old[i]));
-      merged.push_back(old[i]);
+    // A reset whose TIME goes back (EVID 3/4) starts a new time axis, for example the next period of a
+    // crossover. The first axis takes every output time (those past its last record follow it, before the
+    // reset); each later axis takes those at or after its first record, so every period gets the grid.
+    size_t begin = 0;
+    while (begin < old.size()) {
+      size_t end = begin + 1;
+      while (end < old.size() && old[end].time >= old[end - 1].time) ++end;
+      if (begin > 0) {
+        k = static_cast<size_t>(std::lower_bound(sorted.begin(), sorted.end(), old[begin].time) - sorted.begin());
+      }
+      for (size_t i = begin; i < end; ++i) {
+        // Output times before this record (strictly) come first; those at the
+        // same time follow it (they see the post-record state).
+        while (k < sorted.size() && sorted[k] < old[i].time) merged.push_back(make(sorted[k++], &old[i]));
+        merged.push_back(old[i]);
+      }
+      // Past the axis's last record its columns stay in force, as past a subject's last record.
+      while (k < sorted.size()) merged.push_back(make(sorted[k++], &old[end - 1]));
+      begin = end;
     }
-    while (k < sorted.size()) merged.push_back(make(sorted[k++], nullptr));
+    if (old.empty()) {
+      while (k < sorted.size()) merged.push_back(make(sorted[k++], nullptr));
+    }
     subject.records = std::move(merged);
   }
   return out;

@@ -37,6 +37,10 @@ Dataset RegimenToDataset(const Regimen& regimen);
 /// record sits after the records of the same time and takes its other columns
 /// (covariates, time-varying parameters) from the next record, so the value in
 /// force over each interval is unchanged. Added records have Record::line = -1.
+/// A reset record (EVID 3/4) whose TIME goes back starts a new time axis (a
+/// period of a crossover, say): the first axis gets every time, those after
+/// its last record placed before the reset; each later axis gets the times at
+/// or after its first record again.
 Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times);
 
 }  // namespace pk
