@@ -228,22 +228,33 @@ TEST_CASE("a proportional error with a zero prediction is a failed evaluation th
   }
 }
 
+namespace {
+
+// Remifentanil fitted with 2cmt_iv, one thread, no curves worth drawing.
+pk::FitSubjectsRequest RemifentanilRequest() {
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel("2cmt_iv");
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/remifentanil.csv"));
+  req.jobs = 1;
+  req.curve_points = 2;
+  return req;
+}
+
+std::vector<pk::SubjectFit> FitWith(pk::FitSubjectsRequest req, pk::OptimizerType type, const std::string& algorithm) {
+  req.fit.optimizer = type;
+  req.fit.nlopt_algorithm = algorithm;
+  return pk::FitSubjects(req);
+}
+
+}  // namespace
+
 TEST_CASE("Newton's trust region keeps maximum likelihood out of degenerate valleys: remifentanil", "[fit]") {
   // From these subjects' starting values the Fisher scoring step is tens of units in log sigma. Newton with a
   // line search along it used to land in a valley (predictions -> 0, sigma -> infinity, or V2 -> 0) and stop
   // there, reported as converged: objectives 165.6, 176.2, 263.1, 179.1, 204.3 and 8194 with proportional error
   // against 110.1, 98.6, 194.5, 107.5, 79.4 and 100.6, and 261.1 and 216.8 with the combined one against 139.6
   // and 134.8. SLSQP, which controls its own steps, is the reference.
-  pk::FitSubjectsRequest req;
-  req.model = pk::MakeModel("2cmt_iv");
-  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/remifentanil.csv"));
-  req.jobs = 1;
-  req.curve_points = 2;
-  const auto fit_with = [&](pk::OptimizerType type, const std::string& algorithm) {
-    req.fit.optimizer = type;
-    req.fit.nlopt_algorithm = algorithm;
-    return pk::FitSubjects(req);
-  };
+  pk::FitSubjectsRequest req = RemifentanilRequest();
   struct Case {
     pk::ErrorModel error;
     std::vector<int> subjects;  // indices: ID - 1
@@ -257,8 +268,8 @@ TEST_CASE("Newton's trust region keeps maximum likelihood out of degenerate vall
     req.parameters.clear();
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
     for (const std::string& p : c.sigmas) req.parameters.push_back({p, NAN});
-    const auto newton = fit_with(pk::OptimizerType::kNewton, "");
-    const auto slsqp = fit_with(pk::OptimizerType::kNlopt, "LD_SLSQP");
+    const auto newton = FitWith(req, pk::OptimizerType::kNewton, "");
+    const auto slsqp = FitWith(req, pk::OptimizerType::kNlopt, "LD_SLSQP");
     REQUIRE(newton.size() == c.subjects.size());
     for (size_t k = 0; k < newton.size(); ++k) {
       INFO("ID " << newton[k].id << ": " << newton[k].summary.BriefReport());
@@ -275,23 +286,14 @@ TEST_CASE("L-BFGS does not extrapolate into a flat likelihood: remifentanil with
   // Unbounded, L-BFGS's first line search on these subjects used to run to CL ~ 1e-141, V2 ~ 1e169 and
   // sigma ~ 1e28 (a flat likelihood: zero prediction with a scaled error) and report convergence. SLSQP and MMA,
   // which control their own steps, are the references.
-  pk::FitSubjectsRequest req;
-  req.model = pk::MakeModel("2cmt_iv");
-  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/remifentanil.csv"));
+  pk::FitSubjectsRequest req = RemifentanilRequest();
   req.subjects = {2, 4, 7};  // IDs 3, 5 and 8
   req.objective.error_model = pk::ErrorModel::kProportional;
   for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
   req.parameters.push_back({"SIGMA_PROP", NAN});
-  req.jobs = 1;
-  req.curve_points = 2;
-  const auto fit_with = [&](pk::OptimizerType type, const std::string& algorithm) {
-    req.fit.optimizer = type;
-    req.fit.nlopt_algorithm = algorithm;
-    return pk::FitSubjects(req);
-  };
-  const auto bfgs = fit_with(pk::OptimizerType::kBfgs, "");
-  const auto slsqp = fit_with(pk::OptimizerType::kNlopt, "LD_SLSQP");
-  const auto mma = fit_with(pk::OptimizerType::kNlopt, "LD_MMA");
+  const auto bfgs = FitWith(req, pk::OptimizerType::kBfgs, "");
+  const auto slsqp = FitWith(req, pk::OptimizerType::kNlopt, "LD_SLSQP");
+  const auto mma = FitWith(req, pk::OptimizerType::kNlopt, "LD_MMA");
   REQUIRE(bfgs.size() == 3);
   for (size_t k = 0; k < bfgs.size(); ++k) {
     INFO("ID " << bfgs[k].id << ": " << bfgs[k].summary.BriefReport());

@@ -463,6 +463,8 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
   // sensitivities takes other steps than one without, and differs from it by about the solver's tolerance,
   // which near the optimum is more than the predicted decrease.
   double value = ev.value;
+  r.termination = TerminationType::kNoConvergence;  // unless a test below ends the search
+  r.message = "iteration limit reached";
   for (int it = 1; it <= o.max_iterations; ++it) {
     r.iterations = it;
     if (ev.gradient.cwiseAbs().maxCoeff() <= o.gradient_tolerance) {
@@ -493,10 +495,6 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
         r.message = "no descent step found: the objective is minimal to machine precision";
         break;
       }
-      if (it == o.max_iterations) {
-        r.termination = TerminationType::kNoConvergence;
-        r.message = "iteration limit reached";
-      }
       continue;
     }
     const double step_size = step.cwiseAbs().maxCoeff();
@@ -513,10 +511,6 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
       r.termination = TerminationType::kConvergence;
       r.message = "relative reduction and parameter change below tolerance";
       break;
-    }
-    if (it == o.max_iterations) {
-      r.termination = TerminationType::kNoConvergence;
-      r.message = "iteration limit reached";
     }
   }
   r.phi = phi;
