@@ -421,8 +421,14 @@ Eigen::VectorXd TrustRegionStep(const Eigen::MatrixXd& h, const Eigen::VectorXd&
     if (slope) *slope = nrm > 0 ? -s3 / nrm : 0;
     return nrm;
   };
+  // A gradient with a part in H's null space makes the model fall linearly along it: no Newton step, the
+  // solution is on the boundary.
+  double null_part = 0;
+  for (Eigen::Index i = 0; i < c.size(); ++i) {
+    if (lambda(i) <= zero) null_part += c(i) * c(i);
+  }
   double mu = 0;
-  if (norm(0, nullptr) > delta) {
+  if (norm(0, nullptr) > delta || null_part > 1e-16 * c.squaredNorm()) {
     double lo = 0, hi = c.norm() / delta;  // ‖Ds(μ)‖ ≤ ‖c‖/μ
     mu = hi;
     for (int it = 0; it < 60; ++it) {
