@@ -1,10 +1,12 @@
 // NONMEM/PREDPP event semantics: steady state, record order, resets, modifiers.
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
 #include <catch2/catch.hpp>
 
 #include "pk/exposure.h"
+#include "pk/objective.h"
 #include "pk/regimen.h"
 #include "test_util.h"
 
@@ -205,6 +207,18 @@ TEST_CASE("output times: a reset that sets TIME back gives the next period the g
       CHECK(RelDiff(a.second, (period == 0 ? 100.0 : 60.0) / 30 * std::exp(-0.1 * times[k])) < 1e-13);
     }
   }
+  // A fit's curve (Objective::PredictAt) is the first period's, past its last record too.
+  const auto with_dv = std::make_shared<pk::Dataset>(
+      pk::ParseDataset("ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,5,0,0,2\n1,0,60,4,.\n1,5,0,0,1\n", "t.csv"));
+  const pk::Objective objective(pk::MakeModel("1cmt_iv"), with_dv, 0, pk::ObjectiveOptions());
+  Eigen::VectorXd values = objective.DefaultValues();
+  const std::vector<std::string>& names = objective.parameter_names();
+  values(std::find(names.begin(), names.end(), "CL") - names.begin()) = 3;
+  values(std::find(names.begin(), names.end(), "V") - names.begin()) = 30;
+  const std::vector<double> curve = objective.PredictAt(values, {1, 8});
+  REQUIRE(curve.size() == 2);
+  CHECK(RelDiff(curve[0], 100.0 / 30 * std::exp(-0.1)) < 1e-13);
+  CHECK(RelDiff(curve[1], 100.0 / 30 * std::exp(-0.8)) < 1e-13);
 }
 
 TEST_CASE("initial amounts X0_<n> enter at the first record and add to doses", "[events]") {

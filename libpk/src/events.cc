@@ -61,8 +61,8 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
   const std::vector<Record>& records = s.records();
   const int n = model.num_compartments();
   s.cmt.resize(records.size());
-  double end_time = -INFINITY;
-  for (const Record& rec : records) end_time = std::max(end_time, rec.time);
+  s.last_time = -INFINITY;
+  for (const Record& rec : records) s.last_time = std::max(s.last_time, rec.time);
   for (size_t r = 0; r < records.size(); ++r) {
     const Record& rec = records[r];
     if (rec.cmt > n) {
@@ -72,7 +72,7 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
     }
     // Each implied dose up to the last record is an event of its own (later ones are dropped).
     if (rec.IsDose() && rec.addl > 0 &&
-        std::min(static_cast<double>(rec.addl), std::floor((end_time - rec.time) / rec.ii)) > kMaxImpliedDoses) {
+        std::min(static_cast<double>(rec.addl), std::floor((s.last_time - rec.time) / rec.ii)) > kMaxImpliedDoses) {
       throw InputError(data.source, rec.line, data.ColumnNumber("ADDL"),
                        "ADDL=" + std::to_string(rec.addl) + " with II=" + FormatNumber(rec.ii) +
                            " implies more than " + std::to_string(static_cast<long>(kMaxImpliedDoses)) +

@@ -79,6 +79,8 @@ struct PreparedSubject {
   std::vector<std::vector<char>> from_data;
   /// For each layout entry, the dataset column supplying it (index into Record::extra), or -1.
   std::vector<int> column_of_parameter;
+  /// The latest record time. Implied (ADDL) doses after it cannot change a prediction and are not generated.
+  double last_time = 0;
 
   const std::vector<Record>& records() const { return data->subjects[subject].records; }
 };
@@ -110,8 +112,6 @@ class EventEngine {
     const std::vector<Record>& records = s_.records();
     if (records.empty()) return;
     t_ = T(records[0].time);
-    end_time_ = records[0].time;
-    for (const Record& rec : records) end_time_ = std::max(end_time_, rec.time);
     // Initial amounts (X0_<n>) enter at the first record, as jumps of the state.
     const Vec<T>& first = sets_[s_.set_of_record[0]];
     for (int c = 0; c < n_; ++c) {
@@ -284,7 +284,7 @@ class EventEngine {
       Schedule(start, dose);
     }
     // Implied doses after the last record cannot affect anything (ADDL may be large).
-    for (int k = 1; k <= rec.addl && Value(start) + k * Value(ii) <= end_time_; ++k) {
+    for (int k = 1; k <= rec.addl && Value(start) + k * Value(ii) <= s_.last_time; ++k) {
       Schedule(start + double(k) * ii, dose);
     }
   }
@@ -345,7 +345,6 @@ class EventEngine {
   Visitor* v_;
   const int n_;
   T t_;
-  double end_time_ = 0;  // the latest record time
   std::vector<Infusion> active_;
   std::vector<Pending> pending_;
   long seq_ = 0;

@@ -49,9 +49,7 @@ Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times) {
       r.evid = Evid::kOther;
       r.mdv = 1;
       r.line = -1;  // marks an added output record
-      r.extra = next ? next->extra
-                     : (old.empty() ? std::vector<double>(n_extra, std::numeric_limits<double>::quiet_NaN())
-                                    : old.back().extra);
+      r.extra = next ? next->extra : std::vector<double>(n_extra, std::numeric_limits<double>::quiet_NaN());
       return r;
     };
     // A reset whose TIME goes back (EVID 3/4) starts a new time axis, for example the next period of a
