@@ -27,6 +27,7 @@ std::string Status(const SubjectFit& f) {
     case TerminationType::kConvergence: return "converged";
     case TerminationType::kNoConvergence: return "not converged";
     case TerminationType::kFailure: return "failed";
+    case TerminationType::kUnbounded: return "unbounded";
   }
   return "?";
 }

@@ -307,3 +307,60 @@ TEST_CASE("L-BFGS does not extrapolate into a flat likelihood: remifentanil with
     }
   }
 }
+
+TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and names the sigma and the cause",
+          "[fit]") {
+  // Optimisers stop on such data wherever their tests happen to hold (sigma of 1e-6 to 1e-150, objectives of -20
+  // to -500), and used to report convergence there.
+  pk::FitSubjectsRequest req;
+  req.jobs = 1;
+  req.curve_points = 2;
+  const auto with = [&](const char* model, const char* data, pk::ErrorModel error, std::vector<int> subjects) {
+    req.model = pk::MakeModel(model);
+    req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/" + data));
+    req.objective.error_model = error;
+    req.subjects = std::move(subjects);
+    req.parameters.clear();
+    for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+    if (error != pk::ErrorModel::kProportional) req.parameters.push_back({"SIGMA_ADD", NAN});
+    if (error != pk::ErrorModel::kAdditive) req.parameters.push_back({"SIGMA_PROP", NAN});
+  };
+  const auto check_unbounded = [](const pk::SubjectFit& f, const std::string& cause) {
+    INFO("ID " << f.id << ": " << f.summary.BriefReport());
+    REQUIRE(f.ok);
+    CHECK(f.summary.termination == pk::TerminationType::kUnbounded);
+    CHECK_FALSE(f.summary.converged());
+    CHECK_THAT(f.summary.message, Catch::StartsWith("the likelihood has no maximum") && Catch::Contains(cause));
+    CHECK(f.summary.covariance_message == "the likelihood has no maximum");
+    CHECK(std::isnan(f.summary.minus2ll));
+    CHECK(std::isnan(f.summary.estimates[0].se));
+  };
+  for (const pk::OptimizerType optimizer : {pk::OptimizerType::kNewton, pk::OptimizerType::kBfgs}) {
+    INFO(pk::ToString(optimizer));
+    req.fit.optimizer = optimizer;
+    {  // phenobarbital, additive error: the curve passes through 2 samples, not through 3
+      with("1cmt_iv", "phenobarbital.csv", pk::ErrorModel::kAdditive, {0, 4});  // IDs 1 and 5
+      const auto fits = pk::FitSubjects(req);
+      REQUIRE(fits.size() == 2);
+      REQUIRE(fits[0].dv.size() == 2);
+      check_unbounded(fits[0], "with 2 samples for 2 model parameters the curve passes through every sample");
+      INFO(fits[1].summary.BriefReport());
+      CHECK(fits[1].summary.converged());
+      CHECK(std::isfinite(fits[1].summary.estimates[2].se));
+    }
+    {  // theophylline, combined error: DV 0 predicted 0 at TIME 0 lets SIGMA_ADD collapse
+      with("1cmt_oral", "theophylline.csv", pk::ErrorModel::kCombined, {0, 1, 6});  // IDs 1, 2 and 7
+      const auto fits = pk::FitSubjects(req);
+      REQUIRE(fits.size() == 3);
+      check_unbounded(fits[1], "the sample at TIME 0 (DV 0, prediction 0)");
+      CHECK_THAT(fits[1].summary.message, Catch::Contains("give it MDV=1, or fix SIGMA_ADD"));
+      // ID 1 has a finite optimum; on ID 7 SIGMA_PROP goes to 0 at a finite likelihood (a boundary estimate,
+      // every sample's sigma stays about SIGMA_ADD = 0.3), which is not a collapse.
+      for (const int k : {0, 2}) {
+        INFO("ID " << fits[k].id << ": " << fits[k].summary.BriefReport());
+        CHECK(fits[k].summary.termination != pk::TerminationType::kUnbounded);
+        CHECK(fits[k].summary.objective > 0);
+      }
+    }
+  }
+}

@@ -529,6 +529,62 @@ std::string Num(double v, const char* fmt = "%.6g") {
   return buf;
 }
 
+// Maximum likelihood has no maximum when a sample's σ_k can shrink to 0 together
+// with its residual: −½ log σ_k² → +∞. That happens when the curve can pass
+// through every sample (typically no more samples than model parameters), or
+// when a combined error's additive part is a sample's whole σ_k because the
+// sample is predicted as 0 (a DV of 0 at an oral dose's time). Optimisers then
+// stop wherever their tests happen to hold, at σ of 1e-6 to 1e-150 and
+// objectives of −20 to −500, and would report convergence. A σ below 1e-6 of
+// the largest |DV| (SIGMA_ADD) or below 1e-6 (SIGMA_PROP), far below any
+// assay's precision, is taken as collapsed. A combined error's SIGMA_ADD alone
+// may go to 0 at a finite likelihood (data with a constant CV: a boundary
+// estimate); it is a collapse only where a prediction is 0 (the ML loss's own
+// zero level, 1e-12 of the largest prediction). Sets `why`.
+bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat,
+                    int structural, std::string* why) {
+  constexpr double kCollapse = 1e-6, kZeroPrediction = 1e-12;
+  const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
+  const Eigen::VectorXd& y = objective.observations();
+  const int nobs = static_cast<int>(y.size());
+  if (nobs == 0 || yhat.size() != nobs) return false;
+  const double scale = y.cwiseAbs().maxCoeff();
+  const double a = ia >= 0 ? std::fabs(values(ia)) : 0, b = ip >= 0 ? std::fabs(values(ip)) : 0;
+  const bool a_gone = ia >= 0 && a < kCollapse * scale, b_gone = ip >= 0 && b < kCollapse;
+  std::string what;
+  int at = -1;  // a sample predicted as 0
+  if (ia < 0 || ip < 0) {
+    if (!(ia >= 0 ? a_gone : b_gone)) return false;
+    what = ia >= 0 ? "SIGMA_ADD fell to " + Num(a, "%.3g") + ", " + Num(a / scale, "%.2g") + " of the largest DV"
+                   : "SIGMA_PROP fell to " + Num(b, "%.3g");
+  } else {
+    if (!a_gone) return false;
+    if (!b_gone) {
+      const double zero = kZeroPrediction * yhat.cwiseAbs().maxCoeff();
+      for (int k = 0; k < nobs && at < 0; ++k) {
+        if (std::fabs(yhat(k)) <= zero) at = k;
+      }
+      if (at < 0) return false;
+      what = "the sample at TIME " + Num(objective.sample_times()[at]) + " (DV " + Num(y(at)) + ", prediction " +
+             Num(yhat(at), "%.3g") + ") has a σ of " + Num(a, "%.3g") + ", " + Num(a / scale, "%.2g") +
+             " of the largest DV";
+    } else {
+      what = "SIGMA_ADD fell to " + Num(a, "%.3g") + " and SIGMA_PROP to " + Num(b, "%.3g");
+    }
+  }
+  std::string cause;
+  if (nobs <= structural) {
+    cause = "with " + std::to_string(nobs) + " samples for " + std::to_string(structural) +
+            " model parameters the curve passes through every sample; fix some parameters or σ, or fit the population";
+  } else if (at >= 0) {
+    cause = "its prediction is 0, so its σ is SIGMA_ADD alone; give it MDV=1, or fix SIGMA_ADD";
+  } else {
+    cause = "the curve passes through the samples; fix σ, or use least squares";
+  }
+  *why = "the likelihood has no maximum: " + what + " (" + cause + ")";
+  return true;
+}
+
 }  // namespace
 
 FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& params, const FitOptions& options) {
@@ -639,6 +695,16 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
 
   summary.termination = best.termination;
   summary.message = best.message;
+  if (ml && n > 0 && std::isfinite(best.value)) {
+    const Objective::Evaluation& end = pb.Eval(best.phi, Need::kValue);
+    int structural = 0;
+    for (const std::string& name : summary.estimated) structural += name.rfind("SIGMA_", 0) == 0 ? 0 : 1;
+    std::string collapse;
+    if (end.ok && CollapsedSigma(objective, pb.Values(best.phi), end.predictions, structural, &collapse)) {
+      summary.termination = TerminationType::kUnbounded;
+      summary.message = collapse;
+    }
+  }
   summary.iterations = best.iterations;
   summary.objective = best.value;
   summary.values = pb.Values(best.phi);
@@ -647,7 +713,9 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
 
   // Estimates, and the covariance at the optimum from the Jacobian or information.
   for (ParameterEstimate& est : summary.estimates) est.estimate = summary.values(objective.ParameterIndex(est.name));
-  if (n > 0 && std::isfinite(best.value)) {
+  if (summary.termination == TerminationType::kUnbounded) {
+    summary.covariance_message = "the likelihood has no maximum";
+  } else if (n > 0 && std::isfinite(best.value)) {
     const Objective::Evaluation& ev = pb.Eval(best.phi, Need::kJacobian);
     // The standard errors need the Jacobian; say so when that route differs
     // from the one the optimiser used.
@@ -711,9 +779,13 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
 
 std::string FitSummary::BriefReport() const {
   std::ostringstream out;
-  const char* status = termination == TerminationType::kConvergence
-                           ? "converged"
-                           : (termination == TerminationType::kNoConvergence ? "did not converge" : "failed");
+  const char* status = "failed";
+  switch (termination) {
+    case TerminationType::kConvergence: status = "converged"; break;
+    case TerminationType::kNoConvergence: status = "did not converge"; break;
+    case TerminationType::kUnbounded: status = "unbounded"; break;
+    case TerminationType::kFailure: break;
+  }
   out << optimizer << " (" << propagator << " propagator, " << gradient << " gradient): " << status << " after " << iterations
       << " iterations, objective " << Num(initial_objective) << " -> " << Num(objective) << ", "
       << Num(seconds * 1e3, "%.3g") << " ms (" << message << ")";

@@ -532,7 +532,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
         std::ostringstream os;
         os << "the residual variance of the sample at TIME " << FormatNumber(d.times[static_cast<size_t>(k)])
            << " is zero: " << (b > 0 && a == 0 ? "its prediction is 0 with a proportional error (give it MDV=1, "
-                                                 "or use a combined error)" : "a σ of 0");
+                                                 "or use a combined error with SIGMA_ADD fixed)" : "a σ of 0");
         ev.message = os.str();
         return ev;
       }

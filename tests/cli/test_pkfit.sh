@@ -58,10 +58,19 @@ paste -d, <(cut -d, -f3 "$work/tf2/summary.csv") <(cut -d, -f3 "$work/auto/summa
   fail "tf2 and 2cmt_iv objectives differ on indomethacin"
 
 # Maximum likelihood with an estimated lag, by Newton.
-"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --subject 2 --error combined \
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --error combined \
   --init ALAG1=0.1 --optimizer newton -o "$work/ml" -q || fail "ML fit failed"
 grep -q "^1,SIGMA_PROP," "$work/ml/estimates.csv" || fail "ML estimates lack SIGMA_PROP"
 grep -q "^1,ALAG1," "$work/ml/estimates.csv" || fail "--init ALAG1 was not estimated"
+
+# ID 2's likelihood has no maximum (DV 0 predicted 0 at TIME 0 with a combined error): exit 1, the cause named,
+# "unbounded" in the tables, CONVERGED 0.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 2 --error combined \
+  -o "$work/ml2" 2>"$work/ml2.err" >"$work/ml2.out"; rc=$?
+[ $rc -eq 1 ] || fail "an unbounded likelihood should exit 1, got $rc"
+grep -q "ID 2: the likelihood has no maximum: the sample at TIME 0" "$work/ml2.err" || fail "ml2: $(cat "$work/ml2.err")"
+grep -q "unbounded" "$work/ml2.out" || fail "the estimates table does not say unbounded"
+grep -q "^2,11,[^,]*,[0-9]*,0," "$work/ml2/summary.csv" || fail "summary.csv does not say CONVERGED 0"
 
 # A subject with too few samples fails; the others finish; exit code 1.
 printf 'ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,1,0,0,3\n1,2,0,0,2.2\n1,4,0,0,1.2\n1,8,0,0,0.4\n2,0,100,1,.\n2,1,0,0,3\n' \

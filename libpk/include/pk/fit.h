@@ -74,6 +74,12 @@ enum class TerminationType {
   kConvergence,    ///< a convergence test was met
   kNoConvergence,  ///< the iteration or evaluation limit was reached
   kFailure,        ///< the objective could not be evaluated, or the optimiser failed
+  /// Maximum likelihood only: the likelihood has no maximum. A residual σ
+  /// collapsed towards 0 with its sample's residual (the curve passes through
+  /// every sample, or a combined error's additive σ alone carries a sample
+  /// predicted as 0). The estimates are where the optimiser stopped; the
+  /// message says which σ and why; there are no standard errors or −2LL.
+  kUnbounded,
 };
 
 struct FitSummary {
