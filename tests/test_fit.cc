@@ -364,3 +364,59 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
     }
   }
 }
+
+TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are those of the simpler error model",
+          "[fit]") {
+  // One part of a combined error going to 0 is a boundary estimate: the information matrix is singular there,
+  // and there used to be no SE at all. Held at 0, the fit is the simpler error model's, and so are its SEs.
+  struct Case {
+    const char* model;
+    const char* data;
+    std::vector<int> subjects;
+    pk::ErrorModel simpler;
+    const char* at_zero;
+  };
+  const Case cases[] = {{"2cmt_iv", "indomethacin.csv", {0, 1, 2, 3, 4}, pk::ErrorModel::kProportional, "SIGMA_ADD"},
+                        {"1cmt_oral", "theophylline.csv", {6, 11}, pk::ErrorModel::kAdditive, "SIGMA_PROP"}};
+  for (const Case& c : cases) {
+    pk::FitSubjectsRequest req;
+    req.jobs = 1;
+    req.curve_points = 2;
+    req.model = pk::MakeModel(c.model);
+    req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/" + c.data));
+    req.subjects = c.subjects;
+    req.fit.optimizer = pk::OptimizerType::kNewton;
+    for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+    const auto with_sigmas = [&](pk::ErrorModel error, std::vector<std::string> sigmas) {
+      pk::FitSubjectsRequest r = req;
+      r.objective.error_model = error;
+      for (const std::string& s : sigmas) r.parameters.push_back({s, NAN});
+      return pk::FitSubjects(r);
+    };
+    const auto combined = with_sigmas(pk::ErrorModel::kCombined, {"SIGMA_ADD", "SIGMA_PROP"});
+    const auto simpler = with_sigmas(
+        c.simpler, {c.simpler == pk::ErrorModel::kAdditive ? "SIGMA_ADD" : "SIGMA_PROP"});
+    REQUIRE(combined.size() == c.subjects.size());
+    for (size_t k = 0; k < combined.size(); ++k) {
+      const pk::FitSummary& a = combined[k].summary;
+      const pk::FitSummary& b = simpler[k].summary;
+      INFO(c.data << " ID " << combined[k].id << "\n" << a.FullReport() << "\n" << b.FullReport());
+      REQUIRE(a.converged());
+      REQUIRE(b.converged());
+      CHECK(a.objective == Approx(b.objective).epsilon(1e-7));
+      CHECK_THAT(a.covariance_message, Catch::StartsWith(std::string(c.at_zero) + " went to 0"));
+      CHECK(b.covariance_message.empty());
+      for (const pk::ParameterEstimate& e : a.estimates) {
+        if (e.name == c.at_zero) {
+          CHECK(std::isnan(e.se));
+          continue;
+        }
+        const auto same = std::find_if(b.estimates.begin(), b.estimates.end(),
+                                       [&](const pk::ParameterEstimate& f) { return f.name == e.name; });
+        REQUIRE(same != b.estimates.end());
+        INFO(e.name);
+        CHECK(e.se == Approx(same->se).epsilon(1e-5));
+      }
+    }
+  }
+}

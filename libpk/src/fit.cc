@@ -529,6 +529,13 @@ std::string Num(double v, const char* fmt = "%.6g") {
   return buf;
 }
 
+// A table cell of `width` columns, right-aligned; "–" when v is not finite.
+std::string Cell(double v, const char* fmt, int width) {
+  const std::string text = std::isfinite(v) ? Num(v, fmt) : "–";
+  const int columns = std::isfinite(v) ? static_cast<int>(text.size()) : 1;
+  return std::string(static_cast<size_t>(std::max(0, width - columns)), ' ') + text;
+}
+
 // Maximum likelihood has no maximum when a sample's σ_k can shrink to 0 together
 // with its residual: −½ log σ_k² → +∞. That happens when the curve can pass
 // through every sample (typically no more samples than model parameters), or
@@ -541,16 +548,27 @@ std::string Num(double v, const char* fmt = "%.6g") {
 // may go to 0 at a finite likelihood (data with a constant CV: a boundary
 // estimate); it is a collapse only where a prediction is 0 (the ML loss's own
 // zero level, 1e-12 of the largest prediction). Sets `why`.
+// Whether parameter `i` is a σ gone to 0: SIGMA_ADD below 1e-6 of the largest
+// |DV|, SIGMA_PROP below 1e-6.
+bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int i) {
+  constexpr double kCollapse = 1e-6;
+  if (i < 0) return false;
+  const std::string& name = objective.parameter_names()[i];
+  if (name == "SIGMA_PROP") return std::fabs(values(i)) < kCollapse;
+  if (name != "SIGMA_ADD" || objective.observations().size() == 0) return false;
+  return std::fabs(values(i)) < kCollapse * objective.observations().cwiseAbs().maxCoeff();
+}
+
 bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat,
                     int structural, std::string* why) {
-  constexpr double kCollapse = 1e-6, kZeroPrediction = 1e-12;
+  constexpr double kZeroPrediction = 1e-12;
   const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
   const Eigen::VectorXd& y = objective.observations();
   const int nobs = static_cast<int>(y.size());
   if (nobs == 0 || yhat.size() != nobs) return false;
   const double scale = y.cwiseAbs().maxCoeff();
   const double a = ia >= 0 ? std::fabs(values(ia)) : 0, b = ip >= 0 ? std::fabs(values(ip)) : 0;
-  const bool a_gone = ia >= 0 && a < kCollapse * scale, b_gone = ip >= 0 && b < kCollapse;
+  const bool a_gone = SigmaAtZero(objective, values, ia), b_gone = SigmaAtZero(objective, values, ip);
   std::string what;
   int at = -1;  // a sample predicted as 0
   if (ia < 0 || ip < 0) {
@@ -730,25 +748,55 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
     } else if (!ml && nobs <= n) {
       summary.covariance_message = "no degrees of freedom left for the residual variance";
     } else {
-      Eigen::FullPivLU<Eigen::MatrixXd> lu(ev.information);
+      // A σ gone to 0 at a finite likelihood (one part of a combined error: a
+      // boundary estimate) carries no information, since ∂σ_k²/∂log σ ∝ σ² → 0.
+      // The others' covariance is then the one with that σ held at 0, which is
+      // the covariance of the fit with the simpler error model.
+      std::vector<int> keep;
+      std::vector<std::string> at_zero;
+      for (int j = 0; j < n; ++j) {
+        if (ml && SigmaAtZero(objective, summary.values, free[j])) {
+          at_zero.push_back(objective.parameter_names()[free[j]]);
+        } else {
+          keep.push_back(j);
+        }
+      }
+      const int nk = static_cast<int>(keep.size());
+      Eigen::MatrixXd info(nk, nk);
+      for (int a = 0; a < nk; ++a) {
+        for (int b = 0; b < nk; ++b) info(a, b) = ev.information(keep[a], keep[b]);
+      }
+      Eigen::FullPivLU<Eigen::MatrixXd> lu(info);
       lu.setThreshold(1e-12);
-      if (lu.rank() < n) {
+      if (nk == 0 || lu.rank() < nk) {
         summary.covariance_message = "the information matrix is singular: some parameters are not identifiable";
       } else {
-        Eigen::MatrixXd cov_phi = lu.inverse();
+        Eigen::MatrixXd kept = lu.inverse();
         if (!ml) {
           double v_data = 0.5 * ev.residuals.head(nobs).squaredNorm();
-          cov_phi *= 2 * v_data / (nobs - n);
+          kept *= 2 * v_data / (nobs - n);
         }
         const Eigen::VectorXd d = pb.Dtheta(best.phi);
-        summary.covariance = d.asDiagonal() * cov_phi * d.asDiagonal();
-        const Eigen::VectorXd sd = summary.covariance.diagonal().cwiseMax(0).cwiseSqrt();
-        summary.correlation = sd.cwiseInverse().asDiagonal() * summary.covariance * sd.cwiseInverse().asDiagonal();
+        summary.covariance = Eigen::MatrixXd::Constant(n, n, NAN);
+        summary.correlation = Eigen::MatrixXd::Constant(n, n, NAN);
+        Eigen::VectorXd sd = Eigen::VectorXd::Constant(n, NAN);
+        for (int a = 0; a < nk; ++a) {
+          for (int b = 0; b < nk; ++b) summary.covariance(keep[a], keep[b]) = d(keep[a]) * kept(a, b) * d(keep[b]);
+          sd(keep[a]) = std::sqrt(std::max(0.0, summary.covariance(keep[a], keep[a])));
+        }
+        for (int a : keep) {
+          for (int b : keep) summary.correlation(a, b) = summary.covariance(a, b) / (sd(a) * sd(b));
+        }
         int k = 0;
         for (ParameterEstimate& est : summary.estimates) {
           if (est.fixed) continue;
           est.se = sd(k++);
           est.rse_pct = 100 * est.se / std::fabs(est.estimate);
+        }
+        if (!at_zero.empty()) {
+          summary.covariance_message = internal::Join(at_zero, " and ") +
+                                       " went to 0, the edge of its range: it has no SE, and the other SEs are those "
+                                       "of a fit without it";
         }
       }
     }
@@ -802,19 +850,23 @@ std::string FitSummary::FullReport() const {
     if (e.fixed) {
       std::snprintf(line, sizeof line, "  %-12s %14.6g %14s %9s\n", e.name.c_str(), e.estimate, "(fixed)", "");
     } else {
-      std::snprintf(line, sizeof line, "  %-12s %14.6g %14.4g %9.3g\n", e.name.c_str(), e.estimate, e.se, e.rse_pct);
+      std::snprintf(line, sizeof line, "  %-12s %14.6g %s %s\n", e.name.c_str(), e.estimate, Cell(e.se, "%.4g", 14).c_str(),
+                    Cell(e.rse_pct, "%.3g", 9).c_str());
     }
     out << line;
   }
-  if (!covariance_message.empty()) out << "  (no standard errors: " << covariance_message << ")\n";
+  if (!covariance_message.empty()) {
+    const bool some = std::any_of(estimates.begin(), estimates.end(),
+                                  [](const ParameterEstimate& e) { return std::isfinite(e.se); });
+    out << "  (" << (some ? "" : "no standard errors: ") << covariance_message << ")\n";
+  }
   if (correlation.size() > 0 && estimated.size() > 1) {
     out << "\n  correlation\n";
     for (size_t i = 0; i < estimated.size(); ++i) {
       std::snprintf(line, sizeof line, "  %-12s", estimated[i].c_str());
       out << line;
       for (size_t j = 0; j <= i; ++j) {
-        std::snprintf(line, sizeof line, " %7.3f", correlation(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)));
-        out << line;
+        out << " " << Cell(correlation(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)), "%.3f", 7);
       }
       out << "\n";
     }

@@ -102,7 +102,10 @@ struct FitSummary {
   std::vector<std::string> estimated;        ///< the names of the estimated ones
   Eigen::MatrixXd covariance;                ///< of the estimated ones, natural scale
   Eigen::MatrixXd correlation;
-  std::string covariance_message;            ///< why SEs are missing, if they are
+  /// Why SEs are missing, if they are. With maximum likelihood a σ that went
+  /// to 0 (one part of a combined error) gets no SE, and the others' SEs hold
+  /// it at 0; this message then names it.
+  std::string covariance_message;
 
   /// −2 log-likelihood: exact for ML; for least squares, the Gaussian
   /// likelihood with the residual variance profiled out (weights known up to scale).
