@@ -437,6 +437,17 @@ TEST_CASE("the exact propagator refuses nonlinear models; solver failures are re
   exact.propagator = pk::Propagator::kExact;
   CHECK_THROWS_AS(pk::Objective(model, data, 0, exact), pk::InputError);
 
+  // An observation's CMT other than the central compartment has no meaning for a nonlinear model, whose
+  // outputs are chosen by DVID; it used to be ignored, so a peripheral observation was fitted as CP.
+  const auto two = pk::MakeModel("2cmt_iv_mm");
+  const auto peripheral = Parse("ID,TIME,AMT,EVID,DV,CMT\n1,0,100,1,.,1\n1,1,0,0,3,1\n1,2,0,0,2,2\n", "obs.csv");
+  CHECK_THROWS_WITH(pk::Objective(two, peripheral, 0, pk::ObjectiveOptions()),
+                    Catch::Contains("obs.csv:4:6: CMT 2 on an observation") && Catch::Contains("DVID"));
+  for (const char* ok : {"ID,TIME,AMT,EVID,DV,CMT\n1,0,100,1,.,1\n1,1,0,0,3,1\n1,2,0,0,2,0\n",
+                         "ID,TIME,AMT,EVID,DV,CMT,DVID\n1,0,100,1,.,1,.\n1,2,0,0,2,2,1\n"}) {
+    CHECK_NOTHROW(pk::Objective(two, Parse(ok), 0, pk::ObjectiveOptions()));
+  }
+
   pk::ObjectiveOptions few;
   few.ode.max_steps = 3;  // far too few: CVODES stops with "too much work"
   const pk::Objective obj(model, data, 0, few);

@@ -223,6 +223,20 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
     d.ode.key_of_record[ri] = ode_model ? internal::OutputOfRecord(*ode_model, *d.data, r, dvid_col)
                                         : d.prepared.cmt[ri] + 1;
     if (!r.IsSample()) continue;
+    // A nonlinear model's outputs are g(x, θ), chosen by DVID; a CMT that names
+    // another compartment would otherwise be ignored without a word.
+    if (ode_model && r.cmt > 0 && r.cmt != ode_model->central_compartment() &&
+        (dvid_col < 0 || std::isnan(r.extra[dvid_col]))) {
+      std::string outputs;
+      for (int k = 0; k < ode_model->num_outputs(); ++k) {
+        outputs += (k ? ", " : "") + std::to_string(k + 1) + "=" + ode_model->output_names()[k];
+      }
+      throw InputError(d.data->source, r.line, d.data->ColumnNumber("CMT"),
+                       "CMT " + std::to_string(r.cmt) + " on an observation: model " + ode_model->name() +
+                           " predicts its outputs (" + outputs + "), chosen by DVID, not a compartment's amount; give " +
+                           "CMT 0 or " + std::to_string(ode_model->central_compartment()) +
+                           " (the central compartment), or a DVID");
+    }
     const bool continuous = cont_col >= 0 && r.extra[cont_col] == 1;
     if (continuous && d.propagator != Propagator::kOde) {
       throw InputError(d.data->source, r.line, d.data->ColumnNumber("CONT"),
