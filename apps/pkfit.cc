@@ -255,6 +255,20 @@ int Main(int argc, char** argv) {
     for (int i = 0; i < static_cast<int>(req.data->subjects.size()); ++i) all.push_back(i);
   }
   for (int i : all) pk::Objective(req.model, req.data, i, req.objective, req.priors);
+  // Observations outside the central compartment are legitimate (NONMEM's meaning of CMT), but most often a
+  // dataset written for another model: say which compartment they measure.
+  std::map<int, int> elsewhere;
+  for (int i : all) {
+    for (const pk::Record& r : req.data->subjects[static_cast<size_t>(i)].records) {
+      if (r.IsSample() && r.cmt > 0 && r.cmt != req.model->central_compartment()) ++elsewhere[r.cmt];
+    }
+  }
+  for (const auto& kv : elsewhere) {
+    std::cerr << "pkfit: note: " << kv.second << " observation" << (kv.second > 1 ? "s" : "") << " with CMT " << kv.first
+              << " measure " << req.model->compartment_names()[static_cast<size_t>(kv.first - 1)] << ", not "
+              << req.model->compartment_names()[static_cast<size_t>(req.model->central_compartment() - 1)]
+              << " (CMT " << req.model->central_compartment() << ") of " << req.model->name() << "\n";
+  }
 
   if (vm.count("evaluate")) {
     std::ostringstream out;

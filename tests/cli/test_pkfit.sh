@@ -72,6 +72,14 @@ grep -q "ID 2: the likelihood has no maximum: the sample at TIME 0" "$work/ml2.e
 grep -q "unbounded" "$work/ml2.out" || fail "the estimates table does not say unbounded"
 grep -q "^2,11,[^,]*,[0-9]*,0," "$work/ml2/summary.csv" || fail "summary.csv does not say CONVERGED 0"
 
+# Observations outside the central compartment are fitted as such (NONMEM's CMT), with a note saying so.
+"$pkfit" --model 1cmt_oral_transit --data "$root/datasets/theophylline.csv" --subject 1 -o "$work/transit" -q \
+  2>"$work/transit.err"
+grep -q "note: 11 observations with CMT 2 measure TR2, not CENTRAL (CMT 5)" "$work/transit.err" ||
+  fail "no note on observations outside the central compartment: $(cat "$work/transit.err")"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 -o "$work/oral1" -q 2>"$work/oral1.err"
+[ ! -s "$work/oral1.err" ] || fail "a note where CMT is the central compartment: $(cat "$work/oral1.err")"
+
 # A subject with too few samples fails; the others finish; exit code 1.
 printf 'ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,1,0,0,3\n1,2,0,0,2.2\n1,4,0,0,1.2\n1,8,0,0,0.4\n2,0,100,1,.\n2,1,0,0,3\n' \
   >"$work/partial.csv"
