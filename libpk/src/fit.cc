@@ -536,6 +536,17 @@ std::string Cell(double v, const char* fmt, int width) {
   return std::string(static_cast<size_t>(std::max(0, width - columns)), ' ') + text;
 }
 
+// Whether parameter `i` is a σ gone to 0: SIGMA_ADD below 1e-6 of the largest
+// |DV|, SIGMA_PROP below 1e-6.
+bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int i) {
+  constexpr double kCollapse = 1e-6;
+  if (i < 0) return false;
+  const std::string& name = objective.parameter_names()[i];
+  if (name == "SIGMA_PROP") return std::fabs(values(i)) < kCollapse;
+  if (name != "SIGMA_ADD" || objective.observations().size() == 0) return false;
+  return std::fabs(values(i)) < kCollapse * objective.observations().cwiseAbs().maxCoeff();
+}
+
 // Maximum likelihood has no maximum when a sample's σ_k can shrink to 0 together
 // with its residual: −½ log σ_k² → +∞. That happens when the curve can pass
 // through every sample (typically no more samples than model parameters), or
@@ -548,17 +559,6 @@ std::string Cell(double v, const char* fmt, int width) {
 // may go to 0 at a finite likelihood (data with a constant CV: a boundary
 // estimate); it is a collapse only where a prediction is 0 (the ML loss's own
 // zero level, 1e-12 of the largest prediction). Sets `why`.
-// Whether parameter `i` is a σ gone to 0: SIGMA_ADD below 1e-6 of the largest
-// |DV|, SIGMA_PROP below 1e-6.
-bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int i) {
-  constexpr double kCollapse = 1e-6;
-  if (i < 0) return false;
-  const std::string& name = objective.parameter_names()[i];
-  if (name == "SIGMA_PROP") return std::fabs(values(i)) < kCollapse;
-  if (name != "SIGMA_ADD" || objective.observations().size() == 0) return false;
-  return std::fabs(values(i)) < kCollapse * objective.observations().cwiseAbs().maxCoeff();
-}
-
 bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat,
                     int structural, std::string* why) {
   constexpr double kZeroPrediction = 1e-12;
