@@ -417,6 +417,16 @@ TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are tho
         INFO(e.name);
         CHECK(e.se == Approx(same->se).epsilon(1e-5));
       }
+      // The correlations of the others, too, entry by entry (the two fits list their parameters differently).
+      const auto index = [](const pk::FitSummary& s, const std::string& name) {
+        return static_cast<Eigen::Index>(std::find(s.estimated.begin(), s.estimated.end(), name) - s.estimated.begin());
+      };
+      for (const std::string& p : b.estimated) {
+        for (const std::string& q : b.estimated) {
+          INFO(p << " with " << q);
+          CHECK(a.correlation(index(a, p), index(a, q)) == Approx(b.correlation(index(b, p), index(b, q))).margin(1e-6));
+        }
+      }
     }
   }
 }

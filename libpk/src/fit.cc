@@ -558,10 +558,9 @@ bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int 
 // assay's precision, is taken as collapsed. A combined error's SIGMA_ADD alone
 // may go to 0 at a finite likelihood (data with a constant CV: a boundary
 // estimate); it is a collapse only where a prediction is 0 (the ML loss's own
-// zero level, 1e-12 of the largest prediction). Sets `why`.
+// zero level, kZeroPredictionLevel). Sets `why`.
 bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat,
                     int structural, std::string* why) {
-  constexpr double kZeroPrediction = 1e-12;
   const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
   const Eigen::VectorXd& y = objective.observations();
   const int nobs = static_cast<int>(y.size());
@@ -578,7 +577,7 @@ bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, c
   } else {
     if (!a_gone) return false;
     if (!b_gone) {
-      const double zero = kZeroPrediction * yhat.cwiseAbs().maxCoeff();
+      const double zero = kZeroPredictionLevel * yhat.cwiseAbs().maxCoeff();
       for (int k = 0; k < nobs && at < 0; ++k) {
         if (std::fabs(yhat(k)) <= zero) at = k;
       }
@@ -713,21 +712,21 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
 
   summary.termination = best.termination;
   summary.message = best.message;
-  if (ml && n > 0 && std::isfinite(best.value)) {
-    const Objective::Evaluation& end = pb.Eval(best.phi, Need::kValue);
-    int structural = 0;
-    for (const std::string& name : summary.estimated) structural += name.rfind("SIGMA_", 0) == 0 ? 0 : 1;
-    std::string collapse;
-    if (end.ok && CollapsedSigma(objective, pb.Values(best.phi), end.predictions, structural, &collapse)) {
-      summary.termination = TerminationType::kUnbounded;
-      summary.message = collapse;
-    }
-  }
   summary.iterations = best.iterations;
   summary.objective = best.value;
   summary.values = pb.Values(best.phi);
   summary.gradient = pb.route();
   summary.propagator = pb.propagator();
+  if (ml && n > 0 && std::isfinite(best.value)) {
+    const Objective::Evaluation& end = pb.Eval(best.phi, Need::kValue);
+    int structural = 0;
+    for (const std::string& name : summary.estimated) structural += name.rfind("SIGMA_", 0) == 0 ? 0 : 1;
+    std::string collapse;
+    if (end.ok && CollapsedSigma(objective, summary.values, end.predictions, structural, &collapse)) {
+      summary.termination = TerminationType::kUnbounded;
+      summary.message = collapse;
+    }
+  }
 
   // Estimates, and the covariance at the optimum from the Jacobian or information.
   for (ParameterEstimate& est : summary.estimates) est.estimate = summary.values(objective.ParameterIndex(est.name));

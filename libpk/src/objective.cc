@@ -532,12 +532,11 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   } else {
     sigma2.resize(N);
     ds2_dy.resize(N);
-    // A prediction below 1e-12 of the subject's largest is zero to rounding: the modal form gives about 1e-15
-    // for a compartment the drug has not reached yet (a sample at the time of an oral dose). With a
+    // A prediction below kZeroPredictionLevel of the subject's largest is zero to rounding: the modal form gives
+    // about 1e-15 for a compartment the drug has not reached yet (a sample at the time of an oral dose). With a
     // proportional error alone its variance is then zero too, and its log-variance term would be rounding noise
     // of about −70 that optimisers chase.
-    constexpr double kZeroPrediction = 1e-12;
-    const double zero_level = a == 0 ? kZeroPrediction * yhat.cwiseAbs().maxCoeff() : -1.0;
+    const double zero_level = a == 0 ? kZeroPredictionLevel * yhat.cwiseAbs().maxCoeff() : -1.0;
     for (int k = 0; k < N; ++k) {
       sigma2(k) = a * a + b * b * yhat(k) * yhat(k);
       ds2_dy(k) = 2 * b * b * yhat(k);

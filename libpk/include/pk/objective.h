@@ -80,6 +80,13 @@ struct ObjectiveOptions {
 /// model parameters than this use the adjoint (measured by pkbench; docs/performance.md).
 constexpr int kOdeAdjointThreshold = 3;
 
+/// Maximum likelihood: a prediction at or below this fraction of the subject's
+/// largest |prediction| counts as 0 (rounding gives about 1e-15 where the drug
+/// has not arrived). With a proportional error alone its variance is then 0 and
+/// the evaluation fails, naming the sample; Fit's unbounded-likelihood check
+/// uses the same level.
+constexpr double kZeroPredictionLevel = 1e-12;
+
 /// A normal prior on log θ: adds ½((log θ − log median)/sd_log)² to V.
 struct LogNormalPrior {
   std::string parameter;
