@@ -18,6 +18,7 @@
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/fit_subjects.h"
+#include "pk/ode_model.h"
 #include "pk/output.h"
 
 namespace po = boost::program_options;
@@ -255,10 +256,12 @@ int Main(int argc, char** argv) {
     for (int i = 0; i < static_cast<int>(req.data->subjects.size()); ++i) all.push_back(i);
   }
   for (int i : all) pk::Objective(req.model, req.data, i, req.objective, req.priors);
-  // Observations outside the central compartment are legitimate (NONMEM's meaning of CMT), but most often a
-  // dataset written for another model: say which compartment they measure.
+  // Observations outside the central compartment of a linear model are legitimate (NONMEM's meaning of CMT),
+  // but most often a dataset written for another model: say which compartment they measure. A nonlinear
+  // model's observations measure the output their DVID names, whatever their CMT.
   std::map<int, int> elsewhere;
-  for (int i : all) {
+  const bool by_dvid = dynamic_cast<const pk::OdeModel*>(req.model.get()) != nullptr;
+  for (int i : by_dvid ? std::vector<int>() : all) {
     for (const pk::Record& r : req.data->subjects[static_cast<size_t>(i)].records) {
       if (r.IsSample() && r.cmt > 0 && r.cmt != req.model->central_compartment()) ++elsewhere[r.cmt];
     }

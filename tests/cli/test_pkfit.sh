@@ -79,6 +79,12 @@ grep -q "note: 11 observations with CMT 2 measure TR2, not CENTRAL (CMT 5)" "$wo
   fail "no note on observations outside the central compartment: $(cat "$work/transit.err")"
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 -o "$work/oral1" -q 2>"$work/oral1.err"
 [ ! -s "$work/oral1.err" ] || fail "a note where CMT is the central compartment: $(cat "$work/oral1.err")"
+# A nonlinear model's observations measure their DVID's output: no note for CMT=2 with DVID=2.
+awk -F, 'BEGIN { OFS = "," } NR == 1 { print $0, "CMT"; next } { print $0, ($6 == 2 ? 2 : 1) }' \
+  "$root/datasets/emax_synthetic.csv" >"$work/emax_cmt.csv"
+"$pkfit" --model 1cmt_iv_emax --data "$work/emax_cmt.csv" --subject 1 --weighting column:W --evaluate \
+  >/dev/null 2>"$work/emax.err" || fail "emax with CMT and DVID: $(cat "$work/emax.err")"
+[ ! -s "$work/emax.err" ] || fail "a note for a nonlinear model's observations: $(cat "$work/emax.err")"
 
 # A subject with too few samples fails; the others finish; exit code 1.
 printf 'ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,1,0,0,3\n1,2,0,0,2.2\n1,4,0,0,1.2\n1,8,0,0,0.4\n2,0,100,1,.\n2,1,0,0,3\n' \
