@@ -230,15 +230,17 @@ TEST_CASE("a proportional error with a zero prediction is a failed evaluation th
 
 namespace {
 
-// Remifentanil fitted with 2cmt_iv, one thread, no curves worth drawing.
-pk::FitSubjectsRequest RemifentanilRequest() {
+// A bundled dataset fitted with a catalogue model, one thread, no curves worth drawing.
+pk::FitSubjectsRequest DatasetRequest(const char* model, const std::string& data) {
   pk::FitSubjectsRequest req;
-  req.model = pk::MakeModel("2cmt_iv");
-  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/remifentanil.csv"));
+  req.model = pk::MakeModel(model);
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/" + data));
   req.jobs = 1;
   req.curve_points = 2;
   return req;
 }
+
+pk::FitSubjectsRequest RemifentanilRequest() { return DatasetRequest("2cmt_iv", "remifentanil.csv"); }
 
 std::vector<pk::SubjectFit> FitWith(pk::FitSubjectsRequest req, pk::OptimizerType type, const std::string& algorithm) {
   req.fit.optimizer = type;
@@ -312,18 +314,16 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
           "[fit]") {
   // Optimisers stop on such data wherever their tests happen to hold (sigma of 1e-6 to 1e-150, objectives of -20
   // to -500), and used to report convergence there.
-  pk::FitSubjectsRequest req;
-  req.jobs = 1;
-  req.curve_points = 2;
-  const auto with = [&](const char* model, const char* data, pk::ErrorModel error, std::vector<int> subjects) {
-    req.model = pk::MakeModel(model);
-    req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/" + data));
+  const auto fit = [](pk::OptimizerType optimizer, const char* model, const char* data, pk::ErrorModel error,
+                      std::vector<int> subjects) {
+    pk::FitSubjectsRequest req = DatasetRequest(model, data);
+    req.fit.optimizer = optimizer;
     req.objective.error_model = error;
     req.subjects = std::move(subjects);
-    req.parameters.clear();
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
     if (error != pk::ErrorModel::kProportional) req.parameters.push_back({"SIGMA_ADD", NAN});
     if (error != pk::ErrorModel::kAdditive) req.parameters.push_back({"SIGMA_PROP", NAN});
+    return pk::FitSubjects(req);
   };
   const auto check_unbounded = [](const pk::SubjectFit& f, const std::string& cause) {
     INFO("ID " << f.id << ": " << f.summary.BriefReport());
@@ -337,10 +337,8 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
   };
   for (const pk::OptimizerType optimizer : {pk::OptimizerType::kNewton, pk::OptimizerType::kBfgs}) {
     INFO(pk::ToString(optimizer));
-    req.fit.optimizer = optimizer;
     {  // phenobarbital, additive error: the curve passes through 2 samples, not through 3
-      with("1cmt_iv", "phenobarbital.csv", pk::ErrorModel::kAdditive, {0, 4});  // IDs 1 and 5
-      const auto fits = pk::FitSubjects(req);
+      const auto fits = fit(optimizer, "1cmt_iv", "phenobarbital.csv", pk::ErrorModel::kAdditive, {0, 4});  // IDs 1, 5
       REQUIRE(fits.size() == 2);
       REQUIRE(fits[0].dv.size() == 2);
       check_unbounded(fits[0], "with 2 samples for 2 model parameters the curve passes through every sample");
@@ -349,8 +347,8 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
       CHECK(std::isfinite(fits[1].summary.estimates[2].se));
     }
     {  // theophylline, combined error: DV 0 predicted 0 at TIME 0 lets SIGMA_ADD collapse
-      with("1cmt_oral", "theophylline.csv", pk::ErrorModel::kCombined, {0, 1, 6});  // IDs 1, 2 and 7
-      const auto fits = pk::FitSubjects(req);
+      const auto fits =
+          fit(optimizer, "1cmt_oral", "theophylline.csv", pk::ErrorModel::kCombined, {0, 1, 6});  // IDs 1, 2 and 7
       REQUIRE(fits.size() == 3);
       check_unbounded(fits[1], "the sample at TIME 0 (DV 0, prediction 0)");
       CHECK_THAT(fits[1].summary.message, Catch::Contains("give it MDV=1, or fix SIGMA_ADD"));
@@ -379,11 +377,7 @@ TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are tho
   const Case cases[] = {{"2cmt_iv", "indomethacin.csv", {0, 1, 2, 3, 4}, pk::ErrorModel::kProportional, "SIGMA_ADD"},
                         {"1cmt_oral", "theophylline.csv", {6, 11}, pk::ErrorModel::kAdditive, "SIGMA_PROP"}};
   for (const Case& c : cases) {
-    pk::FitSubjectsRequest req;
-    req.jobs = 1;
-    req.curve_points = 2;
-    req.model = pk::MakeModel(c.model);
-    req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/" + c.data));
+    pk::FitSubjectsRequest req = DatasetRequest(c.model, c.data);
     req.subjects = c.subjects;
     req.fit.optimizer = pk::OptimizerType::kNewton;
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
