@@ -4,9 +4,14 @@
 // time; and its divided differences against an independent matrix exponential.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
+#include <random>
+#include <tuple>
+
 #include <unsupported/Eigen/MatrixFunctions>
 
 #include "exact/modal.h"
+#include "exact/modal_evaluator.h"
 #include "pk/catalogue.h"
 #include "pk/linear_model.h"
 #include "pk/objective.h"
@@ -238,4 +243,73 @@ TEST_CASE("modal path steps aside where the eigenbasis is ill-conditioned or eve
   CHECK_FALSE(lag.modal);
   free.pop_back();
   CHECK(objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint).modal);
+}
+
+namespace {
+
+// Compartmental A for rate constants: `flows` lists (from, to, k); elimination from `elim` at ke.
+template <int N>
+Eigen::Matrix<double, N, N> Compartmental(const std::vector<std::tuple<int, int, double>>& flows, int elim, double ke) {
+  Eigen::Matrix<double, N, N> a = Eigen::Matrix<double, N, N>::Zero();
+  for (const auto& [from, to, k] : flows) {
+    a(to, from) += k;
+    a(from, from) -= k;
+  }
+  a(elim, elim) -= ke;
+  return a;
+}
+
+// DecomposeSmall against A = V diag(λ) W, W V = I, and the general routine's eigenvalues.
+template <int N>
+pk::internal::modal_detail::SmallDecomposition CheckSmall(const Eigen::Matrix<double, N, N>& a) {
+  using namespace pk::internal::modal_detail;
+  Eigen::Matrix<double, N, 1> lambda;
+  Eigen::Matrix<double, N, N> v, w;
+  const SmallDecomposition result = DecomposeSmall<N>(a, &lambda, &v, &w);
+  SmallVec lg;
+  SmallMat vg, wg;
+  const bool general = Decompose(SmallMat(a), &lg, &vg, &wg);
+  if (result == SmallDecomposition::kDone) {
+    const double scale = a.cwiseAbs().maxCoeff();
+    CHECK((v * lambda.asDiagonal() * w - a).cwiseAbs().maxCoeff() <= 1e-13 * scale);
+    CHECK((w * v - Eigen::Matrix<double, N, N>::Identity()).cwiseAbs().maxCoeff() <= 1e-12);
+    REQUIRE(general);
+    std::vector<double> l1(lambda.data(), lambda.data() + N), l2(lg.data(), lg.data() + N);
+    std::sort(l1.begin(), l1.end());
+    std::sort(l2.begin(), l2.end());
+    for (int i = 0; i < N; ++i) CHECK(std::fabs(l1[i] - l2[i]) <= 1e-13 * scale);
+  } else if (result == SmallDecomposition::kUnsuitable) {
+    CHECK_FALSE(general);
+  }
+  return result;
+}
+
+}  // namespace
+
+TEST_CASE("closed-form decomposition of depots and a reversible pair matches the general one", "[modal]") {
+  using pk::internal::modal_detail::SmallDecomposition;
+  std::mt19937 rng(20261123);
+  std::uniform_real_distribution<double> log_rate(std::log(1e-2), std::log(1e2));
+  const auto k = [&] { return std::exp(log_rate(rng)); };
+  int done = 0;
+  for (int trial = 0; trial < 300; ++trial) {
+    // 2cmt_iv, 1cmt_oral, 2cmt_oral and two depots into a 2-compartment model.
+    const SmallDecomposition iv2 = CheckSmall<2>(Compartmental<2>({{0, 1, k()}, {1, 0, k()}}, 0, k()));
+    const SmallDecomposition oral1 = CheckSmall<2>(Compartmental<2>({{0, 1, k()}}, 1, k()));
+    const SmallDecomposition oral2 = CheckSmall<3>(Compartmental<3>({{0, 1, k()}, {1, 2, k()}, {2, 1, k()}}, 1, k()));
+    const SmallDecomposition depots =
+        CheckSmall<4>(Compartmental<4>({{0, 2, k()}, {1, 3, k()}, {2, 3, k()}, {3, 2, k()}}, 2, k()));
+    for (SmallDecomposition r : {iv2, oral1, oral2, depots}) {
+      CHECK(r != SmallDecomposition::kOther);
+      done += r == SmallDecomposition::kDone;
+    }
+  }
+  // Most random rates are well conditioned; the others are declined, as by the general routine.
+  CHECK(done > 1000);
+  // Flip-flop: the depot's rate equals the elimination rate, a defective A.
+  CHECK(CheckSmall<2>(Compartmental<2>({{0, 1, 0.5}}, 1, 0.5)) == SmallDecomposition::kUnsuitable);
+  // Other structures go to the general routine: three exchanging states, one-way transit.
+  CHECK(CheckSmall<3>(Compartmental<3>({{0, 1, 1.0}, {1, 0, 2.0}, {0, 2, 0.3}, {2, 0, 0.1}}, 0, 0.5)) ==
+        SmallDecomposition::kOther);
+  CHECK(CheckSmall<3>(Compartmental<3>({{0, 1, 1.0}, {1, 2, 2.0}}, 2, 0.5)) == SmallDecomposition::kOther);
 }

@@ -163,6 +163,21 @@ void Jacobi(M s, V* d, M* q) {
   *d = s.diagonal();
 }
 
+// A modal sum Σ_r v_r e^{λ_r h} (w_r·x) loses ε‖|V||W|‖_∞ ‖x‖ to rounding, whatever the
+// scaling of the eigenvectors; derivatives about the square of that. 1e3 keeps them near 1e-10.
+// ‖|V||W|‖_∞ = max_i Σ_j |v_ij| Σ_k |w_jk|.
+template <typename M, typename V>
+bool WellConditioned(const V& lambda, const M& v, const M& w) {
+  const int n = static_cast<int>(v.rows());
+  double kappa = 0;
+  for (int i = 0; i < n; ++i) {
+    double row = 0;
+    for (int j = 0; j < n; ++j) row += std::fabs(v(i, j)) * w.row(j).cwiseAbs().sum();
+    kappa = std::max(kappa, row);
+  }
+  return kappa <= 1e3 && w.allFinite() && lambda.allFinite();
+}
+
 template <typename M, typename V>
 bool DecomposeImpl(const M& a, V* lambda, M* v, M* w) {
   const int n = static_cast<int>(a.rows());
@@ -240,16 +255,7 @@ bool DecomposeImpl(const M& a, V* lambda, M* v, M* w) {
     for (int i = 0; i < nr; ++i) (*v)(rest(i), q) = x(i);
     for (int r = 0; r < nr; ++r) (*w)(ns + r, sq) = c(r);
   }
-  // A modal sum Σ_r v_r e^{λ_r h} (w_r·x) loses ε‖|V||W|‖_∞ ‖x‖ to rounding, whatever the
-  // scaling of the eigenvectors; derivatives about the square of that. 1e3 keeps them near 1e-10.
-  // ‖|V||W|‖_∞ = max_i Σ_j |v_ij| Σ_k |w_jk|.
-  double kappa = 0;
-  for (int i = 0; i < n; ++i) {
-    double row = 0;
-    for (int j = 0; j < n; ++j) row += std::fabs((*v)(i, j)) * w->row(j).cwiseAbs().sum();
-    kappa = std::max(kappa, row);
-  }
-  return kappa <= 1e3 && w->allFinite() && lambda->allFinite();
+  return WellConditioned(*lambda, *v, *w);
 }
 
 }  // namespace
@@ -260,6 +266,79 @@ bool Decompose(const SmallMat& a, SmallVec* lambda, SmallMat* v, SmallMat* w) {
 bool Decompose(const Eigen::MatrixXd& a, Eigen::VectorXd* lambda, Eigen::MatrixXd* v, Eigen::MatrixXd* w) {
   return DecomposeImpl(a, lambda, v, w);
 }
+
+template <int N>
+SmallDecomposition DecomposeSmall(const Eigen::Matrix<double, N, N>& a, Eigen::Matrix<double, N, 1>* lambda,
+                                  Eigen::Matrix<double, N, N>* v, Eigen::Matrix<double, N, N>* w) {
+  // Depots (no inflow) and the rest, as in DecomposeImpl.
+  int src[N], rest[N], ns = 0, nr = 0;
+  for (int i = 0; i < N; ++i) {
+    bool source = true;
+    for (int k = 0; k < N && source; ++k) source = k == i || a(i, k) == 0;
+    (source ? src[ns++] : rest[nr++]) = i;
+  }
+  if (nr == 0 || nr > 2) return SmallDecomposition::kOther;
+  // The rest block A_RR = V_R diag(λ_R) W_R.
+  double lr[2], vr[2][2], wr[2][2];
+  if (nr == 1) {
+    lr[0] = a(rest[0], rest[0]);
+    vr[0][0] = wr[0][0] = 1;
+  } else {
+    const double a01 = a(rest[0], rest[1]), a10 = a(rest[1], rest[0]);
+    if (!(a01 * a10 > 0)) return SmallDecomposition::kOther;  // one-way flow: the general eigensolver
+    // S = T⁻¹ A_RR T with T = diag(1, t1) is symmetric, with off-diagonal r. One Jacobi rotation
+    // P = [[c, s], [−s, c]] (tan 2φ = 2r/(q − p), the smaller angle) gives Pᵀ S P = diag(p − t r, q + t r).
+    const double t1 = std::sqrt(a10 / a01);
+    const double p = a(rest[0], rest[0]), q = a(rest[1], rest[1]), r = std::copysign(std::sqrt(a01 * a10), a01);
+    const double tau = (q - p) / (2 * r);
+    const double t = (tau >= 0 ? 1.0 : -1.0) / (std::fabs(tau) + std::sqrt(1 + tau * tau));
+    const double c = 1 / std::sqrt(1 + t * t), s = t * c;
+    lr[0] = p - t * r;
+    lr[1] = q + t * r;
+    // V_R = T P, W_R = Pᵀ T⁻¹.
+    vr[0][0] = c, vr[0][1] = s, vr[1][0] = -s * t1, vr[1][1] = c * t1;
+    wr[0][0] = c, wr[0][1] = -s / t1, wr[1][0] = s, wr[1][1] = c / t1;
+  }
+  lambda->setZero();
+  v->setZero();
+  w->setZero();
+  for (int k = 0; k < nr; ++k) {
+    (*lambda)(ns + k) = lr[k];
+    for (int i = 0; i < nr; ++i) {
+      (*v)(rest[i], ns + k) = vr[i][k];
+      (*w)(ns + k, rest[i]) = wr[k][i];
+    }
+  }
+  // Depot modes, as in DecomposeImpl: c = (λ_R − λ_s)⁻¹ W_R a_Rs in W's depot column, −V_R c in V's.
+  for (int d = 0; d < ns; ++d) {
+    const int sd = src[d];
+    const double ls = a(sd, sd);
+    (*lambda)(d) = ls;
+    (*v)(sd, d) = 1;
+    (*w)(d, sd) = 1;
+    double cr[2];
+    for (int k = 0; k < nr; ++k) {
+      double wa = 0;
+      for (int i = 0; i < nr; ++i) wa += wr[k][i] * a(rest[i], sd);
+      if (wa != 0 && lr[k] == ls) return SmallDecomposition::kUnsuitable;
+      cr[k] = wa == 0 ? 0.0 : wa / (lr[k] - ls);
+      (*w)(ns + k, sd) = cr[k];
+    }
+    for (int i = 0; i < nr; ++i) {
+      double x = 0;
+      for (int k = 0; k < nr; ++k) x -= vr[i][k] * cr[k];
+      (*v)(rest[i], d) = x;
+    }
+  }
+  return WellConditioned(*lambda, *v, *w) ? SmallDecomposition::kDone : SmallDecomposition::kUnsuitable;
+}
+
+template SmallDecomposition DecomposeSmall<2>(const Eigen::Matrix<double, 2, 2>&, Eigen::Matrix<double, 2, 1>*,
+                                              Eigen::Matrix<double, 2, 2>*, Eigen::Matrix<double, 2, 2>*);
+template SmallDecomposition DecomposeSmall<3>(const Eigen::Matrix<double, 3, 3>&, Eigen::Matrix<double, 3, 1>*,
+                                              Eigen::Matrix<double, 3, 3>*, Eigen::Matrix<double, 3, 3>*);
+template SmallDecomposition DecomposeSmall<4>(const Eigen::Matrix<double, 4, 4>&, Eigen::Matrix<double, 4, 1>*,
+                                              Eigen::Matrix<double, 4, 4>*, Eigen::Matrix<double, 4, 4>*);
 
 }  // namespace modal_detail
 

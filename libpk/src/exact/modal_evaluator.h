@@ -45,6 +45,17 @@ using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 6, 1>;
 bool Decompose(const SmallMat& a, SmallVec* lambda, SmallMat* v, SmallMat* w);
 bool Decompose(const Eigen::MatrixXd& a, Eigen::VectorXd* lambda, Eigen::MatrixXd* v, Eigen::MatrixXd* w);
 
+// The same decomposition in closed form, for the structure of most PK models:
+// depots feeding a reversible block of one or two states (1cmt_oral, 2cmt_iv,
+// 2cmt_oral). Its 2×2 block is symmetrised as in Decompose and diagonalised by
+// one Jacobi rotation, which is exact for 2×2. kOther: `a` has another
+// structure (call Decompose); kUnsuitable: as Decompose's false. Instantiated
+// in modal.cc for N = 2, 3, 4.
+enum class SmallDecomposition { kDone, kUnsuitable, kOther };
+template <int N>
+SmallDecomposition DecomposeSmall(const Eigen::Matrix<double, N, N>& a, Eigen::Matrix<double, N, 1>* lambda,
+                                  Eigen::Matrix<double, N, N>* v, Eigen::Matrix<double, N, N>* w);
+
 // N: the number of states when fixed at compile time (small models: loops
 // unroll and nothing is allocated), or Eigen::Dynamic with at most MaxN.
 template <int N, int MaxN>
@@ -89,7 +100,9 @@ class Modal final : public ModalEvaluator {
       }
       s.uhat.resize(sched_->inputs.size());
       s.uhat_ready.assign(sched_->inputs.size(), 0);
-      s.steps.assign(sched_->steps.size(), StepCache());
+      // Only the flags are reset: copying whole caches cost as much as a step.
+      s.steps.resize(sched_->steps.size());
+      for (StepCache& c : s.steps) c.have_e = c.have_g = c.have_df = c.have_dg = false;
     }
     return true;
   }
@@ -249,6 +262,13 @@ class Modal final : public ModalEvaluator {
 
   // Eigendecomposition by compartment structure (modal_detail::Decompose).
   bool Decompose(const Mat& a, Set* s) const {
+    if constexpr (N != Eigen::Dynamic) {
+      switch (DecomposeSmall<N>(a, &s->lambda, &s->v, &s->w)) {
+        case SmallDecomposition::kDone: return true;
+        case SmallDecomposition::kUnsuitable: return false;
+        case SmallDecomposition::kOther: break;
+      }
+    }
     using Full = std::conditional_t<MaxN == Eigen::Dynamic, Eigen::MatrixXd, SmallMat>;
     using FullVec = std::conditional_t<MaxN == Eigen::Dynamic, Eigen::VectorXd, SmallVec>;
     Full v, w;
