@@ -41,6 +41,7 @@ const std::vector<pk_test::Scenario>& Scenarios() {
       {"D (fixed)", "1,0,100,-2,0,0,0,1,.\n", {"D1"}, {2.2}},
       {"ss1 with lag (fixed)", "1,0,100,0,12,0,1,1,.\n", {"ALAG1"}, {1.3}},
       {"initial state (fixed)", "1,0,100,0,6,2,0,1,.\n", {"X0_1"}, {30.0}},
+      {"resets (EVID 3, then 4)", "1,0,100,0,0,0,0,1,.\n1,4.0,0,0,0,0,0,3,.\n1,6.5,80,30,0,0,0,4,.\n", {"F1"}, {1.0}},
   };
   return s;
 }

@@ -90,6 +90,9 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
   ScheduleRecorder recorder(subject, &out);
   EventEngine<double, ScheduleRecorder> engine(subject, layout, subject.sets, &recorder);
   engine.Run();
+  for (const ScheduleOp& op : out.ops) {
+    out.simple = out.simple && op.kind != ScheduleOp::kSteadyState && op.kind != ScheduleOp::kSteadyInfusion;
+  }
   const int tail = layout.size() - num_model_parameters;
   out.key = subject.sets.empty() ? Eigen::VectorXd() : Eigen::VectorXd(subject.sets[0].tail(tail));
   return out;

@@ -81,6 +81,8 @@ struct EventSchedule {
   std::vector<Eigen::VectorXd> inputs;
   std::vector<ScheduleCycle> cycles;
   int num_samples = 0;
+  /// Only advances, boluses, samples and resets (no steady states).
+  bool simple = true;
   Eigen::VectorXd key;  ///< the layout values it was recorded with (entries from num_parameters() on)
 };
 

@@ -75,6 +75,7 @@ class Modal final : public ModalEvaluator {
              const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) override {
     sched_ = &schedule;
     p_ = num_free;
+    simple_ = theta.size() == 1 && schedule.simple;
     sets_.resize(theta.size());
     for (size_t k = 0; k < theta.size(); ++k) {
       Set& s = sets_[k];
@@ -92,10 +93,13 @@ class Modal final : public ModalEvaluator {
       const auto value = [&](int i) { return s.theta[i]; };
       for (const LinearTerm& t : model_.system_terms()) a(t.row, t.col) += LinearModel::TermValue<double>(t, value);
       if (!a.allFinite() || !Decompose(a, &s)) return false;
-      for (size_t act = 0; act < s.active.size(); ++act) {
-        for (const LinearTerm& t : model_.system_terms()) {
-          if (t.numerator != s.active[act].first && t.denominator != s.active[act].first) continue;
-          s.da.push_back({t.row, t.col, static_cast<int>(act), TermPartial(t, s.theta, s.active[act].first)});
+      // ∂A/∂θ_j entry by entry, in one pass over the terms (each depends on at most two θ).
+      act_of_.assign(s.theta.size(), -1);
+      for (size_t act = 0; act < s.active.size(); ++act) act_of_[s.active[act].first] = static_cast<int>(act);
+      for (const LinearTerm& t : model_.system_terms()) {
+        if (t.numerator == t.denominator) continue;  // θ_j/θ_j is constant
+        for (const int j : {t.numerator, t.denominator}) {
+          if (j >= 0 && act_of_[j] >= 0) s.da.push_back({t.row, t.col, act_of_[j], TermPartial(t, s.theta, j)});
         }
       }
       s.uhat.resize(sched_->inputs.size());
@@ -109,7 +113,11 @@ class Modal final : public ModalEvaluator {
 
   void Predict(Eigen::VectorXd* yhat) override {
     yhat->setZero(sched_->num_samples);
-    Run(yhat, nullptr, nullptr);
+    if (simple_) {
+      RunPlain(yhat, nullptr);
+    } else {
+      Run(yhat, nullptr, nullptr);
+    }
   }
 
   void Jacobian(Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) override {
@@ -130,13 +138,21 @@ class Modal final : public ModalEvaluator {
     tape_used_ = 0;
     const size_t size = n() * (sched_->ops.size() + 4 * sched_->cycles.size());
     if (tape_.size() < size) tape_.resize(size);
-    Run(yhat, nullptr, &tape_);
+    if (simple_) {
+      RunPlain(yhat, tape_.data());
+    } else {
+      Run(yhat, nullptr, &tape_);
+    }
   }
 
   Eigen::VectorXd AdjointGradient(const Eigen::VectorXd& dl_dy) override {
     for (Set& s : sets_) {
       s.z = Mat::Zero(n(), n());
       for (Output& o : s.outputs) o.xacc = Vec::Zero(n());
+    }
+    if (simple_) {
+      SweepPlain(dl_dy);
+      return Contract();
     }
     size_t cursor = tape_used_;
     const auto pop = [&](Vec* v) {
@@ -212,14 +228,19 @@ class Modal final : public ModalEvaluator {
         mu = sets_[ops[i - 1].set].v.transpose() * (s.w.transpose() * mu);
       }
     }
-    // ⟨V⁻ᵀ Z Vᵀ, ∂A/∂θ_j⟩ and the output rows' ∂c/∂θ_j · x.
+    return Contract();
+  }
+
+ private:
+  // ⟨V⁻ᵀ Z Vᵀ, ∂A/∂θ_j⟩ and the output rows' ∂c/∂θ_j · x: the gradient from the sweep's sums.
+  Eigen::VectorXd Contract() const {
     Eigen::VectorXd grad = Eigen::VectorXd::Zero(p_);
-    for (Set& s : sets_) {
+    for (const Set& s : sets_) {
       if (!s.z.isZero(0.0)) {
         const Mat g = s.w.transpose() * s.z * s.v.transpose();
         for (const DTerm& d : s.da) grad(s.active[d.act].second) += g(d.row, d.col) * d.d;
       }
-      for (Output& o : s.outputs) {
+      for (const Output& o : s.outputs) {
         if (o.dc.empty() || o.xacc.isZero(0.0)) continue;
         const Vec x = s.v * o.xacc;
         for (const DTerm& d : o.dc) grad(s.active[d.act].second) += d.d * x(d.col);
@@ -228,7 +249,52 @@ class Modal final : public ModalEvaluator {
     return grad;
   }
 
- private:
+  // AdjointGradient's backward sweep over a simple schedule (RunPlain's tape):
+  // Z and the outputs' Σ ∂ℓ/∂ŷ_k z_k, with μ̂ as in the general sweep.
+  void SweepPlain(const Eigen::VectorXd& dl_dy) {
+    Set& s = sets_[0];
+    Vec mu = Vec::Zero(n());
+    const double* zt = tape_.data() + tape_used_;
+    Output* out = nullptr;
+    const std::vector<ScheduleOp>& ops = sched_->ops;
+    for (auto it = ops.rbegin(); it != ops.rend(); ++it) {
+      const ScheduleOp& op = *it;
+      switch (op.kind) {
+        case ScheduleOp::kSample: {
+          zt -= n();
+          const double g = dl_dy(op.index);
+          if (g == 0) break;
+          if (out == nullptr || out->cmt != op.cmt) out = &GetOutput(s, op.cmt);
+          mu += g * out->chat;
+          out->xacc += g * Eigen::Map<const Vec>(zt, n());
+          break;
+        }
+        case ScheduleOp::kAdvance: {
+          // z⁺ = e ∘ z + g ∘ û: Z += D_f ∘ (μ̂ zᵀ) + D_g ∘ (μ̂ ûᵀ), then μ̂ ← e ∘ μ̂.
+          zt -= n();
+          const StepCache& c = Cached(s, op.step, op.index >= 0, true);
+          if (op.index >= 0) {
+            const Vec& u = Uhat(s, op.index);
+            for (int k = 0; k < n(); ++k) {
+              s.z.col(k) += mu.cwiseProduct(c.df.col(k) * zt[k] + c.dg.col(k) * u(k));
+            }
+          } else {
+            for (int k = 0; k < n(); ++k) s.z.col(k) += (zt[k] * mu).cwiseProduct(c.df.col(k));
+          }
+          mu = mu.cwiseProduct(c.e);
+          break;
+        }
+        case ScheduleOp::kReset:
+          mu.setZero();
+          break;
+        case ScheduleOp::kBolus:
+        case ScheduleOp::kSteadyState:
+        case ScheduleOp::kSteadyInfusion:
+          break;
+      }
+    }
+  }
+
   struct DTerm {
     int row, col, act;
     double d;
@@ -296,6 +362,10 @@ class Modal final : public ModalEvaluator {
   Output& GetOutput(Set& s, int cmt) {
     // Samples of one output follow each other: try the last one first.
     if (s.last_output < s.outputs.size() && s.outputs[s.last_output].cmt == cmt) return s.outputs[s.last_output];
+    return FindOutput(s, cmt);
+  }
+
+  __attribute__((noinline)) Output& FindOutput(Set& s, int cmt) {
     size_t unused = s.outputs.size();  // an entry kept for its storage, else a new one
     for (size_t i = 0; i < s.outputs.size(); ++i) {
       if (s.outputs[i].cmt == cmt) {
@@ -335,6 +405,12 @@ class Modal final : public ModalEvaluator {
   // e^{Λh} for schedule step `step`, with the input weights and the divided
   // differences when asked. Both f[λ_i, λ_k] and f[λ_i, λ_k, 0] are symmetric.
   const StepCache& Cached(Set& s, int step, bool input, bool derivatives) {
+    const StepCache& c = s.steps[step];
+    if (c.have_e && (!input || c.have_g) && (!derivatives || (c.have_df && (!input || c.have_dg)))) return c;
+    return Fill(s, step, input, derivatives);
+  }
+
+  __attribute__((noinline)) const StepCache& Fill(Set& s, int step, bool input, bool derivatives) {
     StepCache& c = s.steps[step];
     const double h = sched_->steps[step];
     if (!c.have_e) {
@@ -369,27 +445,73 @@ class Modal final : public ModalEvaluator {
   // One step (schedule step `step`) with input `input` (-1: none), with the
   // sensitivities (route a) or the tape (route b) when asked.
   void Step(Set& s, int step, int input, Vec* z, Eigen::MatrixXd* sens, std::vector<double>* tape) {
-    const StepCache& c = Cached(s, step, input >= 0, sens != nullptr);
-    if (tape) Push(*z);
     if (sens) {
-      // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
-      sens->array().colwise() *= c.e.array();
-      const Vec* u = input >= 0 ? &Uhat(s, input) : nullptr;
-      for (size_t act = 0; act < s.active.size(); ++act) {
-        const Mat& ah = s.ahat[act];
-        double* out = sens->col(s.active[act].second).data();
-        for (int i = 0; i < n(); ++i) {
-          double t = 0;
-          for (int k = 0; k < n(); ++k) t += c.df(i, k) * ah(i, k) * (*z)(k);
-          if (u) {
-            for (int k = 0; k < n(); ++k) t += c.dg(i, k) * ah(i, k) * (*u)(k);
-          }
-          out[i] += t;
+      StepWithSensitivities(s, step, input, z, sens, tape);
+      return;
+    }
+    const StepCache& c = Cached(s, step, input >= 0, false);
+    if (tape) Push(*z);
+    *z = z->cwiseProduct(c.e);
+    if (input >= 0) *z += c.g.cwiseProduct(Uhat(s, input));
+  }
+
+  __attribute__((noinline)) void StepWithSensitivities(Set& s, int step, int input, Vec* z, Eigen::MatrixXd* sens,
+                                                       std::vector<double>* tape) {
+    const StepCache& c = Cached(s, step, input >= 0, true);
+    if (tape) Push(*z);
+    // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
+    sens->array().colwise() *= c.e.array();
+    const Vec* u = input >= 0 ? &Uhat(s, input) : nullptr;
+    for (size_t act = 0; act < s.active.size(); ++act) {
+      const Mat& ah = s.ahat[act];
+      double* out = sens->col(s.active[act].second).data();
+      for (int i = 0; i < n(); ++i) {
+        double t = 0;
+        for (int k = 0; k < n(); ++k) t += c.df(i, k) * ah(i, k) * (*z)(k);
+        if (u) {
+          for (int k = 0; k < n(); ++k) t += c.dg(i, k) * ah(i, k) * (*u)(k);
         }
+        out[i] += t;
       }
     }
     *z = z->cwiseProduct(c.e);
     if (input >= 0) *z += c.g.cwiseProduct(Uhat(s, input));
+  }
+
+  // Run without sensitivities over a simple schedule (one parameter set, no
+  // steady states): the loss's and route (b)'s forward pass, with nothing in the
+  // loop but the recursion. `tape` (route b) has room for n values per op.
+  void RunPlain(Eigen::VectorXd* yhat, double* tape) {
+    Set& s = sets_[0];
+    Vec z = Vec::Zero(n());
+    const Output* out = nullptr;
+    double* const tape_start = tape;
+    for (const ScheduleOp& op : sched_->ops) {
+      switch (op.kind) {
+        case ScheduleOp::kAdvance: {
+          const StepCache& c = Cached(s, op.step, op.index >= 0, false);
+          if (tape) tape = std::copy(z.data(), z.data() + n(), tape);
+          z = z.cwiseProduct(c.e);
+          if (op.index >= 0) z += c.g.cwiseProduct(Uhat(s, op.index));
+          break;
+        }
+        case ScheduleOp::kBolus:
+          z += op.value * s.w.col(op.cmt);
+          break;
+        case ScheduleOp::kReset:
+          z.setZero();
+          break;
+        case ScheduleOp::kSample:
+          if (out == nullptr || out->cmt != op.cmt) out = &GetOutput(s, op.cmt);
+          (*yhat)(op.index) = out->chat.dot(z);
+          if (tape) tape = std::copy(z.data(), z.data() + n(), tape);
+          break;
+        case ScheduleOp::kSteadyState:
+        case ScheduleOp::kSteadyInfusion:
+          break;  // not in a simple schedule
+      }
+    }
+    if (tape) tape_used_ = static_cast<size_t>(tape - tape_start);
   }
 
   void Run(Eigen::VectorXd* yhat, Eigen::MatrixXd* jac, std::vector<double>* tape) {
@@ -499,6 +621,8 @@ class Modal final : public ModalEvaluator {
   const int n_;
   int p_ = 0;
   std::vector<Set> sets_;
+  bool simple_ = false;       // one parameter set, no steady states (RunPlain)
+  std::vector<int> act_of_;   // Reset's scratch: the active index of each θ_j (-1: fixed)
   std::vector<double> tape_;  // route (b)'s record of the forward pass: tape_used_ entries
   size_t tape_used_ = 0;
   Eigen::MatrixXd sens_;      // route (a)'s Ŝ during Run
