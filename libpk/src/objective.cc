@@ -348,6 +348,10 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   return Evaluate(values, free, need, impl_->options.gradient);
 }
 
+namespace {
+const std::vector<int> kNoParameters;  // a value alone: no parameter needs derivatives
+}  // namespace
+
 Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const std::vector<int>& free, Need need,
                                           GradientRoute route) const {
   const Impl& d = *impl_;
@@ -356,16 +360,21 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   const int P = static_cast<int>(free.size());
   Evaluation ev;
   // Free layout parameters get dual-number seeds; σ are handled analytically.
-  std::vector<int> model_free;          // layout indices
-  std::vector<int> model_pos;           // their positions in `free`
-  model_free.reserve(P);
-  model_pos.reserve(P);
-  for (int k = 0; k < P; ++k) {
-    if (free[k] < L) {
-      model_free.push_back(free[k]);
-      model_pos.push_back(k);
+  // The free layout parameters (model parameters and dose modifiers) and their positions in `free`: `free`
+  // itself, in order, unless some σ is free too.
+  bool all_model = true;
+  for (int k = 0; k < P; ++k) all_model = all_model && free[k] < L;
+  std::vector<int> model_free_subset, model_pos_subset;
+  if (!all_model) {
+    for (int k = 0; k < P; ++k) {
+      if (free[k] < L) {
+        model_free_subset.push_back(free[k]);
+        model_pos_subset.push_back(k);
+      }
     }
   }
+  const std::vector<int>& model_free = all_model ? free : model_free_subset;  // layout indices
+  const auto model_pos = [&](int a) { return all_model ? a : model_pos_subset[static_cast<size_t>(a)]; };
   const int pm = static_cast<int>(model_free.size());
   const bool ode = d.propagator == Propagator::kOde;
   ev.propagator = ToString(d.propagator);
@@ -420,7 +429,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       modal_schedule = d.Schedule(values);
       // A value alone needs no partials of A.
       internal::ModalEvaluator* ev_modal =
-          d.Modal(*modal_schedule, values, need == Need::kValue ? std::vector<int>() : model_free, &modal_lease);
+          d.Modal(*modal_schedule, values, need == Need::kValue ? kNoParameters : model_free, &modal_lease);
       if (ev_modal) {
         if (route == GradientRoute::kForward && pm > 0) {
           ev_modal->Jacobian(&yhat, &jm);
@@ -519,16 +528,17 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   }
 
   // Per-sample loss terms: value, ∂ℓ/∂ŷ, and ∂ℓ/∂σ for ML.
-  const Eigen::VectorXd r = d.y - yhat;
+  Eigen::VectorXd r;  // y − ŷ, where kept (maximum likelihood, the Jacobian's residuals)
   Eigen::VectorXd dl_dy(N);
   Eigen::VectorXd sigma2, ds2_dy;  // maximum likelihood only
   double value = 0;
   const double a = d.sigma_add >= 0 ? values(d.sigma_add) : 0.0;
   const double b = d.sigma_prop >= 0 ? values(d.sigma_prop) : 0.0;
   const bool ml = d.options.error_model != ErrorModel::kLeastSquares;
+  if (ml || need == Need::kJacobian) r = d.y - yhat;
   if (!ml) {
-    value = 0.5 * (d.w.array() * r.array().square()).sum();
-    dl_dy = -(d.w.array() * r.array()).matrix();
+    value = 0.5 * (d.w.array() * (d.y - yhat).array().square()).sum();
+    dl_dy = -(d.w.array() * (d.y - yhat).array()).matrix();
   } else {
     sigma2.resize(N);
     ds2_dy.resize(N);
@@ -567,8 +577,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   }
   if (need == Need::kValue) return ev;
 
-  ev.gradient = Eigen::VectorXd::Zero(P);
   if (route == GradientRoute::kFiniteDifference && need == Need::kGradient) {
+    ev.gradient = Eigen::VectorXd::Zero(P);
     for (int k = 0; k < P; ++k) {
       const int i = free[k];
       const double h = std::max(std::fabs(values(i)), 1e-8) * d.FdStep();
@@ -606,7 +616,12 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   } else {
     gm.setZero(pm);
   }
-  for (int a2 = 0; a2 < pm; ++a2) ev.gradient(model_pos[a2]) = gm(a2);
+  if (all_model) {
+    ev.gradient = std::move(gm);
+  } else {
+    ev.gradient = Eigen::VectorXd::Zero(P);
+    for (int a2 = 0; a2 < pm; ++a2) ev.gradient(model_pos(a2)) = gm(a2);
+  }
   // σ and the priors.
   Eigen::VectorXd ds2_dsigma_add, ds2_dsigma_prop;
   if (ml) {
@@ -643,7 +658,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     ev.residuals.resize(N + np);
     ev.jacobian = Eigen::MatrixXd::Zero(N + np, P);
     ev.residuals.head(N) = (sw * r.array()).matrix();
-    for (int a2 = 0; a2 < pm; ++a2) ev.jacobian.col(model_pos[a2]).head(N) = -(jm.col(a2).array() * sw).matrix();
+    for (int a2 = 0; a2 < pm; ++a2) ev.jacobian.col(model_pos(a2)).head(N) = -(jm.col(a2).array() * sw).matrix();
     for (int q = 0; q < np; ++q) {
       const Impl::Prior& p = d.priors[q];
       const double th = values(p.index);
@@ -657,7 +672,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   } else {
     // The full ∂ŷ/∂θ over all free parameters (σ columns are zero).
     Eigen::MatrixXd jy = Eigen::MatrixXd::Zero(N, P);
-    for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos[a2]) = jm.col(a2);
+    for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos(a2)) = jm.col(a2);
     // Expected information: Σ ∇ŷ∇ŷᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴).
     ev.information = Eigen::MatrixXd::Zero(P, P);
     for (int k = 0; k < N; ++k) {
