@@ -101,11 +101,9 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
 // ---------------------------------------------------------------------------
 // Divided differences of f(λ) = e^{λh}.
 
-double DividedExp2(double a, double b, double ea, double eb, double h) {
-  const double d = a - b;
-  // Differences lose about ε/|dh| relative: below |dh| = 0.1 the sinh form is exact to rounding.
-  if (std::fabs(d) * h >= 0.1) return (ea - eb) / d;
-  return h * std::sqrt(ea) * std::sqrt(eb) * Sinhc(0.5 * d * h);
+double DividedExp2Close(double a, double b, double ea, double eb, double h) {
+  // Below |(a − b)h| = 0.1 the sinh form is exact to rounding.
+  return h * std::sqrt(ea) * std::sqrt(eb) * Sinhc(0.5 * (a - b) * h);
 }
 
 double DividedExp3(double a, double b, double ea, double eb, double h) {

@@ -99,7 +99,8 @@ class Modal final : public ModalEvaluator {
       for (const LinearTerm& t : model_.system_terms()) {
         if (t.numerator == t.denominator) continue;  // θ_j/θ_j is constant
         for (const int j : {t.numerator, t.denominator}) {
-          if (j >= 0 && act_of_[j] >= 0) s.da.push_back({t.row, t.col, act_of_[j], TermPartial(t, s.theta, j)});
+          if (j < 0 || act_of_[j] < 0) continue;
+          s.da.push_back({t.row, t.col, act_of_[j], TermPartial(t, s.theta, j), s.active[act_of_[j]].second});
         }
       }
       s.uhat.resize(sched_->inputs.size());
@@ -236,14 +237,14 @@ class Modal final : public ModalEvaluator {
   Eigen::VectorXd Contract() const {
     Eigen::VectorXd grad = Eigen::VectorXd::Zero(p_);
     for (const Set& s : sets_) {
-      if (!s.z.isZero(0.0)) {
+      if (!s.da.empty()) {
         const Mat g = s.w.transpose() * s.z * s.v.transpose();
-        for (const DTerm& d : s.da) grad(s.active[d.act].second) += g(d.row, d.col) * d.d;
+        for (const DTerm& d : s.da) grad(d.pos) += g(d.row, d.col) * d.d;
       }
       for (const Output& o : s.outputs) {
-        if (o.dc.empty() || o.xacc.isZero(0.0)) continue;
+        if (o.dc.empty()) continue;
         const Vec x = s.v * o.xacc;
-        for (const DTerm& d : o.dc) grad(s.active[d.act].second) += d.d * x(d.col);
+        for (const DTerm& d : o.dc) grad(d.pos) += d.d * x(d.col);
       }
     }
     return grad;
@@ -298,6 +299,7 @@ class Modal final : public ModalEvaluator {
   struct DTerm {
     int row, col, act;
     double d;
+    int pos;  // the free position of active parameter `act` (the gradient's entry)
   };
   struct Output {
     int cmt = -1;  // -1: unused (kept for its storage)
@@ -384,7 +386,9 @@ class Modal final : public ModalEvaluator {
       c(t.col) += LinearModel::TermValue<double>(t, value);
       for (size_t act = 0; act < s.active.size(); ++act) {
         const int j = s.active[act].first;
-        if (t.numerator == j || t.denominator == j) o.dc.push_back({0, t.col, static_cast<int>(act), TermPartial(t, s.theta, j)});
+        if (t.numerator == j || t.denominator == j) {
+          o.dc.push_back({0, t.col, static_cast<int>(act), TermPartial(t, s.theta, j), s.active[act].second});
+        }
       }
     }
     o.chat = (c * s.v).transpose();
@@ -546,7 +550,7 @@ class Modal final : public ModalEvaluator {
             for (int j = 0; j < p_; ++j) (*jac)(op.index, j) = o.chat.dot(sens.col(j));
             if (!o.dc.empty()) {
               const Vec x = s.v * z;
-              for (const DTerm& d : o.dc) (*jac)(op.index, s.active[d.act].second) += d.d * x(d.col);
+              for (const DTerm& d : o.dc) (*jac)(op.index, d.pos) += d.d * x(d.col);
             }
           }
           break;
