@@ -16,12 +16,17 @@
 // their ratios are medians over the rounds (see Interleaved()).
 //
 //   pkbench [--only N] [--min-time SECONDS] [--quick] [--datasets DIR]
+//   pkbench --count closed|loss|forward|adjoint CALLS
+//
+// --count repeats one call of section 1, untimed, for instruction counts:
+//   valgrind --tool=callgrind pkbench --count adjoint 1000
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <functional>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -156,7 +161,13 @@ std::shared_ptr<const pk::OdeModel> Chain(int n, double vmax_scale = 1.0) {
 int main(int argc, char** argv) {
   std::string data_dir = "datasets";
   int only = 0;  // --only N: section N alone
+  std::string count_case;  // --count CASE CALLS
+  long count_calls = 0;
   for (int i = 1; i < argc; ++i) {
+    if (!std::strcmp(argv[i], "--count") && i + 2 < argc) {
+      count_case = argv[++i];
+      count_calls = std::atol(argv[++i]);
+    }
     if (!std::strcmp(argv[i], "--min-time") && i + 1 < argc) g_min_time = std::atof(argv[++i]);
     if (!std::strcmp(argv[i], "--datasets") && i + 1 < argc) data_dir = argv[++i];
     if (!std::strcmp(argv[i], "--quick")) g_min_time = 0.01;
@@ -166,12 +177,27 @@ int main(int argc, char** argv) {
   using Route = pk::GradientRoute;
 
   // ---- 1. 2cmt_oral, 12 samples.
-  if (only == 0 || only == 1) {
+  if (only == 0 || only == 1 || !count_case.empty()) {
     const pk::Objective obj(pk::MakeModel("2cmt_oral"), OneDose("1", 100), 0, pk::ObjectiveOptions());
     Eigen::VectorXd v = obj.DefaultValues();
     const std::vector<int> free{0, 1, 2, 3, 4};
     const double p[5] = {v(0), v(1), v(2), v(3), v(4)};
     const Eigen::VectorXd y = obj.observations();
+    if (!count_case.empty()) {
+      const std::map<std::string, std::function<void()>> cases = {
+          {"closed", [&] { g_sink = ClosedFormLoss(p, y.data()); }},
+          {"loss", [&] { g_sink = obj.Evaluate(v, free, Need::kValue).value; }},
+          {"forward", [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kForward).value; }},
+          {"adjoint", [&] { g_sink = obj.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }}};
+      const auto it = cases.find(count_case);
+      if (it == cases.end() || count_calls <= 0) {
+        std::fprintf(stderr, "pkbench: --count takes closed, loss, forward or adjoint and a number of calls\n");
+        return 2;
+      }
+      for (long c = 0; c < count_calls; ++c) it->second();
+      std::printf("%ld calls of %s\n", count_calls, count_case.c_str());
+      return 0;
+    }
     // Check that the closed form is the same loss.
     const double exact = obj.Evaluate(v, free, Need::kValue).value, closed = ClosedFormLoss(p, y.data());
     const Timing t = Interleaved({[&] { g_sink = ClosedFormLoss(p, y.data()); },
