@@ -463,18 +463,26 @@ class Modal final : public ModalEvaluator {
                                                        std::vector<double>* tape) {
     const StepCache& c = Cached(s, step, input >= 0, true);
     if (tape) Push(*z);
-    // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p.
-    sens->array().colwise() *= c.e.array();
-    const Vec* u = input >= 0 ? &Uhat(s, input) : nullptr;
+    // Ŝ⁺ = e ∘ Ŝ + Σ_j ((D_f ∘ Â_j) z + (D_g ∘ Â_j) û) ∂θ_j/∂p. With W = D_f diag(z) + D_g diag(û),
+    // formed once per step, the column of each active θ_j gains the row sums of W ∘ Â_j.
+    Mat& w = step_weights_;
+    w.resize(n(), n());
+    for (int k = 0; k < n(); ++k) w.col(k) = c.df.col(k) * (*z)(k);
+    if (input >= 0) {
+      const Vec& u = Uhat(s, input);
+      for (int k = 0; k < n(); ++k) w.col(k) += c.dg.col(k) * u(k);
+    }
+    // Plain loops: at 2 to 4 states they unroll, where Eigen's partial reductions do not.
+    for (Eigen::Index col = 0; col < sens->cols(); ++col) {
+      double* out = sens->col(col).data();
+      for (int i = 0; i < n(); ++i) out[i] *= c.e(i);
+    }
     for (size_t act = 0; act < s.active.size(); ++act) {
       const Mat& ah = s.ahat[act];
       double* out = sens->col(s.active[act].second).data();
       for (int i = 0; i < n(); ++i) {
         double t = 0;
-        for (int k = 0; k < n(); ++k) t += c.df(i, k) * ah(i, k) * (*z)(k);
-        if (u) {
-          for (int k = 0; k < n(); ++k) t += c.dg(i, k) * ah(i, k) * (*u)(k);
-        }
+        for (int k = 0; k < n(); ++k) t += w(i, k) * ah(i, k);
         out[i] += t;
       }
     }
@@ -630,6 +638,7 @@ class Modal final : public ModalEvaluator {
   std::vector<double> tape_;  // route (b)'s record of the forward pass: tape_used_ entries
   size_t tape_used_ = 0;
   Eigen::MatrixXd sens_;      // route (a)'s Ŝ during Run
+  Mat step_weights_;          // StepWithSensitivities' W (kept for its storage)
 };
 
 }  // namespace modal_detail
