@@ -25,6 +25,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <string>
 #include <vector>
@@ -93,9 +94,13 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
 
 /// Equal parameter vectors, where NaN (an unused modifier) matches NaN.
 inline bool SameValues(const Eigen::Ref<const Eigen::VectorXd>& a, const Eigen::Ref<const Eigen::VectorXd>& b) {
-  return a.size() == b.size() && std::equal(a.data(), a.data() + a.size(), b.data(), [](double x, double y) {
-           return x == y || (std::isnan(x) && std::isnan(y));
-         });
+  if (a.size() != b.size()) return false;
+  // Bitwise equal (the usual case: the same values again) is equal; otherwise compare as numbers.
+  if (a.size() == 0 || std::memcmp(a.data(), b.data(), sizeof(double) * static_cast<size_t>(a.size())) == 0) {
+    return true;
+  }
+  return std::equal(a.data(), a.data() + a.size(), b.data(),
+                    [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); });
 }
 
 /// Replaces the base values of a prepared subject (the data columns still override).

@@ -123,6 +123,7 @@ struct Objective::Impl {
     std::unique_ptr<internal::ModalEvaluator> evaluator;
     std::vector<Eigen::VectorXd> theta;
     std::vector<std::vector<std::pair<int, int>>> free;
+    Eigen::VectorXd dl_dy;  // Evaluate's ∂ℓ/∂ŷ, kept for its storage
   };
   mutable std::mutex modal_mutex;
   mutable std::vector<std::unique_ptr<ModalWork>> modal_pool;
@@ -529,7 +530,9 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
 
   // Per-sample loss terms: value, ∂ℓ/∂ŷ, and ∂ℓ/∂σ for ML.
   Eigen::VectorXd r;  // y − ŷ, where kept (maximum likelihood, the Jacobian's residuals)
-  Eigen::VectorXd dl_dy(N);
+  Eigen::VectorXd dl_dy_here;
+  Eigen::VectorXd& dl_dy = modal_lease.work ? modal_lease.work->dl_dy : dl_dy_here;  // ∂ℓ/∂ŷ
+  dl_dy.resize(N);
   Eigen::VectorXd sigma2, ds2_dy;  // maximum likelihood only
   double value = 0;
   const double a = d.sigma_add >= 0 ? values(d.sigma_add) : 0.0;

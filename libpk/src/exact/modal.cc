@@ -169,13 +169,8 @@ void Jacobi(M s, V* d, M* q) {
 // ‖|V||W|‖_∞ = max_i Σ_j |v_ij| Σ_k |w_jk|.
 template <typename M, typename V>
 bool WellConditioned(const V& lambda, const M& v, const M& w) {
-  const int n = static_cast<int>(v.rows());
-  double kappa = 0;
-  for (int i = 0; i < n; ++i) {
-    double row = 0;
-    for (int j = 0; j < n; ++j) row += std::fabs(v(i, j)) * w.row(j).cwiseAbs().sum();
-    kappa = std::max(kappa, row);
-  }
+  const V w_rows = w.cwiseAbs().rowwise().sum();  // Σ_k |w_jk|
+  const double kappa = (v.cwiseAbs() * w_rows).maxCoeff();
   return kappa <= 1e3 && w.allFinite() && lambda.allFinite();
 }
 
