@@ -287,7 +287,7 @@ pk::internal::modal_detail::SmallDecomposition CheckSmall(const Eigen::Matrix<do
 
 }  // namespace
 
-TEST_CASE("closed-form decomposition of depots and a reversible pair matches the general one", "[modal]") {
+TEST_CASE("fixed-size decomposition of depots and a reversible block matches the general one", "[modal]") {
   using pk::internal::modal_detail::SmallDecomposition;
   std::mt19937 rng(20261123);
   std::uniform_real_distribution<double> log_rate(std::log(1e-2), std::log(1e2));
@@ -300,17 +300,23 @@ TEST_CASE("closed-form decomposition of depots and a reversible pair matches the
     const SmallDecomposition oral2 = CheckSmall<3>(Compartmental<3>({{0, 1, k()}, {1, 2, k()}, {2, 1, k()}}, 1, k()));
     const SmallDecomposition depots =
         CheckSmall<4>(Compartmental<4>({{0, 2, k()}, {1, 3, k()}, {2, 3, k()}, {3, 2, k()}}, 2, k()));
-    for (SmallDecomposition r : {iv2, oral1, oral2, depots}) {
+    const SmallDecomposition iv3 =
+        CheckSmall<3>(Compartmental<3>({{0, 1, k()}, {1, 0, k()}, {0, 2, k()}, {2, 0, k()}}, 0, k()));
+    const SmallDecomposition oral3 = CheckSmall<4>(
+        Compartmental<4>({{0, 1, k()}, {1, 2, k()}, {2, 1, k()}, {1, 3, k()}, {3, 1, k()}}, 1, k()));
+    for (SmallDecomposition r : {iv2, oral1, oral2, depots, iv3, oral3}) {
       CHECK(r != SmallDecomposition::kOther);
       done += r == SmallDecomposition::kDone;
     }
   }
   // Most random rates are well conditioned; the others are declined, as by the general routine.
-  CHECK(done > 1000);
+  CHECK(done > 1500);
   // Flip-flop: the depot's rate equals the elimination rate, a defective A.
   CHECK(CheckSmall<2>(Compartmental<2>({{0, 1, 0.5}}, 1, 0.5)) == SmallDecomposition::kUnsuitable);
-  // Other structures go to the general routine: three exchanging states, one-way transit.
-  CHECK(CheckSmall<3>(Compartmental<3>({{0, 1, 1.0}, {1, 0, 2.0}, {0, 2, 0.3}, {2, 0, 0.1}}, 0, 0.5)) ==
-        SmallDecomposition::kOther);
+  // Other structures go to the general routine: one-way transit, a one-way cycle, four exchanging states.
   CHECK(CheckSmall<3>(Compartmental<3>({{0, 1, 1.0}, {1, 2, 2.0}}, 2, 0.5)) == SmallDecomposition::kOther);
+  CHECK(CheckSmall<3>(Compartmental<3>({{0, 1, 1.0}, {1, 2, 2.0}, {2, 0, 0.7}}, 2, 0.5)) ==
+        SmallDecomposition::kOther);
+  CHECK(CheckSmall<4>(Compartmental<4>({{0, 1, 1.0}, {1, 0, 2.0}, {0, 2, 0.3}, {2, 0, 0.1}, {0, 3, 0.2}, {3, 0, 0.4}},
+                                       0, 0.5)) == SmallDecomposition::kOther);
 }

@@ -263,6 +263,30 @@ bool Decompose(const Eigen::MatrixXd& a, Eigen::VectorXd* lambda, Eigen::MatrixX
   return DecomposeImpl(a, lambda, v, w);
 }
 
+namespace {
+
+// A reversible 3×3 block (3cmt) as V_R diag(λ_R) W_R: symmetrised as in DecomposeImpl, then
+// cyclic Jacobi at a fixed size. False when it is not symmetrisable (one-way flow).
+bool ReversibleBlock3(const Eigen::Matrix3d& arr, double lr[3], double vr[3][3], double wr[3][3]) {
+  Eigen::Vector3d t;
+  if (!SymmetrizingDiagonal(arr, &t)) return false;
+  Eigen::Matrix3d sym = t.cwiseInverse().asDiagonal() * arr * t.asDiagonal();
+  sym = 0.5 * (sym + sym.transpose()).eval();
+  Eigen::Vector3d l;
+  Eigen::Matrix3d q;
+  Jacobi(sym, &l, &q);
+  for (int k = 0; k < 3; ++k) {
+    lr[k] = l(k);
+    for (int i = 0; i < 3; ++i) {
+      vr[i][k] = t(i) * q(i, k);  // V_R = T Q
+      wr[k][i] = q(i, k) / t(i);  // W_R = Qᵀ T⁻¹
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
 template <int N>
 SmallDecomposition DecomposeSmall(const Eigen::Matrix<double, N, N>& a, Eigen::Matrix<double, N, 1>* lambda,
                                   Eigen::Matrix<double, N, N>* v, Eigen::Matrix<double, N, N>* w) {
@@ -273,10 +297,18 @@ SmallDecomposition DecomposeSmall(const Eigen::Matrix<double, N, N>& a, Eigen::M
     for (int k = 0; k < N && source; ++k) source = k == i || a(i, k) == 0;
     (source ? src[ns++] : rest[nr++]) = i;
   }
-  if (nr == 0 || nr > 2) return SmallDecomposition::kOther;
+  if (nr == 0 || nr > 3) return SmallDecomposition::kOther;
   // The rest block A_RR = V_R diag(λ_R) W_R.
-  double lr[2], vr[2][2], wr[2][2];
-  if (nr == 1) {
+  double lr[3], vr[3][3], wr[3][3];
+  if (nr == 3) {
+    Eigen::Matrix3d arr = Eigen::Matrix3d::Zero();
+    if constexpr (N >= 3) {
+      for (int i = 0; i < 3; ++i) {
+        for (int k = 0; k < 3; ++k) arr(i, k) = a(rest[i], rest[k]);
+      }
+    }
+    if (!ReversibleBlock3(arr, lr, vr, wr)) return SmallDecomposition::kOther;
+  } else if (nr == 1) {
     lr[0] = a(rest[0], rest[0]);
     vr[0][0] = wr[0][0] = 1;
   } else {
@@ -312,7 +344,7 @@ SmallDecomposition DecomposeSmall(const Eigen::Matrix<double, N, N>& a, Eigen::M
     (*lambda)(d) = ls;
     (*v)(sd, d) = 1;
     (*w)(d, sd) = 1;
-    double cr[2];
+    double cr[3];
     for (int k = 0; k < nr; ++k) {
       double wa = 0;
       for (int i = 0; i < nr; ++i) wa += wr[k][i] * a(rest[i], sd);

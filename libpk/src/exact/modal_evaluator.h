@@ -45,10 +45,11 @@ using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 6, 1>;
 bool Decompose(const SmallMat& a, SmallVec* lambda, SmallMat* v, SmallMat* w);
 bool Decompose(const Eigen::MatrixXd& a, Eigen::VectorXd* lambda, Eigen::MatrixXd* v, Eigen::MatrixXd* w);
 
-// The same decomposition in closed form, for the structure of most PK models:
-// depots feeding a reversible block of one or two states (1cmt_oral, 2cmt_iv,
-// 2cmt_oral). Its 2×2 block is symmetrised as in Decompose and diagonalised by
-// one Jacobi rotation, which is exact for 2×2. kOther: `a` has another
+// The same decomposition at sizes fixed at compile time, for the structure of
+// most PK models: depots feeding a reversible block of one to three states
+// (1cmt_oral, 2cmt_iv, 2cmt_oral, 3cmt_iv, 3cmt_oral). The block is symmetrised
+// as in Decompose; a 2×2 block is diagonalised by one Jacobi rotation (exact),
+// a 3×3 one by cyclic Jacobi rotations. kOther: `a` has another
 // structure (call Decompose); kUnsuitable: as Decompose's false. Instantiated
 // in modal.cc for N = 2, 3, 4.
 enum class SmallDecomposition { kDone, kUnsuitable, kOther };
