@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <random>
+#include <thread>
 #include <tuple>
 
 #include <unsupported/Eigen/MatrixFunctions>
@@ -187,6 +188,46 @@ TEST_CASE("modal path: a new schedule when fixed modifiers change", "[modal]") {
     INFO("ALAG1 " << alag);
     CheckAgree(EvaluateAll(modal, values, free), EvaluateAll(pade, values, free));
   }
+}
+
+TEST_CASE("modal path: one objective evaluated from several threads at once", "[modal]") {
+  // Each thread has its own θ and lag (so its own schedule); the evaluators and
+  // schedules are pooled across threads, and no result may depend on which one
+  // a call was handed.
+  const auto model = pk::MakeModel("2cmt_oral");
+  const auto data = pk_test::ScenarioData({"lag", "1,0,100,0,6,2,0,1,.\n", {}, {}});
+  const pk::Objective objective(model, data, 0, pk::ObjectiveOptions());
+  const std::vector<int> free{0, 1, 2, 3, 4};
+  const int lag = objective.ParameterIndex("ALAG1");
+  constexpr int kThreads = 4;
+  std::vector<Eigen::VectorXd> values(kThreads, objective.DefaultValues());
+  std::vector<Routes> expected;
+  for (int t = 0; t < kThreads; ++t) {
+    values[t].head(5) *= 1.0 + 0.1 * t;
+    values[t](lag) = 0.3 * t;
+    expected.push_back(EvaluateAll(objective, values[t], free));
+  }
+  std::vector<int> mismatches(kThreads, 0);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      for (int rep = 0; rep < 200; ++rep) {
+        const Routes r = EvaluateAll(objective, values[t], free);
+        const Routes& e = expected[t];
+        const bool same = r.value.value == e.value.value && r.adjoint.gradient == e.adjoint.gradient &&
+                          r.forward.gradient == e.forward.gradient && r.jacobian.jacobian == e.jacobian.jacobian;
+        mismatches[t] += same ? 0 : 1;
+      }
+    });
+  }
+  for (std::thread& th : threads) th.join();
+  for (int t = 0; t < kThreads; ++t) {
+    INFO("thread " << t);
+    CHECK(expected[t].adjoint.modal);
+    CHECK(mismatches[t] == 0);
+  }
+  // The threads' values differ: a mix-up would show.
+  CHECK(expected[0].adjoint.gradient != expected[1].adjoint.gradient);
 }
 
 TEST_CASE("modal path: parameter sets from a data column switch coordinates", "[modal]") {

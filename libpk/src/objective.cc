@@ -1,6 +1,7 @@
 #include "pk/objective.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <mutex>
@@ -117,18 +118,21 @@ struct Objective::Impl {
     return made;
   }
 
-  // Modal evaluators with their inputs, kept between evaluations for their
-  // storage (one per concurrent evaluation).
+  // Modal evaluators with what they last replayed, kept between evaluations
+  // for their storage (one per concurrent evaluation). The last one handed back
+  // waits in `modal_spare`, which a sequential caller (an optimiser) takes and
+  // returns without a lock; concurrent callers use the pool behind the mutex.
   struct ModalWork {
     std::unique_ptr<internal::ModalEvaluator> evaluator;
-    std::vector<Eigen::VectorXd> theta;
-    std::vector<std::vector<std::pair<int, int>>> free;
+    std::shared_ptr<const internal::EventSchedule> schedule;  // the schedule it replays
     Eigen::VectorXd dl_dy;  // Evaluate's ∂ℓ/∂ŷ, kept for its storage
   };
+  mutable std::atomic<ModalWork*> modal_spare{nullptr};
   mutable std::mutex modal_mutex;
   mutable std::vector<std::unique_ptr<ModalWork>> modal_pool;
+  ~Impl() { delete modal_spare.load(); }
 
-  // Hands a ModalWork back to the pool when the evaluation ends.
+  // Hands a ModalWork back when the evaluation ends.
   struct ModalLease {
     const Impl* owner = nullptr;
     std::unique_ptr<ModalWork> work;
@@ -137,16 +141,23 @@ struct Objective::Impl {
     ModalLease& operator=(const ModalLease&) = delete;
     ~ModalLease() {
       if (owner == nullptr || !work) return;
+      ModalWork* empty = nullptr;
+      if (owner->modal_spare.compare_exchange_strong(empty, work.get())) {
+        work.release();
+        return;
+      }
       std::lock_guard<std::mutex> lock(owner->modal_mutex);
       owner->modal_pool.push_back(std::move(work));
     }
   };
 
   // The modal evaluator at `values`, leased into `lease` (null when some set's A
-  // is unsuitable; see exact/modal.h).
-  internal::ModalEvaluator* Modal(const internal::EventSchedule& sched, const Eigen::VectorXd& values,
-                                  const std::vector<int>& model_free, ModalLease* lease) const {
-    {
+  // is unsuitable; see exact/modal.h). Its schedule is re-recorded only when
+  // the dose modifiers' values changed.
+  internal::ModalEvaluator* Modal(const Eigen::VectorXd& values, const std::vector<int>& model_free,
+                                  ModalLease* lease) const {
+    lease->work.reset(modal_spare.exchange(nullptr));
+    if (!lease->work) {
       std::lock_guard<std::mutex> lock(modal_mutex);
       if (!modal_pool.empty()) {
         lease->work = std::move(modal_pool.back());
@@ -160,19 +171,10 @@ struct Objective::Impl {
     lease->owner = this;
     ModalWork& w = *lease->work;
     const int m = model->num_parameters();
-    w.theta.resize(prepared.sets.size());
-    w.free.resize(prepared.sets.size());
-    for (size_t k = 0; k < w.theta.size(); ++k) {
-      w.theta[k] = values.head(m);
-      for (int i = 0; i < m; ++i) {
-        if (prepared.from_data[k][i]) w.theta[k](i) = prepared.sets[k](i);
-      }
-      w.free[k].clear();
-      for (size_t a = 0; a < model_free.size(); ++a) {
-        if (!prepared.from_data[k][model_free[a]]) w.free[k].emplace_back(model_free[a], static_cast<int>(a));
-      }
+    if (!w.schedule || !internal::SameValues(w.schedule->key, values.segment(m, L() - m))) {
+      w.schedule = Schedule(values);
     }
-    if (!w.evaluator->Reset(sched, w.theta, w.free, static_cast<int>(model_free.size()))) return nullptr;
+    if (!w.evaluator->Reset(*w.schedule, values, prepared, model_free)) return nullptr;
     return w.evaluator.get();
   }
 
@@ -401,9 +403,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::VectorXd& yhat = ev.predictions;  // ŷ (emptied again if the evaluation fails)
   Eigen::MatrixXd jm;  // N × pm, ∂ŷ/∂(free model parameters)
   std::unique_ptr<internal::DiscreteAdjoint> adjoint;
-  std::shared_ptr<const internal::EventSchedule> modal_schedule;  // what `modal` replays; outlives it
-  Impl::ModalLease modal_lease;                                   // holds the modal evaluator
-  internal::ModalEvaluator* modal = nullptr;                      // route (b) in eigen-coordinates
+  Impl::ModalLease modal_lease;               // holds the modal evaluator and its schedule
+  internal::ModalEvaluator* modal = nullptr;  // route (b) in eigen-coordinates
   std::unique_ptr<internal::OdeAdjoint> ode_adjoint;
   double cont_loss = 0;                                    // ½∫ w (y − y_m)² of the continuous records
   Eigen::RowVectorXd cont_grad;                            // its gradient (ODE forward route)
@@ -427,10 +428,9 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   if (!ode && d.linear && d.options.modal_propagation && !events_depend && modal_route &&
       values.head(d.model->num_parameters()).allFinite()) {
     try {
-      modal_schedule = d.Schedule(values);
       // A value alone needs no partials of A.
       internal::ModalEvaluator* ev_modal =
-          d.Modal(*modal_schedule, values, need == Need::kValue ? kNoParameters : model_free, &modal_lease);
+          d.Modal(values, need == Need::kValue ? kNoParameters : model_free, &modal_lease);
       if (ev_modal) {
         if (route == GradientRoute::kForward && pm > 0) {
           ev_modal->Jacobian(&yhat, &jm);

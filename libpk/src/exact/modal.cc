@@ -386,14 +386,5 @@ std::unique_ptr<ModalEvaluator> NewModalEvaluator(const LinearModel& model) {
   return std::unique_ptr<ModalEvaluator>(new Modal<Eigen::Dynamic, Eigen::Dynamic>(model));
 }
 
-std::unique_ptr<ModalEvaluator> MakeModalEvaluator(const LinearModel& model, const EventSchedule& schedule,
-                                                   const std::vector<Eigen::VectorXd>& theta,
-                                                   const std::vector<std::vector<std::pair<int, int>>>& free,
-                                                   int num_free) {
-  std::unique_ptr<ModalEvaluator> m = NewModalEvaluator(model);
-  if (!m->Reset(schedule, theta, free, num_free)) return nullptr;
-  return m;
-}
-
 }  // namespace internal
 }  // namespace pk

@@ -94,12 +94,17 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
 class ModalEvaluator {
  public:
   virtual ~ModalEvaluator() = default;
-  /// Prepares the evaluator for `schedule` at per-set model parameters `theta`,
-  /// with free[k] = (model parameter j, position in p) for set k. False when some
-  /// set's A is unsuitable (see above). Storage is kept from the previous use, so
-  /// an evaluator reused across evaluations allocates little.
-  virtual bool Reset(const EventSchedule& schedule, const std::vector<Eigen::VectorXd>& theta,
-                     const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) = 0;
+  /// Prepares the evaluator for `schedule` at layout values `values` bound to
+  /// `subject`: set k's model parameters are θ_k(i) = subject.sets[k](i) where
+  /// subject.from_data[k][i], else values(i). Derivatives are taken with respect
+  /// to the layout entries `free` (model parameters only; position a in `free`
+  /// is entry a of the gradient and column a of the Jacobian), except in sets
+  /// where a data column supplies one. False when some set's A is unsuitable
+  /// (see above) or a parameter is not finite: the caller then takes the Padé
+  /// path. Storage is kept from the previous use, so an evaluator reused across
+  /// evaluations allocates little.
+  virtual bool Reset(const EventSchedule& schedule, const Eigen::VectorXd& values, const PreparedSubject& subject,
+                     const std::vector<int>& free) = 0;
   /// ŷ only.
   virtual void Predict(Eigen::VectorXd* yhat) = 0;
   /// ŷ and the N×P Jacobian ∂ŷ/∂p (route (a)).
@@ -110,19 +115,9 @@ class ModalEvaluator {
   virtual Eigen::VectorXd AdjointGradient(const Eigen::VectorXd& dl_dyhat) = 0;
 };
 
-/// `theta[s]` are the model parameters of set s; `free[s]` lists, per set, the
-/// pairs (θ index j, free position a) with ∂θ_j/∂p_a = 1 (all other derivatives
-/// are zero); `num_free` is P. Returns null when some set's A has complex
-/// eigenvalues or an ill-conditioned eigenbasis, or a value is not finite: the
-/// caller then takes the Padé path. Steady states without one throw NumericalFailure.
-/// An evaluator for `model`, to be Reset before use.
+/// An evaluator for `model`, to be Reset before use. Steady states without one
+/// throw NumericalFailure when it runs.
 std::unique_ptr<ModalEvaluator> NewModalEvaluator(const LinearModel& model);
-
-/// NewModalEvaluator and Reset in one; null when Reset fails.
-std::unique_ptr<ModalEvaluator> MakeModalEvaluator(const LinearModel& model, const EventSchedule& schedule,
-                                                   const std::vector<Eigen::VectorXd>& theta,
-                                                   const std::vector<std::vector<std::pair<int, int>>>& free,
-                                                   int num_free);
 
 /// The divided differences of f(λ) = e^{λh} used above, exposed for tests:
 /// f[a, b] from e^{ah} and e^{bh}, and f[a, b, 0].

@@ -72,13 +72,15 @@ class Modal final : public ModalEvaluator {
   int n() const { return N == Eigen::Dynamic ? n_ : N; }
 
   // Builds every set's decomposition; false when one is unsuitable.
-  bool Reset(const EventSchedule& schedule, const std::vector<Eigen::VectorXd>& theta,
-             const std::vector<std::vector<std::pair<int, int>>>& free, int num_free) override {
+  bool Reset(const EventSchedule& schedule, const Eigen::VectorXd& values, const PreparedSubject& subject,
+             const std::vector<int>& free) override {
     sched_ = &schedule;
-    p_ = num_free;
-    simple_ = theta.size() == 1 && schedule.simple;
-    sets_.resize(theta.size());
-    for (size_t k = 0; k < theta.size(); ++k) {
+    p_ = static_cast<int>(free.size());
+    const size_t num_sets = subject.sets.size();
+    const int m = model_.num_parameters();
+    simple_ = num_sets == 1 && schedule.simple;
+    sets_.resize(num_sets);
+    for (size_t k = 0; k < num_sets; ++k) {
       Set& s = sets_[k];
       // What the previous use left: cleared, capacity kept.
       s.da.clear();
@@ -87,9 +89,18 @@ class Modal final : public ModalEvaluator {
         o.cmt = -1;
         o.dc.clear();
       }
-      if (!theta[k].allFinite()) return false;
-      s.theta.assign(theta[k].data(), theta[k].data() + theta[k].size());
-      s.active = free[k];
+      const std::vector<char>& from_data = subject.from_data[k];
+      s.theta.resize(m);
+      bool finite = true;
+      for (int i = 0; i < m; ++i) {
+        s.theta[i] = from_data[i] ? subject.sets[k](i) : values(i);
+        finite = finite && std::isfinite(s.theta[i]);
+      }
+      if (!finite) return false;
+      s.active.clear();
+      for (size_t a = 0; a < free.size(); ++a) {
+        if (!from_data[free[a]]) s.active.emplace_back(free[a], static_cast<int>(a));
+      }
       Mat a = Mat::Zero(n(), n());
       const auto value = [&](int i) { return s.theta[i]; };
       for (const LinearTerm& t : model_.system_terms()) a(t.row, t.col) += LinearModel::TermValue<double>(t, value);
