@@ -97,10 +97,12 @@ class Modal final : public ModalEvaluator {
         finite = finite && std::isfinite(s.theta[i]);
       }
       if (!finite) return false;
-      s.active.clear();
+      s.active.resize(free.size());
+      size_t num_active = 0;
       for (size_t a = 0; a < free.size(); ++a) {
-        if (!from_data[free[a]]) s.active.emplace_back(free[a], static_cast<int>(a));
+        if (!from_data[free[a]]) s.active[num_active++] = {free[a], static_cast<int>(a)};
       }
+      s.active.resize(num_active);
       Mat a = Mat::Zero(n(), n());
       const auto value = [&](int i) { return s.theta[i]; };
       for (const LinearTerm& t : model_.system_terms()) a(t.row, t.col) += LinearModel::TermValue<double>(t, value);
@@ -117,9 +119,13 @@ class Modal final : public ModalEvaluator {
       }
       s.uhat.resize(sched_->inputs.size());
       s.uhat_ready.assign(sched_->inputs.size(), 0);
-      // Only the flags are reset: copying whole caches cost as much as a step.
       s.steps.resize(sched_->steps.size());
-      for (StepCache& c : s.steps) c.have_e = c.have_g = c.have_df = c.have_dg = false;
+    }
+    if (++generation_ == 0) {  // invalidates every step cache; after 2^32 Resets, by hand
+      for (Set& s : sets_) {
+        for (StepCache& c : s.steps) c.have_e = c.have_g = c.have_df = c.have_dg = 0;
+      }
+      generation_ = 1;
     }
     return true;
   }
@@ -321,7 +327,8 @@ class Modal final : public ModalEvaluator {
   };
   // What a step of length h needs, computed on first use per set.
   struct StepCache {
-    bool have_e = false, have_g = false, have_df = false, have_dg = false;
+    // The Reset (generation_) each member was last filled for.
+    unsigned have_e = 0, have_g = 0, have_df = 0, have_dg = 0;
     Vec e, g;    // e^{λh}; the input's weight f[λ, 0] = (e^{λh} − 1)/λ
     Mat df, dg;  // f[λ_i, λ_k] and f[λ_i, λ_k, 0], the Daleckii–Krein weights
   };
@@ -422,38 +429,43 @@ class Modal final : public ModalEvaluator {
   // differences when asked. Both f[λ_i, λ_k] and f[λ_i, λ_k, 0] are symmetric.
   const StepCache& Cached(Set& s, int step, bool input, bool derivatives) {
     const StepCache& c = s.steps[step];
-    if (c.have_e && (!input || c.have_g) && (!derivatives || (c.have_df && (!input || c.have_dg)))) return c;
+    const unsigned now = generation_;
+    if (c.have_e == now && (!input || c.have_g == now) &&
+        (!derivatives || (c.have_df == now && (!input || c.have_dg == now)))) {
+      return c;
+    }
     return Fill(s, step, input, derivatives);
   }
 
   __attribute__((noinline)) const StepCache& Fill(Set& s, int step, bool input, bool derivatives) {
     StepCache& c = s.steps[step];
     const double h = sched_->steps[step];
-    if (!c.have_e) {
+    const unsigned now = generation_;
+    if (c.have_e != now) {
       c.e.resize(n());
       for (int r = 0; r < n(); ++r) c.e(r) = std::exp(s.lambda(r) * h);
-      c.have_e = true;
+      c.have_e = now;
     }
-    if (input && !c.have_g) {
+    if (input && c.have_g != now) {
       c.g.resize(n());
       for (int r = 0; r < n(); ++r) c.g(r) = DividedExp2(s.lambda(r), 0, c.e(r), 1, h);
-      c.have_g = true;
+      c.have_g = now;
     }
-    if (derivatives && !c.have_df) {
+    if (derivatives && c.have_df != now) {
       c.df.resize(n(), n());
       for (int i = 0; i < n(); ++i) {
         for (int k = 0; k <= i; ++k) c.df(i, k) = c.df(k, i) = DividedF(s, i, k, c.e, h);
       }
-      c.have_df = true;
+      c.have_df = now;
     }
-    if (derivatives && input && !c.have_dg) {
+    if (derivatives && input && c.have_dg != now) {
       c.dg.resize(n(), n());
       for (int i = 0; i < n(); ++i) {
         for (int k = 0; k <= i; ++k) {
           c.dg(i, k) = c.dg(k, i) = DividedExp3(s.lambda(i), s.lambda(k), c.e(i), c.e(k), h);
         }
       }
-      c.have_dg = true;
+      c.have_dg = now;
     }
     return c;
   }
@@ -646,6 +658,7 @@ class Modal final : public ModalEvaluator {
   int p_ = 0;
   std::vector<Set> sets_;
   bool simple_ = false;       // one parameter set, no steady states (RunPlain)
+  unsigned generation_ = 0;   // Resets so far (StepCache's marks; a fresh cache's 0 is never current)
   std::vector<int> act_of_;   // Reset's scratch: the active index of each θ_j (-1: fixed)
   std::vector<double> tape_;  // route (b)'s record of the forward pass: tape_used_ entries
   size_t tape_used_ = 0;
