@@ -252,8 +252,11 @@ class Modal final : public ModalEvaluator {
 
  private:
   // ⟨V⁻ᵀ Z Vᵀ, ∂A/∂θ_j⟩ and the output rows' ∂c/∂θ_j · x: the gradient from the sweep's sums.
-  Eigen::VectorXd Contract() const {
-    Eigen::VectorXd grad = Eigen::VectorXd::Zero(p_);
+  Eigen::VectorXd Contract() {
+    // Summed in kept storage and then copied: GCC turns a fresh vector's allocation and zeroing into calloc,
+    // which bypasses glibc's per-thread cache and costs more than the rest of the sums.
+    Eigen::VectorXd& grad = grad_;
+    grad.setZero(p_);
     for (const Set& s : sets_) {
       if (!s.da.empty()) {
         const Mat g = s.w.transpose() * s.z * s.v.transpose();
@@ -265,7 +268,7 @@ class Modal final : public ModalEvaluator {
         for (const DTerm& d : o.dc) grad(d.pos) += d.d * x(d.col);
       }
     }
-    return grad;
+    return Eigen::VectorXd(grad);
   }
 
   // AdjointGradient's backward sweep over a simple schedule (RunPlain's tape):
@@ -664,6 +667,7 @@ class Modal final : public ModalEvaluator {
   size_t tape_used_ = 0;
   Eigen::MatrixXd sens_;      // route (a)'s Ŝ during Run
   Mat step_weights_;          // StepWithSensitivities' W (kept for its storage)
+  Eigen::VectorXd grad_;      // Contract's sums (kept for its storage)
 };
 
 }  // namespace modal_detail
