@@ -230,6 +230,34 @@ TEST_CASE("modal path: one objective evaluated from several threads at once", "[
   CHECK(expected[0].adjoint.gradient != expected[1].adjoint.gradient);
 }
 
+TEST_CASE("modal path: the free list may change from one evaluation to the next", "[modal]") {
+  // The evaluator keeps what depends on the free list alone between evaluations; each result must be that
+  // of a fresh objective, whatever was asked before (other lists, the same ones reordered, values alone).
+  const auto model = pk::MakeModel("2cmt_oral");
+  const auto data = pk_test::ScenarioData({"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}});
+  const pk::Objective kept(model, data, 0, pk::ObjectiveOptions());
+  Eigen::VectorXd values = kept.DefaultValues();
+  const std::vector<std::vector<int>> lists = {{0, 1, 2, 3, 4}, {1, 2}, {2, 1}, {0, 3}, {3, 4}, {}, {0, 1, 2, 3, 4}};
+  int call = 0;
+  for (const std::vector<int>& free : lists) {
+    for (const bool value_between : {false, true}) {
+      values.head(5) *= 1.03;  // a new θ each time
+      ++call;
+      INFO("call " << call << ", " << free.size() << " free");
+      if (value_between) kept.Evaluate(values, {0, 1, 2, 3, 4}, Need::kValue);
+      const pk::Objective fresh(model, data, 0, pk::ObjectiveOptions());
+      for (const auto route : {pk::GradientRoute::kAdjoint, pk::GradientRoute::kForward}) {
+        const auto a = kept.Evaluate(values, free, Need::kGradient, route);
+        const auto b = fresh.Evaluate(values, free, Need::kGradient, route);
+        REQUIRE(a.ok);
+        CHECK(a.modal);
+        CHECK(a.value == b.value);
+        CHECK(a.gradient == b.gradient);
+      }
+    }
+  }
+}
+
 TEST_CASE("modal path: parameter sets from a data column switch coordinates", "[modal]") {
   // CL changes at t = 4 and t = 10 (a time-varying covariate), with an infusion
   // running across the first change and a steady-state dose after it.

@@ -421,12 +421,13 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   };
   // Dose modifiers move event times and amounts; model parameters do not.
   bool events_depend = false;
-  for (int i : model_free) events_depend = events_depend || i >= d.model->num_parameters();
+  const int num_model_parameters = d.model->num_parameters();
+  for (int i : model_free) events_depend = events_depend || i >= num_model_parameters;
   const bool modal_route =
       route == GradientRoute::kAuto || route == GradientRoute::kForward || route == GradientRoute::kAdjoint;
   bool done = false;
   if (!ode && d.linear && d.options.modal_propagation && !events_depend && modal_route &&
-      values.head(d.model->num_parameters()).allFinite()) {
+      values.head(num_model_parameters).allFinite()) {
     try {
       // A value alone needs no partials of A.
       internal::ModalEvaluator* ev_modal =
@@ -635,7 +636,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       ds2_dsigma_prop(k) = 2 * b * yhat(k) * yhat(k);
     }
   }
-  for (int k = 0; k < P; ++k) {
+  for (int k = 0; k < (ml ? P : 0); ++k) {
     if (free[k] != d.sigma_add && free[k] != d.sigma_prop) continue;
     const Eigen::VectorXd& ds2 = free[k] == d.sigma_add ? ds2_dsigma_add : ds2_dsigma_prop;
     for (int j = 0; j < N; ++j) {

@@ -83,7 +83,6 @@ class Modal final : public ModalEvaluator {
     for (size_t k = 0; k < num_sets; ++k) {
       Set& s = sets_[k];
       // What the previous use left: cleared, capacity kept.
-      s.da.clear();
       s.ahat.clear();
       for (Output& o : s.outputs) {
         o.cmt = -1;
@@ -107,16 +106,25 @@ class Modal final : public ModalEvaluator {
       const auto value = [&](int i) { return s.theta[i]; };
       for (const LinearTerm& t : model_.system_terms()) a(t.row, t.col) += LinearModel::TermValue<double>(t, value);
       if (!a.allFinite() || !Decompose(a, &s)) return false;
-      // ∂A/∂θ_j entry by entry, in one pass over the terms (each depends on at most two θ).
-      act_of_.assign(s.theta.size(), -1);
-      for (size_t act = 0; act < s.active.size(); ++act) act_of_[s.active[act].first] = static_cast<int>(act);
-      for (const LinearTerm& t : model_.system_terms()) {
-        if (t.numerator == t.denominator) continue;  // θ_j/θ_j is constant
-        for (const int j : {t.numerator, t.denominator}) {
-          if (j < 0 || act_of_[j] < 0) continue;
-          s.da.push_back({t.row, t.col, act_of_[j], TermPartial(t, s.theta, j), s.active[act_of_[j]].second});
+      // ∂A/∂θ_j entry by entry. Which entries there are depends on the active list alone (an optimiser keeps
+      // it), so the list is rebuilt only when that changes, in one pass over the terms (each depends on at
+      // most two θ); otherwise only the values are.
+      const std::vector<LinearTerm>& terms = model_.system_terms();
+      if (s.da_active != s.active) {
+        s.da.clear();
+        act_of_.assign(s.theta.size(), -1);
+        for (size_t act = 0; act < s.active.size(); ++act) act_of_[s.active[act].first] = static_cast<int>(act);
+        for (size_t ti = 0; ti < terms.size(); ++ti) {
+          const LinearTerm& t = terms[ti];
+          if (t.numerator == t.denominator) continue;  // θ_j/θ_j is constant
+          for (const int j : {t.numerator, t.denominator}) {
+            if (j < 0 || act_of_[j] < 0) continue;
+            s.da.push_back({t.row, t.col, act_of_[j], 0.0, s.active[act_of_[j]].second, static_cast<int>(ti), j});
+          }
         }
+        s.da_active = s.active;
       }
+      for (DTerm& d : s.da) d.d = TermPartial(terms[d.term], s.theta, d.j);
       s.uhat.resize(sched_->inputs.size());
       s.uhat_ready.assign(sched_->inputs.size(), 0);
       s.steps.resize(sched_->steps.size());
@@ -320,7 +328,9 @@ class Modal final : public ModalEvaluator {
   struct DTerm {
     int row, col, act;
     double d;
-    int pos;  // the free position of active parameter `act` (the gradient's entry)
+    int pos;       // the free position of active parameter `act` (the gradient's entry)
+    int term = 0;  // Set::da: d = ∂(system term `term`)/∂θ_j
+    int j = 0;
   };
   struct Output {
     int cmt = -1;  // -1: unused (kept for its storage)
@@ -341,6 +351,7 @@ class Modal final : public ModalEvaluator {
     Vec lambda;
     Mat v, w;
     std::vector<DTerm> da;
+    std::vector<std::pair<int, int>> da_active;  // the active list `da` was built for
     std::vector<Output> outputs;
     std::vector<Vec> uhat;        // W u per schedule input, when uhat_ready
     std::vector<char> uhat_ready;
