@@ -131,6 +131,48 @@ TEST_CASE("modal and Padé paths agree on every linear model and event scenario"
   }
 }
 
+TEST_CASE("modal path: steps that are multiples of shorter ones take their exponentials as powers", "[modal]") {
+  // Sampling intervals 0.25, 0.25, 0.75, 1, 2, 4, 8, 8, 12 h: 0.5 = 2 × 0.25 is not among them, 0.75 = 3 × 0.25,
+  // 1 = 4 × 0.25, 2 = 2 × 1, 4 = 2 × 2 (a chain at the depth limit), 8 and 12 from 4; the 1.3 h infusion and
+  // the 0.05 h step after it are multiples of nothing.
+  const std::string csv =
+      "ID,TIME,AMT,RATE,EVID,DV\n"
+      "1,0,100,0,1,.\n1,0.25,0,0,0,1.2\n1,0.5,0,0,0,1.9\n1,1.25,0,0,0,2.6\n1,2.25,0,0,0,2.5\n"
+      "1,2.25,60,46.153846153846153,1,.\n1,3.6,0,0,0,2.1\n1,4.25,0,0,0,2.0\n1,8.25,0,0,0,1.1\n"
+      "1,16.25,0,0,0,0.5\n1,24.25,0,0,0,0.3\n1,36.25,0,0,0,0.1\n";
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv, "powers.csv"));
+  const auto model_name = GENERATE(as<std::string>{}, "1cmt_oral", "2cmt_oral", "3cmt_iv");
+  INFO(model_name);
+  const auto model = pk::MakeModel(model_name);
+  const pk::ParameterLayout layout(*model);
+  const auto prepared = pk::internal::PrepareSubject(*model, layout, *data, 0, layout.Defaults(), false);
+  const pk::internal::EventSchedule sched = pk::internal::RecordSchedule(layout, prepared, model->num_parameters());
+  REQUIRE(sched.step_powers.size() == sched.steps.size());
+  int derived = 0;
+  for (size_t j = 0; j < sched.steps.size(); ++j) {
+    const auto& sp = sched.step_powers[j];
+    if (sp.base < 0) continue;
+    ++derived;
+    INFO("step " << sched.steps[j] << " from " << sched.steps[sp.base] << "^" << sp.power);
+    CHECK(sp.power * sched.steps[sp.base] == sched.steps[j]);
+    CHECK(sched.steps[sp.base] < sched.steps[j]);
+    int depth = 0;
+    for (int b = static_cast<int>(j); sched.step_powers[b].base >= 0; b = sched.step_powers[b].base) ++depth;
+    CHECK(depth <= pk::internal::EventSchedule::kMaxStepPowerDepth);
+  }
+  CHECK(derived >= 5);  // 0.75, 1, 2, 8, 12 at least (4 is at the depth limit or from 1)
+  pk::ObjectiveOptions off;
+  off.modal_propagation = false;
+  const pk::Objective modal(model, data, 0, pk::ObjectiveOptions()), pade(model, data, 0, off);
+  Eigen::VectorXd values = modal.DefaultValues();
+  std::vector<int> free;
+  for (int i = 0; i < model->num_parameters(); ++i) {
+    values(i) *= 1.0 + 0.1 * i;
+    free.push_back(i);
+  }
+  CheckAgree(EvaluateAll(modal, values, free), EvaluateAll(pade, values, free));
+}
+
 // Parent ⇄ peripheral, parent → metabolite → out: the exchange block is not
 // symmetrisable (no flow back from the metabolite), so the decomposition takes
 // Eigen's general real solver, on a block smaller than the model when a depot

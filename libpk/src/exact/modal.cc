@@ -1,5 +1,6 @@
 #include "modal.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Eigenvalues>
@@ -92,6 +93,26 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
   engine.Run();
   for (const ScheduleOp& op : out.ops) {
     out.simple = out.simple && op.kind != ScheduleOp::kSteadyState && op.kind != ScheduleOp::kSteadyInfusion;
+  }
+  // Steps that are 2, 3 or 4 times a shorter one, shortest first (so that bases are settled before use).
+  const size_t num_steps = out.steps.size();
+  out.step_powers.assign(num_steps, {});
+  std::vector<int> order(num_steps), depth(num_steps, 0);
+  for (size_t i = 0; i < num_steps; ++i) order[i] = static_cast<int>(i);
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return out.steps[a] < out.steps[b]; });
+  for (const int j : order) {
+    const double h = out.steps[j];
+    if (!(h > 0)) continue;
+    for (int power = 2; power <= 4 && out.step_powers[j].base < 0; ++power) {
+      for (const int i : order) {
+        if (out.steps[i] >= h) break;
+        if (out.steps[i] > 0 && power * out.steps[i] == h && depth[i] < EventSchedule::kMaxStepPowerDepth) {
+          out.step_powers[j] = {i, power};
+          depth[j] = depth[i] + 1;
+          break;
+        }
+      }
+    }
   }
   const int tail = layout.size() - num_model_parameters;
   out.key = subject.sets.empty() ? Eigen::VectorXd() : Eigen::VectorXd(subject.sets[0].tail(tail));

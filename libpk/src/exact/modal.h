@@ -79,6 +79,17 @@ struct EventSchedule {
   /// alone, so each is computed once per parameter set and step length, not
   /// once per step (sampling designs repeat a few intervals).
   std::vector<double> steps;
+  /// For each step, a shorter one it is an exact multiple of: e^{Λh} = (e^{Λh'})^power
+  /// at `power` − 1 products instead of n exponentials (sampling times such as 0.5,
+  /// 1, 2, 4, 8, 12, 24 h make most steps multiples of others). base is -1 where
+  /// there is none; chains are at most kMaxStepPowerDepth long, so the rounding of
+  /// a derived e^{λh} stays within a few ulps of the exponential's.
+  struct StepPower {
+    int base = -1;
+    int power = 1;
+  };
+  std::vector<StepPower> step_powers;
+  static constexpr int kMaxStepPowerDepth = 3;
   std::vector<Eigen::VectorXd> inputs;
   std::vector<ScheduleCycle> cycles;
   int num_samples = 0;

@@ -456,8 +456,17 @@ class Modal final : public ModalEvaluator {
     const double h = sched_->steps[step];
     const unsigned now = generation_;
     if (c.have_e != now) {
-      c.e.resize(n());
-      for (int r = 0; r < n(); ++r) c.e(r) = std::exp(s.lambda(r) * h);
+      const EventSchedule::StepPower& sp = sched_->step_powers[step];
+      if (sp.base >= 0) {
+        // h = power · h_base exactly: e^{λh} = (e^{λ h_base})^power.
+        const Vec& eb = Cached(s, sp.base, false, false).e;
+        c.e = eb.cwiseProduct(eb);
+        if (sp.power == 3) c.e = c.e.cwiseProduct(eb);
+        if (sp.power == 4) c.e = c.e.cwiseProduct(c.e);
+      } else {
+        c.e.resize(n());
+        for (int r = 0; r < n(); ++r) c.e(r) = std::exp(s.lambda(r) * h);
+      }
       c.have_e = now;
     }
     if (input && c.have_g != now) {
