@@ -97,7 +97,7 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
   // Steps that are 2, 3 or 4 times a shorter one, shortest first (so that bases are settled before use).
   const size_t num_steps = out.steps.size();
   out.step_powers.assign(num_steps, {});
-  std::vector<int> order(num_steps), depth(num_steps, 0);
+  std::vector<int> order(num_steps), total(num_steps, 1);  // total: the product of the powers down to an exp
   for (size_t i = 0; i < num_steps; ++i) order[i] = static_cast<int>(i);
   std::sort(order.begin(), order.end(), [&](int a, int b) { return out.steps[a] < out.steps[b]; });
   for (const int j : order) {
@@ -106,9 +106,9 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
     for (int power = 2; power <= 4 && out.step_powers[j].base < 0; ++power) {
       for (const int i : order) {
         if (out.steps[i] >= h) break;
-        if (out.steps[i] > 0 && power * out.steps[i] == h && depth[i] < EventSchedule::kMaxStepPowerDepth) {
+        if (out.steps[i] > 0 && power * out.steps[i] == h && power * total[i] <= EventSchedule::kMaxStepPower) {
           out.step_powers[j] = {i, power};
-          depth[j] = depth[i] + 1;
+          total[j] = power * total[i];
           break;
         }
       }

@@ -82,14 +82,16 @@ struct EventSchedule {
   /// For each step, a shorter one it is an exact multiple of: e^{Λh} = (e^{Λh'})^power
   /// at `power` − 1 products instead of n exponentials (sampling times such as 0.5,
   /// 1, 2, 4, 8, 12, 24 h make most steps multiples of others). base is -1 where
-  /// there is none; chains are at most kMaxStepPowerDepth long, so the rounding of
-  /// a derived e^{λh} stays within a few ulps of the exponential's.
+  /// there is none. Along a chain of bases the powers multiply to at most
+  /// kMaxStepPower: a power k multiplies the relative rounding of its factor by k
+  /// (and adds half an ulp), so a derived e^{λh} stays within about 8 ulps of the
+  /// exponential's.
   struct StepPower {
     int base = -1;
     int power = 1;
   };
   std::vector<StepPower> step_powers;
-  static constexpr int kMaxStepPowerDepth = 3;
+  static constexpr int kMaxStepPower = 8;
   std::vector<Eigen::VectorXd> inputs;
   std::vector<ScheduleCycle> cycles;
   int num_samples = 0;
