@@ -83,6 +83,25 @@ void CheckAgree(const Routes& modal, const Routes& pade) {
   CHECK(MaxRel(modal.jacobian.information, pade.jacobian.information) < 1e-10);
 }
 
+// Every route on both paths, at the catalogue defaults scaled by 1 + step·i, with every model parameter free.
+struct ModalAndPade {
+  Routes modal, pade;
+  ModalAndPade(const std::shared_ptr<const pk::Model>& model, const std::shared_ptr<const pk::Dataset>& data,
+               double step) {
+    pk::ObjectiveOptions off;
+    off.modal_propagation = false;
+    const pk::Objective on_path(model, data, 0, pk::ObjectiveOptions()), off_path(model, data, 0, off);
+    Eigen::VectorXd values = on_path.DefaultValues();
+    std::vector<int> free;
+    for (int i = 0; i < model->num_parameters(); ++i) {
+      values(i) *= 1.0 + step * i;
+      free.push_back(i);
+    }
+    modal = EvaluateAll(on_path, values, free);
+    pade = EvaluateAll(off_path, values, free);
+  }
+};
+
 }  // namespace
 
 TEST_CASE("divided differences of exp match the exponential of a bidiagonal matrix", "[modal]") {
@@ -163,16 +182,8 @@ TEST_CASE("modal path: steps that are multiples of shorter ones take their expon
     CHECK(total <= pk::internal::EventSchedule::kMaxStepPower);
   }
   CHECK(derived == 5);  // 0.75, 1, 2, 8, 12
-  pk::ObjectiveOptions off;
-  off.modal_propagation = false;
-  const pk::Objective modal(model, data, 0, pk::ObjectiveOptions()), pade(model, data, 0, off);
-  Eigen::VectorXd values = modal.DefaultValues();
-  std::vector<int> free;
-  for (int i = 0; i < model->num_parameters(); ++i) {
-    values(i) *= 1.0 + 0.1 * i;
-    free.push_back(i);
-  }
-  CheckAgree(EvaluateAll(modal, values, free), EvaluateAll(pade, values, free));
+  const ModalAndPade both(model, data, 0.1);
+  CheckAgree(both.modal, both.pade);
 }
 
 // Parent ⇄ peripheral, parent → metabolite → out: the exchange block is not
@@ -319,18 +330,11 @@ TEST_CASE("modal path: parameter sets from a data column switch coordinates", "[
   const auto model_name = GENERATE(as<std::string>{}, "1cmt_iv", "2cmt_oral", "3cmt_iv");
   INFO(model_name);
   const auto model = pk::MakeModel(model_name);
-  pk::ObjectiveOptions off;
-  off.modal_propagation = false;
-  const pk::Objective modal(model, data, 0, pk::ObjectiveOptions()), pade(model, data, 0, off);
-  Eigen::VectorXd values = modal.DefaultValues();
-  std::vector<int> free;
-  for (int i = 0; i < model->num_parameters(); ++i) {
-    values(i) *= 1.0 + 0.07 * i;
-    free.push_back(i);  // CL comes from the data: its column of the Jacobian is zero
-  }
-  const Routes m = EvaluateAll(modal, values, free), p = EvaluateAll(pade, values, free);
-  CheckAgree(m, p);
-  const int cl = modal.ParameterIndex("CL");
+  // Every model parameter is free; CL comes from the data, so its column of the Jacobian is zero.
+  const ModalAndPade both(model, data, 0.07);
+  const Routes& m = both.modal;
+  CheckAgree(m, both.pade);
+  const int cl = pk::Objective(model, data, 0, pk::ObjectiveOptions()).ParameterIndex("CL");
   CHECK(m.adjoint.gradient(cl) == 0);
   CHECK(m.jacobian.jacobian.col(cl).isZero(0.0));
 }
