@@ -636,7 +636,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
       ds2_dsigma_prop(k) = 2 * b * yhat(k) * yhat(k);
     }
   }
-  for (int k = 0; k < (ml ? P : 0); ++k) {
+  for (int k = 0; ml && k < P; ++k) {
     if (free[k] != d.sigma_add && free[k] != d.sigma_prop) continue;
     const Eigen::VectorXd& ds2 = free[k] == d.sigma_add ? ds2_dsigma_add : ds2_dsigma_prop;
     for (int j = 0; j < N; ++j) {
