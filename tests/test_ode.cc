@@ -469,6 +469,54 @@ TEST_CASE("the exact propagator refuses nonlinear models; solver failures are re
   CHECK(ev.message.find("ODE solver failed") != std::string::npos);
 }
 
+// Two models of the same sizes: a right-hand side that differs only in its functor's constant.
+struct Scaled {
+  double c;
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    dxdt[0] = -p[0] * x[0] * x[1] / (p[1] + x[0]);
+    dxdt[1] = c * p[0] * x[0] / (p[1] + x[0]) - p[1] * x[1] * x[1];
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const { return x[1]; }
+};
+
+TEST_CASE("vector-Jacobian products reuse a recording of f only at the same model, x and θ", "[ode][gradient]") {
+  // The adjoint's backward solve asks for wᵀf_x and wᵀf_θ several times at one (x, θ); the model keeps its
+  // last recording of f per thread. Each product must equal the one from forward mode, whatever was asked before.
+  pk::OdeModelSpec spec;
+  spec.name = "scaled";
+  spec.compartments = {"A", "B"};
+  spec.parameters = {{"K", 1.3}, {"KM", 0.7}};
+  const auto one = pk::MakeOdeModel(spec, Scaled{1.0});
+  const auto two = pk::MakeOdeModel(spec, Scaled{2.5});
+  const Eigen::VectorXd x0 = (Eigen::VectorXd(2) << 0.8, 1.9).finished();
+  const Eigen::VectorXd t0 = (Eigen::VectorXd(2) << 1.3, 0.7).finished();
+  Eigen::VectorXd x1 = x0, t1 = t0;
+  x1(1) += 0.25;
+  t1(0) *= 1.5;
+  const Eigen::VectorXd w0 = (Eigen::VectorXd(2) << 0.3, -1.1).finished();
+  const Eigen::VectorXd w1 = (Eigen::VectorXd(2) << 2.0, 0.5).finished();
+  struct Ask {
+    const pk::OdeModel* model;
+    const Eigen::VectorXd *x, *theta, *w;
+  };
+  // Same point with new weights, then a changed x, a changed θ, the other model at the same point, and back.
+  const std::vector<Ask> asks = {{one.get(), &x0, &t0, &w0}, {one.get(), &x0, &t0, &w1}, {one.get(), &x1, &t0, &w1},
+                                 {one.get(), &x1, &t1, &w1}, {two.get(), &x1, &t1, &w1}, {two.get(), &x1, &t1, &w0},
+                                 {one.get(), &x1, &t1, &w0}, {one.get(), &x0, &t0, &w0}};
+  for (const Ask& a : asks) {
+    Eigen::VectorXd f, wfx, wft, fd;
+    Eigen::MatrixXd jx, jt;
+    a.model->RhsVectorJacobian(*a.x, *a.theta, *a.w, &f, &wfx, &wft);
+    a.model->RhsDirectional(*a.x, *a.theta, Eigen::MatrixXd::Identity(2, 2), Eigen::MatrixXd::Zero(2, 2), &fd, &jx);
+    a.model->RhsDirectional(*a.x, *a.theta, Eigen::MatrixXd::Zero(2, 2), Eigen::MatrixXd::Identity(2, 2), &fd, &jt);
+    CHECK((f - fd).norm() <= 1e-15 * fd.norm());
+    CHECK((wfx - jx.transpose() * *a.w).norm() <= 1e-14 * (jx.norm() * a.w->norm()));
+    CHECK((wft - jt.transpose() * *a.w).norm() <= 1e-14 * (jt.norm() * a.w->norm()));
+  }
+}
+
 TEST_CASE("gradient auto with the ODE propagator: forward sensitivities for few parameters, the adjoint beyond",
           "[ode][gradient]") {
   // pk::kOdeAdjointThreshold is the crossover pkbench measures (docs/performance.md).

@@ -30,6 +30,7 @@
 #ifndef PK_ODE_MODEL_H_
 #define PK_ODE_MODEL_H_
 
+#include <atomic>
 #include <memory>
 #include <string>
 #include <utility>
@@ -123,31 +124,26 @@ class AutoDiffOdeModel final : public OdeModel {
 
   void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
                          Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const override {
+    // The backward solve asks at one (x, θ) several times with different w:
+    // each Newton iteration, then the quadrature. The recording of f depends
+    // on (x, θ) alone, so the last one is kept per thread and swept again.
+    Recording& rec = LastRecording();
+    if (rec.model != id_ || rec.x.size() != x.size() || rec.theta.size() != theta.size() || rec.x != x ||
+        rec.theta != theta) {
+      Record(x, theta, &rec);
+    }
     const int n = num_compartments();
     const Eigen::Index m = theta.size();
-    Tape& tape = Tape::Active();
-    tape.Clear();
-    // Per-thread scratch: the backward solve calls this at every step.
-    static thread_local std::vector<TapeScalar> xt, tt, ft;
-    static thread_local std::vector<double> adj;
-    xt.resize(n);
-    tt.resize(m);
-    ft.assign(n, TapeScalar());
-    for (int i = 0; i < n; ++i) xt[i] = TapeScalar::Variable(x(i));
-    for (Eigen::Index j = 0; j < m; ++j) tt[j] = TapeScalar::Variable(theta(j));
-    f_.Rhs(xt.data(), tt.data(), ft.data());
-    adj.assign(tape.size(), 0.0);
-    f->resize(n);
+    rec.adj.assign(rec.tape.size(), 0.0);
     for (int i = 0; i < n; ++i) {
-      (*f)(i) = ft[i].value();
-      if (ft[i].index() >= 0) adj[ft[i].index()] += w(i);
+      if (rec.fi[i] >= 0) rec.adj[rec.fi[i]] += w(i);
     }
-    tape.Sweep(&adj);
+    rec.tape.Sweep(&rec.adj);
+    *f = rec.f;
     wfx->resize(n);
     wftheta->resize(m);
-    for (int i = 0; i < n; ++i) (*wfx)(i) = adj[xt[i].index()];
-    for (Eigen::Index j = 0; j < m; ++j) (*wftheta)(j) = adj[tt[j].index()];
-    tape.Clear();
+    for (int i = 0; i < n; ++i) (*wfx)(i) = rec.adj[i];
+    for (Eigen::Index j = 0; j < m; ++j) (*wftheta)(j) = rec.adj[n + j];
   }
 
   double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override {
@@ -175,7 +171,52 @@ class AutoDiffOdeModel final : public OdeModel {
     for (Eigen::Index i = 0; i < v.size(); ++i) (*out)[i] = Dual(v(i), d.row(i).transpose());
   }
 
+  // A recording of f at (x, θ): nodes 0…n−1 are x, n…n+m−1 are θ, and f_i is
+  // node fi[i] (−1 for a constant).
+  struct Recording {
+    unsigned long model = 0;
+    Eigen::VectorXd x, theta, f;
+    Tape tape;
+    std::vector<int> fi;
+    std::vector<double> adj;
+  };
+  static Recording& LastRecording() {
+    static thread_local Recording rec;
+    return rec;
+  }
+  void Record(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Recording* rec) const {
+    const int n = num_compartments();
+    const Eigen::Index m = theta.size();
+    rec->model = 0;  // invalid until complete (the functor may throw)
+    Tape& tape = Tape::Active();
+    tape.Clear();
+    static thread_local std::vector<TapeScalar> xt, tt, ft;
+    xt.resize(n);
+    tt.resize(m);
+    ft.assign(n, TapeScalar());
+    for (int i = 0; i < n; ++i) xt[i] = TapeScalar::Variable(x(i));
+    for (Eigen::Index j = 0; j < m; ++j) tt[j] = TapeScalar::Variable(theta(j));
+    f_.Rhs(xt.data(), tt.data(), ft.data());
+    rec->f.resize(n);
+    rec->fi.resize(n);
+    for (int i = 0; i < n; ++i) {
+      rec->f(i) = ft[i].value();
+      rec->fi[i] = ft[i].index();
+    }
+    rec->tape.Swap(tape);
+    tape.Clear();
+    rec->x = x;
+    rec->theta = theta;
+    rec->model = id_;
+  }
+  // Identifies this model in LastRecording (an address could be reused by another model).
+  static unsigned long NextId() {
+    static std::atomic<unsigned long> next{1};
+    return next++;
+  }
+
   Functor f_;
+  unsigned long id_ = NextId();
 };
 
 /// Wraps a functor into a model (see the example at the top of this file).

@@ -25,6 +25,8 @@ class Tape {
     double da, db;
   };
   void Clear() { nodes_.clear(); }
+  /// Exchanges the recordings (to keep one while the active tape records others).
+  void Swap(Tape& other) { nodes_.swap(other.nodes_); }
   int size() const { return static_cast<int>(nodes_.size()); }
   int Push(int a, double da, int b = -1, double db = 0) {
     nodes_.push_back({a, b, da, db});
