@@ -13,6 +13,7 @@
 #include <sunmatrix/sunmatrix_dense.h>
 
 #include "../exact/numerical_failure.h"
+#include "serial_vector_ops.h"
 
 namespace pk {
 namespace internal {
@@ -35,7 +36,11 @@ struct Context {
 };
 struct Vector {
   N_Vector v = nullptr;
-  Vector(long n, SUNContext ctx) : v(N_VNew_Serial(n, ctx)) { N_VConst(0.0, v); }
+  Vector(long n, SUNContext ctx) : v(N_VNew_Serial(n, ctx)) {
+    if (v == nullptr) throw NumericalFailure("CVODES: out of memory");
+    UseFastSerialOps(v);  // clones (CVODES's work vectors) inherit the table
+    N_VConst(0.0, v);
+  }
   ~Vector() { N_VDestroy(v); }
   Vector(const Vector&) = delete;
   Vector& operator=(const Vector&) = delete;

@@ -1,0 +1,155 @@
+// libpk's kernels for SUNDIALS serial vectors (src/ode/serial_vector_ops.h)
+// against SUNDIALS's own: every operation CVODES may call, with the special
+// coefficients and aliasings the serial module treats apart, must give the
+// same numbers to the bit (CVODES's results must not change with them).
+#include <cmath>
+#include <functional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <catch2/catch.hpp>
+#include <nvector/nvector_serial.h>
+
+#include "ode/serial_vector_ops.h"
+
+namespace {
+
+// A set of k vectors of length n from SUNDIALS, and a copy whose kernels are libpk's.
+struct Pair {
+  SUNContext ctx = nullptr;
+  std::vector<N_Vector> ref, fast;
+  Pair(int n, int k, unsigned seed) {
+    SUNContext_Create(nullptr, &ctx);
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(-3, 3);
+    for (int i = 0; i < k; ++i) {
+      ref.push_back(N_VNew_Serial(n, ctx));
+      fast.push_back(N_VNew_Serial(n, ctx));
+      pk::internal::UseFastSerialOps(fast.back());
+      for (int j = 0; j < n; ++j) {
+        // Some exact zeros (InvTest) and ones (Compare's threshold).
+        const double v = j % 5 == 3 ? 0.0 : j % 7 == 2 ? 1.0 : u(rng);
+        NV_Ith_S(ref.back(), j) = v;
+        NV_Ith_S(fast.back(), j) = v;
+      }
+    }
+  }
+  ~Pair() {
+    for (N_Vector v : ref) N_VDestroy(v);
+    for (N_Vector v : fast) N_VDestroy(v);
+    SUNContext_Free(&ctx);
+  }
+  // Every vector of the set equal to the bit (0/0 is NaN in both).
+  bool Same() const {
+    for (size_t i = 0; i < ref.size(); ++i) {
+      for (sunindextype j = 0; j < NV_LENGTH_S(ref[i]); ++j) {
+        const double a = NV_Ith_S(ref[i], j), b = NV_Ith_S(fast[i], j);
+        if (a != b && !(std::isnan(a) && std::isnan(b))) return false;
+      }
+    }
+    return true;
+  }
+};
+
+}  // namespace
+
+TEST_CASE("libpk's serial vector kernels compute what SUNDIALS's compute, to the bit", "[ode][nvector]") {
+  const double c = 0.37, d = -2.6;
+  // (a, b) pairs that select each case of N_VLinearSum_Serial.
+  const std::vector<std::pair<double, double>> coefficients = {{1, 1},  {1, -1}, {-1, 1}, {1, c},  {c, 1},
+                                                               {-1, c}, {c, -1}, {c, c},  {c, -c}, {c, d}};
+  for (int n : {1, 3, 17}) {
+    CAPTURE(n);
+    using Op = std::function<void(const std::vector<N_Vector>&)>;
+    const std::vector<std::pair<std::string, Op>> ops = [&] {
+      std::vector<std::pair<std::string, Op>> o;
+      for (const auto& ab : coefficients) {
+        const std::string s = "(" + std::to_string(ab.first) + ", " + std::to_string(ab.second) + ")";
+        o.push_back({"LinearSum z " + s, [=](const std::vector<N_Vector>& v) { N_VLinearSum(ab.first, v[0], ab.second, v[1], v[2]); }});
+        o.push_back({"LinearSum z=x " + s, [=](const std::vector<N_Vector>& v) { N_VLinearSum(ab.first, v[0], ab.second, v[1], v[0]); }});
+        o.push_back({"LinearSum z=y " + s, [=](const std::vector<N_Vector>& v) { N_VLinearSum(ab.first, v[0], ab.second, v[1], v[1]); }});
+      }
+      for (double k : {1.0, -1.0, c}) {
+        o.push_back({"Scale " + std::to_string(k), [=](const std::vector<N_Vector>& v) { N_VScale(k, v[0], v[2]); }});
+        o.push_back({"Scale z=x " + std::to_string(k), [=](const std::vector<N_Vector>& v) { N_VScale(k, v[0], v[0]); }});
+      }
+      o.push_back({"Const", [=](const std::vector<N_Vector>& v) { N_VConst(c, v[2]); }});
+      o.push_back({"Prod", [](const std::vector<N_Vector>& v) { N_VProd(v[0], v[1], v[2]); }});
+      o.push_back({"Div", [](const std::vector<N_Vector>& v) { N_VDiv(v[0], v[3], v[2]); }});
+      o.push_back({"Abs", [](const std::vector<N_Vector>& v) { N_VAbs(v[0], v[2]); }});
+      o.push_back({"Inv", [](const std::vector<N_Vector>& v) { N_VInv(v[3], v[2]); }});
+      o.push_back({"AddConst", [=](const std::vector<N_Vector>& v) { N_VAddConst(v[0], d, v[2]); }});
+      o.push_back({"Compare", [](const std::vector<N_Vector>& v) { N_VCompare(1.0, v[0], v[2]); }});
+      o.push_back({"InvTest", [](const std::vector<N_Vector>& v) { NV_Ith_S(v[2], 0) = N_VInvTest(v[0], v[2]); }});
+      o.push_back({"norms", [](const std::vector<N_Vector>& v) {
+                     double* z = NV_DATA_S(v[2]);
+                     z[0] = N_VDotProd(v[0], v[1]);
+                     if (NV_LENGTH_S(v[2]) < 3) return;
+                     z[1] = N_VMaxNorm(v[0]);
+                     z[2] = N_VWrmsNorm(v[0], v[1]);
+                     N_VAbs(v[1], v[4]);  // a mask with zeros and positives
+                     z[0] += N_VWrmsNormMask(v[0], v[1], v[4]);
+                     z[1] += N_VMin(v[0]) + N_VWL2Norm(v[0], v[1]) + N_VL1Norm(v[1]);
+                   }});
+      const double cs[4] = {c, 1.0, -1.0, d};
+      for (int k : {1, 2, 4}) {
+        o.push_back({"LinearCombination " + std::to_string(k), [=](const std::vector<N_Vector>& v) {
+                       double cc[4] = {cs[0], cs[1], cs[2], cs[3]};
+                       N_Vector x[4] = {v[0], v[1], v[3], v[4]};
+                       N_VLinearCombination(k, cc, x, v[2]);
+                     }});
+        o.push_back({"LinearCombination z=x0 " + std::to_string(k), [=](const std::vector<N_Vector>& v) {
+                       double cc[4] = {cs[0], cs[1], cs[2], cs[3]};
+                       N_Vector x[4] = {v[2], v[1], v[3], v[4]};
+                       N_VLinearCombination(k, cc, x, v[2]);
+                     }});
+      }
+      o.push_back({"ScaleAddMulti", [=](const std::vector<N_Vector>& v) {
+                     double a[3] = {c, 1.0, -1.0};
+                     N_Vector y[3] = {v[1], v[3], v[4]};
+                     N_Vector z[3] = {v[2], v[3], v[5]};  // Z₁ = Y₁ (in place)
+                     N_VScaleAddMulti(3, a, v[0], y, z);
+                   }});
+      o.push_back({"DotProdMulti", [](const std::vector<N_Vector>& v) {
+                     N_Vector y[2] = {v[1], v[3]};
+                     double dots[2];
+                     N_VDotProdMulti(2, v[0], y, dots);
+                     NV_Ith_S(v[2], 0) = dots[0] + dots[1];
+                   }});
+      o.push_back({"vector arrays", [=](const std::vector<N_Vector>& v) {
+                     N_Vector x[2] = {v[0], v[1]}, y[2] = {v[3], v[4]}, z[2] = {v[2], v[5]};
+                     N_VLinearSumVectorArray(2, c, x, d, y, z);
+                     double k[2] = {d, c};
+                     N_VScaleVectorArray(2, k, z, y);
+                     double nrm[2];
+                     N_VWrmsNormVectorArray(2, x, y, nrm);
+                     N_VConstVectorArray(1, nrm[0] + nrm[1], z);
+                     N_VWrmsNormMaskVectorArray(2, x, y, v[1], nrm);
+                     NV_Ith_S(v[5], 0) = nrm[0] - nrm[1];
+                   }});
+      o.push_back({"multi vector arrays", [=](const std::vector<N_Vector>& v) {
+                     double a[2] = {c, -1.0};
+                     N_Vector x[2] = {v[0], v[1]};
+                     N_Vector y0[2] = {v[3], v[4]}, y1[2] = {v[5], v[6]};
+                     N_Vector z0[2] = {v[2], v[4]}, z1[2] = {v[7], v[6]};
+                     N_Vector* y[2] = {y0, y1};
+                     N_Vector* z[2] = {z0, z1};
+                     N_VScaleAddMultiVectorArray(2, 2, a, x, y, z);
+                     double cc[3] = {d, 1.0, c};
+                     N_Vector w0[2] = {v[0], v[1]}, w1[2] = {v[2], v[3]}, w2[2] = {v[4], v[5]};
+                     N_Vector* w[3] = {w0, w1, w2};
+                     N_Vector out[2] = {v[6], v[7]};
+                     N_VLinearCombinationVectorArray(2, 3, cc, w, out);
+                   }});
+      return o;
+    }();
+    for (const auto& op : ops) {
+      CAPTURE(op.first);
+      Pair p(n, 8, 1234u + static_cast<unsigned>(n));
+      op.second(p.ref);
+      op.second(p.fast);
+      CHECK(p.Same());
+    }
+  }
+}
