@@ -13,7 +13,7 @@
 #include <sunmatrix/sunmatrix_dense.h>
 
 #include "../exact/numerical_failure.h"
-#include "serial_vector_ops.h"
+#include "sundials_kernels.h"
 
 namespace pk {
 namespace internal {
@@ -58,7 +58,15 @@ struct VectorArray {
 struct LinearSolver {
   SUNMatrix a = nullptr;
   SUNLinearSolver ls = nullptr;
-  LinearSolver(N_Vector y, long n, SUNContext ctx) : a(SUNDenseMatrix(n, n, ctx)), ls(SUNLinSol_Dense(y, a, ctx)) {}
+  LinearSolver(N_Vector y, long n, SUNContext ctx) : a(SUNDenseMatrix(n, n, ctx)), ls(SUNLinSol_Dense(y, a, ctx)) {
+    if (a == nullptr || ls == nullptr) {
+      if (ls) SUNLinSolFree(ls);
+      if (a) SUNMatDestroy(a);
+      throw NumericalFailure("CVODES: out of memory");
+    }
+    UseFastDenseOps(a);
+    UseFastDenseSolver(ls);
+  }
   ~LinearSolver() {
     SUNLinSolFree(ls);
     SUNMatDestroy(a);

@@ -1,4 +1,4 @@
-// libpk's kernels for SUNDIALS serial vectors (src/ode/serial_vector_ops.h)
+// libpk's kernels for SUNDIALS serial vectors (src/ode/sundials_kernels.h)
 // against SUNDIALS's own: every operation CVODES may call, with the special
 // coefficients and aliasings the serial module treats apart, must give the
 // same numbers to the bit (CVODES's results must not change with them).
@@ -10,8 +10,10 @@
 
 #include <catch2/catch.hpp>
 #include <nvector/nvector_serial.h>
+#include <sunlinsol/sunlinsol_dense.h>
+#include <sunmatrix/sunmatrix_dense.h>
 
-#include "ode/serial_vector_ops.h"
+#include "ode/sundials_kernels.h"
 
 namespace {
 
@@ -152,4 +154,76 @@ TEST_CASE("libpk's serial vector kernels compute what SUNDIALS's compute, to the
       CHECK(p.Same());
     }
   }
+}
+
+TEST_CASE("libpk's dense LU and matrix kernels compute what SUNDIALS's compute, to the bit", "[ode][nvector]") {
+  SUNContext ctx = nullptr;
+  SUNContext_Create(nullptr, &ctx);
+  std::mt19937 rng(99);
+  std::uniform_real_distribution<double> u(-2, 2);
+  for (int n : {1, 2, 5, 12}) {
+    for (bool singular : {false, true}) {
+      CAPTURE(n, singular);
+      // M = I − γJ as CVODES forms it: J copied from a saved copy, scaled, plus I.
+      SUNMatrix j_ref = SUNDenseMatrix(n, n, ctx), j_fast = SUNDenseMatrix(n, n, ctx);
+      pk::internal::UseFastDenseOps(j_fast);
+      for (int c = 0; c < n; ++c) {
+        for (int r = 0; r < n; ++r) {
+          // Rows that swap under pivoting, a zero entry, and (singular) a zero column.
+          const double v = singular && c == n / 2 ? 0.0 : (r + 2 * c) % 4 == 1 ? 0.0 : u(rng);
+          SM_ELEMENT_D(j_ref, r, c) = v;
+          SM_ELEMENT_D(j_fast, r, c) = v;
+        }
+      }
+      SUNMatrix saved_ref = SUNMatClone(j_ref), saved_fast = SUNMatClone(j_fast);
+      CHECK(saved_fast->ops->copy == j_fast->ops->copy);  // clones carry libpk's kernels
+      CHECK(saved_ref->ops->copy != j_fast->ops->copy);
+      REQUIRE(SUNMatCopy(j_ref, saved_ref) == 0);
+      REQUIRE(SUNMatCopy(j_fast, saved_fast) == 0);
+      REQUIRE(SUNMatZero(j_ref) == 0);
+      REQUIRE(SUNMatZero(j_fast) == 0);
+      REQUIRE(SUNMatCopy(saved_ref, j_ref) == 0);
+      REQUIRE(SUNMatCopy(saved_fast, j_fast) == 0);
+      const double gamma = singular ? 0.0 : -0.73;  // γ = 0 keeps J itself, singular
+      if (!singular) {
+        REQUIRE(SUNMatScaleAddI(gamma, j_ref) == 0);
+        REQUIRE(SUNMatScaleAddI(gamma, j_fast) == 0);
+      }
+      N_Vector y = N_VNew_Serial(n, ctx);
+      SUNLinearSolver ls_ref = SUNLinSol_Dense(y, j_ref, ctx), ls_fast = SUNLinSol_Dense(y, j_fast, ctx);
+      pk::internal::UseFastDenseSolver(ls_fast);
+      const int flag_ref = SUNLinSolSetup(ls_ref, j_ref), flag_fast = SUNLinSolSetup(ls_fast, j_fast);
+      CHECK(flag_ref == flag_fast);
+      CHECK(SUNLinSolLastFlag(ls_ref) == SUNLinSolLastFlag(ls_fast));
+      bool same = true;
+      for (int k = 0; k < n * n; ++k) same = same && SM_DATA_D(j_ref)[k] == SM_DATA_D(j_fast)[k];
+      // After a zero pivot in column k (flag k+1) only pivots 0…k are set.
+      const long set = SUNLinSolLastFlag(ls_ref) > 0 ? SUNLinSolLastFlag(ls_ref) : n;
+      for (int k = 0; k < set; ++k) {
+        same = same && static_cast<SUNLinearSolverContent_Dense>(ls_ref->content)->pivots[k] ==
+                           static_cast<SUNLinearSolverContent_Dense>(ls_fast->content)->pivots[k];
+      }
+      CHECK(same);
+      if (!singular) {
+        CHECK(flag_ref == SUNLS_SUCCESS);
+        N_Vector b = N_VNew_Serial(n, ctx), x_ref = N_VNew_Serial(n, ctx), x_fast = N_VNew_Serial(n, ctx);
+        for (int k = 0; k < n; ++k) NV_Ith_S(b, k) = u(rng);
+        REQUIRE(SUNLinSolSolve(ls_ref, j_ref, x_ref, b, 0.0) == SUNLS_SUCCESS);
+        REQUIRE(SUNLinSolSolve(ls_fast, j_fast, x_fast, b, 0.0) == SUNLS_SUCCESS);
+        bool equal = true;
+        for (int k = 0; k < n; ++k) equal = equal && NV_Ith_S(x_ref, k) == NV_Ith_S(x_fast, k);
+        CHECK(equal);
+        N_VDestroy(b);
+        N_VDestroy(x_ref);
+        N_VDestroy(x_fast);
+      } else {
+        CHECK(flag_ref == SUNLS_LUFACT_FAIL);
+      }
+      SUNLinSolFree(ls_ref);
+      SUNLinSolFree(ls_fast);
+      N_VDestroy(y);
+      for (SUNMatrix m : {j_ref, j_fast, saved_ref, saved_fast}) SUNMatDestroy(m);
+    }
+  }
+  SUNContext_Free(&ctx);
 }

@@ -1,9 +1,12 @@
-#include "serial_vector_ops.h"
+#include "sundials_kernels.h"
 
 #include <cmath>
+#include <utility>
 #include <vector>
 
 #include <nvector/nvector_serial.h>
+#include <sunlinsol/sunlinsol_dense.h>
+#include <sunmatrix/sunmatrix_dense.h>
 
 namespace pk {
 namespace internal {
@@ -292,7 +295,113 @@ int LinearCombinationVectorArray(int nvec, int nsum, realtype* c, N_Vector** xv,
   return 0;
 }
 
+// Dense matrices (column-major, cols[j] points at column j).
+int MatZero(SUNMatrix a) {
+  realtype* d = SM_DATA_D(a);
+  for (sunindextype i = 0; i < SM_LDATA_D(a); ++i) d[i] = 0;
+  return SUNMAT_SUCCESS;
+}
+
+int MatCopy(SUNMatrix a, SUNMatrix b) {
+  if (SM_ROWS_D(a) != SM_ROWS_D(b) || SM_COLUMNS_D(a) != SM_COLUMNS_D(b)) return SUNMAT_ILL_INPUT;
+  const realtype* s = SM_DATA_D(a);
+  realtype* d = SM_DATA_D(b);
+  for (sunindextype i = 0; i < SM_LDATA_D(a); ++i) d[i] = s[i];
+  return SUNMAT_SUCCESS;
+}
+
+int MatScaleAddI(realtype c, SUNMatrix a) {  // A ← cA + I
+  for (sunindextype j = 0; j < SM_COLUMNS_D(a); ++j) {
+    realtype* col = SM_COLUMN_D(a, j);
+    for (sunindextype i = 0; i < SM_ROWS_D(a); ++i) col[i] *= c;
+    if (j < SM_ROWS_D(a)) col[j] += 1;
+  }
+  return SUNMAT_SUCCESS;
+}
+
+SUNMatrix MatClone(SUNMatrix a) {
+  SUNMatrix b = SUNDenseMatrix(SM_ROWS_D(a), SM_COLUMNS_D(a), a->sunctx);
+  if (b) UseFastDenseOps(b);
+  return b;
+}
+
+// SUNDlsMat_denseGETRF: LU with partial pivoting, in place, one column at a
+// time; returns k+1 for a zero pivot in column k, else 0.
+sunindextype Getrf(realtype** a, sunindextype m, sunindextype n, sunindextype* p) {
+  for (sunindextype k = 0; k < n; ++k) {
+    realtype* col_k = a[k];
+    sunindextype l = k;
+    for (sunindextype i = k + 1; i < m; ++i) {
+      if (std::fabs(col_k[i]) > std::fabs(col_k[l])) l = i;
+    }
+    p[k] = l;
+    if (col_k[l] == 0) return k + 1;
+    if (l != k) {
+      for (sunindextype j = 0; j < n; ++j) std::swap(a[j][l], a[j][k]);
+    }
+    const realtype mult = 1.0 / col_k[k];
+    for (sunindextype i = k + 1; i < m; ++i) col_k[i] *= mult;
+    for (sunindextype j = k + 1; j < n; ++j) {
+      realtype* col_j = a[j];
+      const realtype a_kj = col_j[k];
+      if (a_kj != 0) {
+        for (sunindextype i = k + 1; i < m; ++i) col_j[i] -= a_kj * col_k[i];
+      }
+    }
+  }
+  return 0;
+}
+
+// SUNDlsMat_denseGETRS: b ← A⁻¹b from Getrf's factors.
+void Getrs(realtype** a, sunindextype n, const sunindextype* p, realtype* b) {
+  for (sunindextype k = 0; k < n; ++k) {
+    if (p[k] != k) std::swap(b[k], b[p[k]]);
+  }
+  for (sunindextype k = 0; k < n - 1; ++k) {
+    const realtype* col_k = a[k];
+    for (sunindextype i = k + 1; i < n; ++i) b[i] -= col_k[i] * b[k];
+  }
+  for (sunindextype k = n - 1; k > 0; --k) {
+    const realtype* col_k = a[k];
+    b[k] /= col_k[k];
+    for (sunindextype i = 0; i < k; ++i) b[i] -= col_k[i] * b[k];
+  }
+  b[0] /= a[0][0];
+}
+
+SUNLinearSolverContent_Dense DenseContent(SUNLinearSolver s) {
+  return static_cast<SUNLinearSolverContent_Dense>(s->content);
+}
+
+int DenseSetup(SUNLinearSolver s, SUNMatrix a) {
+  if (a == nullptr || SUNMatGetID(a) != SUNMATRIX_DENSE) return SUNLS_ILL_INPUT;
+  SUNLinearSolverContent_Dense c = DenseContent(s);
+  c->last_flag = Getrf(SM_COLS_D(a), SM_ROWS_D(a), SM_COLUMNS_D(a), c->pivots);
+  return c->last_flag > 0 ? SUNLS_LUFACT_FAIL : SUNLS_SUCCESS;
+}
+
+int DenseSolve(SUNLinearSolver s, SUNMatrix a, N_Vector x, N_Vector b, realtype) {
+  if (a == nullptr || x == nullptr || b == nullptr) return SUNLS_MEM_NULL;
+  Scale(1.0, b, x);
+  SUNLinearSolverContent_Dense c = DenseContent(s);
+  Getrs(SM_COLS_D(a), SM_ROWS_D(a), c->pivots, NV_DATA_S(x));
+  c->last_flag = SUNLS_SUCCESS;
+  return SUNLS_SUCCESS;
+}
+
 }  // namespace
+
+void UseFastDenseOps(SUNMatrix a) {
+  a->ops->zero = MatZero;
+  a->ops->copy = MatCopy;
+  a->ops->scaleaddi = MatScaleAddI;
+  a->ops->clone = MatClone;
+}
+
+void UseFastDenseSolver(SUNLinearSolver ls) {
+  ls->ops->setup = DenseSetup;
+  ls->ops->solve = DenseSolve;
+}
 
 void UseFastSerialOps(N_Vector v) {
   N_Vector_Ops ops = v->ops;
