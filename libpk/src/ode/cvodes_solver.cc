@@ -379,6 +379,21 @@ struct CvodesSolver::Impl {
     Eigen::VectorXd x, lambda, wfx, wft, f;
     Eigen::RowVectorXd q;  // the quadrature's integrand (scratch)
   } vjp;
+  // The nonzero entries of the segment's ∂θ/∂p (m×k), set by Backward: (λᵀf_θ)∂θ/∂p at every backward
+  // step costs their number instead of m·k. With every model parameter free, ∂θ/∂p is the identity.
+  struct Entry {
+    int row, col;
+    double value;
+  };
+  std::vector<Entry> dtheta_entries;
+  void SetThetaEntries(const Eigen::MatrixXd& dtheta) {
+    dtheta_entries.clear();
+    for (Eigen::Index j = 0; j < dtheta.cols(); ++j) {
+      for (Eigen::Index i = 0; i < dtheta.rows(); ++i) {
+        if (dtheta(i, j) != 0) dtheta_entries.push_back({int(i), int(j), dtheta(i, j)});
+      }
+    }
+  }
   void Vjp(double t, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda) {
     if (t == vjp.t && x == vjp.x && lambda == vjp.lambda) return;
     sys.RhsVectorJacobian(x, in->theta, lambda, &vjp.f, &vjp.wfx, &vjp.wft);
@@ -432,7 +447,8 @@ struct CvodesSolver::Impl {
     // λᵀ(f_θ ∂θ/∂p + ∂u/∂p) from one reverse pass: (λᵀf_θ) ∂θ/∂p.
     d.Vjp(t, x, lambda);
     Eigen::RowVectorXd& q = d.vjp.q;
-    q.noalias() = d.vjp.wft.transpose() * d.in->dtheta;
+    q.setZero(d.k);
+    for (const Entry& e : d.dtheta_entries) q(e.col) += d.vjp.wft(e.row) * e.value;
     if (d.in->du.cols() == d.k) q += lambda.transpose() * d.in->du;
     if (!d.in->continuous.empty()) {
       Eigen::VectorXd dl;
@@ -640,6 +656,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
   in = &seg;
   vjp.t = std::numeric_limits<double>::quiet_NaN();
   k = static_cast<int>(seg.dtheta.cols());
+  SetThetaEntries(seg.dtheta);
   with_loss = false;
   const int kq = std::max(k, 1);
   const Eigen::VectorXd* offset = QuadratureOffset(scales, k);
