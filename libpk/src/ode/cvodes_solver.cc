@@ -379,27 +379,27 @@ struct CvodesSolver::Impl {
     Eigen::VectorXd x, lambda, wfx, wft, f;
     Eigen::RowVectorXd q;  // the quadrature's integrand (scratch)
   } vjp;
-  // The nonzero entries of the segment's ∂θ/∂p (m×k), set by Backward: (λᵀf_θ)∂θ/∂p at every backward
+  // The nonzero entries of the segment's ∂θ/∂p (m×k), listed by Backward: (λᵀf_θ)∂θ/∂p at every backward
   // step costs their number instead of m·k. With every model parameter free, ∂θ/∂p is the identity.
   struct Entry {
     int row, col;
     double value;
   };
-  std::vector<Entry> dtheta_entries;
-  void SetThetaEntries(const Eigen::MatrixXd& dtheta) {
-    dtheta_entries.clear();
-    for (Eigen::Index j = 0; j < dtheta.cols(); ++j) {
-      for (Eigen::Index i = 0; i < dtheta.rows(); ++i) {
-        if (dtheta(i, j) != 0) dtheta_entries.push_back({int(i), int(j), dtheta(i, j)});
+  std::vector<Entry> dtheta_entries, du_entries;  // the same for ∂u/∂p (n×k, usually none)
+  static void ListEntries(const Eigen::MatrixXd& d, std::vector<Entry>* entries) {
+    entries->clear();
+    for (Eigen::Index j = 0; j < d.cols(); ++j) {
+      for (Eigen::Index i = 0; i < d.rows(); ++i) {
+        if (d(i, j) != 0) entries->push_back({int(i), int(j), d(i, j)});
       }
     }
   }
-  void Vjp(double t, const Eigen::VectorXd& x, const Eigen::VectorXd& lambda) {
+  void Vjp(double t, const Eigen::VectorXd& x, const Map& lambda) {
     if (t == vjp.t && x == vjp.x && lambda == vjp.lambda) return;
-    sys.RhsVectorJacobian(x, in->theta, lambda, &vjp.f, &vjp.wfx, &vjp.wft);
+    vjp.lambda = lambda;  // kept storage: no allocation per call
+    sys.RhsVectorJacobian(x, in->theta, vjp.lambda, &vjp.f, &vjp.wfx, &vjp.wft);
     vjp.t = t;
     vjp.x = x;
-    vjp.lambda = lambda;
   }
 
   // Backward: dλ/dt = −f_xᵀλ − Σ g_xᵀ w (y − y_m).
@@ -449,7 +449,7 @@ struct CvodesSolver::Impl {
     Eigen::RowVectorXd& q = d.vjp.q;
     q.setZero(d.k);
     for (const Entry& e : d.dtheta_entries) q(e.col) += d.vjp.wft(e.row) * e.value;
-    if (d.in->du.cols() == d.k) q += lambda.transpose() * d.in->du;
+    for (const Entry& e : d.du_entries) q(e.col) += lambda(e.row) * e.value;
     if (!d.in->continuous.empty()) {
       Eigen::VectorXd dl;
       d.LossIntegrand(t, x, &dl);
@@ -656,7 +656,8 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
   in = &seg;
   vjp.t = std::numeric_limits<double>::quiet_NaN();
   k = static_cast<int>(seg.dtheta.cols());
-  SetThetaEntries(seg.dtheta);
+  ListEntries(seg.dtheta, &dtheta_entries);
+  ListEntries(seg.du.cols() == k ? seg.du : Eigen::MatrixXd(), &du_entries);
   with_loss = false;
   const int kq = std::max(k, 1);
   const Eigen::VectorXd* offset = QuadratureOffset(scales, k);
