@@ -481,9 +481,29 @@ struct Scaled {
   T Output(int, const T* x, const T*) const { return x[1]; }
 };
 
-TEST_CASE("vector-Jacobian products reuse a recording of f only at the same model, x and θ", "[ode][gradient]") {
-  // The adjoint's backward solve asks for wᵀf_x and wᵀf_θ several times at one (x, θ); the model keeps its
-  // last recording of f per thread. Each product must equal the one from forward mode, whatever was asked before.
+// f, f_x and f_θ of the functor by pk::Dual directly, independent of the model's recording.
+void DualJacobians(const Scaled& functor, const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f,
+                   Eigen::MatrixXd* jx, Eigen::MatrixXd* jt) {
+  pk::Dual xd[2], td[2], fd[2];
+  for (int i = 0; i < 2; ++i) {
+    xd[i] = pk::Dual(x(i), 4, i);
+    td[i] = pk::Dual(theta(i), 4, 2 + i);
+  }
+  functor.Rhs(xd, td, fd);
+  f->resize(2);
+  jx->resize(2, 2);
+  jt->resize(2, 2);
+  for (int i = 0; i < 2; ++i) {
+    (*f)(i) = fd[i].value();
+    jx->row(i) = fd[i].derivatives().head(2).transpose();
+    jt->row(i) = fd[i].derivatives().tail(2).transpose();
+  }
+}
+
+TEST_CASE("products with f_x and f_θ reuse a recording of f only at the same model, x and θ", "[ode][gradient]") {
+  // The adjoint's backward solve asks for wᵀf_x and wᵀf_θ several times at one (x, θ), and the Jacobians and
+  // forward sensitivities for f_x dx + f_θ dθ; the model keeps its last recording of f per thread and sweeps
+  // it. Each product must equal pk::Dual's on the functor, whatever was asked before.
   pk::OdeModelSpec spec;
   spec.name = "scaled";
   spec.compartments = {"A", "B"};
@@ -505,15 +525,22 @@ TEST_CASE("vector-Jacobian products reuse a recording of f only at the same mode
   const std::vector<Ask> asks = {{one.get(), &x0, &t0, &w0}, {one.get(), &x0, &t0, &w1}, {one.get(), &x1, &t0, &w1},
                                  {one.get(), &x1, &t1, &w1}, {two.get(), &x1, &t1, &w1}, {two.get(), &x1, &t1, &w0},
                                  {one.get(), &x1, &t1, &w0}, {one.get(), &x0, &t0, &w0}};
+  // Three directions (dx; dθ) for the directional products.
+  const Eigen::MatrixXd dx = (Eigen::MatrixXd(2, 3) << 1, 0.5, 0, -2, 0, 1).finished();
+  const Eigen::MatrixXd dt = (Eigen::MatrixXd(2, 3) << 0, 0.3, 1, 1, -1, 0).finished();
   for (const Ask& a : asks) {
-    Eigen::VectorXd f, wfx, wft, fd;
-    Eigen::MatrixXd jx, jt;
+    const Scaled& functor = static_cast<const pk::AutoDiffOdeModel<Scaled>&>(*a.model).functor();
+    Eigen::VectorXd f, wfx, wft, fd, fr;
+    Eigen::MatrixXd jx, jt, df;
+    DualJacobians(functor, *a.x, *a.theta, &fd, &jx, &jt);
     a.model->RhsVectorJacobian(*a.x, *a.theta, *a.w, &f, &wfx, &wft);
-    a.model->RhsDirectional(*a.x, *a.theta, Eigen::MatrixXd::Identity(2, 2), Eigen::MatrixXd::Zero(2, 2), &fd, &jx);
-    a.model->RhsDirectional(*a.x, *a.theta, Eigen::MatrixXd::Zero(2, 2), Eigen::MatrixXd::Identity(2, 2), &fd, &jt);
     CHECK((f - fd).norm() <= 1e-15 * fd.norm());
     CHECK((wfx - jx.transpose() * *a.w).norm() <= 1e-14 * (jx.norm() * a.w->norm()));
     CHECK((wft - jt.transpose() * *a.w).norm() <= 1e-14 * (jt.norm() * a.w->norm()));
+    a.model->RhsDirectional(*a.x, *a.theta, dx, dt, &fr, &df);
+    CHECK((fr - fd).norm() <= 1e-15 * fd.norm());
+    const Eigen::MatrixXd expected = jx * dx + jt * dt;
+    CHECK((df - expected).norm() <= 1e-14 * (jx.norm() * dx.norm() + jt.norm() * dt.norm()));
   }
 }
 

@@ -108,17 +108,27 @@ class AutoDiffOdeModel final : public OdeModel {
 
   void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
                       const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const override {
+    // Forward mode over the recording of f at (x, θ) (see RhsVectorJacobian):
+    // each node's tangents are its parents' times its recorded partials. Unlike
+    // Dual, nothing is allocated per operation.
+    Recording& rec = Recorded(x, theta);
     const int n = num_compartments();
-    std::vector<Dual> xd, td, fd(n);
-    Seed(x, dx, &xd);
-    Seed(theta, dtheta, &td);
-    f_.Rhs(xd.data(), td.data(), fd.data());
+    const Eigen::Index m = theta.size();
     const Eigen::Index k = dx.cols();
-    f->resize(n);
+    static thread_local std::vector<double> tangents;
+    tangents.resize(static_cast<size_t>(rec.tape.size()) * static_cast<size_t>(k));
+    for (int i = 0; i < n; ++i) {
+      for (Eigen::Index j = 0; j < k; ++j) tangents[i * k + j] = dx(i, j);
+    }
+    for (Eigen::Index r = 0; r < m; ++r) {
+      for (Eigen::Index j = 0; j < k; ++j) tangents[(n + r) * k + j] = dtheta(r, j);
+    }
+    rec.tape.Tangents(static_cast<int>(k), &tangents);
+    *f = rec.f;
     df->setZero(n, k);
     for (int i = 0; i < n; ++i) {
-      (*f)(i) = fd[i].value();
-      if (fd[i].derivatives().size()) df->row(i) = fd[i].derivatives().transpose();
+      if (rec.fi[i] < 0) continue;
+      for (Eigen::Index j = 0; j < k; ++j) (*df)(i, j) = tangents[rec.fi[i] * k + j];
     }
   }
 
@@ -126,12 +136,9 @@ class AutoDiffOdeModel final : public OdeModel {
                          Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const override {
     // The backward solve asks at one (x, θ) several times with different w:
     // each Newton iteration, then the quadrature. The recording of f depends
-    // on (x, θ) alone, so the last one is kept per thread and swept again.
-    Recording& rec = LastRecording();
-    if (rec.model != id_ || rec.x.size() != x.size() || rec.theta.size() != theta.size() || rec.x != x ||
-        rec.theta != theta) {
-      Record(x, theta, &rec);
-    }
+    // on (x, θ) alone, so the last one is kept per thread and swept again (and
+    // serves RhsDirectional too).
+    Recording& rec = Recorded(x, theta);
     const int n = num_compartments();
     const Eigen::Index m = theta.size();
     rec.adj.assign(rec.tape.size(), 0.0);
@@ -180,8 +187,13 @@ class AutoDiffOdeModel final : public OdeModel {
     std::vector<int> fi;
     std::vector<double> adj;
   };
-  static Recording& LastRecording() {
+  // The calling thread's recording of f, made at (x, θ) unless it is there.
+  Recording& Recorded(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
     static thread_local Recording rec;
+    if (rec.model != id_ || rec.x.size() != x.size() || rec.theta.size() != theta.size() || rec.x != x ||
+        rec.theta != theta) {
+      Record(x, theta, &rec);
+    }
     return rec;
   }
   void Record(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Recording* rec) const {

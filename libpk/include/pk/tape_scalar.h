@@ -42,6 +42,26 @@ class Tape {
       if (n.b >= 0) (*adj)[n.b] += n.db * w;
     }
   }
+  /// Forward mode over the recording: `tangents` holds `width` values per node
+  /// (node-major), the derivatives of that node along `width` directions. The
+  /// rows of the independent variables (the nodes without parents) are set by
+  /// the caller; every other row is computed here from its parents'.
+  void Tangents(int width, std::vector<double>* tangents) const {
+    double* t = tangents->data();
+    const size_t w = static_cast<size_t>(width);
+    for (int k = 0; k < size(); ++k) {
+      const Node& n = nodes_[k];
+      if (n.a < 0) continue;
+      double* row = t + k * w;
+      const double* ra = t + n.a * w;
+      if (n.b < 0) {
+        for (size_t j = 0; j < w; ++j) row[j] = n.da * ra[j];
+      } else {
+        const double* rb = t + n.b * w;
+        for (size_t j = 0; j < w; ++j) row[j] = n.da * ra[j] + n.db * rb[j];
+      }
+    }
+  }
   /// The tape of the calling thread.
   static Tape& Active() {
     static thread_local Tape tape;
