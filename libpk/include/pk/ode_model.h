@@ -145,7 +145,7 @@ class AutoDiffOdeModel final : public OdeModel {
     for (int i = 0; i < n; ++i) {
       if (rec.fi[i] >= 0) rec.adj[rec.fi[i]] += w(i);
     }
-    rec.tape.Sweep(&rec.adj);
+    rec.tape.Sweep(&rec.adj, n + static_cast<int>(m));  // x and θ are nodes 0…n+m−1
     *f = rec.f;
     wfx->resize(n);
     wftheta->resize(m);

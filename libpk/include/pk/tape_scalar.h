@@ -33,8 +33,10 @@ class Tape {
     return static_cast<int>(nodes_.size()) - 1;
   }
   /// Back-propagates the adjoints in `adj` (one per node, seeded by the caller).
-  void Sweep(std::vector<double>* adj) const {
-    for (int k = size() - 1; k >= 0; --k) {
+  /// Nodes below `first` must have no parents (the independent variables,
+  /// recorded first) and are not visited.
+  void Sweep(std::vector<double>* adj, int first = 0) const {
+    for (int k = size() - 1; k >= first; --k) {
       const double w = (*adj)[k];
       if (w == 0) continue;
       const Node& n = nodes_[k];
