@@ -3,8 +3,9 @@
 // A Dual carries a value and its derivatives with respect to a set of
 // directions (parameters, or seed directions of a Jacobian). Model functors
 // (pk/ode_model.h) are templates on their scalar type, and libpk evaluates
-// them on Dual to obtain f_x, f_θ, g_x and g_θ: nobody writes a model's
-// derivatives by hand. In a model, write ordinary arithmetic and call the
+// them on Dual to obtain g_x and g_θ (and on pk::TapeScalar for f_x and f_θ):
+// nobody writes a model's derivatives by hand. The event engine and the linear
+// models' A(θ) and C(θ) run on Dual too. In a model, write ordinary arithmetic and call the
 // elementary functions unqualified after `using std::exp;` etc., so that
 // argument-dependent lookup finds the Dual overloads below:
 //

@@ -1,11 +1,13 @@
 // libpk: nonlinear compartment models, dx/dt = f(x, θ) + u, y_k = g_k(x, θ).
 //
 // A nonlinear model is a functor with a templated right-hand side and output;
-// libpk differentiates it by forward-mode automatic differentiation (pk::Dual)
-// to obtain f_x, f_θ, g_x and g_θ. The input u is the vector of infusion rates
-// into each compartment and adds to f; boluses are jumps of x. Such a model is
-// propagated by CVODES (the ODE propagator, docs/ode_routes.md); linear
-// catalogue models can use the same propagator.
+// libpk differentiates it by automatic differentiation: f is recorded on a
+// tape (pk::TapeScalar) and swept forward for f_x and f_θ and backward for the
+// adjoint's λᵀf_x and λᵀf_θ; g_x and g_θ come from forward mode (pk::Dual).
+// The input u is the vector of infusion rates into each compartment and adds
+// to f; boluses are jumps of x. Such a model is propagated by CVODES (the ODE
+// propagator, docs/ode_routes.md); linear catalogue models can use the same
+// propagator.
 //
 //   struct OneCmtIvMm {  // Michaelis–Menten elimination; θ = (VMAX, KM, V)
 //     template <typename T>
