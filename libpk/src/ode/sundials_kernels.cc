@@ -16,6 +16,17 @@ namespace {
 inline realtype* Data(N_Vector v) { return NV_DATA_S(v); }
 inline sunindextype Length(N_Vector v) { return NV_LENGTH_S(v); }
 
+// w += c v, with the serial module's cases c = ±1.
+void Axpy(sunindextype n, realtype c, const realtype* v, realtype* w) {
+  if (c == 1) {
+    for (sunindextype i = 0; i < n; ++i) w[i] += v[i];
+  } else if (c == -1) {
+    for (sunindextype i = 0; i < n; ++i) w[i] -= v[i];
+  } else {
+    for (sunindextype i = 0; i < n; ++i) w[i] += c * v[i];
+  }
+}
+
 void LinearSum(realtype a, N_Vector xv, realtype b, N_Vector yv, N_Vector zv) {
   const sunindextype n = Length(xv);
   const realtype* x = Data(xv);
@@ -23,25 +34,11 @@ void LinearSum(realtype a, N_Vector xv, realtype b, N_Vector yv, N_Vector zv) {
   realtype* z = Data(zv);
   // The serial module's cases, in its order: each rounds as it does.
   if (b == 1 && zv == yv) {  // y += a x
-    realtype* w = Data(yv);
-    if (a == 1) {
-      for (sunindextype i = 0; i < n; ++i) w[i] += x[i];
-    } else if (a == -1) {
-      for (sunindextype i = 0; i < n; ++i) w[i] -= x[i];
-    } else {
-      for (sunindextype i = 0; i < n; ++i) w[i] += a * x[i];
-    }
+    Axpy(n, a, x, Data(yv));
     return;
   }
   if (a == 1 && zv == xv) {  // x += b y
-    realtype* w = Data(xv);
-    if (b == 1) {
-      for (sunindextype i = 0; i < n; ++i) w[i] += y[i];
-    } else if (b == -1) {
-      for (sunindextype i = 0; i < n; ++i) w[i] -= y[i];
-    } else {
-      for (sunindextype i = 0; i < n; ++i) w[i] += b * y[i];
-    }
+    Axpy(n, b, y, Data(xv));
     return;
   }
   if (a == 1 && b == 1) {
