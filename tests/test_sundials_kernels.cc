@@ -227,3 +227,43 @@ TEST_CASE("libpk's dense LU and matrix kernels compute what SUNDIALS's compute, 
   }
   SUNContext_Free(&ctx);
 }
+
+TEST_CASE("vectors with libpk's kernels clone into vectors that share one operation table", "[ode][nvector]") {
+  // CVODES's adjoint memories clone two vectors per stored step; a table per vector was most of their size.
+  SUNContext ctx = nullptr;
+  SUNContext_Create(nullptr, &ctx);
+  N_Vector a = N_VNew_Serial(5, ctx), b = N_VNew_Serial(3, ctx);
+  pk::internal::UseFastSerialOps(a);
+  pk::internal::UseFastSerialOps(b);
+  pk::internal::UseFastSerialOps(b);  // twice is harmless
+  CHECK(a->ops == b->ops);
+  N_VConst(2.5, a);
+  N_Vector c = N_VClone(a), e = N_VCloneEmpty(a);
+  N_Vector* array = N_VCloneVectorArray(4, b);
+  CHECK(c->ops == a->ops);
+  CHECK(e->ops == a->ops);
+  CHECK(array[3]->ops == a->ops);
+  CHECK(N_VGetLength(c) == 5);
+  CHECK(N_VGetLength(e) == 5);
+  CHECK(N_VGetLength(array[0]) == 3);
+  CHECK(N_VGetArrayPointer(c) != nullptr);
+  CHECK(N_VGetArrayPointer(c) != N_VGetArrayPointer(a));
+  CHECK(N_VGetArrayPointer(e) == nullptr);
+  CHECK(N_VGetVectorID(c) == SUNDIALS_NVEC_SERIAL);
+  // A clone is a working vector of its own.
+  N_VScale(2.0, a, c);
+  CHECK(NV_Ith_S(c, 4) == 5.0);
+  CHECK(NV_Ith_S(a, 4) == 2.5);
+  double outside[5] = {1, 2, 3, 4, 5};
+  N_VSetArrayPointer(outside, e);  // not owned: destroying e must leave it alone
+  CHECK(N_VMaxNorm(e) == 5.0);
+  // Destroyed in any order (AddressSanitizer checks the frees and that nothing leaks).
+  N_VDestroy(a);
+  N_VDestroy(e);
+  N_VDestroyVectorArray(array, 4);
+  CHECK(NV_Ith_S(c, 0) == 5.0);
+  N_VDestroy(c);
+  N_VDestroy(b);
+  CHECK(outside[4] == 5.0);
+  SUNContext_Free(&ctx);
+}

@@ -1,6 +1,7 @@
 #include "sundials_kernels.h"
 
 #include <cmath>
+#include <cstdlib>
 #include <utility>
 #include <vector>
 
@@ -386,6 +387,89 @@ int DenseSolve(SUNLinearSolver s, SUNMatrix a, N_Vector x, N_Vector b, realtype)
   return SUNLS_SUCCESS;
 }
 
+// Clones share their source's operation table (SUNDIALS gives every vector a
+// copy of its own, about 0.4 kB; CVODES's adjoint memories hold two vectors per
+// stored step). The table is libpk's, made once, and is never freed.
+void Destroy(N_Vector v) {
+  if (v == nullptr) return;
+  if (v->content != nullptr) {
+    N_VectorContent_Serial c = NV_CONTENT_S(v);
+    if (c->own_data && c->data != nullptr) std::free(c->data);
+    std::free(c);
+  }
+  std::free(v);
+}
+
+N_Vector CloneEmpty(N_Vector w) {
+  if (w == nullptr) return nullptr;
+  N_Vector v = static_cast<N_Vector>(std::malloc(sizeof(*v)));
+  N_VectorContent_Serial c = static_cast<N_VectorContent_Serial>(std::malloc(sizeof(*c)));
+  if (v == nullptr || c == nullptr) {
+    std::free(v);
+    std::free(c);
+    return nullptr;
+  }
+  c->length = NV_LENGTH_S(w);
+  c->own_data = SUNFALSE;
+  c->data = nullptr;
+  v->content = c;
+  v->ops = w->ops;
+  v->sunctx = w->sunctx;
+  return v;
+}
+
+N_Vector Clone(N_Vector w) {
+  N_Vector v = CloneEmpty(w);
+  if (v == nullptr || NV_LENGTH_S(w) <= 0) return v;
+  realtype* data = static_cast<realtype*>(std::malloc(static_cast<size_t>(NV_LENGTH_S(w)) * sizeof(realtype)));
+  if (data == nullptr) {
+    Destroy(v);
+    return nullptr;
+  }
+  NV_DATA_S(v) = data;
+  NV_OWN_DATA_S(v) = SUNTRUE;
+  return v;
+}
+
+// libpk's table: SUNDIALS's serial operations with the kernels above.
+N_Vector_Ops SharedTable(N_Vector_Ops serial) {
+  static _generic_N_Vector_Ops table = [serial] {
+    _generic_N_Vector_Ops t = *serial;
+    t.nvclone = Clone;
+    t.nvcloneempty = CloneEmpty;
+    t.nvdestroy = Destroy;
+    t.nvlinearsum = LinearSum;
+    t.nvconst = Const;
+    t.nvprod = Prod;
+    t.nvdiv = Div;
+    t.nvscale = Scale;
+    t.nvabs = Abs;
+    t.nvinv = Inv;
+    t.nvaddconst = AddConst;
+    t.nvdotprod = DotProd;
+    t.nvmaxnorm = MaxNorm;
+    t.nvwrmsnorm = WrmsNorm;
+    t.nvwrmsnormmask = WrmsNormMask;
+    t.nvmin = Min;
+    t.nvwl2norm = WL2Norm;
+    t.nvl1norm = L1Norm;
+    t.nvcompare = Compare;
+    t.nvinvtest = InvTest;
+    t.nvlinearcombination = LinearCombination;
+    t.nvscaleaddmulti = ScaleAddMulti;
+    t.nvdotprodmulti = DotProdMulti;
+    t.nvlinearsumvectorarray = LinearSumVectorArray;
+    t.nvscalevectorarray = ScaleVectorArray;
+    t.nvconstvectorarray = ConstVectorArray;
+    t.nvwrmsnormvectorarray = WrmsNormVectorArray;
+    t.nvwrmsnormmaskvectorarray = WrmsNormMaskVectorArray;
+    t.nvscaleaddmultivectorarray = ScaleAddMultiVectorArray;
+    t.nvlinearcombinationvectorarray = LinearCombinationVectorArray;
+    return t;
+  }();
+  return &table;
+}
+
 }  // namespace
 
 void UseFastDenseOps(SUNMatrix a) {
@@ -401,34 +485,10 @@ void UseFastDenseSolver(SUNLinearSolver ls) {
 }
 
 void UseFastSerialOps(N_Vector v) {
-  N_Vector_Ops ops = v->ops;
-  ops->nvlinearsum = LinearSum;
-  ops->nvconst = Const;
-  ops->nvprod = Prod;
-  ops->nvdiv = Div;
-  ops->nvscale = Scale;
-  ops->nvabs = Abs;
-  ops->nvinv = Inv;
-  ops->nvaddconst = AddConst;
-  ops->nvdotprod = DotProd;
-  ops->nvmaxnorm = MaxNorm;
-  ops->nvwrmsnorm = WrmsNorm;
-  ops->nvwrmsnormmask = WrmsNormMask;
-  ops->nvmin = Min;
-  ops->nvwl2norm = WL2Norm;
-  ops->nvl1norm = L1Norm;
-  ops->nvcompare = Compare;
-  ops->nvinvtest = InvTest;
-  ops->nvlinearcombination = LinearCombination;
-  ops->nvscaleaddmulti = ScaleAddMulti;
-  ops->nvdotprodmulti = DotProdMulti;
-  ops->nvlinearsumvectorarray = LinearSumVectorArray;
-  ops->nvscalevectorarray = ScaleVectorArray;
-  ops->nvconstvectorarray = ConstVectorArray;
-  ops->nvwrmsnormvectorarray = WrmsNormVectorArray;
-  ops->nvwrmsnormmaskvectorarray = WrmsNormMaskVectorArray;
-  ops->nvscaleaddmultivectorarray = ScaleAddMultiVectorArray;
-  ops->nvlinearcombinationvectorarray = LinearCombinationVectorArray;
+  N_Vector_Ops own = v->ops;
+  if (own == SharedTable(own)) return;
+  v->ops = SharedTable(own);
+  std::free(own);  // N_VNewEmpty's copy, malloc'ed
 }
 
 }  // namespace internal
