@@ -11,6 +11,8 @@
 //      loss + gradient by (a) CVODES forward sensitivities and (b) the CVODES
 //      adjoint, with the adjoint's stored bytes; then the adjoint's time and
 //      storage against the checkpoint interval.
+//   5. Fits of catalogue ODE models on bundled data (LM with forward
+//      sensitivities through CVODES), per subject and in total.
 //
 // Timing: the cases compared in a table are timed in interleaved rounds and
 // their ratios are medians over the rounds (see Interleaved()).
@@ -347,6 +349,43 @@ int main(int argc, char** argv) {
     std::printf("fitting time, sum over subjects (median of %zu runs): %.2f ms (%.3f ms per subject); "
                 "with setup and plots: %.2f ms\n",
                 fit_seconds.size(), fit_median * 1e3, fit_median * 1e3 / 12, t_all * 1e3);
+  }
+
+  // ---- 5. ODE fits: Levenberg-Marquardt with forward sensitivities through CVODES.
+  if (only == 0 || only == 5) {
+    std::printf("\n== nonlinear models fitted through CVODES, Levenberg-Marquardt (forward sensitivities), one thread ==\n");
+    std::printf("%-14s %-22s %9s %14s %16s %18s\n", "model", "data", "subjects", "fit (ms)", "per subject (ms)",
+                "evaluations/fit");
+    const std::pair<const char*, const char*> fits[] = {{"1cmt_oral_mm", "theophylline.csv"},
+                                                        {"1cmt_iv_emax", "emax_synthetic.csv"},
+                                                        {"1cmt_iv_mm", "mm_synthetic.csv"}};
+    for (const auto& c : fits) {
+      pk::FitSubjectsRequest req;
+      req.model = pk::MakeModel(c.first);
+      req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/" + c.second));
+      for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+      req.jobs = 1;
+      req.curve_points = 2;
+      std::vector<double> fit_seconds;
+      double evaluations = 0;
+      size_t subjects = 0;
+      SecondsPerCall([&] {
+        const auto results = pk::FitSubjects(req);
+        double sum = 0;
+        evaluations = 0;
+        for (const auto& f : results) {
+          sum += f.summary.seconds;
+          evaluations += f.summary.evaluations;
+        }
+        subjects = results.size();
+        fit_seconds.push_back(sum);
+      });
+      std::sort(fit_seconds.begin(), fit_seconds.end());
+      const double median = fit_seconds[fit_seconds.size() / 2];
+      std::printf("%-14s %-22s %9zu %14.1f %16.2f %18.1f\n", c.first, c.second, subjects, median * 1e3,
+                  median * 1e3 / double(subjects), evaluations / double(subjects));
+      std::fflush(stdout);
+    }
   }
   return 0;
 }
