@@ -223,7 +223,7 @@ class AutoDiffOdeModel final : public OdeModel {
     rec->theta = theta;
     rec->model = id_;
   }
-  // Identifies this model in LastRecording (an address could be reused by another model).
+  // Identifies this model in the per-thread recording (an address could be reused by another model).
   static unsigned long NextId() {
     static std::atomic<unsigned long> next{1};
     return next++;

@@ -38,7 +38,7 @@ struct Vector {
   N_Vector v = nullptr;
   Vector(long n, SUNContext ctx) : v(N_VNew_Serial(n, ctx)) {
     if (v == nullptr) throw NumericalFailure("CVODES: out of memory");
-    UseFastSerialOps(v);  // clones (CVODES's work vectors) inherit the table
+    UseFastSerialOps(v);  // CVODES's work vectors are clones: they share the kernels
     N_VConst(0.0, v);
   }
   ~Vector() { N_VDestroy(v); }
@@ -657,7 +657,11 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
   vjp.t = std::numeric_limits<double>::quiet_NaN();
   k = static_cast<int>(seg.dtheta.cols());
   ListEntries(seg.dtheta, &dtheta_entries);
-  ListEntries(seg.du.cols() == k ? seg.du : Eigen::MatrixXd(), &du_entries);
+  if (seg.du.cols() == k) {
+    ListEntries(seg.du, &du_entries);
+  } else {
+    du_entries.clear();
+  }
   with_loss = false;
   const int kq = std::max(k, 1);
   const Eigen::VectorXd* offset = QuadratureOffset(scales, k);
