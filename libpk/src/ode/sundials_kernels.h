@@ -10,8 +10,9 @@
 // with libpk. Each kernel computes exactly what SUNDIALS's computes, with the
 // same special cases and order of operations, so results do not change in the
 // last bit. CVODES clones its work vectors and matrices from the ones it is
-// given; vector clones copy the table, and the matrix clone is replaced so
-// that its clones are patched too.
+// given: libpk's vector clone gives the clone the same table (one table for
+// all, where SUNDIALS copies it into every vector), and the matrix clone is
+// replaced so that its clones are patched too.
 #ifndef PK_SRC_ODE_SUNDIALS_KERNELS_H_
 #define PK_SRC_ODE_SUNDIALS_KERNELS_H_
 
@@ -22,7 +23,8 @@
 namespace pk {
 namespace internal {
 
-/// Replaces the kernels of serial vector `v` (from N_VNew_Serial) with libpk's.
+/// Points serial vector `v` (from N_VNew_Serial) at libpk's table of kernels,
+/// shared by all its clones; `v`'s own copy of SUNDIALS's table is freed.
 void UseFastSerialOps(N_Vector v);
 /// Replaces the kernels of dense matrix `a` (from SUNDenseMatrix) and of its clones.
 void UseFastDenseOps(SUNMatrix a);
