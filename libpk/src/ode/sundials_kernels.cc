@@ -285,10 +285,13 @@ int ScaleAddMultiVectorArray(int nvec, int nsum, realtype* a, N_Vector* xv, N_Ve
 }
 
 int LinearCombinationVectorArray(int nvec, int nsum, realtype* c, N_Vector** xv, N_Vector* zv) {
-  std::vector<N_Vector> column(static_cast<size_t>(nsum));
+  // CVODES sums at most q + 1 ≤ 6 Nordsieck columns: no allocation then.
+  N_Vector small[8];
+  std::vector<N_Vector> large(nsum > 8 ? static_cast<size_t>(nsum) : 0);
+  N_Vector* column = nsum > 8 ? large.data() : small;
   for (int j = 0; j < nvec; ++j) {
     for (int i = 0; i < nsum; ++i) column[i] = xv[i][j];
-    LinearCombination(nsum, c, column.data(), zv[j]);
+    LinearCombination(nsum, c, column, zv[j]);
   }
   return 0;
 }
