@@ -120,8 +120,8 @@ int Main(int argc, char** argv) {
       "exact (the Φ/Γ recursion, linear models), ode (CVODES, every model) or auto (exact when linear)")(
       "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
       "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
-      "checkpoint-steps", po::value<int>()->default_value(1000),
-      "ODE adjoint: integration steps between checkpoints (storage against recomputation)")(
+      "checkpoint-steps", po::value<int>()->default_value(pk::OdeOptions().checkpoint_steps),
+      "ODE adjoint: at most this many integration steps between checkpoints (storage against recomputation)")(
       "optimizer", po::value<std::string>()->default_value("lm"), "lm, bfgs, newton or nlopt:NAME")(
       "weighting", po::value<std::string>()->default_value("uniform"), "uniform, dv2, dv or column:NAME")(
       "error", po::value<std::string>(), "maximum likelihood: additive, proportional or combined")(

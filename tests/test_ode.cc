@@ -6,6 +6,7 @@
 #include <cmath>
 #include <fstream>
 #include <sstream>
+#include <thread>
 
 #include <catch2/catch.hpp>
 
@@ -794,6 +795,54 @@ TEST_CASE("finite differences through CVODES use a step matched to the tolerance
   REQUIRE(fd.ok);
   REQUIRE(fwd.ok);
   CHECK((fd.gradient - fwd.gradient).cwiseAbs().maxCoeff() < 1e-4 * fwd.gradient.cwiseAbs().maxCoeff());
+}
+
+TEST_CASE("adjoint memories sized to their trajectories give the same bits whatever the pool held",
+          "[ode][gradient][storage][threads]") {
+  // A CVODES adjoint memory starts small and is made again, with the segments
+  // integrated again, when its trajectory outgrows it below checkpoint_steps.
+  // Each thread pools its memories, so a fresh thread starts from nothing.
+  const auto model = pk::MakeModel("2cmt_iv_mm");
+  auto regimen = [](int doses) {
+    std::ostringstream csv;
+    csv << "ID,TIME,AMT,EVID,DV\n";
+    for (int d = 0; d < doses; ++d) {
+      csv << "1," << 24 * d << ",100,1,.\n";
+      for (double t : {0.5, 1.0, 2.0, 4.0, 8.0, 12.0, 23.0}) csv << "1," << 24 * d + t << ",0,0," << 4 * std::exp(-0.1 * t) << "\n";
+    }
+    return Parse(csv.str());
+  };
+  const pk::Objective obj(model, regimen(2), 0, OdeOptions()), longer(model, regimen(4), 0, OdeOptions());
+  std::vector<int> free(model->num_parameters());
+  for (int i = 0; i < model->num_parameters(); ++i) free[i] = i;
+  const Eigen::VectorXd values = obj.DefaultValues();
+  using Need = pk::Objective::Need;
+  auto in_new_thread = [&](bool warm) {
+    std::vector<pk::Objective::Evaluation> out;
+    std::thread t([&] {
+      if (warm) longer.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+      for (int c = 0; c < 2; ++c) out.push_back(obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint));
+    });
+    t.join();
+    return out;
+  };
+  const auto cold = in_new_thread(false), warm = in_new_thread(true);
+  for (const auto* e : {&cold[0], &cold[1], &warm[0], &warm[1]}) REQUIRE(e->ok);
+  // The cold thread's first evaluation outgrew its memories and integrated them again; the warm thread's did not.
+  CHECK(cold[0].ode_statistics.steps > cold[1].ode_statistics.steps);
+  CHECK(warm[0].ode_statistics.steps == cold[1].ode_statistics.steps);
+  const double scale = cold[1].gradient.cwiseAbs().maxCoeff();
+  const auto fwd = obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+  REQUIRE(fwd.ok);
+  CHECK((cold[1].gradient - fwd.gradient).cwiseAbs().maxCoeff() <= 1e-7 * scale);
+  for (const auto* e : {&cold[0], &warm[0], &warm[1]}) {
+    CHECK(e->value == cold[1].value);
+    CHECK(e->ode_statistics.backward_steps == cold[1].ode_statistics.backward_steps);
+    CHECK(e->ode_statistics.peak_adjoint_bytes == cold[1].ode_statistics.peak_adjoint_bytes);
+    int differ = 0;
+    for (int i = 0; i < e->gradient.size(); ++i) differ += e->gradient(i) != cold[1].gradient(i);
+    CHECK(differ == 0);
+  }
 }
 
 TEST_CASE("the adjoint's storage modes give the same gradient and store what they say", "[ode][gradient][storage]") {

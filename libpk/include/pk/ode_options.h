@@ -15,9 +15,12 @@ struct OdeOptions {
   /// Step limit per integration between two events; beyond it the evaluation
   /// fails with "too much work" instead of running on.
   long max_steps = 100000;
-  /// Adjoint route: integration steps between two CVODES checkpoints. Fewer
-  /// steps store less and recompute more (the seed's §4 trade of time for storage).
-  int checkpoint_steps = 1000;
+  /// Adjoint route: at most this many integration steps between two CVODES
+  /// checkpoints. Fewer steps store less and recompute more (the seed's §4
+  /// trade of time for storage). A trajectory of fewer steps is held in one
+  /// piece, in storage for the steps it takes; results do not depend on how
+  /// much it could have held.
+  int checkpoint_steps = 10000;
   /// Adjoint route: keep every inter-event segment's trajectory from the one
   /// forward pass (true), or keep only the segment being swept and integrate
   /// each one forward a second time during the sweep (false: about one more
@@ -36,7 +39,7 @@ struct OdeStatistics {
   long jacobian_evaluations = 0;
   long backward_steps = 0;        ///< adjoint steps
   /// Largest adjoint storage held at once: CVODES's Hermite data (y and ẏ per
-  /// step, checkpoint_steps steps) plus its checkpoints (a Nordsieck array each).
+  /// step, at most checkpoint_steps steps) plus its checkpoints (a Nordsieck array each).
   long peak_adjoint_bytes = 0;
 };
 

@@ -181,6 +181,11 @@ struct CvodesSolver::Impl {
     std::shared_ptr<Context> context;  // pooled memories carry their own context
     Continuation run;  // where the forward pass stands (ForwardStore, StoreSegment)
     int pool_kq = 0;
+    // Steps per checkpoint this memory was made with: at most
+    // opt.checkpoint_steps, fewer while its segments need fewer (see Grown).
+    long checkpoint_steps = 0;
+    bool overflowed = false;  // a checkpoint was needed below opt.checkpoint_steps
+    Eigen::VectorXd x_start;  // the state its trajectory starts from
   };
   std::unique_ptr<Adjoint> adjoint;               // reused: recompute mode
   // Store mode: the memories, and the segments (pieces) of their trajectories.
@@ -195,6 +200,30 @@ struct CvodesSolver::Impl {
   };
   std::vector<Piece> pieces;
   long stored_bytes = 0;
+
+  // CVodeAdjInit allocates Hermite data for all its steps per checkpoint at
+  // once, used or not. A memory is therefore made for kInitialCheckpointSteps
+  // and, when its trajectory needs a second checkpoint below
+  // opt.checkpoint_steps, made again with room for all its steps and
+  // integrated again from its start (Grown). While one checkpoint holds a
+  // whole trajectory, CVODES's results do not depend on its size, so every
+  // evaluation gives what a memory of opt.checkpoint_steps would have given,
+  // whatever the pool held before.
+  // New memories of a pool start at the size its memories have grown to.
+  static constexpr long kInitialCheckpointSteps = 128;
+  long InitialCheckpointSteps(int kq) const {
+    return std::min<long>(opt.checkpoint_steps, std::max(kInitialCheckpointSteps, Pools()[Key(kq)].checkpoint_steps));
+  }
+  std::unique_ptr<Adjoint> Grown(const Adjoint& a, int kq) const {
+    std::unique_ptr<Adjoint> b(new Adjoint);
+    b->context = a.context;
+    b->pool_kq = a.pool_kq;
+    const long steps = a.run.steps;
+    b->checkpoint_steps = std::min<long>(opt.checkpoint_steps, steps + steps / 4 + 16);
+    long& hint = Pools()[Key(kq)].checkpoint_steps;
+    hint = std::max(hint, b->checkpoint_steps);
+    return b;
+  }
 
   // Forward from the memory's time a.run.t over seg.h (from 0 and x0 when
   // `restart`), recording max |x_i| over the steps in *xmax.
@@ -237,6 +266,7 @@ struct CvodesSolver::Impl {
   struct Pool {
     std::shared_ptr<Context> context = std::make_shared<Context>();
     std::vector<std::unique_ptr<Adjoint>> free;
+    long checkpoint_steps = 0;  // the most any of its memories has grown to
   };
   static std::map<PoolKey, Pool>& Pools() {
     static thread_local std::map<PoolKey, Pool> pools;
@@ -601,7 +631,8 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
     a.ls.reset(new LinearSolver(a.y->v, n, ctx));
     View(a.y->v) = x0;
     Configure(a.mem->mem, a.y->v, a.ls.get());
-    Check(CVodeAdjInit(a.mem->mem, opt.checkpoint_steps, CV_HERMITE), "CVodeAdjInit");
+    if (a.checkpoint_steps <= 0) a.checkpoint_steps = InitialCheckpointSteps(std::max(k, 1));
+    Check(CVodeAdjInit(a.mem->mem, a.checkpoint_steps, CV_HERMITE), "CVodeAdjInit");
   } else {
     // A memory from the pool: point its callbacks at this solver.
     Check(CVodeSetUserData(a.mem->mem, this), "CVodeSetUserData");
@@ -617,6 +648,8 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
     Check(CVodeReInit(a.mem->mem, 0.0, a.y->v), "CVodeReInit");
     Check(CVodeAdjReInit(a.mem->mem), "CVodeAdjReInit");
     a.run.Restarted();
+    a.x_start = x0;
+    a.overflowed = false;
   }
   // Step by step, to record the largest |x_i| the segment reaches (it weights
   // λ's error control in Backward), without a stop time: CVODES rebuilds the
@@ -644,6 +677,7 @@ void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const
   a.run.t = t_end;
   if (x_end) *x_end = View(a.y->v);
   a.run.CountSteps(a.mem->mem, &stats.steps);
+  a.overflowed = ncheck > 0 && a.checkpoint_steps < opt.checkpoint_steps;
   a.bytes = (std::min<long>(a.run.steps, opt.checkpoint_steps) * 2 * n + (ncheck + 1) * 6L * n) *
             static_cast<long>(sizeof(double));
 }
@@ -762,8 +796,12 @@ void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd&
   if (in.h <= 0) return;
   if (!d.adjoint) d.adjoint.reset(new Impl::Adjoint);
   // Forward over this segment only: checkpoints never straddle a jump.
+  d.ForwardStore(*d.adjoint, in, x0, nullptr, true, &d.adjoint->xmax);
+  if (d.adjoint->overflowed) {
+    d.adjoint = d.Grown(*d.adjoint, std::max<int>(static_cast<int>(in.dtheta.cols()), 1));
+    d.ForwardStore(*d.adjoint, in, x0, nullptr, true, &d.adjoint->xmax);
+  }
   Impl::Adjoint& a = *d.adjoint;
-  d.ForwardStore(a, in, x0, nullptr, true, &a.xmax);
   d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes + a.bytes);
   d.Backward(a, in, 0.0, in.h, a.xmax, scales, lambda_end, lambda_start, q);
 }
@@ -779,18 +817,35 @@ int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
     d.stored.push_back(d.Borrow(kq));
     d.stored.back()->pool_kq = kq;
   }
+  const int memory = static_cast<int>(d.stored.size()) - 1;
   Impl::Adjoint& a = *d.stored.back();
   Impl::Piece piece;
-  piece.memory = static_cast<int>(d.stored.size()) - 1;
+  piece.memory = memory;
   piece.t0 = continues ? a.run.t : 0.0;
   piece.segment = in;
   d.stored_bytes -= continues ? a.bytes : 0;
   d.ForwardStore(a, piece.segment, *x, x, !continues, &piece.xmax);
   piece.t1 = a.run.t;
   a.run.Remember(in, *x, nullptr);
-  d.stored_bytes += a.bytes;
-  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
   d.pieces.push_back(std::move(piece));
+  if (a.overflowed) {
+    // Too small: a memory with room for every step, through the same pieces again.
+    Eigen::VectorXd xb = a.x_start;
+    d.stored.back() = d.Grown(a, kq);
+    Impl::Adjoint& b = *d.stored.back();
+    bool first = true;
+    for (Impl::Piece& p : d.pieces) {
+      if (p.memory != memory) continue;
+      p.t0 = b.run.t;
+      d.ForwardStore(b, p.segment, xb, &xb, first, &p.xmax);
+      p.t1 = b.run.t;
+      b.run.Remember(p.segment, xb, nullptr);
+      first = false;
+    }
+    *x = xb;
+  }
+  d.stored_bytes += d.stored.back()->bytes;
+  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
   return static_cast<int>(d.pieces.size()) - 1;
 }
 
