@@ -1,5 +1,6 @@
 #include "fit_report.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -150,6 +151,14 @@ std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
       out << buf;
     }
     out << "\n";
+  }
+  // Why standard errors are missing, under the table.
+  for (const SubjectFit& f : fits) {
+    if (!f.ok || f.summary.covariance_message.empty()) continue;
+    const bool some = std::any_of(f.summary.estimates.begin(), f.summary.estimates.end(),
+                                  [](const ParameterEstimate& e) { return std::isfinite(e.se); });
+    out << "ID " << FormatNumber(f.id) << ": " << (some ? "" : "no standard errors: ") << f.summary.covariance_message
+        << "\n";
   }
   return out.str();
 }

@@ -428,3 +428,52 @@ TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are tho
     }
   }
 }
+
+TEST_CASE("a singular information matrix names what the data do not determine", "[fit][covariance]") {
+  // Oral data alone determine CL/F and V/F, not CL, V and F1: along the log scale's direction (0, 1, 1, 1) the
+  // predictions do not move. ID 1 of theophylline, by BFGS (LM would drift along that direction).
+  for (const bool log_scale : {true, false}) {
+    INFO((log_scale ? "log scale" : "natural scale"));
+    pk::FitSubjectsRequest req = DatasetRequest("1cmt_oral", "theophylline.csv");
+    req.subjects = {0};
+    req.fit.optimizer = pk::OptimizerType::kBfgs;
+    req.fit.log_scale = log_scale;
+    for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+    req.parameters.push_back({"F1", 0.8});
+    const auto fits = pk::FitSubjects(req);
+    REQUIRE(fits.size() == 1);
+    const pk::FitSummary& s = fits[0].summary;
+    INFO(s.FullReport());
+    REQUIRE(fits[0].ok);
+    for (const pk::ParameterEstimate& e : s.estimates) CHECK(std::isnan(e.se));
+    CHECK_THAT(s.covariance_message, Catch::StartsWith("the information matrix is singular: CL, V and F1 are not "
+                                                       "determined separately"));
+    if (log_scale) {
+      CHECK_THAT(s.covariance_message, Catch::Contains("changing log CL, log V and log F1 in the proportions 1 : 1 : 1 "
+                                                       "leaves the fit unchanged"));
+    } else {
+      // dθ ∝ θ on the natural scale, shown relative to the largest (V).
+      double cl = 0, v = 0, f = 0;
+      for (const pk::ParameterEstimate& e : s.estimates) {
+        if (e.name == "CL") cl = e.estimate;
+        if (e.name == "V") v = e.estimate;
+        if (e.name == "F1") f = e.estimate;
+      }
+      REQUIRE(v > std::max(cl, f));
+      char expected[128];
+      std::snprintf(expected, sizeof expected, "changing CL, V and F1 in the proportions %.2g : 1 : %.2g", cl / v, f / v);
+      CHECK_THAT(s.covariance_message, Catch::Contains(expected));
+    }
+  }
+  {  // D1 shapes zero-order input (RATE=-2) only; theophylline's doses are bolus into the depot.
+    pk::FitSubjectsRequest req = DatasetRequest("1cmt_oral", "theophylline.csv");
+    req.subjects = {0};
+    for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+    req.parameters.push_back({"D1", 2.0});
+    const auto fits = pk::FitSubjects(req);
+    REQUIRE(fits.size() == 1);
+    REQUIRE(fits[0].ok);
+    INFO(fits[0].summary.FullReport());
+    CHECK(fits[0].summary.covariance_message == "the information matrix is singular: D1 does not affect the predictions");
+  }
+}

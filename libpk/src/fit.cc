@@ -536,6 +536,78 @@ std::string Cell(double v, const char* fmt, int width) {
   return std::string(static_cast<size_t>(std::max(0, width - columns)), ' ') + text;
 }
 
+// What a singular information matrix leaves undetermined, in words.
+// `info` is on the optimiser's scale φ; ds_dphi maps it to the estimation
+// scale s (log θ or θ), on which the directions are shown. A parameter whose
+// diagonal entry is (relatively) zero does not move the predictions at all.
+// Among the others, the `nullity` eigenvectors of the information scaled to a
+// unit diagonal (so that units do not matter) with the smallest eigenvalues
+// are the combinations of parameters that leave the fit unchanged to first
+// order: J v ≈ 0.
+std::string Unidentified(const Eigen::MatrixXd& info, int nullity, const std::vector<std::string>& names,
+                         const Eigen::VectorXd& ds_dphi, bool log_scale) {
+  const int n = static_cast<int>(info.rows());
+  const double largest = n > 0 ? info.diagonal().maxCoeff() : 0.0;
+  // "A", "A and B", "A, B and C".
+  auto list = [](const std::vector<std::string>& items) {
+    if (items.size() < 2) return internal::Join(items, "");
+    return internal::Join(std::vector<std::string>(items.begin(), items.end() - 1), ", ") + " and " + items.back();
+  };
+  std::vector<int> some;
+  std::vector<std::string> none, parts;
+  for (int j = 0; j < n; ++j) {
+    if (info(j, j) > 1e-14 * largest) {
+      some.push_back(j);
+    } else {
+      none.push_back(names[j]);
+    }
+  }
+  if (!none.empty()) {
+    parts.push_back(list(none) + (none.size() > 1 ? " do" : " does") +
+                    " not affect the predictions");
+  }
+  const int k = static_cast<int>(some.size());
+  const int directions = std::min(k, nullity - static_cast<int>(none.size()));
+  if (directions > 0) {
+    Eigen::VectorXd scale(k);
+    for (int a = 0; a < k; ++a) scale(a) = std::sqrt(info(some[a], some[a]));
+    Eigen::MatrixXd c(k, k);
+    for (int a = 0; a < k; ++a) {
+      for (int b = 0; b < k; ++b) c(a, b) = info(some[a], some[b]) / (scale(a) * scale(b));
+    }
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(c);
+    for (int d = 0; d < directions; ++d) {
+      // Who takes part is judged without units; the proportions are on the estimation scale s.
+      const Eigen::VectorXd u = eig.eigenvectors().col(d);
+      Eigen::VectorXd v(k);
+      for (int a = 0; a < k; ++a) v(a) = u(a) / scale(a) * ds_dphi(some[a]);
+      const double u_max = u.cwiseAbs().maxCoeff();
+      int top = -1;
+      for (int a = 0; a < k; ++a) {
+        if (std::fabs(u(a)) >= 0.05 * u_max && (top < 0 || std::fabs(v(a)) > std::fabs(v(top)))) top = a;
+      }
+      v /= v(top);
+      std::vector<std::string> who, ratio;
+      for (int a = 0; a < k; ++a) {
+        if (std::fabs(u(a)) < 0.05 * u_max) continue;
+        who.push_back(names[some[a]]);
+        ratio.push_back(Num(v(a), "%.2g"));
+      }
+      if (who.size() < 2) {
+        parts.push_back(internal::Join(who, "") + " is not determined by these data");
+        continue;
+      }
+      std::vector<std::string> scaled = who;
+      if (log_scale) {
+        for (std::string& w : scaled) w = "log " + w;
+      }
+      parts.push_back(list(who) + " are not determined separately: changing " + list(scaled) +
+                      " in the proportions " + internal::Join(ratio, " : ") + " leaves the fit unchanged");
+    }
+  }
+  return internal::Join(parts, "; ");
+}
+
 // Whether parameter `i` is a σ gone to 0: SIGMA_ADD below 1e-6 of the largest
 // |DV|, SIGMA_PROP below 1e-6.
 bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int i) {
@@ -767,8 +839,18 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
       }
       Eigen::FullPivLU<Eigen::MatrixXd> lu(info);
       lu.setThreshold(1e-12);
-      if (nk == 0 || lu.rank() < nk) {
-        summary.covariance_message = "the information matrix is singular: some parameters are not identifiable";
+      if (!info.allFinite()) {
+        summary.covariance_message = "the information matrix is not finite at the estimate";
+      } else if (nk == 0 || lu.rank() < nk) {
+        std::vector<std::string> kept_names;
+        Eigen::VectorXd ds_dphi(nk);
+        for (int a = 0; a < nk; ++a) {
+          kept_names.push_back(summary.estimated[keep[a]]);
+          ds_dphi(a) = tr[keep[a]].DsDphi(best.phi(keep[a]));
+        }
+        const std::string what = Unidentified(info, nk - static_cast<int>(lu.rank()), kept_names, ds_dphi, options.log_scale);
+        summary.covariance_message = "the information matrix is singular: " +
+                                     (what.empty() ? std::string("some parameters are not identifiable") : what);
       } else {
         Eigen::MatrixXd kept = lu.inverse();
         if (!ml) {
