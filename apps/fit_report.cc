@@ -174,13 +174,13 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
   sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR\n";
   pred << "ID,TIME,DV,PRED,RES,WRES\n";
-  det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC,INITIAL_VALUES\n";
+  det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC,INITIAL_VALUES,COVARIANCE\n";
   for (const SubjectFit& f : fits) {
     const std::string id = FormatNumber(f.id);
     const FitSummary& s = f.summary;
     det << id << "," << Quote(Status(f)) << "," << Quote(f.ok ? s.message : f.error) << "," << Csv(s.initial_objective)
         << "," << s.evaluations << "," << s.best_start << "," << Csv(s.minus2ll) << "," << Csv(s.aic) << ","
-        << Csv(s.bic) << "," << Quote(f.initial_method) << "\n";
+        << Csv(s.bic) << "," << Quote(f.initial_method) << "," << Quote(f.ok ? s.covariance_message : "") << "\n";
     sum << id << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations << ","
         << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "," << s.propagator << "\n";
     if (!f.ok) continue;

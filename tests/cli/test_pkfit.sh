@@ -33,6 +33,14 @@ grep -q "data (terminal log-linear regression" "$work/auto/fit_details.csv" || f
   >"$work/cat.txt" || true
 grep -q "catalogue defaults" "$work/cat.txt" || fail "--catalogue-init did not start from the defaults"
 
+# Oral data alone do not determine CL, V and F1 separately: pkfit says so under its table and in fit_details.csv.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --init F1=0.8 --optimizer bfgs \
+  -o "$work/f1" >"$work/f1.txt" || fail "fit with F1 free failed"
+grep -q "^ID 1: no standard errors: the information matrix is singular: CL, V and F1 are not determined separately" \
+  "$work/f1.txt" || fail "pkfit does not say what the data leave undetermined"
+head -1 "$work/f1/fit_details.csv" | grep -q ",COVARIANCE$" || fail "fit_details lacks the COVARIANCE column"
+grep -q "CL, V and F1 are not determined separately" "$work/f1/fit_details.csv" || fail "fit_details lacks the covariance message"
+
 # --evaluate: objective and gradient; the adjoint and forward routes print the same gradient.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --evaluate --subject 1 --init KA=1.2 \
   --gradient adjoint >"$work/eval_adj.csv" || fail "--evaluate (adjoint) failed"
