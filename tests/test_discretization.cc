@@ -1,5 +1,10 @@
 // The two exact discretisation paths agree: eigendecomposition (Daleckii–Krein)
 // and the seed's block-triangular exponentials, for sensitivities and adjoints.
+#include <atomic>
+#include <chrono>
+#include <memory>
+#include <thread>
+
 #include <catch2/catch.hpp>
 
 #include "exact/discretization.h"
@@ -41,4 +46,26 @@ TEST_CASE("eigen and block paths give the same sensitivities and adjoint contrac
   for (const Eigen::MatrixXd& d : da) {
     CHECK(ge.cwiseProduct(d).sum() == Approx(gb.cwiseProduct(d).sum()).epsilon(1e-9));
   }
+}
+
+TEST_CASE("a symmetrizing diagonal beyond double range is refused, not searched for forever", "[discretization]") {
+  // Reversible exchange with rates 1e200 one way and 1e-200 the other: t_2 = sqrt(1e-400) underflows to 0, which
+  // the graph search took for "not visited yet" (a fit of 3cmt_iv that drifted to such rates hung there).
+  Eigen::Matrix2d a;
+  a << -1e200, 1e200, 1e-200, -1e-200;
+  auto done = std::make_shared<std::atomic<int>>(-1);
+  std::thread([a, done] {
+    Eigen::Vector2d t;
+    done->store(pk::internal::SymmetrizingDiagonal(a, &t) ? 1 : 0);
+  }).detach();
+  for (int waited = 0; waited < 1000 && done->load() < 0; ++waited) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  REQUIRE(done->load() >= 0);  // returned within 10 s
+  CHECK(done->load() == 0);
+  // Within range the same exchange is symmetrized: t_2/t_1 = sqrt(a_21/a_12).
+  a << -4, 4, 1, -1;
+  Eigen::Vector2d t;
+  REQUIRE(pk::internal::SymmetrizingDiagonal(a, &t));
+  CHECK(t(1) / t(0) == Approx(0.5));
 }

@@ -543,7 +543,8 @@ std::string Cell(double v, const char* fmt, int width) {
 // Among the others, the `nullity` eigenvectors of the information scaled to a
 // unit diagonal (so that units do not matter) with the smallest eigenvalues
 // are the combinations of parameters that leave the fit unchanged to first
-// order: J v ≈ 0.
+// order: J v ≈ 0. One such direction is shown with its proportions; several
+// (any basis of them is as good) by the parameters they involve.
 std::string Unidentified(const Eigen::MatrixXd& info, int nullity, const std::vector<std::string>& names,
                          const Eigen::VectorXd& ds_dphi, bool log_scale) {
   const int n = static_cast<int>(info.rows());
@@ -576,31 +577,35 @@ std::string Unidentified(const Eigen::MatrixXd& info, int nullity, const std::ve
       for (int b = 0; b < k; ++b) c(a, b) = info(some[a], some[b]) / (scale(a) * scale(b));
     }
     const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(c);
-    for (int d = 0; d < directions; ++d) {
-      // Who takes part is judged without units; the proportions are on the estimation scale s.
-      const Eigen::VectorXd u = eig.eigenvectors().col(d);
-      Eigen::VectorXd v(k);
-      for (int a = 0; a < k; ++a) v(a) = u(a) / scale(a) * ds_dphi(some[a]);
-      const double u_max = u.cwiseAbs().maxCoeff();
-      int top = -1;
-      for (int a = 0; a < k; ++a) {
-        if (std::fabs(u(a)) >= 0.05 * u_max && (top < 0 || std::fabs(v(a)) > std::fabs(v(top)))) top = a;
+    // The null directions: u in the unit-free scaling, v on the estimation scale s. Who takes part is judged
+    // where it is free of units: by v on the log scale, by u on the natural scale.
+    const Eigen::MatrixXd u = eig.eigenvectors().leftCols(directions);
+    Eigen::MatrixXd v(k, directions);
+    for (int a = 0; a < k; ++a) v.row(a) = u.row(a) / scale(a) * ds_dphi(some[a]);
+    const Eigen::MatrixXd& judge = log_scale ? v : u;
+    const Eigen::VectorXd weight = judge.rowwise().norm();
+    std::vector<int> part;
+    for (int a = 0; a < k; ++a) {
+      if (weight(a) >= 0.05 * weight.maxCoeff()) part.push_back(a);
+    }
+    std::vector<std::string> who, scaled;
+    for (int a : part) {
+      who.push_back(names[some[a]]);
+      scaled.push_back((log_scale ? "log " : "") + names[some[a]]);
+    }
+    if (who.size() < 2) {
+      parts.push_back(list(who) + " is not determined by these data");
+    } else if (directions > 1) {
+      parts.push_back(list(who) + " are not determined separately: " + std::to_string(directions) +
+                      " combinations of them leave the fit unchanged");
+    } else {
+      // One direction: its proportions, relative to the largest.
+      int top = part[0];
+      for (int a : part) {
+        if (std::fabs(v(a, 0)) > std::fabs(v(top, 0))) top = a;
       }
-      v /= v(top);
-      std::vector<std::string> who, ratio;
-      for (int a = 0; a < k; ++a) {
-        if (std::fabs(u(a)) < 0.05 * u_max) continue;
-        who.push_back(names[some[a]]);
-        ratio.push_back(Num(v(a), "%.2g"));
-      }
-      if (who.size() < 2) {
-        parts.push_back(internal::Join(who, "") + " is not determined by these data");
-        continue;
-      }
-      std::vector<std::string> scaled = who;
-      if (log_scale) {
-        for (std::string& w : scaled) w = "log " + w;
-      }
+      std::vector<std::string> ratio;
+      for (int a : part) ratio.push_back(Num(v(a, 0) / v(top, 0), "%.2g"));
       parts.push_back(list(who) + " are not determined separately: changing " + list(scaled) +
                       " in the proportions " + internal::Join(ratio, " : ") + " leaves the fit unchanged");
     }

@@ -50,7 +50,8 @@ double Sinhc(double d);
 /// A diagonal T with T⁻¹AT symmetric, when one exists: reversible exchange
 /// (clearance flows between compartments with volumes) gives A_ij t_j/t_i =
 /// A_ji t_i/t_j, so t_j = t_i sqrt(A_ji/A_ij) along every edge of the graph.
-/// False for one-way flow (a depot) or an inconsistent cycle.
+/// False for one-way flow (a depot), an inconsistent cycle, or a ratio of
+/// rates beyond double range (a t_j that would underflow or overflow).
 template <typename Mat, typename Vec>
 bool SymmetrizingDiagonal(const Mat& a, Vec* t) {
   const int n = static_cast<int>(a.rows());
@@ -67,6 +68,8 @@ bool SymmetrizingDiagonal(const Mat& a, Vec* t) {
           if (j == i || (a(i, j) == 0 && a(j, i) == 0)) continue;
           if (!(a(i, j) * a(j, i) > 0)) return false;
           const double tj = (*t)(i) * std::sqrt(a(j, i) / a(i, j));
+          // t_j = 0 would be "unvisited" again on the next pass: the search would never end.
+          if (!(tj > 0) || !std::isfinite(tj)) return false;
           if ((*t)(j) == 0) {
             (*t)(j) = tj;
             grew = true;
