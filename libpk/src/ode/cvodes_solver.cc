@@ -208,8 +208,8 @@ struct CvodesSolver::Impl {
   // integrated again from its start (Grown). While one checkpoint holds a
   // whole trajectory, CVODES's results do not depend on its size, so every
   // evaluation gives what a memory of opt.checkpoint_steps would have given,
-  // whatever the pool held before.
-  // New memories of a pool start at the size its memories have grown to.
+  // whatever the pool held before. New memories of a pool start at the size
+  // its memories have grown to.
   static constexpr long kInitialCheckpointSteps = 128;
   long InitialCheckpointSteps(int kq) const {
     return std::min<long>(opt.checkpoint_steps, std::max(kInitialCheckpointSteps, Pools()[Key(kq)].checkpoint_steps));
