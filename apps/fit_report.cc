@@ -1,6 +1,5 @@
 #include "fit_report.h"
 
-#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -154,11 +153,9 @@ std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
   }
   // Why standard errors are missing, under the table.
   for (const SubjectFit& f : fits) {
-    if (!f.ok || f.summary.covariance_message.empty()) continue;
-    const bool some = std::any_of(f.summary.estimates.begin(), f.summary.estimates.end(),
-                                  [](const ParameterEstimate& e) { return std::isfinite(e.se); });
-    out << "ID " << FormatNumber(f.id) << ": " << (some ? "" : "no standard errors: ") << f.summary.covariance_message
-        << "\n";
+    if (f.ok && !f.summary.covariance_message.empty()) {
+      out << "ID " << FormatNumber(f.id) << ": " << f.summary.CovarianceNote() << "\n";
+    }
   }
   return out.str();
 }

@@ -12,6 +12,7 @@
 #include "pk/fit_subjects.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
+#include "identifiability.h"
 
 namespace {
 
@@ -476,4 +477,39 @@ TEST_CASE("a singular information matrix names what the data do not determine", 
     INFO(fits[0].summary.FullReport());
     CHECK(fits[0].summary.covariance_message == "the information matrix is singular: D1 does not affect the predictions");
   }
+}
+
+TEST_CASE("the words for a singular information matrix: parameters without effect, one direction, several",
+          "[fit][covariance]") {
+  // info = JᵀJ for Jacobian columns built with known null directions. Column c is independent of the others.
+  Eigen::VectorXd a(4), c(4);
+  a << 1, 2, 0.5, -1;
+  c << 0.3, -1, 2, 1;
+  const auto info_of = [](const std::vector<Eigen::VectorXd>& cols) {
+    Eigen::MatrixXd j(4, static_cast<Eigen::Index>(cols.size()));
+    for (size_t k = 0; k < cols.size(); ++k) j.col(static_cast<Eigen::Index>(k)) = cols[k];
+    return Eigen::MatrixXd(j.transpose() * j);
+  };
+  using pk::internal::Unidentified;
+  const Eigen::VectorXd unit = Eigen::VectorXd::Ones(3);
+  // J_B = 2 J_A: J (2, −1, 0) = 0, shown relative to the largest component.
+  const Eigen::MatrixXd one = info_of({a, 2 * a, c});
+  CHECK(Unidentified(one, 1, {"A", "B", "C"}, unit, true) ==
+        "A and B are not determined separately: changing log A and log B in the proportions 1 : -0.5 leaves the fit "
+        "unchanged");
+  // On the natural scale with dθ/dφ = (1, 4, 1): the direction in θ is (2, −4, 0).
+  Eigen::VectorXd ds(3);
+  ds << 1, 4, 1;
+  CHECK(Unidentified(one, 1, {"A", "B", "C"}, ds, false) ==
+        "A and B are not determined separately: changing A and B in the proportions -0.5 : 1 leaves the fit unchanged");
+  // J_B = 2 J_A and J_C = 3 J_A: two null directions, named by the parameters in them.
+  CHECK(Unidentified(info_of({a, 2 * a, 3 * a, c}), 2, {"A", "B", "C", "D"}, Eigen::VectorXd::Ones(4), true) ==
+        "A, B and C are not determined separately: 2 combinations of them leave the fit unchanged");
+  // Zero columns, alone and with a direction among the others.
+  const Eigen::VectorXd zero = Eigen::VectorXd::Zero(4);
+  CHECK(Unidentified(info_of({a, zero, c, zero}), 2, {"A", "B", "C", "D"}, Eigen::VectorXd::Ones(4), true) ==
+        "B and D do not affect the predictions");
+  CHECK(Unidentified(info_of({a, zero, -a, c}), 2, {"A", "B", "C", "D"}, Eigen::VectorXd::Ones(4), true) ==
+        "B does not affect the predictions; A and C are not determined separately: changing log A and log C in the "
+        "proportions 1 : 1 leaves the fit unchanged");
 }

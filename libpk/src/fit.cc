@@ -14,6 +14,7 @@
 #include <cminpack.h>
 #include <nlopt.hpp>
 
+#include "identifiability.h"
 #include "internal_text.h"
 #include "pk/error.h"
 
@@ -536,83 +537,6 @@ std::string Cell(double v, const char* fmt, int width) {
   return std::string(static_cast<size_t>(std::max(0, width - columns)), ' ') + text;
 }
 
-// What a singular information matrix leaves undetermined, in words.
-// `info` is on the optimiser's scale φ; ds_dphi maps it to the estimation
-// scale s (log θ or θ), on which the directions are shown. A parameter whose
-// diagonal entry is (relatively) zero does not move the predictions at all.
-// Among the others, the `nullity` eigenvectors of the information scaled to a
-// unit diagonal (so that units do not matter) with the smallest eigenvalues
-// are the combinations of parameters that leave the fit unchanged to first
-// order: J v ≈ 0. One such direction is shown with its proportions; several
-// (any basis of them is as good) by the parameters they involve.
-std::string Unidentified(const Eigen::MatrixXd& info, int nullity, const std::vector<std::string>& names,
-                         const Eigen::VectorXd& ds_dphi, bool log_scale) {
-  const int n = static_cast<int>(info.rows());
-  const double largest = n > 0 ? info.diagonal().maxCoeff() : 0.0;
-  // "A", "A and B", "A, B and C".
-  auto list = [](const std::vector<std::string>& items) {
-    if (items.size() < 2) return internal::Join(items, "");
-    return internal::Join(std::vector<std::string>(items.begin(), items.end() - 1), ", ") + " and " + items.back();
-  };
-  std::vector<int> some;
-  std::vector<std::string> none, parts;
-  for (int j = 0; j < n; ++j) {
-    if (info(j, j) > 1e-14 * largest) {
-      some.push_back(j);
-    } else {
-      none.push_back(names[j]);
-    }
-  }
-  if (!none.empty()) {
-    parts.push_back(list(none) + (none.size() > 1 ? " do" : " does") +
-                    " not affect the predictions");
-  }
-  const int k = static_cast<int>(some.size());
-  const int directions = std::min(k, nullity - static_cast<int>(none.size()));
-  if (directions > 0) {
-    Eigen::VectorXd scale(k);
-    for (int a = 0; a < k; ++a) scale(a) = std::sqrt(info(some[a], some[a]));
-    Eigen::MatrixXd c(k, k);
-    for (int a = 0; a < k; ++a) {
-      for (int b = 0; b < k; ++b) c(a, b) = info(some[a], some[b]) / (scale(a) * scale(b));
-    }
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(c);
-    // The null directions: u in the unit-free scaling, v on the estimation scale s. Who takes part is judged
-    // where it is free of units: by v on the log scale, by u on the natural scale.
-    const Eigen::MatrixXd u = eig.eigenvectors().leftCols(directions);
-    Eigen::MatrixXd v(k, directions);
-    for (int a = 0; a < k; ++a) v.row(a) = u.row(a) / scale(a) * ds_dphi(some[a]);
-    const Eigen::MatrixXd& judge = log_scale ? v : u;
-    const Eigen::VectorXd weight = judge.rowwise().norm();
-    std::vector<int> part;
-    for (int a = 0; a < k; ++a) {
-      if (weight(a) >= 0.05 * weight.maxCoeff()) part.push_back(a);
-    }
-    std::vector<std::string> who, scaled;
-    for (int a : part) {
-      who.push_back(names[some[a]]);
-      scaled.push_back((log_scale ? "log " : "") + names[some[a]]);
-    }
-    if (who.size() < 2) {
-      parts.push_back(list(who) + " is not determined by these data");
-    } else if (directions > 1) {
-      parts.push_back(list(who) + " are not determined separately: " + std::to_string(directions) +
-                      " combinations of them leave the fit unchanged");
-    } else {
-      // One direction: its proportions, relative to the largest.
-      int top = part[0];
-      for (int a : part) {
-        if (std::fabs(v(a, 0)) > std::fabs(v(top, 0))) top = a;
-      }
-      std::vector<std::string> ratio;
-      for (int a : part) ratio.push_back(Num(v(a, 0) / v(top, 0), "%.2g"));
-      parts.push_back(list(who) + " are not determined separately: changing " + list(scaled) +
-                      " in the proportions " + internal::Join(ratio, " : ") + " leaves the fit unchanged");
-    }
-  }
-  return internal::Join(parts, "; ");
-}
-
 // Whether parameter `i` is a σ gone to 0: SIGMA_ADD below 1e-6 of the largest
 // |DV|, SIGMA_PROP below 1e-6.
 bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int i) {
@@ -842,8 +766,9 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
       for (int a = 0; a < nk; ++a) {
         for (int b = 0; b < nk; ++b) info(a, b) = ev.information(keep[a], keep[b]);
       }
-      Eigen::FullPivLU<Eigen::MatrixXd> lu(info);
+      Eigen::FullPivLU<Eigen::MatrixXd> lu;
       lu.setThreshold(1e-12);
+      if (info.allFinite()) lu.compute(info);
       if (!info.allFinite()) {
         summary.covariance_message = "the information matrix is not finite at the estimate";
       } else if (nk == 0 || lu.rank() < nk) {
@@ -853,7 +778,7 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
           kept_names.push_back(summary.estimated[keep[a]]);
           ds_dphi(a) = tr[keep[a]].DsDphi(best.phi(keep[a]));
         }
-        const std::string what = Unidentified(info, nk - static_cast<int>(lu.rank()), kept_names, ds_dphi, options.log_scale);
+        const std::string what = internal::Unidentified(info, nk - static_cast<int>(lu.rank()), kept_names, ds_dphi, options.log_scale);
         summary.covariance_message = "the information matrix is singular: " +
                                      (what.empty() ? std::string("some parameters are not identifiable") : what);
       } else {
@@ -926,6 +851,13 @@ std::string FitSummary::BriefReport() const {
   return out.str();
 }
 
+std::string FitSummary::CovarianceNote() const {
+  if (covariance_message.empty()) return "";
+  const bool some = std::any_of(estimates.begin(), estimates.end(),
+                                [](const ParameterEstimate& e) { return std::isfinite(e.se); });
+  return (some ? "" : "no standard errors: ") + covariance_message;
+}
+
 std::string FitSummary::FullReport() const {
   std::ostringstream out;
   out << BriefReport() << "\n\n";
@@ -941,11 +873,7 @@ std::string FitSummary::FullReport() const {
     }
     out << line;
   }
-  if (!covariance_message.empty()) {
-    const bool some = std::any_of(estimates.begin(), estimates.end(),
-                                  [](const ParameterEstimate& e) { return std::isfinite(e.se); });
-    out << "  (" << (some ? "" : "no standard errors: ") << covariance_message << ")\n";
-  }
+  if (!covariance_message.empty()) out << "  (" << CovarianceNote() << ")\n";
   if (correlation.size() > 0 && estimated.size() > 1) {
     out << "\n  correlation\n";
     for (size_t i = 0; i < estimated.size(); ++i) {

@@ -115,6 +115,9 @@ struct FitSummary {
 
   Eigen::VectorXd values;        ///< the objective's full parameter vector at the estimate
 
+  /// covariance_message as a note for a report: prefixed by "no standard
+  /// errors: " when none could be computed; empty when there is nothing to say.
+  std::string CovarianceNote() const;
   std::string BriefReport() const;
   std::string FullReport() const;
 };
