@@ -432,7 +432,7 @@ TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are tho
 
 TEST_CASE("a singular information matrix names what the data do not determine", "[fit][covariance]") {
   // Oral data alone determine CL/F and V/F, not CL, V and F1: along the log scale's direction (0, 1, 1, 1) the
-  // predictions do not move. ID 1 of theophylline, by BFGS (LM would drift along that direction).
+  // predictions do not move. ID 1 of theophylline, by BFGS (LM holds F1 at its start: see the next test).
   for (const bool log_scale : {true, false}) {
     INFO((log_scale ? "log scale" : "natural scale"));
     pk::FitSubjectsRequest req = DatasetRequest("1cmt_oral", "theophylline.csv");
@@ -477,6 +477,77 @@ TEST_CASE("a singular information matrix names what the data do not determine", 
     INFO(fits[0].summary.FullReport());
     CHECK(fits[0].summary.covariance_message == "the information matrix is singular: D1 does not affect the predictions");
   }
+}
+
+TEST_CASE("LM holds the parameter along which the Jacobian is singular, and finds the fit of the others",
+          "[fit][covariance][lm]") {
+  // F1 free on oral data: J (0, 1, 1, 1) = 0 on the log scale at every point. lmder took the rounding-sized
+  // pivot for a real one and followed the null direction to CL ≈ 1e264, missing the minimum. Held at its
+  // start, F1 must give what a fit with F1 fixed there gives, on both propagators, for every subject.
+  for (const pk::Propagator propagator : {pk::Propagator::kExact, pk::Propagator::kOde}) {
+    const bool ode = propagator == pk::Propagator::kOde;
+    INFO((ode ? "ode" : "exact"));
+    auto request = [&](bool fixed) {
+      pk::FitSubjectsRequest req = DatasetRequest("1cmt_oral", "theophylline.csv");
+      req.objective.propagator = propagator;
+      req.subjects = {0, 4, 5, 7};  // 4, 5 and 7: where the ODE route's Jacobian is singular to 1e-11 only
+      for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+      req.parameters.push_back({"F1", 0.8, fixed});
+      return req;
+    };
+    const auto free = pk::FitSubjects(request(false));
+    const auto fixed = pk::FitSubjects(request(true));
+    REQUIRE(free.size() == fixed.size());
+    for (size_t i = 0; i < free.size(); ++i) {
+      const pk::FitSummary& a = free[i].summary;
+      const pk::FitSummary& b = fixed[i].summary;
+      INFO(a.FullReport());
+      INFO(b.FullReport());
+      REQUIRE(free[i].ok);
+      REQUIRE(fixed[i].ok);
+      CHECK(a.termination == pk::TerminationType::kConvergence);
+      // The ODE fits differ by more than rounding: with F1 free, CVODES's error control also watches a fourth
+      // sensitivity, which changes its steps (up to 1.6e-7 apart at rtol 1e-8; allowed: 100 rtol).
+      CHECK(a.objective == Approx(b.objective).epsilon(ode ? 1e-6 : 1e-10));
+      for (size_t k = 0; k < a.estimates.size(); ++k) {
+        INFO(a.estimates[k].name);
+        CHECK(a.estimates[k].estimate == Approx(b.estimates[k].estimate).epsilon(ode ? 1e-4 : 1e-6));
+      }
+      CHECK_THAT(a.covariance_message, Catch::StartsWith("the information matrix is singular: CL, V and F1 are not "
+                                                         "determined separately"));
+      CHECK_THAT(a.covariance_message, Catch::EndsWith("; LM held F1 at its initial value 0.8 (the Jacobian is "
+                                                       "singular along it)"));
+    }
+  }
+}
+
+TEST_CASE("the coordinate that dominates a null direction of a Jacobian", "[fit][covariance][lm]") {
+  using pk::internal::NullCoordinate;
+  Eigen::MatrixXd j(5, 3);
+  j << 1, 0.2, -1, 2, 1, 0.5, 0.5, -3, 2, -1, 0.4, 1, 3, 2, 0;
+  double ratio = -1;
+  CHECK(NullCoordinate(j, 1e-12, &ratio) == -1);
+  CHECK(ratio > 1e-3);
+  // Column 1 = 10 × column 0: J (10, −1, 0) = 0, so column 0 has the largest share.
+  Eigen::MatrixXd dependent = j;
+  dependent.col(1) = 10 * j.col(0);
+  CHECK(NullCoordinate(dependent, 1e-12, &ratio) == 0);
+  CHECK(ratio < 1e-15);
+  // Column 2 = column 0 + column 1: equal shares (1, 1, −1), and the last of them is held.
+  dependent = j;
+  dependent.col(2) = j.col(0) + j.col(1);
+  CHECK(NullCoordinate(dependent, 1e-12) == 2);
+  // Nearly dependent, well above the threshold: regular.
+  dependent.col(2) += 1e-6 * Eigen::VectorXd::Ones(5);
+  CHECK(NullCoordinate(dependent, 1e-12, &ratio) == -1);
+  CHECK(ratio > 1e-8);
+  CHECK(NullCoordinate(dependent, 1e-5) == 2);
+  // A zero column, and fewer rows than columns.
+  dependent = j;
+  dependent.col(1).setZero();
+  CHECK(NullCoordinate(dependent, 1e-12, &ratio) == 1);
+  CHECK(ratio == 0);
+  CHECK(NullCoordinate(j.topRows(2), 1e-12) >= 0);
 }
 
 TEST_CASE("the words for a singular information matrix: parameters without effect, one direction, several",

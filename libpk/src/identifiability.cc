@@ -5,6 +5,7 @@
 #include <cstdio>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
 
 #include "internal_text.h"
 
@@ -90,6 +91,33 @@ std::string Unidentified(const Eigen::MatrixXd& info, int nullity, const std::ve
     }
   }
   return internal::Join(parts, "; ");
+}
+
+int NullCoordinate(const Eigen::MatrixXd& jacobian, double threshold, double* ratio) {
+  const Eigen::Index n = jacobian.cols();
+  if (ratio) *ratio = 1;
+  if (n == 0 || jacobian.rows() == 0) return -1;
+  const Eigen::VectorXd norms = jacobian.colwise().norm().transpose();
+  for (Eigen::Index j = n - 1; j >= 0; --j) {
+    if (norms(j) == 0) {
+      if (ratio) *ratio = 0;
+      return static_cast<int>(j);
+    }
+  }
+  const Eigen::MatrixXd scaled = jacobian * norms.cwiseInverse().asDiagonal();
+  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(scaled, Eigen::ComputeFullV);
+  const Eigen::VectorXd& sigma = svd.singularValues();
+  // Fewer rows than columns: the missing singular values are 0.
+  const double smallest = jacobian.rows() < n ? 0.0 : sigma(n - 1);
+  if (ratio) *ratio = smallest / sigma(0);
+  if (!(smallest <= threshold * sigma(0))) return -1;
+  // The null vector of the scaled problem, back on the optimiser's scale.
+  const Eigen::VectorXd v = norms.cwiseInverse().cwiseProduct(svd.matrixV().col(n - 1)).cwiseAbs();
+  const double largest = v.maxCoeff();
+  for (Eigen::Index j = n - 1; j >= 0; --j) {
+    if (v(j) >= (1 - 1e-6) * largest) return static_cast<int>(j);
+  }
+  return -1;
 }
 
 }  // namespace internal

@@ -20,6 +20,13 @@ namespace internal {
 std::string Unidentified(const Eigen::MatrixXd& info, int nullity, const std::vector<std::string>& names,
                          const Eigen::VectorXd& ds_dphi, bool log_scale);
 
+/// The coordinate that dominates a null direction of a residual Jacobian J
+/// (m×n), or -1 when J is regular. J counts as singular when a column is zero or
+/// when, its columns scaled to unit norm, σ_min ≤ `threshold`·σ_max. The
+/// coordinate is the one with the largest share |v_j| of the null vector v on
+/// the optimiser's scale; among shares within 1e-6 of each other, the last.
+int NullCoordinate(const Eigen::MatrixXd& jacobian, double threshold, double* ratio = nullptr);
+
 }  // namespace internal
 }  // namespace pk
 
