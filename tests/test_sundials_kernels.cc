@@ -144,6 +144,19 @@ TEST_CASE("libpk's serial vector kernels compute what SUNDIALS's compute, to the
                      N_Vector out[2] = {v[6], v[7]};
                      N_VLinearCombinationVectorArray(2, 3, cc, w, out);
                    }});
+      // More than the 8 columns libpk's kernel keeps on the stack.
+      o.push_back({"LinearCombinationVectorArray 10", [=](const std::vector<N_Vector>& v) {
+                     double cc[10];
+                     N_Vector columns[10][1];
+                     N_Vector* w[10];
+                     for (int i = 0; i < 10; ++i) {
+                       cc[i] = i % 3 == 0 ? 1.0 : c * (i - 4);
+                       columns[i][0] = v[static_cast<size_t>(i % 7)];
+                       w[i] = columns[i];
+                     }
+                     N_Vector out[1] = {v[7]};
+                     N_VLinearCombinationVectorArray(1, 10, cc, w, out);
+                   }});
       return o;
     }();
     for (const auto& op : ops) {
