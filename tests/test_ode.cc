@@ -351,6 +351,18 @@ TEST_CASE("nonlinear steady states: Newton's fixed point against long regimens a
     CHECK_FALSE(a.ok);
     CHECK(a.message.find("steady state") != std::string::npos);
   }
+  SECTION("periodic doses: none above the capacity, and the message says why") {
+    // VMAX = 20 per hour removes at most 240 per 12 h cycle.
+    auto above = Parse("ID,TIME,AMT,II,SS,EVID\n1,0,300,12,1,1\n1,4,0,0,0,2\n");
+    const auto a = pk::SimulateSubject(*model, *above, 0, p, TightOde());
+    CHECK_FALSE(a.ok);
+    CHECK_THAT(a.message, Catch::Contains("no periodic steady state") &&
+                              Catch::Contains("is the dosing rate, AMT/II, above the elimination capacity?"));
+    auto below = Parse("ID,TIME,AMT,II,SS,EVID\n1,0,200,12,1,1\n1,4,0,0,0,2\n");
+    const auto b = pk::SimulateSubject(*model, *below, 0, p, TightOde());
+    REQUIRE(b.ok);
+    CHECK(b.rows[0].cp > 0);
+  }
 }
 
 TEST_CASE("synthetic Michaelis-Menten data (bolus, then infusion) is recovered to 1e-5", "[ode][fit]") {

@@ -23,6 +23,7 @@
 #define PK_SRC_ODE_ODE_PROPAGATOR_H_
 
 #include <cmath>
+#include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
@@ -208,14 +209,14 @@ class OdePropagator {
       Eigen::PartialPivLU<Eigen::MatrixXd> lu(Eigen::MatrixXd::Identity(n_, n_) - s.leftCols(n_));
       const Eigen::VectorXd dx = lu.solve(xp - x);
       if (!dx.allFinite()) {
-        throw NumericalFailure("no periodic steady state (I − P_x is singular: is nothing eliminated?)");
+        throw NumericalFailure("no periodic steady state (I − P_x is singular: " + CycleHint(x) + ")");
       }
       x += dx;
       // Quadratic convergence: once the step is at the integration tolerance,
       // this last update leaves x* as accurate as the integration.
       if (it > 0 && dx.lpNorm<Eigen::Infinity>() <= Tolerance(x)) break;
       if (it >= options_.max_newton_iterations) {
-        throw NumericalFailure("no periodic steady state: Newton on x = P(x) did not converge");
+        throw NumericalFailure("no periodic steady state: Newton on x = P(x) did not converge (" + CycleHint(x) + ")");
       }
     }
     CheckPhysical(x, "the dosing cycle");
@@ -296,6 +297,18 @@ class OdePropagator {
     if (sys_.is_linear() || x.minCoeff() >= -Tolerance(x)) return;
     throw NumericalFailure(std::string("no steady state with non-negative amounts for ") + what +
                            " (is the dosing rate above the elimination capacity?)");
+  }
+
+  // Why a dosing cycle may have no fixed point. A saturable elimination
+  // removes at most so much per cycle: above that dosing rate the amounts grow
+  // without bound, and Newton runs to amounts where a cycle removes no more
+  // than it did (P_x → I).
+  std::string CycleHint(const Eigen::VectorXd& x) const {
+    if (sys_.is_linear()) return "is nothing eliminated?";
+    char amounts[32];
+    std::snprintf(amounts, sizeof amounts, "%.3g", x.lpNorm<Eigen::Infinity>());
+    return std::string("Newton reached amounts of ") + amounts +
+           ": is the dosing rate, AMT/II, above the elimination capacity?";
   }
 
   double Tolerance(const Eigen::VectorXd& x) const {
