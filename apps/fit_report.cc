@@ -1,5 +1,6 @@
 #include "fit_report.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -70,6 +71,65 @@ std::string SubjectSvg(const SubjectFit& f, bool log, int output = 1) {
 }
 
 int NumPlots(const SubjectFit& f) { return f.output_curves.empty() ? 1 : static_cast<int>(f.output_curves.size()); }
+
+// The usual goodness-of-fit plots over all fitted subjects, for output `output`:
+// observed against predicted (with the line of identity), and the weighted
+// residuals against time and against the prediction (with the zero line).
+// Empty when no subject has samples of that output.
+std::vector<std::pair<std::string, std::string>> GoodnessOfFitSvgs(const std::vector<SubjectFit>& fits, int output,
+                                                                   bool several_outputs) {
+  PlotSeries dv_pred{"samples", {}, {}, true}, wres_time{"samples", {}, {}, true}, wres_pred{"samples", {}, {}, true};
+  std::string name;
+  for (const SubjectFit& f : fits) {
+    if (!f.ok) continue;
+    if (!f.output_names.empty() && output <= static_cast<int>(f.output_names.size())) name = f.output_names[output - 1];
+    for (int k = 0; k < f.pred.size(); ++k) {
+      if (!f.sample_output.empty() && f.sample_output[k] != output) continue;
+      if (f.sample_output.empty() && output != 1) continue;
+      dv_pred.x.push_back(f.pred(k));
+      dv_pred.y.push_back(f.dv(k));
+      if (k < f.wres.size()) {
+        wres_time.x.push_back(f.times[k]);
+        wres_time.y.push_back(f.wres(k));
+        wres_pred.x.push_back(f.pred(k));
+        wres_pred.y.push_back(f.wres(k));
+      }
+    }
+  }
+  std::vector<std::pair<std::string, std::string>> svgs;
+  if (dv_pred.x.empty()) return svgs;
+  const std::string suffix = several_outputs ? " (" + name + ", DVID " + std::to_string(output) + ")" : "";
+  auto range = [](const std::vector<double>& a, const std::vector<double>& b) {
+    double lo = INFINITY, hi = -INFINITY;
+    for (const std::vector<double>* v : {&a, &b}) {
+      for (double x : *v) {
+        if (!std::isfinite(x)) continue;
+        lo = std::min(lo, x);
+        hi = std::max(hi, x);
+      }
+    }
+    return std::make_pair(lo, hi);
+  };
+  const auto both = range(dv_pred.x, dv_pred.y);
+  PlotSeries identity{"identity", {both.first, both.second}, {both.first, both.second}, false};
+  PlotOptions o;
+  o.title = "observed against predicted" + suffix;
+  o.x_label = "predicted (PRED)";
+  o.y_label = "observed (DV)";
+  svgs.push_back({"dv_pred", RenderSvg({identity, dv_pred}, o)});
+  if (!wres_time.x.empty()) {
+    const auto t = range(wres_time.x, wres_time.x);
+    const auto p = range(wres_pred.x, wres_pred.x);
+    o.y_label = "weighted residual (WRES)";
+    o.title = "weighted residuals against time" + suffix;
+    o.x_label = "time";
+    svgs.push_back({"wres_time", RenderSvg({PlotSeries{"zero", {t.first, t.second}, {0, 0}, false}, wres_time}, o)});
+    o.title = "weighted residuals against prediction" + suffix;
+    o.x_label = "predicted (PRED)";
+    svgs.push_back({"wres_pred", RenderSvg({PlotSeries{"zero", {p.first, p.second}, {0, 0}, false}, wres_pred}, o)});
+  }
+  return svgs;
+}
 
 }  // namespace
 
@@ -235,7 +295,22 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     }
     html << "</tr>\n";
   }
-  html << "</table>\n<h2>Subjects</h2>\n";
+  html << "</table>\n";
+  // Goodness of fit, per output; the files are gof_<plot>.svg (gof_<plot>_<output>.svg beyond output 1).
+  std::vector<std::pair<std::string, std::string>> gof_files;
+  int outputs = 1;
+  for (const SubjectFit& f : fits) outputs = std::max(outputs, f.ok ? NumPlots(f) : 1);
+  for (int k = 1; k <= outputs; ++k) {
+    for (auto& plot : GoodnessOfFitSvgs(fits, k, outputs > 1)) {
+      if (gof_files.empty()) {
+        html << "<h2>Goodness of fit</h2>\n<p>All subjects together. PRED is each subject's own fitted prediction; "
+             << "WRES = √W·(DV − PRED)/σ̂ (least squares) or (DV − PRED)/σ (maximum likelihood).</p>\n";
+      }
+      html << plot.second << "\n";
+      gof_files.push_back({"gof_" + plot.first + (k > 1 ? "_" + std::to_string(k) : "") + ".svg", plot.second});
+    }
+  }
+  html << "<h2>Subjects</h2>\n";
   for (const SubjectFit& f : fits) {
     html << "<h3 id=\"id" << FormatNumber(f.id) << "\">ID " << FormatNumber(f.id) << "</h3>\n";
     if (!f.ok) {
@@ -276,6 +351,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
                           SubjectSvg(f, context.log_plots, k));
     }
   }
+  for (const auto& file : gof_files) WriteFileAtomically(dir + "/" + file.first, file.second);
   WriteFileAtomically(dir + "/report.html", html.str());
 }
 

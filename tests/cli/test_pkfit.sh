@@ -22,6 +22,12 @@ head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES" || fa
 awk -F, 'NR>1 { d = $3 - $4 - $5; if (d < 0) d = -d; if (d > 1e-9) bad = 1 } END { exit bad }' \
   "$work/theo/predictions.csv" || fail "RES is not DV - PRED"
 grep -q "converged" "$work/theo.txt" || fail "no estimates table on stdout"
+# Goodness of fit over all subjects: one point per prediction row in each plot, and the plots in the report.
+for f in gof_dv_pred.svg gof_wres_time.svg gof_wres_pred.svg; do
+  [ "$(grep -c "<circle" "$work/theo/$f")" -eq 132 ] || fail "$f should hold the 132 samples"
+done
+grep -q "<h2>Goodness of fit</h2>" "$work/theo/report.html" || fail "report lacks the goodness-of-fit section"
+[ "$(grep -c "<svg" "$work/theo/report.html")" -eq 15 ] || fail "theophylline report should hold 3 + 12 plots"
 
 # --init auto prints the starting values computed from the data, and the report names their source.
 "$pkfit" --model 2cmt_iv --data "$root/datasets/indomethacin.csv" --init auto -o "$work/auto" -q >"$work/auto.txt" ||
@@ -145,6 +151,9 @@ paste -d, "$work/mm_eval_forward.csv" "$work/mm_eval_adjoint.csv" | awk -F, 'NR>
 "$pkfit" --model 1cmt_iv_emax --data "$root/datasets/emax_synthetic.csv" --weighting column:W -o "$work/emax" -q ||
   fail "1cmt_iv_emax fit failed"
 for f in fit_ID1.svg fit_ID1_EFFECT.svg report.html; do [ -s "$work/emax/$f" ] || fail "emax: missing $f"; done
-[ "$(grep -c "<svg" "$work/emax/report.html")" -eq 8 ] || fail "emax report should hold 2 plots per subject"
+[ "$(grep -c "<svg" "$work/emax/report.html")" -eq 14 ] ||
+  fail "emax report should hold 2 plots per subject and 3 goodness-of-fit plots per output"
+for f in gof_dv_pred.svg gof_dv_pred_2.svg gof_wres_time_2.svg; do [ -s "$work/emax/$f" ] || fail "emax: missing $f"; done
+grep -q "observed against predicted (EFFECT, DVID 2)" "$work/emax/gof_dv_pred_2.svg" || fail "emax: DVID 2 plot title"
 
 if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi
