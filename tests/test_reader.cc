@@ -73,7 +73,9 @@ TEST_CASE("reader errors name file, line and column", "[reader]") {
   ExpectError("ID,TIME,AMT\n1,0,abc\n", 2, 3, "'abc' is not a number");
   ExpectError("ID,AMT\n1,0\n", 1, 0, "missing required column TIME");
   ExpectError("ID,TIME,AMT\n1,0,-5\n", 2, 3, "AMT must not be negative");
-  ExpectError("ID,TIME,AMT,EVID\n1,5,0,0\n1,3,0,0\n", 3, 2, "TIME decreases within ID 1");
+  ExpectError("ID,TIME,AMT,EVID\n1,5,0,0\n1,3,0,0\n", 3, 2, "TIME decreases within ID 1 (3 after 5)");
+  ExpectError("ID;TIME;AMT\n1;0;100\n", 1, 0, "this header seems to use ';'");
+  ExpectError("ID\tTIME\tAMT\n1\t0\t100\n", 1, 0, "this header seems to use '\\t'");
   ExpectError("ID,TIME,AMT,II,ADDL\n1,0,10,0,3\n", 2, 4, "ADDL>0 needs II>0");
   ExpectError("ID,TIME,AMT\n1,0\n", 2, 3, "expected 3 fields");
   ExpectError("ID,TIME,AMT\n1,0,1,2\n", 2, 4, "expected 3 fields");

@@ -14,6 +14,7 @@
 
 #include "../internal_text.h"
 #include "pk/dataset.h"
+#include "pk/output.h"
 #include "pk/error.h"
 
 namespace pk {
@@ -117,8 +118,18 @@ class Parser {
       }
     }
     if (item_column_[kTime] < 0) {
+      std::string hint;
+      if (data->columns.size() == 1) {
+        for (const char* sep : {";", "\t", "|"}) {
+          if (data->columns[0].find(sep) != std::string::npos) {
+            hint = std::string("; columns are separated by commas, and this header seems to use '") +
+                   (sep[0] == '\t' ? "\\t" : sep) + "'";
+            break;
+          }
+        }
+      }
       Fail(line_number, 0, "missing required column TIME (the header has: " +
-                               internal::Join(data->columns, ",") + ")");
+                               internal::Join(data->columns, ",") + ")" + hint);
     }
   }
 
@@ -202,7 +213,7 @@ class Parser {
       const bool reset = r.evid == Evid::kReset || r.evid == Evid::kResetDose;
       if (r.time < prev.time && !reset) {
         Fail(line, Col(kTime), "TIME decreases within ID " + internal::Trim(fields[std::max(item_column_[kId], 0)]) +
-                                   " (" + std::to_string(r.time) + " after " + std::to_string(prev.time) +
+                                   " (" + FormatNumber(r.time) + " after " + FormatNumber(prev.time) +
                                    ") on a record that is not a reset (EVID 3 or 4)");
       }
     }
