@@ -128,6 +128,56 @@ TEST_CASE("delta-method standard errors of derived parameters", "[conversion]") 
   CHECK(iv.parameters[1].rse_pct == Approx(100 * sb / b1).epsilon(1e-6));
 }
 
+TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-method SEs", "[conversion]") {
+  {  // 1cmt_iv: λ = CL/V, Var λ = λ²(Var CL/CL² + Var V/V² − 2 Cov/(CL V)).
+    const auto model = pk::MakeModel("1cmt_iv");
+    const double cl = 4, v = 30;
+    Eigen::VectorXd theta(2);
+    theta << cl, v;
+    Eigen::MatrixXd cov(2, 2);
+    cov << 0.09, 0.5, 0.5, 16;
+    const auto r = pk::ModelExponents(*model, theta, cov);
+    REQUIRE(r.ok);
+    REQUIRE(r.parameters.size() == 3);
+    CHECK(r.parameters[0].name == "LAMBDA1");
+    CHECK(r.parameters[0].value == Approx(cl / v));
+    const double var = (cl / v) * (cl / v) * (cov(0, 0) / (cl * cl) + cov(1, 1) / (v * v) - 2 * cov(0, 1) / (cl * v));
+    CHECK(r.parameters[0].se == Approx(std::sqrt(var)).epsilon(1e-6));
+    CHECK(r.parameters[1].name == "THALF1");
+    CHECK(r.parameters[1].value == Approx(std::log(2.0) * v / cl));
+    CHECK(r.parameters[1].rse_pct == Approx(r.parameters[0].rse_pct).epsilon(1e-6));  // same relative error
+    CHECK(r.parameters[2].name == "AMP1");
+    CHECK(r.parameters[2].value == Approx(1 / v));
+    // No covariance: values without SEs.
+    const auto bare = pk::ModelExponents(*model, theta, Eigen::MatrixXd());
+    REQUIRE(bare.ok);
+    CHECK(std::isnan(bare.parameters[0].se));
+  }
+  {  // 2cmt_iv: λ1 + λ2 = k10 + k12 + k21 and λ1 λ2 = k10 k21, fastest first.
+    const auto model = pk::MakeModel("2cmt_iv");
+    Eigen::VectorXd theta(4);
+    theta << 5, 20, 8, 60;  // CL, V1, Q, V2
+    const double k10 = 5.0 / 20, k12 = 8.0 / 20, k21 = 8.0 / 60;
+    const auto r = pk::ModelExponents(*model, theta, Eigen::MatrixXd::Identity(4, 4) * 0.01);
+    REQUIRE(r.ok);
+    REQUIRE(r.parameters.size() == 6);
+    const double l1 = r.parameters[0].value, l2 = r.parameters[1].value;
+    CHECK(l1 > l2);
+    CHECK(l1 + l2 == Approx(k10 + k12 + k21));
+    CHECK(l1 * l2 == Approx(k10 * k21));
+    CHECK(r.parameters[3].value == Approx(std::log(2.0) / l2));
+    CHECK(std::isfinite(r.parameters[1].se));
+  }
+  {  // Coincident rates (KA = CL/V) have no exponential form: said, not thrown.
+    const auto model = pk::MakeModel("1cmt_oral");
+    Eigen::VectorXd theta(3);
+    theta << 0.1, 3, 30;  // KA, CL, V
+    const auto r = pk::ModelExponents(*model, theta, Eigen::MatrixXd());
+    CHECK_FALSE(r.ok);
+    CHECK(r.message == "A(θ) is defective (coincident rates)");
+  }
+}
+
 TEST_CASE("infeasible coefficients are reported with a reason", "[conversion]") {
   Eigen::VectorXd c(4);
   c << 0.2, 0.5, 0.1, 0.01;  // s² + 0.2 s + 0.5: complex roots

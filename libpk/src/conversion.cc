@@ -122,7 +122,9 @@ bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Expon
   }
   const Eigen::MatrixXd v = es.eigenvectors().real();
   const Eigen::FullPivLU<Eigen::MatrixXd> lu(v);
-  if (!lu.isInvertible()) {
+  // Nearly parallel eigenvectors (rates that coincide to about 1e-10, e.g. KA = CL/V) give amplitudes of
+  // opposite sign that cancel to nothing but rounding: the response is t·e^{−λt} there, not a sum of exponentials.
+  if (!lu.isInvertible() || lu.rcond() < 1e-10) {
     *why = "A(θ) is defective (coincident rates)";
     return false;
   }
@@ -144,6 +146,30 @@ bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Expon
     e->amplitude.push_back(m.second);
   }
   return true;
+}
+
+TransferFunctionReading ModelExponents(const Model& model, const Eigen::VectorXd& theta,
+                                       const Eigen::MatrixXd& covariance) {
+  TransferFunctionReading out;
+  out.reading = "exponents";
+  Exponentials e;
+  if (!ModelToExponentials(model, theta, &e, &out.message)) return out;
+  const int n = static_cast<int>(e.rate.size());
+  std::vector<std::string> names;
+  for (const char* prefix : {"LAMBDA", "THALF", "AMP"}) {
+    for (int i = 1; i <= n; ++i) names.push_back(prefix + std::to_string(i));
+  }
+  Propagate(
+      [&model](const Eigen::VectorXd& t, std::vector<double>* v, std::string* why) {
+        Exponentials x;
+        if (!ModelToExponentials(model, t, &x, why)) return false;
+        v->assign(x.rate.begin(), x.rate.end());
+        for (double r : x.rate) v->push_back(std::log(2.0) / r);
+        v->insert(v->end(), x.amplitude.begin(), x.amplitude.end());
+        return true;
+      },
+      names, theta, covariance, &out);
+  return out;
 }
 
 std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::VectorXd& coefficients,

@@ -6,6 +6,7 @@
 #include <mutex>
 #include <thread>
 
+#include "pk/conversion.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
 #include "pk/ode_model.h"
@@ -64,6 +65,21 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
         }
       }
       out->derived = ConvertTransferFunction(coefficients, cov);
+    } else if (linear != nullptr) {
+      // Exponents and half-lives of the fitted compartment model, SEs from the model parameters' covariance.
+      const int m = req.model->num_parameters();
+      Eigen::MatrixXd cov;
+      if (out->summary.covariance.size() > 0) {
+        cov = Eigen::MatrixXd::Zero(m, m);
+        const auto& names = out->summary.estimated;
+        for (size_t i = 0; i < names.size(); ++i) {
+          for (size_t j = 0; j < names.size(); ++j) {
+            const int a = objective.ParameterIndex(names[i]), b = objective.ParameterIndex(names[j]);
+            if (a < m && b < m) cov(a, b) = out->summary.covariance(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
+          }
+        }
+      }
+      out->derived = {ModelExponents(*req.model, out->summary.values.head(m), cov)};
     }
     const Objective::Evaluation ev = objective.Evaluate(out->summary.values, {}, Objective::Need::kValue);
     if (ev.ok) {

@@ -22,6 +22,10 @@ head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES" || fa
 awk -F, 'NR>1 { d = $3 - $4 - $5; if (d < 0) d = -d; if (d > 1e-9) bad = 1 } END { exit bad }' \
   "$work/theo/predictions.csv" || fail "RES is not DV - PRED"
 grep -q "converged" "$work/theo.txt" || fail "no estimates table on stdout"
+# Exponents and half-lives of every fitted compartment model, with SEs (KA and k for 1cmt_oral).
+grep -q "^exponents and half-lives" "$work/theo.txt" || fail "no half-lives on stdout"
+[ "$(grep -c "^[0-9]*,exponents,THALF[12]," "$work/theo/derived.csv")" -eq 24 ] ||
+  fail "derived.csv should hold two half-lives per subject"
 # Goodness of fit over all subjects: one point per prediction row in each plot, and the plots in the report.
 for f in gof_dv_pred.svg gof_wres_time.svg gof_wres_pred.svg; do
   [ "$(grep -c "<circle" "$work/theo/$f")" -eq 132 ] || fail "$f should hold the 132 samples"

@@ -47,6 +47,14 @@ struct TransferFunctionReading {
 /// Returns false with `why` for a complex or defective spectrum.
 bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Exponentials* e, std::string* why);
 
+/// The "exponents" reading of a linear compartment model: λ_i (fastest first),
+/// t½_i = ln2/λ_i and the amplitudes a_i of its unit-dose response (see
+/// ModelToExponentials), with standard errors by the delta method from the
+/// covariance of `theta` (the model parameters, model.num_parameters() of them;
+/// pass an empty matrix for no standard errors).
+TransferFunctionReading ModelExponents(const Model& model, const Eigen::VectorXd& theta,
+                                       const Eigen::MatrixXd& covariance);
+
 /// Converts tf<n> coefficients {a₁..aₙ, b₁..bₙ} (per unit dose) with their
 /// covariance (2n×2n; pass an empty matrix for no standard errors) into three
 /// readings: the exponents (λ_i fastest first, t½_i = ln2/λ_i, amplitudes a_i),
