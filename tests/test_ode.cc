@@ -358,6 +358,12 @@ TEST_CASE("nonlinear steady states: Newton's fixed point against long regimens a
     CHECK_FALSE(a.ok);
     CHECK_THAT(a.message, Catch::Contains("no periodic steady state") &&
                               Catch::Contains("is the dosing rate, AMT/II, above the elimination capacity?"));
+    // An interval below the time axis' resolution: the same reason, not CVODES's complaint about its stop time.
+    auto instant = Parse("ID,TIME,AMT,II,SS,EVID\n1,0,10,1e-300,1,1\n1,4,0,0,0,2\n");
+    const auto c = pk::SimulateSubject(*model, *instant, 0, p, TightOde());
+    CHECK_FALSE(c.ok);
+    CHECK_THAT(c.message, Catch::Contains("no periodic steady state") && Catch::Contains("elimination capacity") &&
+                              !Catch::Contains("CVode"));
     auto below = Parse("ID,TIME,AMT,II,SS,EVID\n1,0,200,12,1,1\n1,4,0,0,0,2\n");
     const auto b = pk::SimulateSubject(*model, *below, 0, p, TightOde());
     REQUIRE(b.ok);

@@ -542,6 +542,12 @@ struct CvodesSolver::Impl {
   }
 };
 
+namespace {
+// A segment this short is below the resolution of CVODES's time axis (II = 1e-300 made CVODES report "tstop
+// is behind current t"), and x moves over it by about h·f: it is skipped like an empty one.
+bool Negligible(double h) { return !(h > 1e-13); }
+}  // namespace
+
 CvodesSolver::CvodesSolver(const OdeSystem& system, const OdeOptions& options) : impl_(new Impl(system, options)) {}
 CvodesSolver::~CvodesSolver() {
   // Stored adjoint memories go back to this thread's pool for the next evaluation.
@@ -553,7 +559,7 @@ const OdeStatistics& CvodesSolver::statistics() const { return impl_->stats; }
 void CvodesSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc,
                            double* loss_time) {
   Impl& d = *impl_;
-  if (in.h <= 0) return;
+  if (Negligible(in.h)) return;
   d.in = &in;
   d.k = 0;
   d.with_loss = loss != nullptr && !in.continuous.empty();
@@ -581,7 +587,7 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
                                       Eigen::RowVectorXd* dloss, double* loss_time) {
   Impl& d = *impl_;
   const int k = static_cast<int>(s->cols());
-  if (in.h <= 0) return;
+  if (Negligible(in.h)) return;
   if (k == 0) {
     Advance(in, x, loss, nullptr, loss_time);
     return;
@@ -793,7 +799,7 @@ void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd&
   Impl& d = *impl_;
   *lambda_start = lambda_end;
   q->setZero(in.dtheta.cols());
-  if (in.h <= 0) return;
+  if (Negligible(in.h)) return;
   if (!d.adjoint) d.adjoint.reset(new Impl::Adjoint);
   // Forward over this segment only: checkpoints never straddle a jump.
   d.ForwardStore(*d.adjoint, in, x0, nullptr, true, &d.adjoint->xmax);
@@ -808,7 +814,7 @@ void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd&
 
 int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl& d = *impl_;
-  if (in.h <= 0) return -1;
+  if (Negligible(in.h)) return -1;
   const int kq = std::max<int>(static_cast<int>(in.dtheta.cols()), 1);
   const Impl::Adjoint* last = d.stored.empty() ? nullptr : d.stored.back().get();
   // The same initial value problem continued (see Advance): one trajectory.

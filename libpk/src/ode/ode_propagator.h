@@ -324,6 +324,7 @@ class OdePropagator {
   // than it did (P_x → I).
   std::string CycleHint(const Eigen::VectorXd& x) const {
     if (sys_.is_linear()) return "is nothing eliminated?";
+    if (!(x.lpNorm<Eigen::Infinity>() > 0)) return "is the dosing rate, AMT/II, above the elimination capacity?";
     char amounts[32];
     std::snprintf(amounts, sizeof amounts, "%.3g", x.lpNorm<Eigen::Infinity>());
     return std::string("Newton reached amounts of ") + amounts +
