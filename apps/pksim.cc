@@ -1,4 +1,5 @@
 // pksim: simulate a dosing regimen or a NONMEM-style dataset.
+#include <algorithm>
 #include <cstdio>
 #include <iostream>
 #include <sstream>
@@ -31,7 +32,9 @@ const char* const kUsage =
     "Examples:\n"
     "  pksim --model 2cmt_oral --dose 500 --ii 12 --doses 14 --times 0:0.5:168 --summary\n"
     "  pksim --model 1cmt_iv --dose 1000 --duration 2 --times 0:0.1:24 --param CL=4 --out sim.csv\n"
-    "  pksim --model 1cmt_oral --data datasets/theophylline.csv --param KA=1.5 --times 0:0.25:25\n";
+    "  pksim --model 1cmt_oral --data datasets/theophylline.csv --param KA=1.5 --times 0:0.25:25\n"
+    "  pksim --model 1cmt_oral --estimates pkfit_out/estimates.csv --dose 320 --ii 12 --doses 10 \\\n"
+    "        --times 0:1:120 --summary    (each fitted subject on a new regimen)\n";
 
 std::string FormatTable(const std::vector<pk::Exposure>& exposures, const std::vector<pk::SubjectSimulation>& sims) {
   std::ostringstream out;
@@ -84,6 +87,9 @@ int Main(int argc, char** argv) {
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "param,p", po::value<std::vector<std::string>>(&params)->composing(),
       "NAME=VALUE for a model parameter or dose modifier (F1, ALAG1, R1, D1); repeatable")(
+      "estimates", po::value<std::string>(),
+      "per-subject parameters from a table with columns ID, PARAMETER, ESTIMATE (pkfit's estimates.csv); "
+      "--param overrides them. With --data each ID takes its own; with a regimen, every ID in the table gets it")(
       "dose", po::value<double>(), "dose amount (regimen mode)")(
       "cmt", po::value<int>()->default_value(0), "dose compartment (0 = the model's default)")(
       "dose-time", po::value<double>()->default_value(0.0), "time of the first dose")(
@@ -160,7 +166,37 @@ int Main(int argc, char** argv) {
   sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
   sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
   sim_options.ode.absolute_tolerance = vm["atol"].as<double>();
-  const std::vector<pk::SubjectSimulation> sims = pk::Simulate(*model, data, values, sim_options);
+  std::vector<pk::SubjectSimulation> sims;
+  if (vm.count("estimates")) {
+    const std::string path = vm["estimates"].as<std::string>();
+    const auto estimates = pk::cli::ReadEstimates(path, *model);
+    if (!vm.count("data")) {
+      // The regimen for every subject of the table, under its ID.
+      const pk::Subject regimen = data.subjects.front();
+      data.subjects.clear();
+      for (const auto& e : estimates) {
+        data.subjects.push_back(regimen);
+        data.subjects.back().id = e.first;
+      }
+    }
+    for (int i = 0; i < static_cast<int>(data.subjects.size()); ++i) {
+      const double id = data.subjects[i].id;
+      const auto it = std::find_if(estimates.begin(), estimates.end(), [&](const auto& e) { return e.first == id; });
+      if (it == estimates.end()) {
+        pk::SubjectSimulation missing;
+        missing.id = id;
+        missing.ok = false;
+        missing.message = "no estimates for this ID in " + path;
+        sims.push_back(std::move(missing));
+        continue;
+      }
+      pk::ParameterValues merged = it->second;
+      for (const auto& kv : values) merged[kv.first] = kv.second;  // --param wins
+      sims.push_back(pk::SimulateSubject(*model, data, i, merged, sim_options));
+    }
+  } else {
+    sims = pk::Simulate(*model, data, values, sim_options);
+  }
   const auto* ode_model = dynamic_cast<const pk::OdeModel*>(model.get());
   const int extra_outputs = ode_model ? ode_model->num_outputs() - 1 : 0;
   int failed = 0;

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Command-line tests of pkfit: outputs on bundled data, --evaluate, failures and error exits.
 set -uo pipefail
-pkfit=$1; root=$2; work=$3
+pkfit=$1; root=$2; work=$3; pksim=${4:-}
 rm -rf "$work"; mkdir -p "$work"
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
@@ -22,6 +22,17 @@ head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES" || fa
 awk -F, 'NR>1 { d = $3 - $4 - $5; if (d < 0) d = -d; if (d > 1e-9) bad = 1 } END { exit bad }' \
   "$work/theo/predictions.csv" || fail "RES is not DV - PRED"
 grep -q "converged" "$work/theo.txt" || fail "no estimates table on stdout"
+# pksim --estimates simulates each subject at its fitted parameters: at the samples it predicts what pkfit did.
+if [ -n "$pksim" ]; then
+  "$pksim" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --estimates "$work/theo/estimates.csv" \
+    --out "$work/theo_sim.csv" || fail "pksim --estimates exited non-zero"
+  awk -F, 'NR > 1 && $3 == 0 { print $1 "," $2 "," $4 }' "$work/theo_sim.csv" >"$work/theo_sim_cp.csv"
+  awk -F, 'NR > 1 { print $1 "," $2 "," $4 }' "$work/theo/predictions.csv" >"$work/theo_pred.csv"
+  [ "$(wc -l <"$work/theo_sim_cp.csv")" -eq 132 ] || fail "pksim --estimates: expected 132 sample rows"
+  paste -d, "$work/theo_sim_cp.csv" "$work/theo_pred.csv" | awk -F, '{
+    if ($1 != $4 || $2 != $5) bad = 1; d = $3 - $6; if (d < 0) d = -d; if (d > 1e-10 * (1 + ($6 < 0 ? -$6 : $6))) bad = 1
+  } END { exit bad }' || fail "pksim at the estimates does not reproduce pkfit's predictions"
+fi
 # Exponents and half-lives of every fitted compartment model, with SEs (KA and k for 1cmt_oral).
 grep -q "^exponents and half-lives" "$work/theo.txt" || fail "no half-lives on stdout"
 [ "$(grep -c "^[0-9]*,exponents,THALF[12]," "$work/theo/derived.csv")" -eq 24 ] ||

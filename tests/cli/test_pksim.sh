@@ -66,4 +66,29 @@ printf 'ID,TIME,AMT,EVID,V\n1,0,100,1,0\n1,1,0,0,0\n2,0,100,1,10\n2,1,0,0,10\n' 
 grep -q "ID 1: simulation failed" "$work/partial.err" || fail "failed subject not reported"
 grep -q "^2,1," "$work/partial_out.csv" || fail "the other subject's rows are missing"
 
+# Per-subject parameters from an estimates table: each ID gets its own, --param overrides them, an ID without
+# estimates fails alone, and a bad table names file, line and column.
+printf 'ID,PARAMETER,ESTIMATE,SE\n1,KA,1.5,\n1,CL,2.5,0.1\n1,V,30,\n2,KA,0.8,\n2,CL,4,\n2,V,45,\n' >"$work/est.csv"
+"$pksim" --model 1cmt_oral --estimates "$work/est.csv" --dose 320 --ii 12 --doses 3 --times 0:4:36 \
+  --out "$work/est_sim.csv" || fail "--estimates with a regimen"
+"$pksim" --model 1cmt_oral --param KA=0.8 --param CL=4 --param V=45 --dose 320 --ii 12 --doses 3 --times 0:4:36 \
+  --out "$work/id2.csv" || fail "--param run"
+diff <(awk -F, 'NR > 1 && $1 == 2 { $1 = ""; print }' "$work/est_sim.csv") \
+  <(awk -F, 'NR > 1 { $1 = ""; print }' "$work/id2.csv") >/dev/null || fail "--estimates: ID 2 differs from --param"
+[ "$(awk -F, 'NR > 1 && $1 == 1' "$work/est_sim.csv" | wc -l)" -eq 10 ] || fail "--estimates: ID 1 missing"
+"$pksim" --model 1cmt_oral --estimates "$work/est.csv" --param CL=4 --dose 320 --times 0:4:8 --out "$work/over.csv" ||
+  fail "--estimates with --param"
+"$pksim" --model 1cmt_oral --param KA=1.5 --param CL=4 --param V=30 --dose 320 --times 0:4:8 --out "$work/over1.csv"
+diff <(awk -F, 'NR > 1 && $1 == 1 { $1 = ""; print }' "$work/over.csv") \
+  <(awk -F, 'NR > 1 { $1 = ""; print }' "$work/over1.csv") >/dev/null || fail "--param does not override --estimates"
+printf 'ID,TIME,AMT,EVID,CMT\n1,0,100,1,1\n1,2,0,2,0\n3,0,100,1,1\n3,2,0,2,0\n' >"$work/two.csv"
+"$pksim" --model 1cmt_oral --estimates "$work/est.csv" --data "$work/two.csv" >"$work/two_sim.csv" 2>"$work/two.err"
+[ $? -eq 1 ] || fail "an ID without estimates should exit 1"
+grep -q "ID 3: simulation failed: no estimates for this ID" "$work/two.err" || fail "missing-ID message"
+[ "$(awk -F, 'NR > 1 && $1 == 1' "$work/two_sim.csv" | wc -l)" -eq 1 ] || fail "ID 1 should still be simulated"
+printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CLX,2\n' >"$work/bad.csv"
+"$pksim" --model 1cmt_oral --estimates "$work/bad.csv" --dose 1 --times 0:1:2 2>"$work/bad.err"
+[ $? -eq 2 ] || fail "a bad estimates table should exit 2"
+grep -q "bad.csv:3:3: 'CLX' is not a parameter of model 1cmt_oral" "$work/bad.err" || fail "bad estimates message"
+
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi
