@@ -97,7 +97,9 @@ std::vector<std::pair<double, ParameterValues>> ReadEstimates(const std::string&
     };
     const double subject = number(id, "ID");
     const std::string& parameter = fields[name];
-    if (layout.Index(parameter) < 0) {
+    std::string upper;
+    for (char c : parameter) upper += static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+    if (layout.Index(parameter) < 0 && upper != "SIGMA_ADD" && upper != "SIGMA_PROP") {
       throw InputError(path, line_number, column_of(fields, name),
                        "'" + parameter + "' is not a parameter of model " + model.name());
     }

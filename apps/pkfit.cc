@@ -109,6 +109,9 @@ int Main(int argc, char** argv) {
       "NAME=VALUE: initial value; the parameter is estimated (also F1, ALAG1, R1, D1). 'auto': print the "
       "starting values computed from the data (the default for parameters without --init)")(
       "catalogue-init", "start from the catalogue defaults instead of values computed from the data")(
+      "init-from", po::value<std::string>(),
+      "per-subject starting values from a table with columns ID, PARAMETER, ESTIMATE (an earlier fit's "
+      "estimates.csv); they take precedence over --init")(
       "fix", po::value<std::vector<std::string>>(&fix)->composing(), "NAME=VALUE: hold at this value")(
       "param", po::value<std::vector<std::string>>(&params)->composing(), "same as --fix")(
       "lower", po::value<std::vector<std::string>>(&lower)->composing(), "NAME=VALUE: lower bound")(
@@ -206,6 +209,7 @@ int Main(int argc, char** argv) {
     }
   }
   req.initial_from_data = vm.count("catalogue-init") == 0;
+  if (vm.count("init-from")) req.initial_by_subject = pk::cli::ReadEstimates(vm["init-from"].as<std::string>(), *req.model);
   const pk::ParameterValues inits = pk::cli::ParseAssignments(init, "--init");
   pk::ParameterValues fixes = pk::cli::ParseAssignments(fix, "--fix");
   for (const auto& kv : pk::cli::ParseAssignments(params, "--param")) fixes[kv.first] = kv.second;

@@ -190,7 +190,10 @@ int Main(int argc, char** argv) {
         sims.push_back(std::move(missing));
         continue;
       }
-      pk::ParameterValues merged = it->second;
+      pk::ParameterValues merged;
+      for (const auto& kv : it->second) {
+        if (kv.first.rfind("SIGMA_", 0) != 0 && kv.first.rfind("sigma_", 0) != 0) merged[kv.first] = kv.second;
+      }
       for (const auto& kv : values) merged[kv.first] = kv.second;  // --param wins
       sims.push_back(pk::SimulateSubject(*model, data, i, merged, sim_options));
     }

@@ -251,6 +251,39 @@ std::vector<pk::SubjectFit> FitWith(pk::FitSubjectsRequest req, pk::OptimizerTyp
 
 }  // namespace
 
+TEST_CASE("per-subject starting values: an earlier fit's estimates restart each subject where it ended", "[fit]") {
+  pk::FitSubjectsRequest req = DatasetRequest("1cmt_oral", "theophylline.csv");
+  req.subjects = {0, 1, 2};
+  for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
+  const auto first = pk::FitSubjects(req);
+  REQUIRE(first.size() == 3);
+  // IDs 1 and 2 from their estimates (with a name this fit does not estimate, which is ignored); ID 3 as before.
+  for (int k = 0; k < 2; ++k) {
+    REQUIRE(first[k].ok);
+    pk::ParameterValues values{{"ALAG1", 0.3}};
+    for (const pk::ParameterEstimate& e : first[k].summary.estimates) values[e.name] = e.estimate;
+    req.initial_by_subject.emplace_back(first[k].id, values);
+  }
+  const auto again = pk::FitSubjects(req);
+  REQUIRE(again.size() == 3);
+  for (int k = 0; k < 3; ++k) {
+    INFO("ID " << again[k].id);
+    REQUIRE(again[k].ok);
+    CHECK(again[k].summary.objective == Approx(first[k].summary.objective).epsilon(1e-10));
+    for (size_t j = 0; j < again[k].summary.estimates.size(); ++j) {
+      CHECK(again[k].summary.estimates[j].estimate == Approx(first[k].summary.estimates[j].estimate).epsilon(1e-6));
+    }
+  }
+  for (int k = 0; k < 2; ++k) {
+    CHECK(again[k].initial_method == "the values given for this subject");
+    CHECK(again[k].initial.at("CL") == first[k].summary.estimates[1].estimate);
+    CHECK(again[k].summary.iterations <= 2);
+    CHECK(again[k].summary.iterations < first[k].summary.iterations);
+  }
+  CHECK(again[2].initial_method == first[2].initial_method);
+  CHECK(again[2].summary.iterations == first[2].summary.iterations);
+}
+
 TEST_CASE("Newton's trust region keeps maximum likelihood out of degenerate valleys: remifentanil", "[fit]") {
   // From these subjects' starting values the Fisher scoring step is tens of units in log sigma. Newton with a
   // line search along it used to land in a valley (predictions -> 0, sigma -> infinity, or V2 -> 0) and stop

@@ -39,6 +39,26 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
         out->initial_method = "catalogue defaults (from the data: " + est.message + ")";
       }
     }
+    for (const auto& entry : req.initial_by_subject) {
+      if (entry.first != out->id) continue;
+      int taken = 0, estimated = 0;
+      for (ParameterSpec& spec : specs) {
+        if (spec.fixed) continue;
+        ++estimated;
+        for (const auto& kv : entry.second) {
+          if (objective.ParameterIndex(kv.first) == objective.ParameterIndex(spec.name)) {
+            spec.initial = kv.second;
+            ++taken;
+          }
+        }
+      }
+      if (taken == estimated) {
+        out->initial_method = "the values given for this subject";
+      } else if (taken > 0) {
+        out->initial_method = "the values given for this subject (" + std::to_string(taken) + " of " +
+                              std::to_string(estimated) + "); the others from " + out->initial_method;
+      }
+    }
     const Eigen::VectorXd defaults = objective.DefaultValues();
     for (const ParameterSpec& spec : specs) {
       if (!spec.fixed) {

@@ -33,6 +33,18 @@ if [ -n "$pksim" ]; then
     if ($1 != $4 || $2 != $5) bad = 1; d = $3 - $6; if (d < 0) d = -d; if (d > 1e-10 * (1 + ($6 < 0 ? -$6 : $6))) bad = 1
   } END { exit bad }' || fail "pksim at the estimates does not reproduce pkfit's predictions"
 fi
+# --init-from: each subject restarts from its earlier estimates and stops sooner, at the same objective.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --init-from "$work/theo/estimates.csv" \
+  -o "$work/theo_again" -q || fail "--init-from refit failed"
+paste -d, "$work/theo/summary.csv" "$work/theo_again/summary.csv" | awk -F, 'NR > 1 {
+  d = $3 - $12; if (d < 0) d = -d; if (d > 1e-9 * $3 || $13 >= $4) bad = 1 } END { exit bad }' ||
+  fail "--init-from: refits should take fewer iterations to the same objective"
+grep -q "the values given for this subject" "$work/theo_again/fit_details.csv" || fail "--init-from: source not recorded"
+printf 'ID,PARAMETER,ESTIMATE\n1,KA,x\n' >"$work/bad_init.csv"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --init-from "$work/bad_init.csv" -o "$work/bi" \
+  2>"$work/bad_init.err"
+[ $? -eq 2 ] || fail "--init-from with a bad table should exit 2"
+grep -q "bad_init.csv:2:6: ESTIMATE: 'x' is not a number" "$work/bad_init.err" || fail "--init-from error location"
 # Exponents and half-lives of every fitted compartment model, with SEs (KA and k for 1cmt_oral).
 grep -q "^exponents and half-lives" "$work/theo.txt" || fail "no half-lives on stdout"
 [ "$(grep -c "^[0-9]*,exponents,THALF[12]," "$work/theo/derived.csv")" -eq 24 ] ||

@@ -5,6 +5,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -58,6 +59,11 @@ struct FitSubjectsRequest {
   /// from each subject's data (pk/initial_estimates.h) instead of the catalogue
   /// defaults; where that fails, the defaults are used and the reason recorded.
   bool initial_from_data = true;
+  /// Starting values per subject ID, e.g. an earlier fit's estimates. For the
+  /// parameters estimated here they take the place of ParameterSpec::initial
+  /// and of the values from the data; other names are ignored. A subject
+  /// without an entry starts as if this were empty.
+  std::vector<std::pair<double, ParameterValues>> initial_by_subject;
   int jobs = 0;                        ///< worker threads; 0 = all cores
   int curve_points = 400;              ///< grid size of the fitted curve
 };
