@@ -32,8 +32,9 @@ struct SubjectFit {
   /// Where the starting values came from: "data (...)" or "catalogue defaults (...)".
   std::string initial_method;
   ParameterValues initial;     ///< the starting values of the estimated parameters
-  /// For tf<n> models: exponents, half-lives and the equivalent IV and oral
-  /// compartmental parameters, with delta-method SEs (pk/conversion.h).
+  /// Linear models, with delta-method SEs (pk/conversion.h): the exponents and
+  /// half-lives of the unit-dose response ("exponents"); for tf<n> models also
+  /// the equivalent IV and oral compartmental parameters ("iv", "oral").
   std::vector<TransferFunctionReading> derived;
   /// The fitted curve on a fine grid (for plots): times and central concentrations.
   std::vector<double> curve_times;
