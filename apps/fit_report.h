@@ -24,7 +24,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
 /// The starting values per subject as CSV: ID,PARAMETER,INITIAL,SOURCE.
 std::string InitialTable(const std::vector<SubjectFit>& fits);
 
-/// For tf models: the exponents, half-lives and compartmental readings, for the terminal.
+/// Linear models: the exponents and half-lives (tf models: also the compartmental readings), for the terminal.
 std::string DerivedTable(const std::vector<SubjectFit>& fits);
 
 /// The estimates as a fixed-width table for the terminal.
