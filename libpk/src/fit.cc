@@ -262,18 +262,33 @@ int LmCallback(void* p, int m, int n, const double* x, double* fvec, double* fja
   return 0;
 }
 
-// Which coordinate to hold from the start φ0 (see LmSingular), or -1.
-int LmStructuralHold(Problem* pb, const Eigen::VectorXd& phi0) {
+// The coordinates to hold from the start φ0 (see LmSingular): one per null
+// direction the Jacobian has both at φ0 and nearby.
+std::vector<int> LmStructuralHolds(Problem* pb, const Eigen::VectorXd& phi0) {
+  std::vector<int> held;
   const double singular = LmSingular(pb->objective());
   const Objective::Evaluation& start = pb->Eval(phi0, Need::kJacobian);
-  if (!start.ok) return -1;
-  const int j = LmHold(start.jacobian, singular);
-  if (j < 0) return -1;
+  if (!start.ok) return held;
+  const Eigen::MatrixXd j0 = start.jacobian;
   // Nearby: every coordinate moved by 0.05–0.15, in alternating directions.
   Eigen::VectorXd nearby = phi0;
   for (int k = 0; k < nearby.size(); ++k) nearby(k) += (k % 2 ? -1 : 1) * (0.05 + 0.1 * std::fmod(0.618 * (k + 1), 1.0));
-  const Objective::Evaluation& there = pb->Eval(nearby, Need::kJacobian);
-  return there.ok && LmHold(there.jacobian, singular) == j ? j : -1;
+  Eigen::MatrixXd j1;
+  for (;;) {
+    std::vector<int> rest;
+    for (int k = 0; k < static_cast<int>(j0.cols()); ++k) {
+      if (std::find(held.begin(), held.end(), k) == held.end()) rest.push_back(k);
+    }
+    const int j = LmHold(j0(Eigen::all, rest), singular);
+    if (j < 0) return held;
+    if (j1.size() == 0) {
+      const Objective::Evaluation& there = pb->Eval(nearby, Need::kJacobian);
+      if (!there.ok) return held;
+      j1 = there.jacobian;
+    }
+    if (LmHold(j1(Eigen::all, rest), singular) != j) return held;
+    held.push_back(rest[j]);
+  }
 }
 
 // lmder from data->phi over the coordinates not in `held`; returns its info.
@@ -303,11 +318,7 @@ int LmRun(LmData* data, int m, const std::vector<int>& held, const FitOptions& o
 RunResult RunLm(Problem* pb, int m, const Eigen::VectorXd& phi0, const FitOptions& o) {
   RunResult r;
   LmData data{pb, phi0, {}};
-  std::vector<int> held;
-  if (pb->n() > 1) {
-    const int j = LmStructuralHold(pb, phi0);
-    if (j >= 0) held.push_back(j);
-  }
+  std::vector<int> held = pb->n() > 1 ? LmStructuralHolds(pb, phi0) : std::vector<int>();
   int nfev_total = 0, njev_total = 0;
   int info = LmRun(&data, m, held, o, &nfev_total, &njev_total);
   const bool converged = info >= 1 && info != 5;
