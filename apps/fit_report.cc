@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <sstream>
-#include <sys/stat.h>
 
 #include "pk/output.h"
 #include "pk/plot.h"
@@ -221,9 +221,11 @@ std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
 }
 
 void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits, const ReportContext& context) {
-  ::mkdir(dir.c_str(), 0777);
-  struct stat st;
-  if (::stat(dir.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) throw std::runtime_error(dir + ": cannot create the output directory");
+  std::error_code error;
+  std::filesystem::create_directories(dir, error);  // with its parents, like mkdir -p
+  if (!std::filesystem::is_directory(dir)) {
+    throw std::runtime_error(dir + ": cannot create the output directory" + (error ? " (" + error.message() + ")" : ""));
+  }
 
   std::ostringstream est, sum, pred, det, derived;
   bool any_derived = false;

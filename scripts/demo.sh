@@ -11,7 +11,13 @@ mkdir -p out
 
 echo "== pkfit: theophylline (12 subjects, single oral dose), 1cmt_oral, least squares =="
 build/apps/pkfit --model 1cmt_oral --data datasets/theophylline.csv --output-dir out/theophylline
-echo "open out/theophylline/report.html for the fits, plots, standard errors and correlations"
+echo "open out/theophylline/report.html for the fits, goodness-of-fit plots, standard errors and correlations"
+echo
+
+echo "== pksim: each fitted theophylline subject on 320 mg every 12 h for 5 days (--estimates) =="
+build/apps/pksim --model 1cmt_oral --estimates out/theophylline/estimates.csv --dose 320 --ii 12 --doses 10 \
+  --times 0:0.5:120 --out out/theophylline_regimen.csv --summary-csv out/theophylline_regimen_summary.csv
+grep ",ALL," out/theophylline_regimen_summary.csv | awk -F, '{ printf "  ID %-3s Cmax %6.2f at t = %5.1f h\n", $1, $5, $6 }'
 echo
 
 echo "== pkfit: Michaelis-Menten elimination (synthetic, 6 subjects), 1cmt_iv_mm through CVODES =="

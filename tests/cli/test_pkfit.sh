@@ -33,6 +33,10 @@ if [ -n "$pksim" ]; then
     if ($1 != $4 || $2 != $5) bad = 1; d = $3 - $6; if (d < 0) d = -d; if (d > 1e-10 * (1 + ($6 < 0 ? -$6 : $6))) bad = 1
   } END { exit bad }' || fail "pksim at the estimates does not reproduce pkfit's predictions"
 fi
+# The output directory is made with its parents.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 -o "$work/nested/a/b" -q ||
+  fail "pkfit into a new nested directory"
+[ -s "$work/nested/a/b/report.html" ] || fail "no report in the nested output directory"
 # --init-from: each subject restarts from its earlier estimates and stops sooner, at the same objective.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --init-from "$work/theo/estimates.csv" \
   -o "$work/theo_again" -q || fail "--init-from refit failed"
