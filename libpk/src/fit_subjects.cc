@@ -14,6 +14,21 @@
 namespace pk {
 namespace {
 
+// The covariance of the objective's first k parameters from a fit's (over the
+// estimated ones; a fixed parameter has zero variance), or empty without one.
+Eigen::MatrixXd LeadingCovariance(const Objective& objective, const FitSummary& summary, int k) {
+  if (summary.covariance.size() == 0) return Eigen::MatrixXd();
+  Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(k, k);
+  const auto& names = summary.estimated;
+  for (size_t i = 0; i < names.size(); ++i) {
+    for (size_t j = 0; j < names.size(); ++j) {
+      const int a = objective.ParameterIndex(names[i]), b = objective.ParameterIndex(names[j]);
+      if (a < k && b < k) cov(a, b) = summary.covariance(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
+    }
+  }
+  return cov;
+}
+
 void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
   out->subject = subject;
   out->id = req.data->subjects[subject].id;
@@ -70,36 +85,13 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
     out->ok = true;
     const auto* linear = dynamic_cast<const LinearModel*>(req.model.get());
     if (linear != nullptr && linear->transfer_function_order() > 0) {
-      // The coefficients a₁..aₙ, b₁..bₙ and their covariance (fixed ones: zero variance).
+      // The coefficients a₁..aₙ, b₁..bₙ and their covariance.
       const int n2 = 2 * linear->transfer_function_order();
-      const Eigen::VectorXd coefficients = out->summary.values.head(n2);
-      Eigen::MatrixXd cov;
-      if (out->summary.covariance.size() > 0) {
-        cov = Eigen::MatrixXd::Zero(n2, n2);
-        const auto& names = out->summary.estimated;
-        for (size_t i = 0; i < names.size(); ++i) {
-          for (size_t j = 0; j < names.size(); ++j) {
-            const int a = objective.ParameterIndex(names[i]), b = objective.ParameterIndex(names[j]);
-            if (a < n2 && b < n2) cov(a, b) = out->summary.covariance(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
-          }
-        }
-      }
-      out->derived = ConvertTransferFunction(coefficients, cov);
+      out->derived = ConvertTransferFunction(out->summary.values.head(n2), LeadingCovariance(objective, out->summary, n2));
     } else if (linear != nullptr) {
       // Exponents and half-lives of the fitted compartment model, SEs from the model parameters' covariance.
       const int m = req.model->num_parameters();
-      Eigen::MatrixXd cov;
-      if (out->summary.covariance.size() > 0) {
-        cov = Eigen::MatrixXd::Zero(m, m);
-        const auto& names = out->summary.estimated;
-        for (size_t i = 0; i < names.size(); ++i) {
-          for (size_t j = 0; j < names.size(); ++j) {
-            const int a = objective.ParameterIndex(names[i]), b = objective.ParameterIndex(names[j]);
-            if (a < m && b < m) cov(a, b) = out->summary.covariance(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
-          }
-        }
-      }
-      out->derived = {ModelExponents(*req.model, out->summary.values.head(m), cov)};
+      out->derived = {ModelExponents(*req.model, out->summary.values.head(m), LeadingCovariance(objective, out->summary, m))};
     }
     const Objective::Evaluation ev = objective.Evaluate(out->summary.values, {}, Objective::Need::kValue);
     if (ev.ok) {
