@@ -170,6 +170,7 @@ std::string DerivedTable(const std::vector<SubjectFit>& fits) {
           std::snprintf(buf, sizeof buf, " %s %s (%s)", d.name.c_str(), Fmt(d.value).c_str(), Fmt(d.rse_pct, "%.3g").c_str());
           out << buf;
         }
+        if (!r.message.empty()) out << " (" << r.message << ")";
         out << "\n";
       }
     }
@@ -248,7 +249,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
       if (!r.ok) derived << id << "," << r.reading << ",,,,," << Quote(r.message) << "\n";
       for (const DerivedParameter& d : r.parameters) {
         derived << id << "," << r.reading << "," << d.name << "," << Csv(d.value) << "," << Csv(d.se) << ","
-                << Csv(d.rse_pct) << ",\n";
+                << Csv(d.rse_pct) << "," << Quote(r.message) << "\n";
       }
     }
     for (const ParameterEstimate& e : s.estimates) {
@@ -336,6 +337,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
              << "</td><td>" << Fmt(d.rse_pct, "%.3g") << "</td></tr>\n";
       }
       html << "</table>\n";
+      if (!r.message.empty()) html << "<p>" << Escape(r.message) << ".</p>\n";
     }
     for (int k = 1; k <= NumPlots(f); ++k) html << SubjectSvg(f, context.log_plots, k) << "\n";
   }

@@ -148,6 +148,7 @@ TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-me
     CHECK(r.parameters[1].rse_pct == Approx(r.parameters[0].rse_pct).epsilon(1e-6));  // same relative error
     CHECK(r.parameters[2].name == "AMP1");
     CHECK(r.parameters[2].value == Approx(1 / v));
+    CHECK(r.message.empty());
     // No covariance: values without SEs.
     const auto bare = pk::ModelExponents(*model, theta, Eigen::MatrixXd());
     REQUIRE(bare.ok);
@@ -167,6 +168,17 @@ TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-me
     CHECK(l1 * l2 == Approx(k10 * k21));
     CHECK(r.parameters[3].value == Approx(std::log(2.0) / l2));
     CHECK(std::isfinite(r.parameters[1].se));
+    CHECK(r.message.empty());
+  }
+  {  // KA within 1e-5 of CL/V: still a sum of exponentials, with a caveat; 1e-2 apart: none.
+    const auto model = pk::MakeModel("1cmt_oral");
+    Eigen::VectorXd theta(3);
+    theta << 0.1 * (1 + 1e-5), 3, 30;  // KA, CL, V
+    const auto r = pk::ModelExponents(*model, theta, Eigen::MatrixXd());
+    REQUIRE(r.ok);
+    CHECK_THAT(r.message, Catch::StartsWith("LAMBDA1 and LAMBDA2 nearly coincide (1.0e-05 apart, relative)"));
+    theta(0) = 0.1 * 1.01;
+    CHECK(pk::ModelExponents(*model, theta, Eigen::MatrixXd()).message.empty());
   }
   {  // Coincident rates (KA = CL/V) have no exponential form: said, not thrown.
     const auto model = pk::MakeModel("1cmt_oral");

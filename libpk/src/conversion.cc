@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <functional>
 
 #include <Eigen/Eigenvalues>
@@ -68,6 +69,23 @@ void AppendMicroConstants(std::vector<double>* p) {
     p->push_back(q[i] / q[1]);
     p->push_back(q[i] / q[i + 1]);
   }
+}
+
+// Rates within 1e-3 of each other (relative) make amplitudes of opposite sign that nearly cancel: the response
+// is close to t·e^{−λt} there, and the pair is not determined apart.
+std::string CoincidenceNote(const std::vector<double>& rates) {
+  for (size_t i = 0; i + 1 < rates.size(); ++i) {
+    const double gap = std::fabs(rates[i] - rates[i + 1]) / std::max(std::fabs(rates[i]), std::fabs(rates[i + 1]));
+    if (gap <= 1e-3) {
+      char buf[200];
+      std::snprintf(buf, sizeof buf,
+                    "LAMBDA%zu and LAMBDA%zu nearly coincide (%.1e apart, relative): their amplitudes cancel, and the "
+                    "response there is close to t·e^{-λt}",
+                    i + 1, i + 2, gap);
+      return buf;
+    }
+  }
+  return "";
 }
 
 void Propagate(const ReadingFunction& f, const std::vector<std::string>& names, const Eigen::VectorXd& c,
@@ -169,6 +187,7 @@ TransferFunctionReading ModelExponents(const Model& model, const Eigen::VectorXd
         return true;
       },
       names, theta, covariance, &out);
+  if (out.ok) out.message = CoincidenceNote(e.rate);
   return out;
 }
 
@@ -194,6 +213,11 @@ std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::Vector
         return true;
       },
       names, coefficients, covariance, &out[0]);
+  if (out[0].ok) {
+    Exponentials e;
+    std::string ignored;
+    if (Exponents(coefficients, &e, &ignored)) out[0].message = CoincidenceNote(e.rate);
+  }
 
   // Clearances and volumes, then the micro-constants they imply.
   static const std::vector<std::vector<std::string>> kMammillary = {

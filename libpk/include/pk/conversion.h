@@ -36,7 +36,9 @@ struct DerivedParameter {
 struct TransferFunctionReading {
   std::string reading;  ///< "exponents", "iv" or "oral"
   bool ok = false;
-  std::string message;  ///< why the coefficients do not convert, when !ok
+  /// Why the coefficients do not convert, when !ok; when ok, a caveat or empty
+  /// (exponents: two rates that nearly coincide, whose amplitudes cancel).
+  std::string message;
   std::vector<DerivedParameter> parameters;
 };
 
