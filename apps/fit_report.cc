@@ -99,27 +99,25 @@ std::vector<std::pair<std::string, std::string>> GoodnessOfFitSvgs(const std::ve
   std::vector<std::pair<std::string, std::string>> svgs;
   if (dv_pred.x.empty()) return svgs;
   const std::string suffix = several_outputs ? " (" + name + ", DVID " + std::to_string(output) + ")" : "";
-  auto range = [](const std::vector<double>& a, const std::vector<double>& b) {
+  auto range = [](const std::vector<double>& v) {  // of the finite values
     double lo = INFINITY, hi = -INFINITY;
-    for (const std::vector<double>* v : {&a, &b}) {
-      for (double x : *v) {
-        if (!std::isfinite(x)) continue;
-        lo = std::min(lo, x);
-        hi = std::max(hi, x);
-      }
+    for (double x : v) {
+      if (!std::isfinite(x)) continue;
+      lo = std::min(lo, x);
+      hi = std::max(hi, x);
     }
     return std::make_pair(lo, hi);
   };
-  const auto both = range(dv_pred.x, dv_pred.y);
-  PlotSeries identity{"identity", {both.first, both.second}, {both.first, both.second}, false};
+  const auto pred = range(dv_pred.x), dv = range(dv_pred.y);
+  const double lo = std::min(pred.first, dv.first), hi = std::max(pred.second, dv.second);
+  PlotSeries identity{"identity", {lo, hi}, {lo, hi}, false};
   PlotOptions o;
   o.title = "observed against predicted" + suffix;
   o.x_label = "predicted (PRED)";
   o.y_label = "observed (DV)";
   svgs.push_back({"dv_pred", RenderSvg({identity, dv_pred}, o)});
   if (!wres_time.x.empty()) {
-    const auto t = range(wres_time.x, wres_time.x);
-    const auto p = range(wres_pred.x, wres_pred.x);
+    const auto t = range(wres_time.x), p = range(wres_pred.x);
     o.y_label = "weighted residual (WRES)";
     o.title = "weighted residuals against time" + suffix;
     o.x_label = "time";

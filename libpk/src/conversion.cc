@@ -72,20 +72,23 @@ void AppendMicroConstants(std::vector<double>* p) {
 }
 
 // Rates within 1e-3 of each other (relative) make amplitudes of opposite sign that nearly cancel: the response
-// is close to t·e^{−λt} there, and the pair is not determined apart.
-std::string CoincidenceNote(const std::vector<double>& rates) {
-  for (size_t i = 0; i + 1 < rates.size(); ++i) {
-    const double gap = std::fabs(rates[i] - rates[i + 1]) / std::max(std::fabs(rates[i]), std::fabs(rates[i + 1]));
+// is close to t·e^{−λt} there, and the pair is not determined apart. Says so in the message of an exponents
+// reading whose first n parameters are LAMBDA1..n.
+void NoteCoincidence(int n, TransferFunctionReading* r) {
+  if (!r->ok) return;
+  for (int i = 0; i + 1 < n; ++i) {
+    const double a = r->parameters[i].value, b = r->parameters[i + 1].value;
+    const double gap = std::fabs(a - b) / std::max(std::fabs(a), std::fabs(b));
     if (gap <= 1e-3) {
       char buf[200];
       std::snprintf(buf, sizeof buf,
-                    "LAMBDA%zu and LAMBDA%zu nearly coincide (%.1e apart, relative): their amplitudes cancel, and the "
+                    "LAMBDA%d and LAMBDA%d nearly coincide (%.1e apart, relative): their amplitudes cancel, and the "
                     "response there is close to t·e^{-λt}",
                     i + 1, i + 2, gap);
-      return buf;
+      r->message = buf;
+      return;
     }
   }
-  return "";
 }
 
 void Propagate(const ReadingFunction& f, const std::vector<std::string>& names, const Eigen::VectorXd& c,
@@ -187,7 +190,7 @@ TransferFunctionReading ModelExponents(const Model& model, const Eigen::VectorXd
         return true;
       },
       names, theta, covariance, &out);
-  if (out.ok) out.message = CoincidenceNote(e.rate);
+  NoteCoincidence(n, &out);
   return out;
 }
 
@@ -213,11 +216,7 @@ std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::Vector
         return true;
       },
       names, coefficients, covariance, &out[0]);
-  if (out[0].ok) {
-    Exponentials e;
-    std::string ignored;
-    if (Exponents(coefficients, &e, &ignored)) out[0].message = CoincidenceNote(e.rate);
-  }
+  NoteCoincidence(n, &out[0]);
 
   // Clearances and volumes, then the micro-constants they imply.
   static const std::vector<std::vector<std::string>> kMammillary = {

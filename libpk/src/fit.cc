@@ -228,6 +228,15 @@ double LmSingular(const Objective& objective) {
   return std::max(kExact, objective.options().ode.relative_tolerance);
 }
 
+// 0..n−1 without the coordinates in `held`.
+std::vector<int> Without(int n, const std::vector<int>& held) {
+  std::vector<int> rest;
+  for (int k = 0; k < n; ++k) {
+    if (std::find(held.begin(), held.end(), k) == held.end()) rest.push_back(k);
+  }
+  return rest;
+}
+
 // The column to hold, or -1. A zero column is no trouble for lmder (its pivot
 // is exactly 0, so that coordinate never moves).
 int LmHold(const Eigen::MatrixXd& jac, double singular) {
@@ -275,10 +284,7 @@ std::vector<int> LmStructuralHolds(Problem* pb, const Eigen::VectorXd& phi0) {
   for (int k = 0; k < nearby.size(); ++k) nearby(k) += (k % 2 ? -1 : 1) * (0.05 + 0.1 * std::fmod(0.618 * (k + 1), 1.0));
   Eigen::MatrixXd j1;
   for (;;) {
-    std::vector<int> rest;
-    for (int k = 0; k < static_cast<int>(j0.cols()); ++k) {
-      if (std::find(held.begin(), held.end(), k) == held.end()) rest.push_back(k);
-    }
+    const std::vector<int> rest = Without(static_cast<int>(j0.cols()), held);
     const int j = LmHold(j0(Eigen::all, rest), singular);
     if (j < 0) return held;
     if (j1.size() == 0) {
@@ -293,11 +299,7 @@ std::vector<int> LmStructuralHolds(Problem* pb, const Eigen::VectorXd& phi0) {
 
 // lmder from data->phi over the coordinates not in `held`; returns its info.
 int LmRun(LmData* data, int m, const std::vector<int>& held, const FitOptions& o, int* nfev_total, int* njev_total) {
-  const int n = static_cast<int>(data->phi.size());
-  data->active.clear();
-  for (int k = 0; k < n; ++k) {
-    if (std::find(held.begin(), held.end(), k) == held.end()) data->active.push_back(k);
-  }
+  data->active = Without(static_cast<int>(data->phi.size()), held);
   const int na = static_cast<int>(data->active.size());
   Eigen::VectorXd x(na), fvec(m), diag(na), qtf(na), wa1(na), wa2(na), wa3(na), wa4(m);
   for (int k = 0; k < na; ++k) x(k) = data->phi(data->active[k]);
@@ -867,8 +869,9 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
       }
       Eigen::FullPivLU<Eigen::MatrixXd> lu;
       lu.setThreshold(1e-12);
-      if (info.allFinite()) lu.compute(info);
-      if (!info.allFinite()) {
+      const bool finite = info.allFinite();
+      if (finite) lu.compute(info);
+      if (!finite) {
         summary.covariance_message = "the information matrix is not finite at the estimate";
       } else if (nk == 0 || lu.rank() < nk) {
         std::vector<std::string> kept_names;

@@ -324,11 +324,12 @@ class OdePropagator {
   // than it did (P_x → I).
   std::string CycleHint(const Eigen::VectorXd& x) const {
     if (sys_.is_linear()) return "is nothing eliminated?";
-    if (!(x.lpNorm<Eigen::Infinity>() > 0)) return "is the dosing rate, AMT/II, above the elimination capacity?";
+    const std::string question = "is the dosing rate, AMT/II, above the elimination capacity?";
+    const double largest = x.lpNorm<Eigen::Infinity>();
+    if (!(largest > 0)) return question;
     char amounts[32];
-    std::snprintf(amounts, sizeof amounts, "%.3g", x.lpNorm<Eigen::Infinity>());
-    return std::string("Newton reached amounts of ") + amounts +
-           ": is the dosing rate, AMT/II, above the elimination capacity?";
+    std::snprintf(amounts, sizeof amounts, "%.3g", largest);
+    return std::string("Newton reached amounts of ") + amounts + ": " + question;
   }
 
   double Tolerance(const Eigen::VectorXd& x) const {
