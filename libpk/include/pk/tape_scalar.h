@@ -13,6 +13,7 @@
 #define PK_TAPE_SCALAR_H_
 
 #include <cmath>
+#include <utility>
 #include <vector>
 
 namespace pk {
@@ -24,13 +25,27 @@ class Tape {
     int a, b;
     double da, db;
   };
-  void Clear() { nodes_.clear(); }
+  void Clear() { size_ = 0; }
   /// Exchanges the recordings (to keep one while the active tape records others).
-  void Swap(Tape& other) { nodes_.swap(other.nodes_); }
-  int size() const { return static_cast<int>(nodes_.size()); }
+  void Swap(Tape& other) {
+    nodes_.swap(other.nodes_);
+    std::swap(size_, other.size_);
+    std::swap(capacity_, other.capacity_);
+  }
+  int size() const { return size_; }
   int Push(int a, double da, int b = -1, double db = 0) {
-    nodes_.push_back({a, b, da, db});
-    return static_cast<int>(nodes_.size()) - 1;
+    // Written field by field into storage kept between recordings: a Node
+    // built on the stack and copied stalled store forwarding here.
+    if (size_ == capacity_) {
+      capacity_ = capacity_ == 0 ? 256 : 2 * capacity_;
+      nodes_.resize(static_cast<size_t>(capacity_));
+    }
+    Node& n = nodes_[static_cast<size_t>(size_)];
+    n.a = a;
+    n.b = b;
+    n.da = da;
+    n.db = db;
+    return size_++;
   }
   /// Back-propagates the adjoints in `adj` (one per node, seeded by the caller).
   /// Nodes below `first` must have no parents (the independent variables,
@@ -71,7 +86,9 @@ class Tape {
   }
 
  private:
-  std::vector<Node> nodes_;
+  std::vector<Node> nodes_;  // nodes_[0, size_) are the recording; nodes_.size() == capacity_
+  int size_ = 0;
+  int capacity_ = 0;
 };
 
 class TapeScalar {
