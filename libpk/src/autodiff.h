@@ -28,10 +28,18 @@ inline Eigen::VectorXd Derivatives(const Dual& x, int p) {
   return x.derivatives();
 }
 
-/// n×P matrix of the derivatives of a vector of duals.
-inline Eigen::MatrixXd DerivativeMatrix(const DualVector& v, int p) {
-  Eigen::MatrixXd d(v.size(), p);
-  for (int i = 0; i < v.size(); ++i) d.row(i) = Derivatives(v(i), p).transpose();
+/// count×P matrix of the derivatives of the first `count` entries of `v` (all of them by default).
+inline Eigen::MatrixXd DerivativeMatrix(const DualVector& v, int p, Eigen::Index count = -1) {
+  if (count < 0) count = v.size();
+  Eigen::MatrixXd d(count, p);
+  for (Eigen::Index i = 0; i < count; ++i) {
+    const DualDerivatives& g = v(i).derivatives();  // no copy: the matrix row is written from it
+    if (g.size() == 0) {
+      d.row(i).setZero();
+    } else {
+      d.row(i) = g.transpose();
+    }
+  }
   return d;
 }
 
@@ -41,12 +49,17 @@ inline bool HasDerivative(const Dual& x) { return !x.derivatives().isZero(0.0); 
 // templated on the scalar type runs on either.
 inline bool HasDerivative(double) { return false; }
 inline Eigen::VectorXd Derivatives(double, int p) { return Eigen::VectorXd::Zero(p); }
-inline Eigen::MatrixXd DerivativeMatrix(const Eigen::VectorXd& v, int p) { return Eigen::MatrixXd::Zero(v.size(), p); }
+inline Eigen::MatrixXd DerivativeMatrix(const Eigen::VectorXd& v, int p, Eigen::Index count = -1) {
+  return Eigen::MatrixXd::Zero(count < 0 ? v.size() : count, p);
+}
 inline const Eigen::VectorXd& Values(const Eigen::VectorXd& v) { return v; }
+inline Eigen::VectorXd Values(const Eigen::VectorXd& v, Eigen::Index count) { return v.head(count); }
 
-inline Eigen::VectorXd Values(const DualVector& v) {
-  Eigen::VectorXd out(v.size());
-  for (int i = 0; i < v.size(); ++i) out(i) = v(i).value();
+/// The values of the first `count` entries of `v` (all of them by default).
+inline Eigen::VectorXd Values(const DualVector& v, Eigen::Index count = -1) {
+  if (count < 0) count = v.size();
+  Eigen::VectorXd out(count);
+  for (Eigen::Index i = 0; i < count; ++i) out(i) = v(i).value();
   return out;
 }
 

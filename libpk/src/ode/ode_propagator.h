@@ -152,7 +152,7 @@ class OdePropagator {
   }
 
   void SteadyInfusion(const Vec<T>& u, int set, bool add) {
-    const Eigen::VectorXd theta = Values(Vec<T>(sets_[set].head(sys_.num_theta())));
+    const Eigen::VectorXd theta = Values(sets_[set], sys_.num_theta());
     const Eigen::VectorXd uv = Values(u);
     Eigen::VectorXd x = Eigen::VectorXd::Zero(n_);
     Eigen::MatrixXd fx;
@@ -288,9 +288,9 @@ class OdePropagator {
   CvodesSolver& solver() { return solver_; }
   /// θ and ∂θ/∂p of a parameter set.
   void Theta(int set, Eigen::VectorXd* theta, Eigen::MatrixXd* dtheta) const {
-    const Vec<T> th = sets_[set].head(sys_.num_theta());
-    *theta = Values(th);
-    *dtheta = DerivativeMatrix(th, p_);
+    const int m = sys_.num_theta();
+    *theta = Values(sets_[set], m);
+    *dtheta = DerivativeMatrix(sets_[set], p_, m);
   }
 
   /// f(x(h)) + u at the end of a segment.
