@@ -18,13 +18,6 @@ namespace cli {
 /// "NAME=VALUE" pairs as given to --param/--init/--fix; throws pk::InputError naming `option`.
 ParameterValues ParseAssignments(const std::vector<std::string>& items, const std::string& option);
 
-/// Per-subject parameter values from a table with the columns ID, PARAMETER and
-/// ESTIMATE (pkfit's estimates.csv; other columns are ignored), by ID in the
-/// order the IDs first appear. Every PARAMETER must be one of `model`'s, a
-/// dose modifier, SIGMA_ADD or SIGMA_PROP. Throws pk::InputError naming the
-/// file, line and column.
-std::vector<std::pair<double, ParameterValues>> ReadEstimates(const std::string& path, const Model& model);
-
 /// Output times: "FROM:STEP:TO" (inclusive) or a comma-separated list, or several of them.
 std::vector<double> ParseTimes(const std::vector<std::string>& specs);
 

@@ -17,6 +17,7 @@
 #include "pk/catalogue.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
+#include "pk/estimates.h"
 #include "pk/fit_subjects.h"
 #include "pk/ode_model.h"
 #include "pk/output.h"
@@ -209,7 +210,7 @@ int Main(int argc, char** argv) {
     }
   }
   req.initial_from_data = vm.count("catalogue-init") == 0;
-  if (vm.count("init-from")) req.initial_by_subject = pk::cli::ReadEstimates(vm["init-from"].as<std::string>(), *req.model);
+  if (vm.count("init-from")) req.initial_by_subject = pk::ReadEstimates(vm["init-from"].as<std::string>(), *req.model);
   const pk::ParameterValues inits = pk::cli::ParseAssignments(init, "--init");
   pk::ParameterValues fixes = pk::cli::ParseAssignments(fix, "--fix");
   for (const auto& kv : pk::cli::ParseAssignments(params, "--param")) fixes[kv.first] = kv.second;

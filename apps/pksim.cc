@@ -13,6 +13,7 @@
 #include "pk/ode_model.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
+#include "pk/estimates.h"
 #include "pk/exposure.h"
 #include "pk/output.h"
 #include "pk/plot.h"
@@ -169,7 +170,7 @@ int Main(int argc, char** argv) {
   std::vector<pk::SubjectSimulation> sims;
   if (vm.count("estimates")) {
     const std::string path = vm["estimates"].as<std::string>();
-    const auto estimates = pk::cli::ReadEstimates(path, *model);
+    const auto estimates = pk::ReadEstimates(path, *model);
     if (!vm.count("data")) {
       // The regimen for every subject of the table, under its ID.
       const pk::Subject regimen = data.subjects.front();
@@ -192,7 +193,7 @@ int Main(int argc, char** argv) {
       }
       pk::ParameterValues merged;
       for (const auto& kv : it->second) {
-        if (kv.first.rfind("SIGMA_", 0) != 0 && kv.first.rfind("sigma_", 0) != 0) merged[kv.first] = kv.second;
+        if (kv.first.rfind("SIGMA_", 0) != 0) merged[kv.first] = kv.second;  // names as the model spells them
       }
       for (const auto& kv : values) merged[kv.first] = kv.second;  // --param wins
       sims.push_back(pk::SimulateSubject(*model, data, i, merged, sim_options));

@@ -7,6 +7,7 @@
 #include "pk/catalogue.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
+#include "pk/estimates.h"
 #include "pk/simulate.h"
 
 namespace {
@@ -136,6 +137,68 @@ TEST_CASE("ADDL doses after the last record are dropped; absurd counts are error
 
 TEST_CASE("a file that cannot be opened is an input error naming it", "[reader]") {
   CHECK_THROWS_WITH(pk::ReadDataset("/nonexistent/data.csv"), Catch::Contains("/nonexistent/data.csv: cannot open"));
+}
+
+// Parses an estimates table for 1cmt_oral expecting an InputError at (line, column) whose message contains `text`.
+void ExpectEstimatesError(const std::string& csv, int line, int column, const std::string& text) {
+  INFO(csv);
+  try {
+    pk::ParseEstimates(csv, "est.csv", *pk::MakeModel("1cmt_oral"));
+    FAIL("no error raised");
+  } catch (const pk::InputError& e) {
+    CHECK(e.file() == "est.csv");
+    CHECK(e.line() == line);
+    CHECK(e.column() == column);
+    CHECK_THAT(e.what(), Catch::Contains(text));
+  }
+}
+
+TEST_CASE("estimates tables: subjects in order, canonical names, other columns ignored", "[reader][estimates]") {
+  const auto model = pk::MakeModel("1cmt_oral");
+  // pkfit's columns, a quoted field with a comma in an ignored column, a comment, lower-case names and CRLF.
+  const std::string csv =
+      "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\r\n"
+      "# fitted by pkfit\r\n"
+      "2,ka,1.5,0.1,6.7\r\n"
+      "2,CL,3,\"0,2\",\r\n"
+      "\r\n"
+      "1,V,30,,\r\n"
+      "2,sigma_add,0.4,,\r\n";
+  const auto table = pk::ParseEstimates(csv, "est.csv", *model);
+  REQUIRE(table.size() == 2);
+  CHECK(table[0].first == 2);
+  CHECK(table[0].second == pk::ParameterValues{{"KA", 1.5}, {"CL", 3}, {"SIGMA_ADD", 0.4}});
+  CHECK(table[1].first == 1);
+  CHECK(table[1].second == pk::ParameterValues{{"V", 30}});
+  // Columns in another order, found by name.
+  const auto swapped = pk::ParseEstimates("ESTIMATE,\"ID\",PARAMETER\n0.8,7,F1\n", "est.csv", *model);
+  REQUIRE(swapped.size() == 1);
+  CHECK(swapped[0].first == 7);
+  CHECK(swapped[0].second == pk::ParameterValues{{"F1", 0.8}});
+}
+
+TEST_CASE("estimates table errors name file, line and column (the field's number)", "[reader][estimates]") {
+  ExpectEstimatesError("", 0, 0, "no header line");
+  ExpectEstimatesError("ID,PARAMETER\n1,CL\n", 1, 0, "needs the columns ID, PARAMETER and ESTIMATE");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE,id\n", 1, 4, "duplicate column ID (also column 1)");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n", 1, 0, "has no rows");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n1,CL\n", 2, 0, "expected 3 fields as in the header, found 2");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE\nx,CL,1\n", 2, 1, "ID: 'x' is not a number");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CLX,2\n", 3, 2, "'CLX' is not a parameter of model 1cmt_oral");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n1,CL,inf\n", 2, 3, "ESTIMATE: 'inf' is not a number");
+  ExpectEstimatesError("ID,SE,PARAMETER,ESTIMATE\n1,,CL,2\n1,,cl,3\n", 3, 3, "cl is given twice for ID 1 (also line 2)");
+  // The same parameter for two subjects is not a repeat.
+  CHECK(pk::ParseEstimates("ID,PARAMETER,ESTIMATE\n1,CL,2\n2,CL,3\n", "est.csv", *pk::MakeModel("1cmt_oral")).size() == 2);
+}
+
+TEST_CASE("an estimates file that cannot be opened is an input error naming it", "[reader][estimates]") {
+  try {
+    pk::ReadEstimates("/nonexistent/estimates.csv", *pk::MakeModel("1cmt_oral"));
+    FAIL("no error raised");
+  } catch (const pk::InputError& e) {
+    CHECK(e.file() == "/nonexistent/estimates.csv");
+    CHECK_THAT(e.what(), Catch::Contains("cannot open the file"));
+  }
 }
 
 TEST_CASE("numerical failure of one subject is reported, not thrown", "[simulate]") {

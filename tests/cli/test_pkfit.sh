@@ -48,7 +48,7 @@ printf 'ID,PARAMETER,ESTIMATE\n1,KA,x\n' >"$work/bad_init.csv"
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --init-from "$work/bad_init.csv" -o "$work/bi" \
   2>"$work/bad_init.err"
 [ $? -eq 2 ] || fail "--init-from with a bad table should exit 2"
-grep -q "bad_init.csv:2:6: ESTIMATE: 'x' is not a number" "$work/bad_init.err" || fail "--init-from error location"
+grep -q "bad_init.csv:2:3: ESTIMATE: 'x' is not a number" "$work/bad_init.err" || fail "--init-from error location"
 # Exponents and half-lives of every fitted compartment model, with SEs (KA and k for 1cmt_oral).
 grep -q "^exponents and half-lives" "$work/theo.txt" || fail "no half-lives on stdout"
 [ "$(grep -c "^[0-9]*,exponents,THALF[12]," "$work/theo/derived.csv")" -eq 24 ] ||

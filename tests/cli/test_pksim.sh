@@ -89,6 +89,6 @@ grep -q "ID 3: simulation failed: no estimates for this ID" "$work/two.err" || f
 printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CLX,2\n' >"$work/bad.csv"
 "$pksim" --model 1cmt_oral --estimates "$work/bad.csv" --dose 1 --times 0:1:2 2>"$work/bad.err"
 [ $? -eq 2 ] || fail "a bad estimates table should exit 2"
-grep -q "bad.csv:3:3: 'CLX' is not a parameter of model 1cmt_oral" "$work/bad.err" || fail "bad estimates message"
+grep -q "bad.csv:3:2: 'CLX' is not a parameter of model 1cmt_oral" "$work/bad.err" || fail "bad estimates message"
 
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi

@@ -11,6 +11,7 @@
 #include <Eigen/Core>
 
 #include "pk/conversion.h"
+#include "pk/estimates.h"
 #include "pk/fit.h"
 #include "pk/initial_estimates.h"
 #include "pk/objective.h"
@@ -64,7 +65,7 @@ struct FitSubjectsRequest {
   /// parameters estimated here they take the place of ParameterSpec::initial
   /// and of the values from the data; other names are ignored. A subject
   /// without an entry starts as if this were empty.
-  std::vector<std::pair<double, ParameterValues>> initial_by_subject;
+  std::vector<SubjectEstimates> initial_by_subject;
   int jobs = 0;                        ///< worker threads; 0 = all cores
   int curve_points = 400;              ///< grid size of the fitted curve
 };

@@ -6,13 +6,8 @@
 #include <string>
 #include <vector>
 
-// fccp copies file names with strncpy; GCC 12 flags that at inlining time.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wstringop-truncation"
-#include <libfccp/csv.h>
-#pragma GCC diagnostic pop
-
 #include "../internal_text.h"
+#include "csv_lines.h"
 #include "pk/dataset.h"
 #include "pk/output.h"
 #include "pk/error.h"
@@ -20,7 +15,9 @@
 namespace pk {
 namespace {
 
+using internal::IsSkippedLine;
 using internal::ParseDouble;
+using internal::SplitCsvLine;
 using internal::ToUpper;
 using internal::Trim;
 
@@ -31,40 +28,6 @@ const char* const kItemNames[] = {"ID", "TIME", "AMT", "RATE", "II", "ADDL",
                                   "SS", "EVID", "CMT", "MDV", "DV"};
 enum Item { kId, kTime, kAmt, kRate, kIi, kAddl, kSs, kEvid, kCmt, kMdv, kDv, kNumItems };
 
-// Splits one CSV line. Fields may be wrapped in double quotes ("" inside is a quote).
-std::vector<std::string> SplitLine(const std::string& line) {
-  std::vector<std::string> fields;
-  std::string field;
-  bool quoted = false;
-  for (size_t i = 0; i < line.size(); ++i) {
-    const char c = line[i];
-    if (quoted) {
-      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
-        field += '"';
-        ++i;
-      } else if (c == '"') {
-        quoted = false;
-      } else {
-        field += c;
-      }
-    } else if (c == '"') {
-      quoted = true;
-    } else if (c == ',') {
-      fields.push_back(Trim(field));
-      field.clear();
-    } else {
-      field += c;
-    }
-  }
-  fields.push_back(Trim(field));
-  return fields;
-}
-
-bool IsSkipped(const std::string& line) {
-  const std::string t = Trim(line);
-  return t.empty() || t[0] == '#';
-}
-
 class Parser {
  public:
   Parser(std::string source) : source_(std::move(source)) {}
@@ -73,11 +36,11 @@ class Parser {
     Dataset data;
     data.source = source_;
     size_t first = 0;
-    while (first < lines.size() && IsSkipped(lines[first].second)) ++first;
+    while (first < lines.size() && IsSkippedLine(lines[first].second)) ++first;
     if (first == lines.size()) Fail(0, 0, "the file has no header line");
     ReadHeader(lines[first].first, lines[first].second, &data);
     for (size_t i = first + 1; i < lines.size(); ++i) {
-      if (IsSkipped(lines[i].second)) continue;
+      if (IsSkippedLine(lines[i].second)) continue;
       ReadRecord(lines[i].first, lines[i].second, &data);
     }
     if (data.subjects.empty()) Fail(lines[first].first, 0, "the file has no data records");
@@ -92,7 +55,7 @@ class Parser {
   std::string Label(Item item) const { return kItemNames[item]; }
 
   void ReadHeader(int line_number, const std::string& line, Dataset* data) {
-    header_ = SplitLine(line);
+    header_ = SplitCsvLine(line);
     for (int k = 0; k < kNumItems; ++k) item_column_[k] = -1;
     std::map<std::string, int> seen;
     for (size_t c = 0; c < header_.size(); ++c) {
@@ -160,7 +123,7 @@ class Parser {
   }
 
   void ReadRecord(int line, const std::string& text, Dataset* data) {
-    const std::vector<std::string> fields = SplitLine(text);
+    const std::vector<std::string> fields = SplitCsvLine(text);
     if (fields.size() != header_.size()) {
       Fail(line, static_cast<int>(std::min(fields.size(), header_.size())) + 1,
            "expected " + std::to_string(header_.size()) + " fields as in the header, found " +
@@ -280,25 +243,9 @@ int Dataset::NumRecords() const {
 }
 
 Dataset ParseDataset(const std::string& text, const std::string& source) {
-  std::vector<std::pair<int, std::string>> lines;
-  io::LineReader reader(source, text.data(), text.data() + text.size());
-  int number = 0;
-  while (char* line = reader.next_line()) lines.emplace_back(++number, line);
-  return Parser(source).Parse(std::move(lines));
+  return Parser(source).Parse(internal::TextLines(text, source));
 }
 
-Dataset ReadDataset(const std::string& path) {
-  std::vector<std::pair<int, std::string>> lines;
-  try {
-    io::LineReader reader(path);
-    int number = 0;
-    while (char* line = reader.next_line()) lines.emplace_back(++number, line);
-  } catch (const io::error::can_not_open_file&) {
-    throw InputError(path, 0, 0, "cannot open the file");
-  } catch (const io::error::base& e) {
-    throw InputError(path, 0, 0, e.what());
-  }
-  return Parser(path).Parse(std::move(lines));
-}
+Dataset ReadDataset(const std::string& path) { return Parser(path).Parse(internal::ReadLines(path)); }
 
 }  // namespace pk
