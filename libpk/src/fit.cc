@@ -936,7 +936,9 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
   if (!best.held.empty()) {
     std::vector<std::string> held;
     for (int k : best.held) held.push_back(pb.Name(k) + " at its initial value " + Num(summary.values(free[k])));
-    const std::string what = "LM held " + internal::Join(held, " and ") + " (the Jacobian is singular along it)";
+    const std::string what = "LM held " + internal::Join(held, " and ") +
+                             (held.size() == 1 ? " (the Jacobian is singular along it)"
+                                               : " (the Jacobian is singular along each of them)");
     summary.message += " (" + what + ")";
     if (!summary.covariance_message.empty()) summary.covariance_message += "; " + what;
   }
