@@ -167,8 +167,45 @@ TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-me
     CHECK(l1 + l2 == Approx(k10 + k12 + k21));
     CHECK(l1 * l2 == Approx(k10 * k21));
     CHECK(r.parameters[3].value == Approx(std::log(2.0) / l2));
-    CHECK(std::isfinite(r.parameters[1].se));
     CHECK(r.message.empty());
+  }
+  {  // 2cmt_iv SEs against the closed form C(t) = A e^{−αt} + B e^{−βt} (unit dose), differentiated here,
+     // with a covariance that correlates all four parameters.
+    const auto model = pk::MakeModel("2cmt_iv");
+    auto closed = [](const Eigen::VectorXd& p) {  // α, β, t½α, t½β, A, B
+      const double k10 = p(0) / p(1), k12 = p(2) / p(1), k21 = p(2) / p(3);
+      const double s = k10 + k12 + k21, disc = std::sqrt(s * s - 4 * k10 * k21);
+      const double a = (s + disc) / 2, b = (s - disc) / 2;
+      Eigen::VectorXd out(6);
+      out << a, b, std::log(2.0) / a, std::log(2.0) / b, (a - k21) / (p(1) * (a - b)), (k21 - b) / (p(1) * (a - b));
+      return out;
+    };
+    Eigen::VectorXd theta(4);
+    theta << 5, 20, 8, 60;  // CL, V1, Q, V2
+    Eigen::MatrixXd l(4, 4);
+    l << 0.3, 0, 0, 0, 0.8, 2, 0, 0, -0.2, 0.5, 1, 0, 1.5, -2, 3, 6;
+    const Eigen::MatrixXd cov = l * l.transpose();
+    Eigen::MatrixXd jac(6, 4);
+    for (int j = 0; j < 4; ++j) {
+      const double h = 1e-5 * theta(j);
+      Eigen::VectorXd up = theta, down = theta;
+      up(j) += h;
+      down(j) -= h;
+      jac.col(j) = (closed(up) - closed(down)) / (2 * h);
+    }
+    const Eigen::VectorXd se = (jac * cov * jac.transpose()).diagonal().cwiseSqrt();
+    const Eigen::VectorXd value = closed(theta);
+    const auto r = pk::ModelExponents(*model, theta, cov);
+    REQUIRE(r.ok);
+    REQUIRE(r.parameters.size() == 6);
+    const char* names[] = {"LAMBDA1", "LAMBDA2", "THALF1", "THALF2", "AMP1", "AMP2"};
+    for (int i = 0; i < 6; ++i) {
+      INFO(names[i]);
+      CHECK(r.parameters[i].name == names[i]);
+      CHECK(r.parameters[i].value == Approx(value(i)).epsilon(1e-12));
+      CHECK(r.parameters[i].se == Approx(se(i)).epsilon(1e-6));
+      CHECK(r.parameters[i].rse_pct == Approx(100 * se(i) / value(i)).epsilon(1e-6));
+    }
   }
   {  // KA within 1e-5 of CL/V: still a sum of exponentials, with a caveat; 1e-2 apart: none.
     const auto model = pk::MakeModel("1cmt_oral");
