@@ -100,6 +100,79 @@ TEST_CASE("reader errors name file, line and column", "[reader]") {
   ExpectError("ID,TIME\n1,.\n", 2, 2, "TIME is missing");
 }
 
+namespace {
+std::vector<double> Times(const pk::Subject& s) {
+  std::vector<double> t;
+  for (const pk::Record& r : s.records) t.push_back(r.time);
+  return t;
+}
+}  // namespace
+
+TEST_CASE("dates and clock times become hours since each subject's first record, as NM-TRAN translates them",
+          "[reader][dates]") {
+  {  // NM-TRAN's own example (help for the DATE data item): 9:15 to 14:40 is 5.42 h, to 8:30 the next day 23.25 h.
+    const pk::Dataset d = pk::ParseDataset(
+        "ID,DATE,TIME,AMT,DV\n1,10-1-86,9:15,100,.\n1,10-1-86,14:40,0,5\n1,10-2-86,8:30,0,2\n"
+        "2,10-12,8,100,.\n2,10-14,10,0,1\n",
+        "d.csv");
+    CHECK(d.relative_times);
+    REQUIRE(d.subjects.size() == 2);
+    CHECK(Times(d.subjects[0]) == std::vector<double>{0, 14 + 40.0 / 60 - (9 + 15.0 / 60), 23.25});
+    CHECK(Times(d.subjects[1]) == std::vector<double>{0, 50});
+    CHECK(d.ExtraColumn("DATE") < 0);  // read with TIME, not kept as a number
+    CHECK(d.ColumnNumber("DATE") == 2);
+  }
+  {  // Clock times without dates (the TIME help's example); decimal hours beside them, seconds, negative times.
+    const pk::Dataset d =
+        pk::ParseDataset("ID,TIME,DV\n1,8:00,1\n1,14:45,1\n1,14.75,1\n1,15:00:36,1\n2,-1:30,1\n2,0:15,1\n", "c.csv");
+    CHECK(d.relative_times);
+    CHECK(Times(d.subjects[0]) == std::vector<double>{0, 6.75, 6.75, 7.01});
+    CHECK(Times(d.subjects[1]) == std::vector<double>{0, 1.75});
+  }
+  {  // The four labels read the same dates in their own orders; years of two and four digits.
+    const char* files[] = {"ID,DATE,TIME\n1,12/31/99,23:00\n1,1/1/2000,1:00\n1,3/1/00,1:00\n",
+                           "ID,DAT1,TIME\n1,31.12.1999,23:00\n1,1.1.00,1:00\n1,1.3.2000,1:00\n",
+                           "ID,DAT2,TIME\n1,99-12-31,23:00\n1,2000-01-01,1:00\n1,00-03-01,1:00\n",
+                           "ID,DAT3,TIME\n1,1999/31/12,23:00\n1,0/1/1,1:00\n1,2000/1/3,1:00\n"};
+    // 1999-12-31 23:00 -> 2000-01-01 01:00 is 2 h; to 2000-03-01 (a leap year: 31 + 29 days later) 1442 h.
+    for (const char* f : files) {
+      INFO(f);
+      CHECK(Times(pk::ParseDataset(f, "d.csv").subjects[0]) == std::vector<double>{0, 2, 2 + 24 * 60});
+    }
+  }
+  {  // Years up to 50 are 20xx, above 50 19xx (NM-TRAN's LAST20 = 50); 2021 is not a leap year.
+    const double two_digit = pk::ParseDataset("ID,DATE,TIME\n1,1/1/51,0\n1,1/1/50,0\n", "d.csv").subjects[0].records[1].time;
+    CHECK(two_digit == 24.0 * (365 * 99 + 25));  // 1951 to 2050: 99 years, 25 leap days (1952, 1956, ..., 2048)
+    CHECK(pk::ParseDataset("ID,DATE,TIME\n1,1/1/1951,0\n1,1/1/2050,0\n", "d.csv").subjects[0].records[1].time == two_digit);
+    CHECK(Times(pk::ParseDataset("ID,DATE,TIME\n1,2/28/2021,0\n1,3/1/2021,0\n", "d.csv").subjects[0])[1] == 24);
+    CHECK(Times(pk::ParseDataset("ID,DATE,TIME\n1,2/28/2024,0\n1,3/1/2024,0\n", "d.csv").subjects[0])[1] == 48);
+  }
+  {  // One component is a day number (0 or negative too); a first record that is a sample is still time 0.
+    const pk::Dataset d = pk::ParseDataset("ID,DATE,TIME,AMT,DV\n1,-1,20:00,0,0.1\n1,0,8,100,.\n1,1,8,0,3\n", "d.csv");
+    CHECK(Times(d.subjects[0]) == std::vector<double>{0, 12, 36});
+  }
+  {  // Plain numeric times without dates are left as they are.
+    const pk::Dataset d = pk::ParseDataset("ID,TIME,DV\n1,2,1\n1,3.5,1\n", "n.csv");
+    CHECK_FALSE(d.relative_times);
+    CHECK(Times(d.subjects[0]) == std::vector<double>{2, 3.5});
+  }
+}
+
+TEST_CASE("bad dates and clock times name the line and column", "[reader][dates]") {
+  ExpectError("ID,TIME,DV\n1,8:00,1\n1,8:75,1\n", 3, 2, "column TIME: '8:75' is not a clock time (hh:mm)");
+  ExpectError("ID,TIME,DV\n1,8:00,1\n1,8h30,1\n", 3, 2, "'8h30' is not a clock time");
+  ExpectError("ID,DATE,TIME\n1,13/1/2020,8\n", 2, 2, "column DATE: '13/1/2020': month 13 is not 1 to 12 (month/day/year)");
+  ExpectError("ID,DAT1,TIME\n1,30/2/2020,8\n", 2, 2, "day 30 is not in month 2 (day/month/year)");
+  ExpectError("ID,DATE,TIME\n1,2/29,8\n", 2, 2, "February 29 needs a year");
+  ExpectError("ID,DATE,TIME\n1,1/2/3/4,8\n", 2, 2, "not a date (month/day/year)");
+  ExpectError("ID,DATE,TIME\n1,1.5,8\n", 2, 2, "a single date component is a whole day number");
+  ExpectError("ID,DATE,TIME\n1,.,8\n", 2, 2, "DATE is missing");
+  ExpectError("ID,date,TIME,DAT2\n", 1, 4, "a second date column DAT2 (also DATE, column 2)");
+  ExpectError("ID,TIME,DV\n1,23:00,1\n1,01:00,1\n", 3, 2,
+              "TIME decreases within ID 1 (-22 after 0) on a record that is not a reset (EVID 3 or 4); clock times "
+              "cannot pass midnight without a date column");
+}
+
 TEST_CASE("model-dependent errors are raised when a dataset meets a model", "[reader]") {
   ExpectSimulationError("1cmt_iv", "ID,TIME,AMT,CMT\n1,0,100,2\n", {}, 2, 4, "CMT 2 is out of range for model 1cmt_iv");
   ExpectSimulationError("1cmt_iv", "ID,TIME,AMT,RATE\n1,0,100,-1\n", {}, 2, 4, "needs R1 > 0, but no value is given");

@@ -13,6 +13,15 @@
 // (upper-cased) so that covariates, time-varying model parameters (CL, V, ...)
 // and dose modifiers (F1, ALAG1, R1, D1, ...) can be read from it.
 //
+// Dates and clock times follow NM-TRAN's day-time translation. With a date
+// column (DATE: month/day/year, DAT1: day/month/year, DAT2: year/month/day,
+// DAT3: year/day/month; any non-digit separates the components), or when any
+// TIME is a clock time (hh:mm or hh:mm:ss; decimal hours are accepted beside
+// them), TIME becomes hours since the subject's first record, which is at 0.
+// A date with one component is a day number; with two, the day and month in
+// the label's order; one- or two-digit years are 2000–2050 (≤ 50) or
+// 1951–1999. The date column is not kept as a number.
+//
 // Records are grouped into subjects in file order: a new subject starts
 // whenever ID changes, as in NONMEM. Lines starting with '#' and blank lines
 // are ignored. Every violation throws pk::InputError naming file, line and
@@ -60,6 +69,9 @@ struct Dataset {
   std::vector<std::string> columns;        ///< upper-cased header, in file order
   std::vector<std::string> extra_columns;  ///< upper-cased names of the non-PREDPP columns
   std::vector<Subject> subjects;
+  /// TIME was translated to hours since each subject's first record (a date
+  /// column or clock times; see above).
+  bool relative_times = false;
 
   /// Index into Record::extra of a non-PREDPP column, or -1 (case-insensitive).
   int ExtraColumn(const std::string& name) const;

@@ -1,4 +1,5 @@
 // Reading NONMEM-style CSV datasets (see pk/dataset.h for the rules).
+#include <cctype>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -28,6 +29,123 @@ const char* const kItemNames[] = {"ID", "TIME", "AMT", "RATE", "II", "ADDL",
                                   "SS", "EVID", "CMT", "MDV", "DV"};
 enum Item { kId, kTime, kAmt, kRate, kIi, kAddl, kSs, kEvid, kCmt, kMdv, kDv, kNumItems };
 
+// NM-TRAN's date labels and the order of a date's components under each
+// (y = year, m = month, d = day).
+const char* const kDateLabels[] = {"DATE", "DAT1", "DAT2", "DAT3"};
+const char* const kDateOrders[] = {"mdy", "dmy", "ymd", "ydm"};
+const char* const kDateForms[] = {"month/day/year", "day/month/year", "year/month/day", "year/day/month"};
+
+// Days from 1970-01-01 to a proleptic Gregorian date (the civil-from-days
+// inverse of the usual era arithmetic).
+long DaysFromCivil(long y, int m, int d) {
+  y -= m <= 2;
+  const long era = (y >= 0 ? y : y - 399) / 400;
+  const long yoe = y - era * 400;
+  const long doy = (153 * (m + (m > 2 ? -3 : 9)) + 2) / 5 + d - 1;
+  const long doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+  return era * 146097 + doe - 719468;
+}
+
+bool IsLeapYear(long y) { return (y % 4 == 0 && y % 100 != 0) || y % 400 == 0; }
+
+int DaysInMonth(long y, int m) {
+  static const int kDays[] = {31, 28, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31};
+  return m == 2 && IsLeapYear(y) ? 29 : kDays[m - 1];
+}
+
+// A date field as a day number, by NM-TRAN's rules: one component is a day
+// (it may be 0 or negative); two are the day and month, in the label's order
+// without the year (then no year is known, so February 29 is refused); three
+// are a calendar date whose one- or two-digit year is 2000–2050 up to 50 and
+// 1951–1999 above (NM-TRAN's default LAST20 = 50). Components are separated by
+// any non-digit character. Returns false with `why` when the field is none of these.
+bool ParseDate(const std::string& text, int format, long* day, std::string* why) {
+  double single = 0;
+  if (ParseDouble(text, &single)) {
+    if (single != std::floor(single) || std::fabs(single) > 1e7) {
+      *why = "a single date component is a whole day number";
+      return false;
+    }
+    *day = static_cast<long>(single);
+    return true;
+  }
+  std::vector<std::string> parts;
+  std::string digits;
+  for (char c : text) {
+    if (std::isdigit(static_cast<unsigned char>(c))) {
+      digits += c;
+    } else if (!digits.empty()) {
+      parts.push_back(digits);
+      digits.clear();
+    }
+  }
+  if (!digits.empty()) parts.push_back(digits);
+  const std::string form = kDateForms[format];
+  if (parts.size() < 2 || parts.size() > 3) {
+    *why = "not a date (" + form + ")";
+    return false;
+  }
+  long y = 2001;  // no year given: a year without February 29
+  int m = 0, d = 0;
+  std::string order = kDateOrders[format];
+  if (parts.size() == 2) order.erase(order.find('y'), 1);
+  for (size_t k = 0; k < parts.size(); ++k) {
+    if (parts[k].size() > 4) {
+      *why = "not a date (" + form + ")";
+      return false;
+    }
+    const long v = std::stol(parts[k]);
+    if (order[k] == 'y') {
+      y = parts[k].size() <= 2 ? (v <= 50 ? 2000 + v : 1900 + v) : v;
+    } else if (order[k] == 'm') {
+      m = static_cast<int>(v);
+    } else {
+      d = static_cast<int>(v);
+    }
+  }
+  if (m < 1 || m > 12) {
+    *why = "month " + std::to_string(m) + " is not 1 to 12 (" + form + ")";
+    return false;
+  }
+  if (d < 1 || d > DaysInMonth(y, m)) {
+    *why = parts.size() == 2 && m == 2 && d == 29 ? "February 29 needs a year"
+                                                   : "day " + std::to_string(d) + " is not in month " +
+                                                         std::to_string(m) + " (" + form + ")";
+    return false;
+  }
+  *day = DaysFromCivil(y, m, d);
+  return true;
+}
+
+// A clock time "hh:mm" or "hh:mm:ss" (hours may be negative or past 24), or
+// decimal hours, in hours.
+bool ParseClock(const std::string& text, double* hours) {
+  if (text.find(':') == std::string::npos) return ParseDouble(text, hours);
+  const bool negative = !text.empty() && text[0] == '-';
+  std::vector<std::string> parts;
+  std::string part;
+  for (size_t i = negative ? 1 : 0; i <= text.size(); ++i) {
+    if (i == text.size() || text[i] == ':') {
+      parts.push_back(part);
+      part.clear();
+    } else if (std::isdigit(static_cast<unsigned char>(text[i]))) {
+      part += text[i];
+    } else {
+      return false;
+    }
+  }
+  if (parts.size() < 2 || parts.size() > 3) return false;
+  double value[3] = {0, 0, 0};
+  for (size_t k = 0; k < parts.size(); ++k) {
+    if (parts[k].empty() || parts[k].size() > 6) return false;
+    value[k] = std::stod(parts[k]);
+    if (k > 0 && (value[k] >= 60 || parts[k].size() > 2)) return false;
+  }
+  const double h = value[0] + value[1] / 60 + value[2] / 3600;
+  *hours = negative ? -h : h;
+  return true;
+}
+
 class Parser {
  public:
   Parser(std::string source) : source_(std::move(source)) {}
@@ -39,10 +157,22 @@ class Parser {
     while (first < lines.size() && IsSkippedLine(lines[first].second)) ++first;
     if (first == lines.size()) Fail(0, 0, "the file has no header line");
     ReadHeader(lines[first].first, lines[first].second, &data);
+    std::vector<std::pair<int, std::vector<std::string>>> records;
     for (size_t i = first + 1; i < lines.size(); ++i) {
       if (IsSkippedLine(lines[i].second)) continue;
-      ReadRecord(lines[i].first, lines[i].second, &data);
+      records.emplace_back(lines[i].first, SplitCsvLine(lines[i].second));
     }
+    // NM-TRAN's day-time translation: with a date column, or when any TIME is
+    // a clock time, every TIME becomes hours since its subject's first record.
+    clock_ = false;
+    for (const auto& r : records) {
+      const auto& f = r.second;
+      if (static_cast<int>(f.size()) > item_column_[kTime] && f[item_column_[kTime]].find(':') != std::string::npos) {
+        clock_ = true;
+      }
+    }
+    data.relative_times = clock_ || date_column_ >= 0;
+    for (const auto& r : records) ReadRecord(r.first, r.second, &data);
     if (data.subjects.empty()) Fail(lines[first].first, 0, "the file has no data records");
     return data;
   }
@@ -57,6 +187,7 @@ class Parser {
   void ReadHeader(int line_number, const std::string& line, Dataset* data) {
     header_ = SplitCsvLine(line);
     for (int k = 0; k < kNumItems; ++k) item_column_[k] = -1;
+    date_column_ = -1;
     std::map<std::string, int> seen;
     for (size_t c = 0; c < header_.size(); ++c) {
       const std::string name = ToUpper(header_[c]);
@@ -68,6 +199,16 @@ class Parser {
       }
       seen[name] = column;
       data->columns.push_back(name);
+      for (int f = 0; f < 4; ++f) {
+        if (name != kDateLabels[f]) continue;
+        if (date_column_ >= 0) {
+          Fail(line_number, column, "a second date column " + name + " (also " + ToUpper(header_[date_column_]) + ", column " +
+                                        std::to_string(date_column_ + 1) + ")");
+        }
+        date_column_ = static_cast<int>(c);
+        date_format_ = f;
+      }
+      if (static_cast<int>(c) == date_column_) continue;  // read with TIME, not kept as a number
       bool is_item = false;
       for (int k = 0; k < kNumItems; ++k) {
         if (name == kItemNames[k]) {
@@ -122,8 +263,7 @@ class Parser {
     return static_cast<int>(v);
   }
 
-  void ReadRecord(int line, const std::string& text, Dataset* data) {
-    const std::vector<std::string> fields = SplitCsvLine(text);
+  void ReadRecord(int line, const std::vector<std::string>& fields, Dataset* data) {
     if (fields.size() != header_.size()) {
       Fail(line, static_cast<int>(std::min(fields.size(), header_.size())) + 1,
            "expected " + std::to_string(header_.size()) + " fields as in the header, found " +
@@ -132,7 +272,9 @@ class Parser {
     Record r;
     r.line = line;
     r.id = Value(line, fields, kId, 1.0);
-    const double time = Value(line, fields, kTime, kMissing);
+    const bool translated = data->relative_times;
+    long day = 0;
+    const double time = translated ? DayAndHours(line, fields, &day) : Value(line, fields, kTime, kMissing);
     if (std::isnan(time)) Fail(line, Col(kTime), "TIME is missing");
     r.time = time;
     r.amt = Value(line, fields, kAmt, 0.0);
@@ -168,7 +310,13 @@ class Parser {
     r.extra.reserve(extra_positions_.size());
     for (int c : extra_positions_) r.extra.push_back(Number(line, fields, c));
 
-    if (data->subjects.empty() || data->subjects.back().id != r.id) {
+    const bool new_subject = data->subjects.empty() || data->subjects.back().id != r.id;
+    if (translated) {
+      if (new_subject) origin_ = {day, r.time};
+      // Days and hours apart: hours since 1970 would cost digits.
+      r.time = 24.0 * static_cast<double>(day - origin_.first) + (r.time - origin_.second);
+    }
+    if (new_subject) {
       data->subjects.push_back(Subject());
       data->subjects.back().id = r.id;
     } else {
@@ -177,10 +325,34 @@ class Parser {
       if (r.time < prev.time && !reset) {
         Fail(line, Col(kTime), "TIME decreases within ID " + internal::Trim(fields[std::max(item_column_[kId], 0)]) +
                                    " (" + FormatNumber(r.time) + " after " + FormatNumber(prev.time) +
-                                   ") on a record that is not a reset (EVID 3 or 4)");
+                                   ") on a record that is not a reset (EVID 3 or 4)" +
+                                   (clock_ && date_column_ < 0
+                                        ? std::string("; clock times cannot pass midnight without a date column "
+                                                      "(DATE, DAT1, DAT2 or DAT3)")
+                                        : std::string()));
       }
     }
     data->subjects.back().records.push_back(std::move(r));
+  }
+
+  // A record's date as a day number (0 without a date column) in *day, and
+  // its clock time or decimal hours as the result; NaN when TIME is missing.
+  double DayAndHours(int line, const std::vector<std::string>& fields, long* day) const {
+    const int tc = item_column_[kTime];
+    const std::string& text = fields[tc];
+    if (text.empty() || text == ".") return kMissing;
+    double hours = 0;
+    if (!ParseClock(text, &hours)) {
+      Fail(line, tc + 1, "column TIME: '" + text + "' is not a clock time (hh:mm) or a number of hours");
+    }
+    if (date_column_ < 0) return hours;
+    const std::string& date = fields[date_column_];
+    if (date.empty() || date == ".") Fail(line, date_column_ + 1, ToUpper(header_[date_column_]) + " is missing");
+    std::string why;
+    if (!ParseDate(date, date_format_, day, &why)) {
+      Fail(line, date_column_ + 1, "column " + ToUpper(header_[date_column_]) + ": '" + date + "': " + why);
+    }
+    return hours;
   }
 
   void Validate(int line, const Record& r) const {
@@ -216,6 +388,10 @@ class Parser {
   std::vector<std::string> header_;
   int item_column_[kNumItems];
   std::vector<int> extra_positions_;
+  int date_column_ = -1;   // DATE, DAT1, DAT2 or DAT3, when present
+  int date_format_ = 0;    // index into kDateLabels
+  bool clock_ = false;     // some TIME is a clock time
+  std::pair<long, double> origin_;  // day and hours of the current subject's first record
 };
 
 }  // namespace
