@@ -91,4 +91,11 @@ printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CLX,2\n' >"$work/bad.csv"
 [ $? -eq 2 ] || fail "a bad estimates table should exit 2"
 grep -q "bad.csv:3:2: 'CLX' is not a parameter of model 1cmt_oral" "$work/bad.err" || fail "bad estimates message"
 
+# Dates and clock times: NM-TRAN's example data set, simulated at its relative times (0, 5.42, 23.25; 0, 50 h).
+printf 'ID,DATE,TIME,AMT,DV\n1,10-1-86,9:15,100,.\n1,10-1-86,14:40,0,5\n1,10-2-86,8:30,0,2\n2,10-12,8,100,.\n2,10-14,10,0,1\n' \
+  >"$work/dated.csv"
+"$pksim" --model 1cmt_iv --param CL=1 --param V=10 --data "$work/dated.csv" --out "$work/dated_sim.csv" || fail "dated run"
+[ "$(awk -F, 'NR > 1 { printf "%s:%.4f ", $1, $2 }' "$work/dated_sim.csv")" = "1:5.4167 1:23.2500 2:50.0000 " ] ||
+  fail "dated times: $(awk -F, 'NR > 1 { printf "%s:%s ", $1, $2 }' "$work/dated_sim.csv")"
+
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi
