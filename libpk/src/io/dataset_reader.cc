@@ -1,4 +1,5 @@
 // Reading NONMEM-style CSV datasets (see pk/dataset.h for the rules).
+#include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <limits>
@@ -10,8 +11,8 @@
 #include "../internal_text.h"
 #include "csv_lines.h"
 #include "pk/dataset.h"
-#include "pk/output.h"
 #include "pk/error.h"
+#include "pk/output.h"
 
 namespace pk {
 namespace {
@@ -164,13 +165,10 @@ class Parser {
     }
     // NM-TRAN's day-time translation: with a date column, or when any TIME is
     // a clock time, every TIME becomes hours since its subject's first record.
-    clock_ = false;
-    for (const auto& r : records) {
-      const auto& f = r.second;
-      if (static_cast<int>(f.size()) > item_column_[kTime] && f[item_column_[kTime]].find(':') != std::string::npos) {
-        clock_ = true;
-      }
-    }
+    const size_t tc = static_cast<size_t>(item_column_[kTime]);
+    clock_ = std::any_of(records.begin(), records.end(), [tc](const auto& r) {
+      return r.second.size() > tc && r.second[tc].find(':') != std::string::npos;
+    });
     data.relative_times = clock_ || date_column_ >= 0;
     for (const auto& r : records) ReadRecord(r.first, r.second, &data);
     if (data.subjects.empty()) Fail(lines[first].first, 0, "the file has no data records");
