@@ -680,8 +680,9 @@ bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, c
     if (!a_gone) return false;
     if (!b_gone) {
       const double zero = kZeroPredictionLevel * yhat.cwiseAbs().maxCoeff();
+      // (A censored sample predicted as 0 is not one: its probability goes to 1, not its density to ∞.)
       for (int k = 0; k < nobs && at < 0; ++k) {
-        if (std::fabs(yhat(k)) <= zero) at = k;
+        if (std::fabs(yhat(k)) <= zero && objective.censoring()(k) == 0) at = k;
       }
       if (at < 0) return false;
       what = "the sample at TIME " + Num(objective.sample_times()[at]) + " (DV " + Num(y(at)) + ", prediction " +

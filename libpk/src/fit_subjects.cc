@@ -6,6 +6,7 @@
 #include <mutex>
 #include <thread>
 
+#include "censoring.h"
 #include "pk/conversion.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
@@ -36,6 +37,7 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
     const Objective objective(req.model, req.data, subject, req.objective, req.priors);
     out->times = objective.sample_times();
     out->dv = objective.observations();
+    out->censoring = objective.censoring();
     if (objective.num_samples() == 0) {
       out->error = "no samples (every observation has MDV=1 or no DV)";
       return;
@@ -107,7 +109,9 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
         const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
         const double a = ia >= 0 ? out->summary.values(ia) : 0, b = ip >= 0 ? out->summary.values(ip) : 0;
         out->wres.resize(n);
-        for (int k = 0; k < n; ++k) out->wres(k) = r(k) / std::sqrt(a * a + b * b * out->pred(k) * out->pred(k));
+        for (int k = 0; k < n; ++k) {
+          out->wres(k) = out->censoring(k) != 0 ? NAN : r(k) / std::sqrt(a * a + b * b * out->pred(k) * out->pred(k));
+        }
       }
     }
     // The fitted curve from the first record to a little past the last sample.
@@ -148,6 +152,15 @@ std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request, const std
   std::vector<int> subjects = request.subjects;
   if (subjects.empty()) {
     for (int i = 0; i < static_cast<int>(request.data->subjects.size()); ++i) subjects.push_back(i);
+  }
+  // A CENS value the request cannot take (least squares, say) is the request's error, not one subject's.
+  const int cens_col = request.data->ExtraColumn("CENS");
+  for (int i = 0; cens_col >= 0 && i < static_cast<int>(subjects.size()); ++i) {
+    for (const Record& r : request.data->subjects[static_cast<size_t>(subjects[i])].records) {
+      if (r.IsSample()) {
+        internal::CheckedCensoring(*request.data, r, cens_col, request.objective.error_model != ErrorModel::kLeastSquares);
+      }
+    }
   }
   std::vector<SubjectFit> out(subjects.size());
   int jobs = request.jobs > 0 ? request.jobs : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));

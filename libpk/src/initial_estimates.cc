@@ -215,7 +215,18 @@ void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* 
   coefficients->insert(coefficients->end(), b.begin(), b.end());
 }
 
+namespace {
+
+// A measured concentration: a sample that is not censored (a censored one's DV is its limit).
+bool Measured(const Record& r, int cens_col) {
+  return r.IsSample() && (cens_col < 0 || std::isnan(r.extra[static_cast<size_t>(cens_col)]) ||
+                          r.extra[static_cast<size_t>(cens_col)] == 0);
+}
+
+}  // namespace
+
 InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, int subject) {
+  const int cens_col = data.ExtraColumn("CENS");
   const std::string& model_name = model.name();
   if (model_name.size() > 3 && model_name.compare(model_name.size() - 3, 3, "_mm") == 0) {
     // Michaelis-Menten: the linear counterpart's clearance CL at the median
@@ -225,7 +236,7 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
     if (!out.ok) return out;
     std::vector<double> c;
     for (const Record& r : data.subjects[subject].records) {
-      if (r.IsSample() && r.dv > 0) c.push_back(r.dv);
+      if (Measured(r, cens_col) && r.dv > 0) c.push_back(r.dv);
     }
     std::sort(c.begin(), c.end());
     const double median = c[c.size() / 2];
@@ -274,7 +285,7 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
       for (int k = 0; k <= r.addl && (k == 0 || r.time + k * r.ii <= end_time); ++k) {
         doses.push_back({r.time + k * r.ii, r.amt, duration});
       }
-    } else if (r.IsSample() && r.dv > 0 && (tf || r.cmt == 0 || r.cmt == model.central_compartment())) {
+    } else if (Measured(r, cens_col) && r.dv > 0 && (tf || r.cmt == 0 || r.cmt == model.central_compartment())) {
       t.push_back(r.time);
       c.push_back(r.dv);
     }

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "autodiff.h"
+#include "censoring.h"
 #include "events.h"
 #include "exact/exact_propagator.h"
 #include "exact/companion_route.h"
@@ -82,6 +83,7 @@ struct Objective::Impl {
   std::vector<std::string> names;
   int sigma_add = -1, sigma_prop = -1;
   Eigen::VectorXd y, w;
+  Eigen::VectorXi cens;  // per sample: 0, or ±1 for a value beyond DV (CENS)
   std::vector<double> times;
   Propagator propagator = Propagator::kExact;
   std::unique_ptr<internal::OdeSystem> ode_system;
@@ -196,6 +198,8 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
   d.prepared = internal::PrepareSubject(*d.model, d.layout, *d.data, subject, d.layout.Defaults(), false);
   const int cont_col = d.data->ExtraColumn("CONT");
   const int dvid_col = d.data->ExtraColumn("DVID");
+  const int cens_col = d.data->ExtraColumn("CENS");
+  const bool ml = options.error_model != ErrorModel::kLeastSquares;
   const auto* ode_model = dynamic_cast<const OdeModel*>(d.model.get());
   if (d.propagator == Propagator::kOde) {
     d.ode_system.reset(new internal::OdeSystem(*d.model));
@@ -217,6 +221,7 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
     throw InputError(d.data->source, 0, 0, "no weight column '" + options.weight_column + "'");
   }
   std::vector<double> ys, ws;
+  std::vector<int> cs;
   double sum_abs = 0;
   const std::vector<Record>& records = d.prepared.records();
   d.ode.key_of_record.assign(records.size(), 0);
@@ -241,11 +246,16 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
                            " (the central compartment), or a DVID");
     }
     const bool continuous = cont_col >= 0 && r.extra[cont_col] == 1;
+    const int censored = internal::CheckedCensoring(*d.data, r, cens_col, ml);
+    if (continuous && censored != 0) {
+      throw InputError(d.data->source, r.line, d.data->ColumnNumber("CENS"),
+                       "a continuous record (CONT=1) cannot be censored");
+    }
     if (continuous && d.propagator != Propagator::kOde) {
       throw InputError(d.data->source, r.line, d.data->ColumnNumber("CONT"),
                        "continuous records (CONT=1) need the ODE propagator (--propagator ode)");
     }
-    if (continuous && options.error_model != ErrorModel::kLeastSquares) {
+    if (continuous && ml) {
       throw InputError(d.data->source, r.line, d.data->ColumnNumber("CONT"),
                        "continuous records (CONT=1) are fitted by least squares, not maximum likelihood");
     }
@@ -291,12 +301,14 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
     d.ode.sample_of_record[ri] = static_cast<int>(ys.size());
     ys.push_back(r.dv);
     ws.push_back(w);
+    cs.push_back(censored);
     d.times.push_back(r.time);
     sum_abs += std::fabs(r.dv);
   }
   d.ode.num_samples = static_cast<int>(ys.size());
   d.y = Eigen::Map<Eigen::VectorXd>(ys.data(), static_cast<Eigen::Index>(ys.size()));
   d.w = Eigen::Map<Eigen::VectorXd>(ws.data(), static_cast<Eigen::Index>(ws.size()));
+  d.cens = Eigen::Map<Eigen::VectorXi>(cs.data(), static_cast<Eigen::Index>(cs.size()));
   d.default_sigma_add = ys.empty() || sum_abs == 0 ? 1.0 : 0.1 * sum_abs / static_cast<double>(ys.size());
   for (const LogNormalPrior& p : priors) {
     const int i = ParameterIndex(p.parameter);
@@ -333,6 +345,8 @@ Propagator Objective::propagator() const { return impl_->propagator; }
 int Objective::num_residuals() const { return num_samples() + static_cast<int>(impl_->priors.size()); }
 const Eigen::VectorXd& Objective::observations() const { return impl_->y; }
 const Eigen::VectorXd& Objective::weights() const { return impl_->w; }
+const Eigen::VectorXi& Objective::censoring() const { return impl_->cens; }
+int Objective::num_censored() const { return static_cast<int>(impl_->cens.cwiseAbs().sum()); }
 std::vector<double> Objective::sample_times() const { return impl_->times; }
 std::vector<int> Objective::sample_outputs() const {
   std::vector<int> out;
@@ -534,7 +548,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::VectorXd dl_dy_here;
   Eigen::VectorXd& dl_dy = modal_lease.work ? modal_lease.work->dl_dy : dl_dy_here;  // ∂ℓ/∂ŷ
   dl_dy.resize(N);
-  Eigen::VectorXd sigma2, ds2_dy;  // maximum likelihood only
+  Eigen::VectorXd sigma2, ds2_dy, dl_ds2;  // maximum likelihood only
+  Eigen::VectorXd z;  // censored samples: s(DV − ŷ)/σ, where Φ(z) is their probability (else unused)
   double value = 0;
   const double a = d.sigma_add >= 0 ? values(d.sigma_add) : 0.0;
   const double b = d.sigma_prop >= 0 ? values(d.sigma_prop) : 0.0;
@@ -546,6 +561,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   } else {
     sigma2.resize(N);
     ds2_dy.resize(N);
+    dl_ds2.resize(N);
+    z.setZero(N);
     // A prediction below kZeroPredictionLevel of the subject's largest is zero to rounding: the modal form gives
     // about 1e-15 for a compartment the drug has not reached yet (a sample at the time of an oral dose). With a
     // proportional error alone its variance is then zero too, and its log-variance term would be rounding noise
@@ -554,6 +571,32 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     for (int k = 0; k < N; ++k) {
       sigma2(k) = a * a + b * b * yhat(k) * yhat(k);
       ds2_dy(k) = 2 * b * b * yhat(k);
+      if (const int s = d.cens(k)) {
+        // Beal's M3: the probability that the value lies beyond its limit DV,
+        // ℓ_k = −log Φ(z), z = s(DV − ŷ)/σ. With h = φ(z)/Φ(z):
+        // ∂ℓ/∂ŷ = −h ∂z/∂ŷ, ∂z/∂ŷ = −s/σ − z/(2σ²) ∂σ²/∂ŷ, and ∂ℓ/∂σ² = h z/(2σ²).
+        const double beyond = s * (d.y(k) - yhat(k));
+        if (!(sigma2(k) > 0)) {
+          if (beyond > 0) {  // certainly beyond: probability 1, no information
+            z(k) = std::numeric_limits<double>::infinity();
+            dl_dy(k) = 0;
+            dl_ds2(k) = 0;
+            continue;
+          }
+          ev.ok = false;
+          ev.message = "the censored sample at TIME " + FormatNumber(d.times[static_cast<size_t>(k)]) + " (CENS=" +
+                       std::to_string(s) + ") has probability 0: its prediction " + FormatNumber(yhat(k)) +
+                       " is not beyond its limit " + FormatNumber(d.y(k)) + " and its σ is 0";
+          return ev;
+        }
+        z(k) = beyond / std::sqrt(sigma2(k));
+        double log_cdf, h;
+        internal::LogNormalCdf(z(k), &log_cdf, &h);
+        value -= log_cdf;
+        dl_dy(k) = h == 0 ? 0.0 : -h * (-s / std::sqrt(sigma2(k)) - z(k) / (2 * sigma2(k)) * ds2_dy(k));
+        dl_ds2(k) = h == 0 ? 0.0 : h * z(k) / (2 * sigma2(k));
+        continue;
+      }
       if (!(sigma2(k) > 0) || std::fabs(yhat(k)) <= zero_level) {
         ev.ok = false;
         std::ostringstream os;
@@ -564,8 +607,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
         return ev;
       }
       value += 0.5 * (std::log(2 * M_PI * sigma2(k)) + r(k) * r(k) / sigma2(k));
-      const double dl_ds2 = 0.5 * (1 / sigma2(k) - r(k) * r(k) / (sigma2(k) * sigma2(k)));
-      dl_dy(k) = -r(k) / sigma2(k) + dl_ds2 * ds2_dy(k);
+      dl_ds2(k) = 0.5 * (1 / sigma2(k) - r(k) * r(k) / (sigma2(k) * sigma2(k)));
+      dl_dy(k) = -r(k) / sigma2(k) + dl_ds2(k) * ds2_dy(k);
     }
   }
   value += cont_loss;
@@ -639,9 +682,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   for (int k = 0; ml && k < P; ++k) {
     if (free[k] != d.sigma_add && free[k] != d.sigma_prop) continue;
     const Eigen::VectorXd& ds2 = free[k] == d.sigma_add ? ds2_dsigma_add : ds2_dsigma_prop;
-    for (int j = 0; j < N; ++j) {
-      ev.gradient(k) += 0.5 * (1 / sigma2(j) - r(j) * r(j) / (sigma2(j) * sigma2(j))) * ds2(j);
-    }
+    for (int j = 0; j < N; ++j) ev.gradient(k) += dl_ds2(j) * ds2(j);
   }
   Eigen::VectorXd prior_hess;  // for the information matrix
   if (need == Need::kJacobian) prior_hess.setZero(P);
@@ -677,7 +718,9 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     // The full ∂ŷ/∂θ over all free parameters (σ columns are zero).
     Eigen::MatrixXd jy = Eigen::MatrixXd::Zero(N, P);
     for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos(a2)) = jm.col(a2);
-    // Expected information: Σ ∇ŷ∇ŷᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴).
+    // Expected information: Σ ∇ŷ∇ŷᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴) over the values; a
+    // censored sample's is the Tobit model's in (μ, σ) = (ŷ, √σ²), ∇σ = ∇σ²/(2σ)
+    // (internal::CensoredInformation).
     ev.information = Eigen::MatrixXd::Zero(P, P);
     for (int k = 0; k < N; ++k) {
       Eigen::VectorXd gs = ds2_dy(k) * jy.row(k).transpose();
@@ -685,7 +728,18 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
         if (free[j] == d.sigma_add) gs(j) += ds2_dsigma_add(k);
         if (free[j] == d.sigma_prop) gs(j) += ds2_dsigma_prop(k);
       }
-      ev.information += jy.row(k).transpose() * jy.row(k) / sigma2(k) + gs * gs.transpose() / (2 * sigma2(k) * sigma2(k));
+      if (d.cens(k) == 0) {
+        ev.information +=
+            jy.row(k).transpose() * jy.row(k) / sigma2(k) + gs * gs.transpose() / (2 * sigma2(k) * sigma2(k));
+      } else if (sigma2(k) > 0) {
+        double i_mm, i_ms, i_ss;
+        internal::CensoredInformation(z(k), d.cens(k), &i_mm, &i_ms, &i_ss);
+        const Eigen::VectorXd gm_k = jy.row(k).transpose();
+        const Eigen::VectorXd gsd = gs / (2 * std::sqrt(sigma2(k)));
+        ev.information += (i_mm * gm_k * gm_k.transpose() + i_ms * (gm_k * gsd.transpose() + gsd * gm_k.transpose()) +
+                           i_ss * gsd * gsd.transpose()) /
+                          sigma2(k);
+      }
     }
   }
   ev.information.diagonal() += prior_hess;

@@ -25,10 +25,11 @@ struct SubjectFit {
   std::string error;           ///< why the subject could not be fitted, when !ok
   FitSummary summary;
   std::vector<double> times;   ///< sample times
-  Eigen::VectorXd dv;          ///< observations
+  Eigen::VectorXd dv;          ///< observations (a censored sample's limit)
+  Eigen::VectorXi censoring;   ///< per sample: 0, or 1 / -1 for a value below / above DV (CENS)
   Eigen::VectorXd pred;        ///< predictions at the estimate
   /// Weighted residuals: least squares √W(DV − PRED)/σ̂ with σ̂² = 2V/(N − p);
-  /// maximum likelihood (DV − PRED)/σ_k.
+  /// maximum likelihood (DV − PRED)/σ_k. NaN for a censored sample.
   Eigen::VectorXd wres;
   /// Where the starting values came from: "data (...)" or "catalogue defaults (...)".
   std::string initial_method;

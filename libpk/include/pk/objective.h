@@ -9,7 +9,16 @@
 //   maximum likelihood        ℓ_k = ½ [log(2π σ_k²) + (y_k − ŷ_k)²/σ_k²]
 //                             σ_k² = SIGMA_ADD² + (SIGMA_PROP·ŷ_k)²  (additive,
 //                             proportional or combined), the σ estimated jointly
+//   censored sample (ML)      ℓ_k = −log Φ(s_k (y_k − ŷ_k)/σ_k), Beal's M3
 //   prior (optional)          ½ ((log θ − log median) / sd)²
+//
+// Censored samples (a CENS column, as in Monolix and nlmixr2): CENS=1 says the
+// value lies below DV, which holds the limit (a sample below the limit of
+// quantification, BLQ, with DV = LLOQ); CENS=-1 says it lies above DV. Such a
+// sample adds the log-probability of lying beyond its limit (s_k = CENS) under
+// the error model, so it needs maximum likelihood; least squares refuses it
+// (give MDV=1 to leave it out instead, Beal's M1). A LIMIT column (interval
+// censoring, M4) is refused.
 //
 // The gradient routes need only ∂ℓ_k/∂ŷ_k and ∂ℓ_k/∂θ, so adding a loss never
 // touches them (docs/gradients.md). Records with MDV=1 or without a DV are not
@@ -108,8 +117,9 @@ class Objective {
     /// Least squares: r_k = √W_k (y_k − ŷ_k) and ∂r/∂θ (Need::kJacobian).
     Eigen::VectorXd residuals;
     Eigen::MatrixXd jacobian;
-    /// Gauss–Newton matrix (least squares) or expected Fisher information (ML),
-    /// plus the prior's Hessian, over the free parameters (Need::kJacobian).
+    /// Gauss–Newton matrix (least squares) or expected Fisher information (ML;
+    /// the Tobit model's for a censored sample), plus the prior's Hessian, over
+    /// the free parameters (Need::kJacobian).
     Eigen::MatrixXd information;
     const char* route = "";       ///< the route that computed the derivatives
     const char* propagator = "";  ///< "exact" or "ode"
@@ -142,6 +152,9 @@ class Objective {
   int num_residuals() const;
   const Eigen::VectorXd& observations() const;
   const Eigen::VectorXd& weights() const;
+  /// Per sample: 0 for a value, 1 when the value lies below DV, -1 above (CENS).
+  const Eigen::VectorXi& censoring() const;
+  int num_censored() const;
   std::vector<double> sample_times() const;
   /// The output each sample measures: its DVID for a nonlinear model, else 1.
   std::vector<int> sample_outputs() const;
