@@ -83,3 +83,57 @@ TEST_CASE("theophylline and indomethacin: no higher objective than R's nls, same
     }
   }
 }
+
+// Censored samples (Beal's M3) against R alone: tests/reference/make_m3_reference.R
+// fitted datasets/theophylline_blq.csv (theophylline with a limit of 2 mg/L
+// imposed; 27 of 132 samples censored) with the closed-form one-compartment
+// oral model, an additive error and pnorm's log-probabilities, by nlminb from
+// 40 starts. Both optimisers that take a likelihood must reach its objective.
+TEST_CASE("theophylline below a limit of 2 mg/L (M3): R's optimum and estimates", "[reference][censoring]") {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/tests/reference/m3_reference.csv");
+  REQUIRE(in);
+  std::string line;
+  std::getline(in, line);
+  REQUIRE(line == "\"ID\",\"NCENS\",\"OBJECTIVE\",\"KA\",\"CL\",\"V\",\"SIGMA_ADD\"");
+  struct Row {
+    double id;
+    int censored;
+    double objective;
+    std::map<std::string, double> estimates;
+  };
+  std::vector<Row> refs;
+  while (std::getline(in, line)) {
+    std::stringstream ss(line);
+    std::string cell;
+    std::vector<double> f;
+    while (std::getline(ss, cell, ',')) f.push_back(std::stod(cell));
+    REQUIRE(f.size() == 7);
+    refs.push_back({f[0], static_cast<int>(f[1]), f[2], {{"KA", f[3]}, {"CL", f[4]}, {"V", f[5]}, {"SIGMA_ADD", f[6]}}});
+  }
+  REQUIRE(refs.size() == 12);
+  const pk::OptimizerType optimizer = GENERATE(pk::OptimizerType::kNewton, pk::OptimizerType::kBfgs);
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel("1cmt_oral");
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/theophylline_blq.csv"));
+  req.objective.error_model = pk::ErrorModel::kAdditive;
+  req.fit.optimizer = optimizer;
+  for (const char* p : {"KA", "CL", "V", "SIGMA_ADD"}) req.parameters.push_back({p, NAN});
+  req.jobs = 2;
+  const std::vector<pk::SubjectFit> fits = pk::FitSubjects(req);
+  REQUIRE(fits.size() == refs.size());
+  for (size_t k = 0; k < fits.size(); ++k) {
+    const pk::SubjectFit& fit = fits[k];
+    const Row& ref = refs[k];
+    INFO("ID " << ref.id << " with " << pk::ToString(optimizer) << "\n" << fit.summary.FullReport());
+    REQUIRE(fit.id == ref.id);
+    REQUIRE(fit.ok);
+    CHECK(fit.censoring.cwiseAbs().sum() == ref.censored);
+    CHECK(fit.summary.converged());
+    CHECK(fit.summary.objective <= ref.objective + 1e-9 * std::max(1.0, std::fabs(ref.objective)));
+    CHECK(fit.summary.objective == Approx(ref.objective).margin(1e-7 * std::max(1.0, std::fabs(ref.objective))));
+    for (const pk::ParameterEstimate& e : fit.summary.estimates) {
+      CHECK(e.estimate == Approx(ref.estimates.at(e.name)).epsilon(1e-4));
+      CHECK(std::isfinite(e.rse_pct));
+    }
+  }
+}
