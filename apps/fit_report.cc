@@ -53,11 +53,13 @@ std::string Quote(const std::string& s) {
 
 // The plot of output `output` (1-based); models with one output have only output 1.
 std::string SubjectSvg(const SubjectFit& f, bool log, int output = 1) {
-  PlotSeries data{"observed", {}, {}, true};
+  PlotSeries data{"observed", {}, {}, true}, censored{"censored (at its limit)", {}, {}, true};
+  censored.hollow = true;
   for (int k = 0; k < f.dv.size(); ++k) {
     if (!f.sample_output.empty() && f.sample_output[k] != output) continue;
-    data.x.push_back(f.times[k]);
-    data.y.push_back(f.dv(k));
+    PlotSeries& to = k < f.censoring.size() && f.censoring(k) != 0 ? censored : data;
+    to.x.push_back(f.times[k]);
+    to.y.push_back(f.dv(k));
   }
   const bool multi = !f.output_curves.empty();
   PlotSeries curve{"fitted", f.curve_times, multi ? f.output_curves[output - 1] : f.curve, false};
@@ -67,18 +69,22 @@ std::string SubjectSvg(const SubjectFit& f, bool log, int output = 1) {
             (f.ok ? "" : " (fit failed)");
   o.log_y = log && (!multi || output == 1);
   if (multi && output > 1) o.y_label = "output " + f.output_names[output - 1];
-  return RenderSvg({curve, data}, o);
+  if (censored.x.empty()) return RenderSvg({curve, data}, o);
+  return RenderSvg({curve, data, censored}, o);
 }
 
 int NumPlots(const SubjectFit& f) { return f.output_curves.empty() ? 1 : static_cast<int>(f.output_curves.size()); }
 
 // The usual goodness-of-fit plots over all fitted subjects, for output `output`:
-// observed against predicted (with the line of identity), and the weighted
-// residuals against time and against the prediction (with the zero line).
+// observed against predicted (with the line of identity; censored samples
+// hollow, at their limit), and the weighted residuals against time and against
+// the prediction (with the zero line; censored samples have none).
 // Empty when no subject has samples of that output.
 std::vector<std::pair<std::string, std::string>> GoodnessOfFitSvgs(const std::vector<SubjectFit>& fits, int output,
                                                                    bool several_outputs) {
   PlotSeries dv_pred{"samples", {}, {}, true}, wres_time{"samples", {}, {}, true}, wres_pred{"samples", {}, {}, true};
+  PlotSeries censored{"censored (at its limit)", {}, {}, true};
+  censored.hollow = true;
   std::string name;
   for (const SubjectFit& f : fits) {
     if (!f.ok) continue;
@@ -86,6 +92,11 @@ std::vector<std::pair<std::string, std::string>> GoodnessOfFitSvgs(const std::ve
     for (int k = 0; k < f.pred.size(); ++k) {
       if (!f.sample_output.empty() && f.sample_output[k] != output) continue;
       if (f.sample_output.empty() && output != 1) continue;
+      if (k < f.censoring.size() && f.censoring(k) != 0) {
+        censored.x.push_back(f.pred(k));
+        censored.y.push_back(f.dv(k));
+        continue;
+      }
       dv_pred.x.push_back(f.pred(k));
       dv_pred.y.push_back(f.dv(k));
       if (k < f.wres.size()) {
@@ -97,7 +108,7 @@ std::vector<std::pair<std::string, std::string>> GoodnessOfFitSvgs(const std::ve
     }
   }
   std::vector<std::pair<std::string, std::string>> svgs;
-  if (dv_pred.x.empty()) return svgs;
+  if (dv_pred.x.empty() && censored.x.empty()) return svgs;
   const std::string suffix = several_outputs ? " (" + name + ", DVID " + std::to_string(output) + ")" : "";
   auto range = [](const std::vector<double>& v) {  // of the finite values
     double lo = INFINITY, hi = -INFINITY;
@@ -108,14 +119,16 @@ std::vector<std::pair<std::string, std::string>> GoodnessOfFitSvgs(const std::ve
     }
     return std::make_pair(lo, hi);
   };
-  const auto pred = range(dv_pred.x), dv = range(dv_pred.y);
-  const double lo = std::min(pred.first, dv.first), hi = std::max(pred.second, dv.second);
+  const auto pred = range(dv_pred.x), dv = range(dv_pred.y), cp = range(censored.x), cd = range(censored.y);
+  const double lo = std::min({pred.first, dv.first, cp.first, cd.first});
+  const double hi = std::max({pred.second, dv.second, cp.second, cd.second});
   PlotSeries identity{"identity", {lo, hi}, {lo, hi}, false};
   PlotOptions o;
   o.title = "observed against predicted" + suffix;
   o.x_label = "predicted (PRED)";
   o.y_label = "observed (DV)";
-  svgs.push_back({"dv_pred", RenderSvg({identity, dv_pred}, o)});
+  svgs.push_back({"dv_pred", censored.x.empty() ? RenderSvg({identity, dv_pred}, o)
+                                                 : RenderSvg({identity, dv_pred, censored}, o)});
   if (!wres_time.x.empty()) {
     const auto t = range(wres_time.x), p = range(wres_pred.x);
     o.y_label = "weighted residual (WRES)";
@@ -210,7 +223,13 @@ std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
     }
     out << "\n";
   }
-  // Why standard errors are missing, under the table.
+  // Censored samples, then why standard errors are missing, under the table.
+  std::string censored;
+  for (const SubjectFit& f : fits) {
+    const int c = f.censoring.cwiseAbs().sum();
+    if (c > 0) censored += (censored.empty() ? "" : ", ") + FormatNumber(f.id) + ": " + std::to_string(c);
+  }
+  if (!censored.empty()) out << "censored samples (CENS, Beal's M3) per ID: " << censored << "\n";
   for (const SubjectFit& f : fits) {
     if (f.ok && !f.summary.covariance_message.empty()) {
       out << "ID " << FormatNumber(f.id) << ": " << f.summary.CovarianceNote() << "\n";
@@ -230,8 +249,8 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   bool any_derived = false;
   derived << "ID,READING,PARAMETER,VALUE,SE,RSE_PCT,NOTE\n";
   est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
-  sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR\n";
-  pred << "ID,TIME,DV,PRED,RES,WRES\n";
+  sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS\n";
+  pred << "ID,TIME,DV,PRED,RES,WRES,CENS\n";
   det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC,INITIAL_VALUES,COVARIANCE\n";
   for (const SubjectFit& f : fits) {
     const std::string id = FormatNumber(f.id);
@@ -240,7 +259,8 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
         << "," << s.evaluations << "," << s.best_start << "," << Csv(s.minus2ll) << "," << Csv(s.aic) << ","
         << Csv(s.bic) << "," << Quote(f.initial_method) << "," << Quote(f.ok ? s.covariance_message : "") << "\n";
     sum << id << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations << ","
-        << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "," << s.propagator << "\n";
+        << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "," << s.propagator
+        << "," << f.censoring.cwiseAbs().sum() << "\n";
     if (!f.ok) continue;
     for (const TransferFunctionReading& r : f.derived) {
       any_derived = true;
@@ -255,8 +275,11 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
           << (e.fixed ? "" : Csv(e.rse_pct)) << "\n";
     }
     for (int k = 0; k < f.pred.size(); ++k) {
+      // A censored sample's DV is its limit: it has no residual.
+      const int cens = k < f.censoring.size() ? f.censoring(k) : 0;
       pred << id << "," << Csv(f.times[k]) << "," << Csv(f.dv(k)) << "," << Csv(f.pred(k)) << ","
-           << Csv(f.dv(k) - f.pred(k)) << "," << (k < f.wres.size() ? Csv(f.wres(k)) : "") << "\n";
+           << (cens != 0 ? "" : Csv(f.dv(k) - f.pred(k))) << "," << (k < f.wres.size() ? Csv(f.wres(k)) : "") << ","
+           << cens << "\n";
     }
   }
 
@@ -272,6 +295,12 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   for (const SubjectFit& f : fits) failed += f.ok && f.summary.converged() ? 0 : 1;
   html << "<p>" << fits.size() << " subjects, " << fits.size() - failed << " converged";
   if (failed) html << ", <span class=\"bad\">" << failed << " failed or not converged</span>";
+  int censored = 0;
+  for (const SubjectFit& f : fits) censored += f.censoring.cwiseAbs().sum();
+  if (censored > 0) {
+    html << " " << censored << " censored samples (CENS) enter by their probability of lying beyond their limit "
+         << "(Beal's M3); the plots show them hollow, at their limit";
+  }
   html << ".</p>\n<h2>Estimates</h2>\n<table><tr><th class=\"l\">ID</th><th>NOBS</th><th>objective</th><th class=\"l\">status</th>";
   const SubjectFit* first = nullptr;
   for (const SubjectFit& f : fits) {

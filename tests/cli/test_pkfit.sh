@@ -12,9 +12,9 @@ for f in estimates.csv summary.csv predictions.csv fit_details.csv report.html f
   [ -s "$work/theo/$f" ] || fail "missing output $f"
 done
 head -1 "$work/theo/estimates.csv" | grep -qx "ID,PARAMETER,ESTIMATE,SE,RSE_PCT" || fail "estimates header"
-head -1 "$work/theo/summary.csv" | grep -qx "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR" ||
+head -1 "$work/theo/summary.csv" | grep -qx "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS" ||
   fail "summary header"
-head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES" || fail "predictions header"
+head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES,CENS" || fail "predictions header"
 [ "$(tail -n +2 "$work/theo/estimates.csv" | wc -l)" -eq 36 ] || fail "expected 12 x 3 estimates"
 [ "$(tail -n +2 "$work/theo/predictions.csv" | wc -l)" -eq 132 ] || fail "expected 132 predictions"
 [ "$(awk -F, 'NR>1 && $5==1' "$work/theo/summary.csv" | wc -l)" -eq 12 ] || fail "all 12 fits should converge"
@@ -41,7 +41,7 @@ fi
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --init-from "$work/theo/estimates.csv" \
   -o "$work/theo_again" -q || fail "--init-from refit failed"
 paste -d, "$work/theo/summary.csv" "$work/theo_again/summary.csv" | awk -F, 'NR > 1 {
-  d = $3 - $12; if (d < 0) d = -d; if (d > 1e-9 * $3 || $13 >= $4) bad = 1 } END { exit bad }' ||
+  d = $3 - $13; if (d < 0) d = -d; if (d > 1e-9 * $3 || $14 >= $4) bad = 1 } END { exit bad }' ||
   fail "--init-from: refits should take fewer iterations to the same objective"
 grep -q "the values given for this subject" "$work/theo_again/fit_details.csv" || fail "--init-from: source not recorded"
 printf 'ID,PARAMETER,ESTIMATE\n1,KA,x\n' >"$work/bad_init.csv"
@@ -60,6 +60,24 @@ done
 grep -q "<h2>Goodness of fit</h2>" "$work/theo/report.html" || fail "report lacks the goodness-of-fit section"
 [ "$(grep -c "<svg" "$work/theo/report.html")" -eq 15 ] || fail "theophylline report should hold 3 + 12 plots"
 
+# Censored samples (CENS=1, below 2 mg/L): maximum likelihood counts each by its probability (M3);
+# they have no residuals and are drawn hollow. Least squares refuses them, naming line and column.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --error additive -o "$work/blq" --jobs 2 \
+  >"$work/blq.txt" || fail "BLQ fit exited non-zero"
+[ "$(awk -F, 'NR>1 && $7==1' "$work/blq/predictions.csv" | wc -l)" -eq 27 ] || fail "BLQ: expected 27 censored rows"
+awk -F, 'NR>1 && $7==1 && ($5 != "" || $6 != "") { bad = 1 } END { exit bad }' "$work/blq/predictions.csv" ||
+  fail "BLQ: censored rows should have no RES or WRES"
+[ "$(awk -F, 'NR>1 { s += $10 } END { print s }' "$work/blq/summary.csv")" -eq 27 ] || fail "BLQ: NCENS should sum to 27"
+[ "$(awk -F, 'NR>1 && $5==1' "$work/blq/summary.csv" | wc -l)" -eq 12 ] || fail "BLQ: all 12 fits should converge"
+grep -q "censored samples (CENS, Beal's M3) per ID: 1: 1, 2: 3" "$work/blq.txt" || fail "BLQ: no censoring note"
+[ "$(grep -c '<circle[^>]*fill="white"' "$work/blq/fit_ID2.svg")" -eq 3 ] || fail "BLQ: ID 2 should show 3 hollow samples"
+[ "$(grep -c '<circle[^>]*fill="white"' "$work/blq/gof_dv_pred.svg")" -eq 27 ] || fail "BLQ: dv_pred should show 27 hollow"
+[ "$(grep -c '<circle' "$work/blq/gof_wres_time.svg")" -eq 105 ] || fail "BLQ: residual plots hold the 105 values only"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" -o "$work/blq_ls" -q 2>"$work/blq_ls.err"
+[ $? -eq 2 ] || fail "BLQ with least squares should exit 2"
+grep -q "theophylline_blq.csv:3:13: a censored sample (CENS=1) needs maximum likelihood" "$work/blq_ls.err" ||
+  fail "BLQ with least squares: error location"
+[ ! -e "$work/blq_ls" ] || fail "BLQ with least squares: no output directory expected"
 # --init auto prints the starting values computed from the data, and the report names their source.
 "$pkfit" --model 2cmt_iv --data "$root/datasets/indomethacin.csv" --init auto -o "$work/auto" -q >"$work/auto.txt" ||
   fail "--init auto fit failed"
@@ -162,7 +180,7 @@ grep -q "propagator ode, gradient forward" "$work/mm.txt" || fail "pkfit does no
 # BFGS on the adjoint: the summary names that route, and the forward one that the SEs needed.
 "$pkfit" --model 1cmt_iv_mm --data "$root/datasets/mm_synthetic.csv" --subject 1 --optimizer bfgs --gradient adjoint \
   -o "$work/mm_bfgs" -q || fail "1cmt_iv_mm with bfgs and the adjoint failed"
-grep -q "^1,.*,adjoint (SE: forward),bfgs,.*,ode$" "$work/mm_bfgs/summary.csv" ||
+grep -q "^1,.*,adjoint (SE: forward),bfgs,.*,ode,0$" "$work/mm_bfgs/summary.csv" ||
   fail "summary does not report the adjoint route and the SE route"
 # A linear model through CVODES reaches the exact propagator's objective.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --propagator ode --rtol 1e-10 \

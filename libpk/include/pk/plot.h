@@ -12,6 +12,7 @@ struct PlotSeries {
   std::vector<double> x;
   std::vector<double> y;
   bool markers = false;  ///< draw points (observations) instead of a line
+  bool hollow = false;   ///< with markers: open circles (e.g. censored samples, drawn at their limit)
 };
 
 struct PlotOptions {
