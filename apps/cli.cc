@@ -87,6 +87,33 @@ int Run(const std::string& program, const std::function<int()>& body) {
   }
 }
 
+void AddFilterOptions(boost::program_options::options_description* desc, std::vector<std::string>* ignore,
+                      std::vector<std::string>* accept) {
+  namespace po = boost::program_options;
+  desc->add_options()("ignore", po::value<std::vector<std::string>>(ignore)->composing(),
+                      "NM-TRAN's IGNORE=: one character drops the data lines starting with it ('@': with a letter "
+                      "or @), or conditions drop the records meeting any, e.g. 'DVID.EQ.2' or '(TIME.GT.24,BLQ.EQ.1)'; "
+                      "repeatable")(
+      "accept", po::value<std::vector<std::string>>(accept)->composing(),
+      "NM-TRAN's ACCEPT=: keep only the records meeting one of these conditions, e.g. 'ID.LE.6'; repeatable");
+}
+
+DatasetFilter ParseFilter(const std::vector<std::string>& ignore, const std::vector<std::string>& accept) {
+  DatasetFilter filter;
+  for (const std::string& item : ignore) {
+    if (item.size() != 1) {
+      filter.ignore.push_back(item);
+    } else if (filter.ignore_character != 0 && filter.ignore_character != item[0]) {
+      throw InputError("", 0, 0, std::string("--ignore: one ignore character, not both '") + filter.ignore_character +
+                                     "' and '" + item + "' (NM-TRAN's IGNORE=c takes one)");
+    } else {
+      filter.ignore_character = item[0];
+    }
+  }
+  filter.accept = accept;
+  return filter;
+}
+
 Propagator ParsePropagator(const std::string& text) {
   for (Propagator p : {Propagator::kAuto, Propagator::kExact, Propagator::kOde}) {
     if (text == ToString(p)) return p;

@@ -9,6 +9,7 @@
 
 #include <boost/program_options.hpp>
 
+#include "pk/dataset.h"
 #include "pk/parameters.h"
 #include "pk/propagator.h"
 
@@ -20,6 +21,12 @@ ParameterValues ParseAssignments(const std::vector<std::string>& items, const st
 
 /// Output times: "FROM:STEP:TO" (inclusive) or a comma-separated list, or several of them.
 std::vector<double> ParseTimes(const std::vector<std::string>& specs);
+
+/// Adds --ignore and --accept (NM-TRAN's IGNORE= and ACCEPT=) to `desc`, collected into `ignore` and `accept`.
+void AddFilterOptions(boost::program_options::options_description* desc, std::vector<std::string>* ignore,
+                      std::vector<std::string>* accept);
+/// The dataset filter they give: a one-character --ignore is IGNORE=c, longer ones are conditions.
+DatasetFilter ParseFilter(const std::vector<std::string>& ignore, const std::vector<std::string>& accept);
 
 /// "auto", "exact" or "ode"; throws pk::InputError otherwise.
 Propagator ParsePropagator(const std::string& text);

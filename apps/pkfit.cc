@@ -103,7 +103,7 @@ std::string Upper(std::string s) {
 
 int Main(int argc, char** argv) {
   po::options_description desc("Options");
-  std::vector<std::string> init, fix, lower, upper, params, priors, subject_ids;
+  std::vector<std::string> init, fix, lower, upper, params, priors, subject_ids, ignore, accept;
   desc.add_options()("help,h", "show this help")("model,m", po::value<std::string>(), "catalogue model")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "init", po::value<std::vector<std::string>>(&init)->composing(),
@@ -138,6 +138,7 @@ int Main(int argc, char** argv) {
       "log", "logarithmic concentration axis in the plots")(
       "evaluate", "no fit: print objective and gradient at the given values as CSV")(
       "quiet,q", "no progress bar and no table on stdout");
+  pk::cli::AddFilterOptions(&desc, &ignore, &accept);
   po::variables_map vm;
   if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
   if (!vm.count("model") || !vm.count("data")) throw pk::InputError("", 0, 0, "--model and --data are required");
@@ -148,7 +149,8 @@ int Main(int argc, char** argv) {
   req.objective.ode.relative_tolerance = vm["rtol"].as<double>();
   req.objective.ode.absolute_tolerance = vm["atol"].as<double>();
   req.objective.ode.checkpoint_steps = vm["checkpoint-steps"].as<int>();
-  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(vm["data"].as<std::string>()));
+  req.data = std::make_shared<pk::Dataset>(
+      pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(ignore, accept)));
   req.objective.gradient = ParseRoute(vm["gradient"].as<std::string>());
   ParseWeighting(vm["weighting"].as<std::string>(), &req.objective);
   if (vm.count("error")) req.objective.error_model = ParseError(vm["error"].as<std::string>());

@@ -82,7 +82,7 @@ std::string SummaryCsv(const std::vector<pk::Exposure>& exposures) {
 
 int Main(int argc, char** argv) {
   po::options_description desc("Options");
-  std::vector<std::string> params, times;
+  std::vector<std::string> params, times, ignore, accept;
   desc.add_options()("help,h", "show this help")("list-models", "print the model catalogue and exit")(
       "model,m", po::value<std::string>(), "catalogue model, e.g. 2cmt_oral")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
@@ -110,6 +110,7 @@ int Main(int argc, char** argv) {
       "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
       "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
       "log", "logarithmic concentration axis for --plot");
+  pk::cli::AddFilterOptions(&desc, &ignore, &accept);
   po::variables_map vm;
   if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
   if (vm.count("list-models")) {
@@ -129,7 +130,8 @@ int Main(int argc, char** argv) {
   pk::Dataset data;
   if (vm.count("data")) {
     if (vm.count("dose")) throw pk::InputError("", 0, 0, "give either --data or --dose, not both");
-    data = pk::AddOutputTimes(pk::ReadDataset(vm["data"].as<std::string>()), grid);
+    data = pk::AddOutputTimes(pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(ignore, accept)),
+                              grid);
   } else {
     if (!vm.count("dose")) throw pk::InputError("", 0, 0, "give --data FILE or a regimen (--dose AMT ...)");
     pk::Dose dose;

@@ -283,3 +283,102 @@ TEST_CASE("numerical failure of one subject is reported, not thrown", "[simulate
   CHECK(!sims[0].message.empty());
   CHECK(sims[1].ok);
 }
+
+namespace {
+
+// The records kept under `filter`: their lines.
+std::vector<int> KeptLines(const std::string& csv, const pk::DatasetFilter& filter) {
+  std::vector<int> lines;
+  for (const pk::Subject& s : pk::ParseDataset(csv, "f.csv", filter).subjects) {
+    for (const pk::Record& r : s.records) lines.push_back(r.line);
+  }
+  return lines;
+}
+
+std::string FilterError(const std::string& csv, const pk::DatasetFilter& filter) {
+  try {
+    pk::ParseDataset(csv, "f.csv", filter);
+  } catch (const pk::InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST_CASE("IGNORE= and ACCEPT= drop records as NM-TRAN's $DATA options do", "[reader][filter]") {
+  // A comment column C (NONMEM's convention), a repeated header, a DVID and a bad value on a dropped line.
+  const std::string csv =
+      "C,ID,TIME,AMT,DV,DVID\n"  // 1
+      ".,1,0,100,.,.\n"           // 2
+      ".,1,1,0,5.5,1\n"           // 3
+      "C,1,2,0,oops,1\n"          // 4: commented out, with a value that is no number
+      ".,1,2,0,4.0,2\n"           // 5
+      ".,2,0,100,.,.\n"           // 6
+      "@ repeated header\n"       // 7
+      ".,2,1.0,0,6.1,1\n"         // 8
+      ".,2,24,0,0.9,1\n";         // 9
+  pk::DatasetFilter f;
+  f.ignore_character = 'C';
+  CHECK(FilterError(csv, f).find("f.csv:7:") == 0);  // '@' lines are read without IGNORE=@
+  f.ignore_character = 0;
+  CHECK(FilterError(csv, f).find("f.csv:4:5: column DV: 'oops' is not a number") == 0);  // without a filter
+  // IGNORE=@ drops line 7 and, 'C' being a letter, the commented line 4 too, as NM-TRAN does.
+  f.ignore_character = '@';
+  CHECK(KeptLines(csv, f) == std::vector<int>{2, 3, 5, 6, 8, 9});
+  std::string no_at = csv;
+  no_at.erase(no_at.find("@ repeated header\n"), 18);
+  f.ignore_character = 'C';
+  CHECK(KeptLines(no_at, f) == std::vector<int>{2, 3, 5, 6, 7, 8});
+  std::string no_c = csv;
+  no_c.erase(no_c.find("C,1,2,0,oops,1\n"), 15);
+  f.ignore_character = '@';
+  CHECK(KeptLines(no_c, f) == std::vector<int>{2, 3, 4, 5, 7, 8});
+  // Conditions: IGNORE drops a record meeting any; numbers compare as numbers, a missing field as 0.
+  f.ignore_character = 'C';
+  f.ignore = {"DVID.EQ.2"};
+  CHECK(KeptLines(no_at, f) == std::vector<int>{2, 3, 6, 7, 8});  // line 5 is the DVID 2 sample
+  f.ignore = {"(DVID==2, TIME>=24)"};
+  CHECK(KeptLines(no_at, f) == std::vector<int>{2, 3, 6, 7});
+  f.ignore = {"TIME.EQ.1"};  // 1.0 equals 1
+  CHECK(KeptLines(no_at, f) == std::vector<int>{2, 5, 6, 8});
+  f.ignore = {"DVID.EQ.0"};  // '.' counts as 0: the dose records go
+  CHECK(KeptLines(no_at, f) == std::vector<int>{3, 5, 7, 8});
+  f.ignore = {"DVID.NEN.1"};
+  CHECK(KeptLines(no_at, f) == std::vector<int>{3, 7, 8});
+  // ACCEPT keeps only records meeting one; several options add up.
+  f.ignore.clear();
+  f.accept = {"ID.EQ.2", "AMT.GT.0"};
+  CHECK(KeptLines(no_at, f) == std::vector<int>{2, 6, 7, 8});
+  f.accept = {"ID /= 1"};
+  CHECK(KeptLines(no_at, f) == std::vector<int>{6, 7, 8});
+  // Text compares as text when either side is not a number; an ordering does not hold for text.
+  const std::string text = "ID,TIME,DV,FLAG\n1,0,1,0\n1,1,2,BLQ\n1,2,3,1\n";
+  pk::DatasetFilter t;
+  t.ignore = {"FLAG.EQ.BLQ"};
+  CHECK(KeptLines(text, t) == std::vector<int>{2, 4});
+  t.ignore = {"FLAG.EQ.'BLQ'"};
+  CHECK(KeptLines(text, t) == std::vector<int>{2, 4});
+  t.ignore = {"FLAG.GT.0"};
+  CHECK(FilterError(text, t) == "f.csv:3:4: column FLAG: 'BLQ' is not a number");
+}
+
+TEST_CASE("IGNORE= and ACCEPT= errors name what is wrong", "[reader][filter]") {
+  const std::string csv = "ID,TIME,DV\n1,0,1\n1,1,2\n";
+  pk::DatasetFilter f;
+  f.ignore = {"XX.EQ.1"};
+  CHECK(FilterError(csv, f) == "f.csv: IGNORE=(XX.EQ.1): no column XX in the header (it has: ID,TIME,DV)");
+  f.ignore = {"TIME~1"};
+  CHECK_THAT(FilterError(csv, f), Catch::StartsWith("f.csv: IGNORE=(TIME~1): expected LABEL OP VALUE"));
+  f.ignore = {"TIME.GT.abc"};
+  CHECK(FilterError(csv, f) == "f.csv: IGNORE=(TIME.GT.abc): 'abc' is not a number to order by");
+  f.ignore = {"TIME.GT."};
+  CHECK(FilterError(csv, f) == "f.csv: IGNORE=(TIME.GT.): no value to compare with");
+  f.ignore = {"(TIME.GT.1,)"};
+  CHECK(FilterError(csv, f) == "f.csv: IGNORE=(): an empty condition");
+  f.accept = {"ID.EQ.1"};
+  CHECK_THAT(FilterError(csv, f), Catch::Contains("cannot be combined"));
+  f.ignore.clear();
+  f.accept = {"ID.EQ.7"};
+  CHECK(FilterError(csv, f) == "f.csv:1: the file has no data records");
+}

@@ -78,6 +78,15 @@ grep -q "censored samples (CENS, Beal's M3) per ID: 1: 1, 2: 3" "$work/blq.txt" 
 grep -q "theophylline_blq.csv:3:13: a censored sample (CENS=1) needs maximum likelihood" "$work/blq_ls.err" ||
   fail "BLQ with least squares: error location"
 [ ! -e "$work/blq_ls" ] || fail "BLQ with least squares: no output directory expected"
+# --ignore/--accept (NM-TRAN's IGNORE=/ACCEPT=): the records kept are the ones fitted.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --ignore '(ID.GT.3,TIME.GT.20)' -o "$work/ignored" -q ||
+  fail "--ignore fit failed"
+[ "$(tail -n +2 "$work/ignored/summary.csv" | cut -d, -f1-2 | tr '\n' ' ')" = "1,10 2,10 3,10 " ] ||
+  fail "--ignore '(ID.GT.3,TIME.GT.20)' should leave IDs 1-3 with 10 samples each"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --ignore 'ID.EQ.1' --accept 'ID.EQ.2' -o "$work/both" \
+  -q 2>"$work/both.err"
+[ $? -eq 2 ] || fail "--ignore with --accept conditions should exit 2"
+grep -q "cannot be combined" "$work/both.err" || fail "--ignore with --accept: message"
 # --init auto prints the starting values computed from the data, and the report names their source.
 "$pkfit" --model 2cmt_iv --data "$root/datasets/indomethacin.csv" --init auto -o "$work/auto" -q >"$work/auto.txt" ||
   fail "--init auto fit failed"

@@ -97,5 +97,13 @@ printf 'ID,DATE,TIME,AMT,DV\n1,10-1-86,9:15,100,.\n1,10-1-86,14:40,0,5\n1,10-2-8
 "$pksim" --model 1cmt_iv --param CL=1 --param V=10 --data "$work/dated.csv" --out "$work/dated_sim.csv" || fail "dated run"
 [ "$(awk -F, 'NR > 1 { printf "%s:%.4f ", $1, $2 }' "$work/dated_sim.csv")" = "1:5.4167 1:23.2500 2:50.0000 " ] ||
   fail "dated times: $(awk -F, 'NR > 1 { printf "%s:%s ", $1, $2 }' "$work/dated_sim.csv")"
+# --ignore C drops NONMEM comment rows (a C column); a condition on a column the file lacks exits 2.
+printf 'C,ID,TIME,AMT,DV\n.,1,0,100,.\nC,1,1,0,bad\n.,1,2,0,5\n' >"$work/commented.csv"
+"$pksim" --model 1cmt_iv --param CL=1 --param V=10 --data "$work/commented.csv" --ignore C --out "$work/commented_sim.csv" ||
+  fail "--ignore C run"
+[ "$(awk -F, 'NR > 1 { printf "%s ", $2 }' "$work/commented_sim.csv")" = "2 " ] || fail "--ignore C: rows kept"
+"$pksim" --model 1cmt_iv --data "$work/commented.csv" --ignore 'XX.EQ.1' 2>"$work/filter.err" >/dev/null
+[ $? -eq 2 ] || fail "--ignore on a missing column should exit 2"
+grep -q "IGNORE=(XX.EQ.1): no column XX in the header" "$work/filter.err" || fail "--ignore: message"
 
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi

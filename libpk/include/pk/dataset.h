@@ -24,7 +24,8 @@
 //
 // Records are grouped into subjects in file order: a new subject starts
 // whenever ID changes, as in NONMEM. Lines starting with '#' and blank lines
-// are ignored. Every violation throws pk::InputError naming file, line and
+// are ignored; a DatasetFilter drops more, as NM-TRAN's $DATA IGNORE= and
+// ACCEPT= do. Every violation throws pk::InputError naming file, line and
 // column.
 #ifndef PK_DATASET_H_
 #define PK_DATASET_H_
@@ -80,11 +81,37 @@ struct Dataset {
   int NumRecords() const;
 };
 
-/// Reads a dataset file. Throws pk::InputError on any malformed input.
-Dataset ReadDataset(const std::string& path);
+/// The records to read, as NM-TRAN's $DATA options. Dropped lines are not
+/// read at all (a bad value on them is no error), and the others keep their
+/// line numbers in messages. The header is the first line that is not blank or
+/// a '#' comment, whatever the options say.
+struct DatasetFilter {
+  /// IGNORE=c: data lines whose first character is `c` are dropped, besides
+  /// '#' comments and blank lines (so 'C' drops the rows of a NONMEM comment
+  /// column C). '@' drops every line whose first non-blank character is a
+  /// letter or '@' (NM-TRAN's IGNORE=@, e.g. repeated headers). 0: none.
+  char ignore_character = 0;
+  /// IGNORE=(list): a record is dropped when any condition holds. ACCEPT=(list):
+  /// a record is kept only when one holds. At most one of the two lists. A
+  /// condition is LABEL OP VALUE, LABEL a column of the header, OP one of
+  /// NM-TRAN's .EQ. .NE. .GT. .GE. .LT. .LE. .EQN. .NEN. or ==, /=, !=, >, >=,
+  /// <, <=, e.g. "DVID.EQ.2" or "TIME > 24"; one string may hold several,
+  /// separated by commas, optionally in parentheses: "(DVID.EQ.2,BLQ.EQ.1)".
+  /// When the field and VALUE are numbers they compare as numbers (so 2 equals
+  /// 2.0), a missing field ('.' or empty) counting as 0 as in NM-TRAN;
+  /// otherwise .EQ./.NE. compare the text and the ordering operators do not hold.
+  std::vector<std::string> ignore;
+  std::vector<std::string> accept;
+
+  bool empty() const { return ignore_character == 0 && ignore.empty() && accept.empty(); }
+};
+
+/// Reads a dataset file. Throws pk::InputError on any malformed input,
+/// including a filter that names no column of the header.
+Dataset ReadDataset(const std::string& path, const DatasetFilter& filter = {});
 
 /// Parses dataset text; `source` names it in error messages.
-Dataset ParseDataset(const std::string& text, const std::string& source);
+Dataset ParseDataset(const std::string& text, const std::string& source, const DatasetFilter& filter = {});
 
 }  // namespace pk
 

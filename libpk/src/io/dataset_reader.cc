@@ -10,6 +10,7 @@
 
 #include "../internal_text.h"
 #include "csv_lines.h"
+#include "record_filter.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/output.h"
@@ -149,7 +150,7 @@ bool ParseClock(const std::string& text, double* hours) {
 
 class Parser {
  public:
-  Parser(std::string source) : source_(std::move(source)) {}
+  Parser(std::string source, const DatasetFilter& filter) : source_(std::move(source)), filter_(filter) {}
 
   Dataset Parse(std::vector<std::pair<int, std::string>> lines) {
     Dataset data;
@@ -158,10 +159,13 @@ class Parser {
     while (first < lines.size() && IsSkippedLine(lines[first].second)) ++first;
     if (first == lines.size()) Fail(0, 0, "the file has no header line");
     ReadHeader(lines[first].first, lines[first].second, &data);
+    const internal::RecordFilter filter(filter_, data.columns, source_);
     std::vector<std::pair<int, std::vector<std::string>>> records;
     for (size_t i = first + 1; i < lines.size(); ++i) {
-      if (IsSkippedLine(lines[i].second)) continue;
-      records.emplace_back(lines[i].first, SplitCsvLine(lines[i].second));
+      if (IsSkippedLine(lines[i].second) || filter.DropsLine(lines[i].second)) continue;
+      std::vector<std::string> fields = SplitCsvLine(lines[i].second);
+      if (filter.DropsRecord(fields)) continue;
+      records.emplace_back(lines[i].first, std::move(fields));
     }
     // NM-TRAN's day-time translation: with a date column, or when any TIME is
     // a clock time, every TIME becomes hours since its subject's first record.
@@ -383,6 +387,7 @@ class Parser {
   }
 
   std::string source_;
+  DatasetFilter filter_;
   std::vector<std::string> header_;
   int item_column_[kNumItems];
   std::vector<int> extra_positions_;
@@ -416,10 +421,12 @@ int Dataset::NumRecords() const {
   return n;
 }
 
-Dataset ParseDataset(const std::string& text, const std::string& source) {
-  return Parser(source).Parse(internal::TextLines(text, source));
+Dataset ParseDataset(const std::string& text, const std::string& source, const DatasetFilter& filter) {
+  return Parser(source, filter).Parse(internal::TextLines(text, source));
 }
 
-Dataset ReadDataset(const std::string& path) { return Parser(path).Parse(internal::ReadLines(path)); }
+Dataset ReadDataset(const std::string& path, const DatasetFilter& filter) {
+  return Parser(path, filter).Parse(internal::ReadLines(path));
+}
 
 }  // namespace pk
