@@ -12,6 +12,7 @@
 #include "pk/error.h"
 #include "pk/fit_subjects.h"
 #include "pk/objective.h"
+#include "test_util.h"
 
 namespace {
 
@@ -54,26 +55,6 @@ std::vector<int> FreeParameters(const pk::Objective& obj) {
   return free;
 }
 
-// Fourth-order central differences of V.
-Eigen::VectorXd Differences(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free) {
-  Eigen::VectorXd g(free.size());
-  for (size_t k = 0; k < free.size(); ++k) {
-    const int i = free[k];
-    const double h = 1e-3 * std::fabs(values(i));
-    double v[4];
-    const double offsets[4] = {-2, -1, 1, 2};
-    for (int j = 0; j < 4; ++j) {
-      Eigen::VectorXd x = values;
-      x(i) += offsets[j] * h;
-      const auto e = obj.Evaluate(x, free, pk::Objective::Need::kValue);
-      REQUIRE(e.ok);
-      v[j] = e.value;
-    }
-    g(static_cast<Eigen::Index>(k)) = (v[0] - 8 * v[1] + 8 * v[2] - v[3]) / (12 * h);
-  }
-  return g;
-}
-
 pk::ObjectiveOptions Options(pk::ErrorModel error, pk::Propagator propagator, double rtol = 1e-10) {
   pk::ObjectiveOptions o;
   o.error_model = error;
@@ -89,6 +70,26 @@ Eigen::VectorXd Values(const pk::Objective& obj) {
   if (obj.ParameterIndex("SIGMA_ADD") >= 0) v(obj.ParameterIndex("SIGMA_ADD")) = 0.4;
   if (obj.ParameterIndex("SIGMA_PROP") >= 0) v(obj.ParameterIndex("SIGMA_PROP")) = 0.2;
   return v;
+}
+
+// The forward and adjoint gradients of `obj` against each other (to
+// `between`) and against differences of `reference` (to `to_differences`),
+// relative to the gradient's largest entry.
+void CheckRoutes(const pk::Objective& obj, const pk::Objective& reference, double to_differences, double between) {
+  const Eigen::VectorXd v = Values(obj);
+  const std::vector<int> free = FreeParameters(obj);
+  using Need = pk::Objective::Need;
+  const auto fwd = obj.Evaluate(v, free, Need::kGradient, pk::GradientRoute::kForward);
+  const auto adj = obj.Evaluate(v, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  REQUIRE(fwd.ok);
+  REQUIRE(adj.ok);
+  const Eigen::VectorXd fd = pk_test::CentralDifferences(reference, v, free);
+  const double scale = fd.cwiseAbs().maxCoeff();
+  INFO("forward " << fwd.gradient.transpose() << "\nadjoint " << adj.gradient.transpose() << "\nfd      "
+                  << fd.transpose());
+  CHECK((fwd.gradient - fd).cwiseAbs().maxCoeff() < to_differences * scale);
+  CHECK((adj.gradient - fd).cwiseAbs().maxCoeff() < to_differences * scale);
+  CHECK((fwd.gradient - adj.gradient).cwiseAbs().maxCoeff() < between * scale);
 }
 
 std::string Message(const std::function<void()>& f) {
@@ -172,20 +173,7 @@ TEST_CASE("censored samples: every route's gradient against differences, on ever
         o.modal_propagation = modal;
         const pk::Objective obj(pk::MakeModel(name), Data(kCensoredData), 0, o);
         REQUIRE(obj.num_censored() == 5);
-        const Eigen::VectorXd v = Values(obj);
-        const std::vector<int> free = FreeParameters(obj);
-        using Need = pk::Objective::Need;
-        const auto fwd = obj.Evaluate(v, free, Need::kGradient, pk::GradientRoute::kForward);
-        const auto adj = obj.Evaluate(v, free, Need::kGradient, pk::GradientRoute::kAdjoint);
-        REQUIRE(fwd.ok);
-        REQUIRE(adj.ok);
-        const Eigen::VectorXd fd = Differences(obj, v, free);
-        const double scale = fd.cwiseAbs().maxCoeff();
-        INFO("forward " << fwd.gradient.transpose() << "\nadjoint " << adj.gradient.transpose() << "\nfd      "
-                        << fd.transpose());
-        CHECK((fwd.gradient - fd).cwiseAbs().maxCoeff() < 1e-8 * scale);
-        CHECK((adj.gradient - fd).cwiseAbs().maxCoeff() < 1e-8 * scale);
-        CHECK((fwd.gradient - adj.gradient).cwiseAbs().maxCoeff() < 1e-11 * scale);
+        CheckRoutes(obj, obj, 1e-8, 1e-11);
       }
     }
   }
@@ -195,20 +183,7 @@ TEST_CASE("censored samples: every route's gradient against differences, on ever
       const pk::Objective obj(pk::MakeModel(name), Data(kCensoredData), 0, Options(error, pk::Propagator::kOde));
       const pk::Objective reference(pk::MakeModel(name), Data(kCensoredData), 0,
                                     Options(error, pk::Propagator::kOde, 1e-12));
-      const Eigen::VectorXd v = Values(obj);
-      const std::vector<int> free = FreeParameters(obj);
-      using Need = pk::Objective::Need;
-      const auto fwd = obj.Evaluate(v, free, Need::kGradient, pk::GradientRoute::kForward);
-      const auto adj = obj.Evaluate(v, free, Need::kGradient, pk::GradientRoute::kAdjoint);
-      REQUIRE(fwd.ok);
-      REQUIRE(adj.ok);
-      const Eigen::VectorXd fd = Differences(reference, v, free);
-      const double scale = fd.cwiseAbs().maxCoeff();
-      INFO("forward " << fwd.gradient.transpose() << "\nadjoint " << adj.gradient.transpose() << "\nfd      "
-                      << fd.transpose());
-      CHECK((fwd.gradient - fd).cwiseAbs().maxCoeff() < 1e-6 * scale);
-      CHECK((adj.gradient - fd).cwiseAbs().maxCoeff() < 1e-6 * scale);
-      CHECK((fwd.gradient - adj.gradient).cwiseAbs().maxCoeff() < 1e-7 * scale);
+      CheckRoutes(obj, reference, 1e-6, 1e-7);
     }
   }
 }

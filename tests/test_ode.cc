@@ -79,35 +79,6 @@ void Setup(const pk::Objective& obj, const Scenario& sc, Eigen::VectorXd* values
   }
 }
 
-// Fourth-order central differences of V, step 1e-3 relative: through an
-// adaptive solver at rtol 1e-10 the second-order stencil's noise (≈ rtol/step)
-// would be of the size of the tolerance under test.
-// The routes are checked at rtol 1e-10 against differences of V solved at
-// 1e-12 (ReferenceOptions): the reference must be more accurate than what it
-// checks. At rtol 1e-10 the step sequence, and with it V's error, jumps as θ
-// moves (more so since plain solves continue through samples); the stencil's
-// noise reached 1.05e-5 of the gradient on one of 180 cases, while at 1e-12
-// the differences agree with the forward route to 1e-8.
-Eigen::VectorXd CentralDifferences(const pk::Objective& obj, const Eigen::VectorXd& values,
-                                   const std::vector<int>& free) {
-  Eigen::VectorXd g(free.size());
-  for (size_t k = 0; k < free.size(); ++k) {
-    const int i = free[k];
-    const double h = 1e-3 * std::max(std::fabs(values(i)), 1e-3);
-    double v[4];
-    const double offsets[4] = {-2, -1, 1, 2};
-    for (int j = 0; j < 4; ++j) {
-      Eigen::VectorXd x = values;
-      x(i) += offsets[j] * h;
-      const auto e = obj.Evaluate(x, free, pk::Objective::Need::kValue);
-      REQUIRE(e.ok);
-      v[j] = e.value;
-    }
-    g(static_cast<Eigen::Index>(k)) = (v[0] - 8 * v[1] + 8 * v[2] - v[3]) / (12 * h);
-  }
-  return g;
-}
-
 double RelErr(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
   return (a - b).cwiseAbs().maxCoeff() / std::max(b.cwiseAbs().maxCoeff(), 1e-300);
 }
@@ -163,7 +134,7 @@ TEST_CASE("ODE routes agree: forward sensitivities, adjoint and finite differenc
     REQUIRE(adj.ok);
     // The loss does not touch the routes, so differences on least squares suffice.
     const pk::Objective reference(model, pk_test::ScenarioData(sc), 0, ReferenceOptions(error_model));
-    const Eigen::VectorXd fd = error_model == pk::ErrorModel::kLeastSquares ? CentralDifferences(reference, values, free)
+    const Eigen::VectorXd fd = error_model == pk::ErrorModel::kLeastSquares ? pk_test::CentralDifferences(reference, values, free)
                                                                            : Eigen::VectorXd(fwd.gradient);
     // Separate integrations (with and without sensitivity error control) agree to the tolerance.
     CHECK(std::fabs(fwd.value - adj.value) <= 1e-8 * std::fabs(fwd.value));
@@ -232,7 +203,7 @@ TEST_CASE("ODE adjoint: samples after the drug is gone keep the gradient's accur
   const auto adj = obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
   REQUIRE(fwd.ok);
   REQUIRE(adj.ok);
-  const Eigen::VectorXd fd = CentralDifferences(pk::Objective(model, data, 0, ReferenceOptions()), values, free);
+  const Eigen::VectorXd fd = pk_test::CentralDifferences(pk::Objective(model, data, 0, ReferenceOptions()), values, free);
   const double scale = fwd.gradient.cwiseAbs().maxCoeff();
   INFO(name << "\nforward " << fwd.gradient.transpose() << "\nadjoint " << adj.gradient.transpose() << "\nfd      "
             << fd.transpose());
@@ -700,7 +671,7 @@ TEST_CASE("continuous records (CONT=1): the seed's dF/dt part, by forward, adjoi
   // The discrete part alone is smaller than V: the continuous record contributes.
   const double discrete = 0.5 * (obj.observations() - fwd.predictions).squaredNorm();
   CHECK(fwd.value > discrete + 1);
-  const Eigen::VectorXd fd = CentralDifferences(obj, values, free);
+  const Eigen::VectorXd fd = pk_test::CentralDifferences(obj, values, free);
   const double scale = fwd.gradient.cwiseAbs().maxCoeff();
   INFO("forward " << fwd.gradient.transpose() << "\nadjoint " << adj.gradient.transpose() << "\nfd      "
                   << fd.transpose());
