@@ -14,6 +14,11 @@ build/apps/pkfit --model 1cmt_oral --data datasets/theophylline.csv --output-dir
 echo "open out/theophylline/report.html for the fits, goodness-of-fit plots, standard errors and correlations"
 echo
 
+echo "== pkfit: theophylline below an imposed limit of 2 mg/L (27 of 132 samples censored), Beal's M3 =="
+build/apps/pkfit --model 1cmt_oral --data datasets/theophylline_blq.csv --error additive --output-dir out/theophylline_blq
+echo "(censored samples are drawn hollow at their limit in out/theophylline_blq/report.html)"
+echo
+
 echo "== pksim: each fitted theophylline subject on 320 mg every 12 h for 5 days (--estimates) =="
 build/apps/pksim --model 1cmt_oral --estimates out/theophylline/estimates.csv --dose 320 --ii 12 --doses 10 \
   --times 0:0.5:120 --out out/theophylline_regimen.csv --summary-csv out/theophylline_regimen_summary.csv
