@@ -1,6 +1,8 @@
 #include "pk/output.h"
 
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <stdexcept>
 
@@ -11,8 +13,13 @@ namespace pk {
 void WriteFileAtomically(const std::string& path, const std::string& contents) {
   const std::string tmp = path + ".tmp." + std::to_string(::getpid());
   {
+    errno = 0;
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) throw std::runtime_error(path + ": cannot write (could not create " + tmp + ")");
+    if (!out) {
+      // errno says why (a missing directory, permissions) on the systems libpk builds on.
+      const std::string why = errno != 0 ? std::string(": ") + std::strerror(errno) : std::string();
+      throw std::runtime_error(path + ": cannot write (could not create " + tmp + why + ")");
+    }
     out << contents;
     out.flush();
     if (!out) {

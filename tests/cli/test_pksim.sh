@@ -105,5 +105,11 @@ printf 'C,ID,TIME,AMT,DV\n.,1,0,100,.\nC,1,1,0,bad\n.,1,2,0,5\n' >"$work/comment
 "$pksim" --model 1cmt_iv --data "$work/commented.csv" --ignore 'XX.EQ.1' 2>"$work/filter.err" >/dev/null
 [ $? -eq 2 ] || fail "--ignore on a missing column should exit 2"
 grep -q "IGNORE=(XX.EQ.1): no column XX in the header" "$work/filter.err" || fail "--ignore: message"
+# An output into a directory that does not exist: a non-zero exit that says why, and no file.
+"$pksim" --model 1cmt_iv --dose 100 --times 0:1:4 --out "$work/no/such/dir/sim.csv" 2>"$work/nodir.err" >/dev/null &&
+  fail "--out into a missing directory should fail"
+grep -q "sim.csv: cannot write (could not create .*: No such file or directory)" "$work/nodir.err" ||
+  fail "--out into a missing directory: message"
+[ ! -e "$work/no" ] || fail "--out into a missing directory: nothing should be created"
 
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi
