@@ -79,7 +79,8 @@ pk::ErrorModel ParseError(const std::string& s) {
   if (s == "additive") return pk::ErrorModel::kAdditive;
   if (s == "proportional") return pk::ErrorModel::kProportional;
   if (s == "combined") return pk::ErrorModel::kCombined;
-  throw pk::InputError("", 0, 0, "--error: expected additive, proportional or combined, got '" + s + "'");
+  if (s == "exponential") return pk::ErrorModel::kExponential;
+  throw pk::InputError("", 0, 0, "--error: expected additive, proportional, combined or exponential, got '" + s + "'");
 }
 
 std::vector<pk::LogNormalPrior> ParsePriors(const std::vector<std::string>& items) {
@@ -128,7 +129,7 @@ int Main(int argc, char** argv) {
       "ODE adjoint: at most this many integration steps between checkpoints (storage against recomputation)")(
       "optimizer", po::value<std::string>()->default_value("lm"), "lm, bfgs, newton or nlopt:NAME")(
       "weighting", po::value<std::string>()->default_value("uniform"), "uniform, dv2, dv or column:NAME")(
-      "error", po::value<std::string>(), "maximum likelihood: additive, proportional or combined")(
+      "error", po::value<std::string>(), "maximum likelihood: additive, proportional, combined or exponential (log DV against log PRED)")(
       "subject", po::value<std::vector<std::string>>(&subject_ids)->composing(), "fit only this ID (repeatable)")(
       "starts", po::value<int>()->default_value(1), "starts spread around the initial values; the best is kept")(
       "jobs,j", po::value<int>()->default_value(0), "parallel fits (0 = all cores)")(
@@ -244,7 +245,7 @@ int Main(int argc, char** argv) {
     if (req.data->ExtraColumn(name) >= 0) continue;  // the data supplies it
     add(name);
   }
-  for (const char* name : {"SIGMA_ADD", "SIGMA_PROP"}) {
+  for (const char* name : {"SIGMA_ADD", "SIGMA_PROP", "SIGMA_LOG"}) {
     if (probe.ParameterIndex(name) >= 0) add(name);
   }
   for (const auto& kv : inits) add(Upper(kv.first))->initial = kv.second;

@@ -1,6 +1,8 @@
-// Censored samples (CENS, Beal's M3): the normal tail behind them, the Tobit
-// information, every route's gradient, the data checks, and a fit that
-// recovers the truth where leaving the samples out (M1) does not.
+// Maximum likelihood's finer points. Censored samples (CENS, Beal's M3): the
+// normal tail behind them, the Tobit information, every route's gradient, the
+// data checks, and a fit that recovers the truth where leaving the samples out
+// (M1) does not. The exponential error's checks. And every error model's
+// expected information against simulation.
 #include <cmath>
 #include <random>
 #include <sstream>
@@ -49,7 +51,7 @@ std::shared_ptr<pk::Dataset> Data(const std::string& csv) {
 std::vector<int> FreeParameters(const pk::Objective& obj) {
   std::vector<int> free;
   for (int i = 0; i < obj.model().num_parameters(); ++i) free.push_back(i);
-  for (const char* s : {"SIGMA_ADD", "SIGMA_PROP"}) {
+  for (const char* s : {"SIGMA_ADD", "SIGMA_PROP", "SIGMA_LOG"}) {
     if (obj.ParameterIndex(s) >= 0) free.push_back(obj.ParameterIndex(s));
   }
   return free;
@@ -69,6 +71,7 @@ Eigen::VectorXd Values(const pk::Objective& obj) {
   for (int i = 0; i < obj.model().num_parameters(); ++i) v(i) *= 1.0 + 0.07 * i;
   if (obj.ParameterIndex("SIGMA_ADD") >= 0) v(obj.ParameterIndex("SIGMA_ADD")) = 0.4;
   if (obj.ParameterIndex("SIGMA_PROP") >= 0) v(obj.ParameterIndex("SIGMA_PROP")) = 0.2;
+  if (obj.ParameterIndex("SIGMA_LOG") >= 0) v(obj.ParameterIndex("SIGMA_LOG")) = 0.3;
   return v;
 }
 
@@ -164,7 +167,8 @@ TEST_CASE("the Tobit information equals E[score scoreᵀ] by quadrature", "[cens
 }
 
 TEST_CASE("censored samples: every route's gradient against differences, on every backend", "[censoring][gradient]") {
-  const auto error = GENERATE(pk::ErrorModel::kAdditive, pk::ErrorModel::kProportional, pk::ErrorModel::kCombined);
+  const auto error = GENERATE(pk::ErrorModel::kAdditive, pk::ErrorModel::kProportional, pk::ErrorModel::kCombined,
+                              pk::ErrorModel::kExponential);
   SECTION("exact propagator: modal, block exponentials, forward, adjoint") {
     for (const char* name : {"1cmt_oral", "2cmt_oral", "2cmt_iv"}) {
       for (const bool modal : {true, false}) {
@@ -261,6 +265,15 @@ TEST_CASE("censoring: what the data may and may not say", "[censoring][reader]")
   CHECK(ok.num_censored() == 1);
   CHECK(ok.censoring()(0) == 0);
   CHECK(ok.censoring()(1) == 1);
+  // The exponential error compares logarithms: DV must be positive, and so must the prediction of a value.
+  const pk::ObjectiveOptions exp_error = Options(pk::ErrorModel::kExponential, pk::Propagator::kExact);
+  m = Message([&] { pk::Objective(model, Data("ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,0,0,0,0\n1,2,0,0,3\n"), 0, exp_error); });
+  CHECK(m.find("cens.csv:3:5: the exponential error model compares log DV with log PRED, so DV must be > 0, not 0") == 0);
+  const pk::Objective predose(model, Data("ID,TIME,AMT,EVID,DV,CENS\n1,0,100,1,.,0\n1,0,0,0,0.1,0\n1,2,0,0,3,0\n"),
+                              0, exp_error);
+  const auto at_zero = predose.Evaluate(predose.DefaultValues(), {}, pk::Objective::Need::kValue);
+  CHECK_FALSE(at_zero.ok);
+  CHECK_THAT(at_zero.message, Catch::Contains("TIME 0 is 0: the exponential error model needs a positive prediction"));
   // A sample known to lie below 0.5 but predicted above it with σ = 0 has probability 0: reported, not thrown.
   const pk::Objective prop(model, Data("ID,TIME,AMT,EVID,DV,CENS\n1,0,100,1,.,0\n1,1,0,0,0.5,1\n1,8,0,0,3,0\n"), 0,
                            Options(pk::ErrorModel::kProportional, pk::Propagator::kExact));
@@ -331,4 +344,65 @@ TEST_CASE("synthetic BLQ data: M3 recovers the clearance that leaving the sample
   CHECK(std::fabs(bias3) < 0.02);
   CHECK(bias1 < -0.04);
   CHECK(std::fabs(bias3) < 0.5 * std::fabs(bias1));
+}
+
+TEST_CASE("the expected information of every error model is E[∇V ∇Vᵀ] over simulated data", "[censoring][information]") {
+  // At the true θ the score ∇V of data drawn from the model has mean 0 and
+  // covariance equal to the expected (Fisher) information, which for values
+  // (no censoring) does not depend on the data. 4000 data sets per error model;
+  // each entry of the average of ∇V∇Vᵀ is compared with the information within
+  // 4.5 Monte Carlo standard errors, sqrt((I_ii I_jj + I_ij²)/n).
+  const auto error = GENERATE(pk::ErrorModel::kAdditive, pk::ErrorModel::kProportional, pk::ErrorModel::kCombined,
+                              pk::ErrorModel::kExponential);
+  INFO(pk::ToString(error));
+  const auto model = pk::MakeModel("1cmt_oral");
+  const double times[] = {0.5, 1, 2, 4, 6, 8, 12, 24};
+  auto dataset = [&](const std::vector<double>& dv) {
+    std::ostringstream csv;
+    csv.precision(17);
+    csv << "ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n";
+    for (size_t k = 0; k < dv.size(); ++k) csv << "1," << times[k] << ",0,0," << dv[k] << "\n";
+    return Data(csv.str());
+  };
+  const pk::ObjectiveOptions o = Options(error, pk::Propagator::kExact);
+  const std::vector<double> placeholder(8, 1.0);
+  const pk::Objective truth_obj(model, dataset(placeholder), 0, o);
+  Eigen::VectorXd theta = truth_obj.DefaultValues();
+  theta.head(3) << 1.3, 2.5, 28;  // KA, CL, V
+  const int ia = truth_obj.ParameterIndex("SIGMA_ADD"), ip = truth_obj.ParameterIndex("SIGMA_PROP");
+  const int il = truth_obj.ParameterIndex("SIGMA_LOG");
+  if (ia >= 0) theta(ia) = 0.2;
+  if (ip >= 0) theta(ip) = 0.15;
+  if (il >= 0) theta(il) = 0.2;
+  const std::vector<int> free = FreeParameters(truth_obj);
+  const auto at_truth = truth_obj.Evaluate(theta, free, pk::Objective::Need::kJacobian);
+  REQUIRE(at_truth.ok);
+  const Eigen::VectorXd yhat = at_truth.predictions;
+  const Eigen::MatrixXd info = at_truth.information;
+  std::mt19937 rng(7);
+  std::normal_distribution<double> normal(0, 1);
+  const int n = 4000;
+  Eigen::MatrixXd mean = Eigen::MatrixXd::Zero(info.rows(), info.cols());
+  for (int rep = 0; rep < n; ++rep) {
+    std::vector<double> dv(8);
+    for (int k = 0; k < 8; ++k) {
+      const double e = normal(rng);
+      if (il >= 0) {
+        dv[k] = yhat(k) * std::exp(theta(il) * e);
+      } else {
+        const double a = ia >= 0 ? theta(ia) : 0, b = ip >= 0 ? theta(ip) : 0;
+        dv[k] = yhat(k) + std::sqrt(a * a + b * b * yhat(k) * yhat(k)) * e;
+      }
+    }
+    const auto ev = pk::Objective(model, dataset(dv), 0, o).Evaluate(theta, free, pk::Objective::Need::kGradient);
+    REQUIRE(ev.ok);
+    mean += ev.gradient * ev.gradient.transpose() / n;
+  }
+  INFO("information\n" << info << "\nmean of score scoreT\n" << mean);
+  for (Eigen::Index i = 0; i < info.rows(); ++i) {
+    for (Eigen::Index j = 0; j < info.cols(); ++j) {
+      const double se = std::sqrt((info(i, i) * info(j, j) + info(i, j) * info(i, j)) / n);
+      CHECK(std::fabs(mean(i, j) - info(i, j)) <= 4.5 * se);
+    }
+  }
 }

@@ -39,7 +39,7 @@ int CheckedCensoring(const Dataset& data, const Record& r, int cens_col, bool li
   if (!likelihood) {
     throw InputError(data.source, r.line, column,
                      "a censored sample (CENS=" + FormatNumber(c) + ") needs maximum likelihood (--error additive, " +
-                         "proportional or combined; Beal's M3): least squares has no term for a value known only " +
+                         "proportional, combined or exponential; Beal's M3): least squares has no term for a value known only " +
                          "to lie beyond a limit. To leave it out instead (M1), give it MDV=1");
   }
   const int limit = data.ExtraColumn("LIMIT");

@@ -639,12 +639,12 @@ std::string Cell(double v, const char* fmt, int width) {
 }
 
 // Whether parameter `i` is a σ gone to 0: SIGMA_ADD below 1e-6 of the largest
-// |DV|, SIGMA_PROP below 1e-6.
+// |DV|, SIGMA_PROP or SIGMA_LOG below 1e-6.
 bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int i) {
   constexpr double kCollapse = 1e-6;
   if (i < 0) return false;
   const std::string& name = objective.parameter_names()[i];
-  if (name == "SIGMA_PROP") return std::fabs(values(i)) < kCollapse;
+  if (name == "SIGMA_PROP" || name == "SIGMA_LOG") return std::fabs(values(i)) < kCollapse;
   if (name != "SIGMA_ADD" || objective.observations().size() == 0) return false;
   return std::fabs(values(i)) < kCollapse * objective.observations().cwiseAbs().maxCoeff();
 }
@@ -667,12 +667,19 @@ bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, c
   const Eigen::VectorXd& y = objective.observations();
   const int nobs = static_cast<int>(y.size());
   if (nobs == 0 || yhat.size() != nobs) return false;
+  std::string what;
+  const int il = objective.ParameterIndex("SIGMA_LOG");
+  if (il >= 0) {
+    if (!SigmaAtZero(objective, values, il)) return false;
+    what = "SIGMA_LOG fell to " + Num(std::fabs(values(il)), "%.3g");
+  }
   const double scale = y.cwiseAbs().maxCoeff();
   const double a = ia >= 0 ? std::fabs(values(ia)) : 0, b = ip >= 0 ? std::fabs(values(ip)) : 0;
   const bool a_gone = SigmaAtZero(objective, values, ia), b_gone = SigmaAtZero(objective, values, ip);
-  std::string what;
   int at = -1;  // a sample predicted as 0
-  if (ia < 0 || ip < 0) {
+  if (il >= 0) {
+    // (what is set above)
+  } else if (ia < 0 || ip < 0) {
     if (!(ia >= 0 ? a_gone : b_gone)) return false;
     what = ia >= 0 ? "SIGMA_ADD fell to " + Num(a, "%.3g") + ", " + Num(a / scale, "%.2g") + " of the largest DV"
                    : "SIGMA_PROP fell to " + Num(b, "%.3g");

@@ -107,10 +107,17 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
         out->wres = (objective.weights().array().sqrt() * r.array() / sigma).matrix();
       } else {
         const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
+        const int il = objective.ParameterIndex("SIGMA_LOG");
         const double a = ia >= 0 ? out->summary.values(ia) : 0, b = ip >= 0 ? out->summary.values(ip) : 0;
         out->wres.resize(n);
         for (int k = 0; k < n; ++k) {
-          out->wres(k) = out->censoring(k) != 0 ? NAN : r(k) / std::sqrt(a * a + b * b * out->pred(k) * out->pred(k));
+          if (out->censoring(k) != 0) {
+            out->wres(k) = NAN;
+          } else if (il >= 0) {  // exponential error: on log scale
+            out->wres(k) = (std::log(out->dv(k)) - std::log(out->pred(k))) / out->summary.values(il);
+          } else {
+            out->wres(k) = r(k) / std::sqrt(a * a + b * b * out->pred(k) * out->pred(k));
+          }
         }
       }
     }

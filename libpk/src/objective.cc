@@ -42,6 +42,7 @@ const char* ToString(ErrorModel e) {
     case ErrorModel::kAdditive: return "additive";
     case ErrorModel::kProportional: return "proportional";
     case ErrorModel::kCombined: return "combined";
+    case ErrorModel::kExponential: return "exponential";
   }
   return "?";
 }
@@ -81,7 +82,10 @@ struct Objective::Impl {
   ParameterLayout layout;
   internal::PreparedSubject prepared;
   std::vector<std::string> names;
+  // σ_k² = a² + (b ŷ_k)² with a = values(sigma_add), b = values(sigma_prop)
+  // (−1: absent); the exponential model's SIGMA_LOG takes a's place, on log scale.
   int sigma_add = -1, sigma_prop = -1;
+  bool log_scale = false;  // exponential error: samples and predictions compared as logarithms
   Eigen::VectorXd y, w;
   Eigen::VectorXi cens;  // per sample: 0, or ±1 for a value beyond DV (CENS)
   std::vector<double> times;
@@ -212,6 +216,11 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
     d.sigma_add = static_cast<int>(d.names.size());
     d.names.push_back("SIGMA_ADD");
   }
+  if (options.error_model == ErrorModel::kExponential) {
+    d.sigma_add = static_cast<int>(d.names.size());
+    d.names.push_back("SIGMA_LOG");
+    d.log_scale = true;
+  }
   if (options.error_model == ErrorModel::kProportional || options.error_model == ErrorModel::kCombined) {
     d.sigma_prop = static_cast<int>(d.names.size());
     d.names.push_back("SIGMA_PROP");
@@ -298,6 +307,12 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
       it->w.push_back(w);
       continue;
     }
+    if (d.log_scale && !(r.dv > 0)) {
+      throw InputError(d.data->source, r.line, d.data->ColumnNumber("DV"),
+                       "the exponential error model compares log DV with log PRED, so DV must be > 0, not " +
+                           FormatNumber(r.dv) + (censored != 0 ? " (a censored sample's limit)" : "") +
+                           "; give a sample below the limit of quantification CENS=1 and DV = the limit, or MDV=1");
+    }
     d.ode.sample_of_record[ri] = static_cast<int>(ys.size());
     ys.push_back(r.dv);
     ws.push_back(w);
@@ -334,7 +349,7 @@ int Objective::ParameterIndex(const std::string& name) const {
 Eigen::VectorXd Objective::DefaultValues() const {
   Eigen::VectorXd v(impl_->names.size());
   v.head(impl_->L()) = impl_->layout.Defaults();
-  if (impl_->sigma_add >= 0) v(impl_->sigma_add) = impl_->default_sigma_add;
+  if (impl_->sigma_add >= 0) v(impl_->sigma_add) = impl_->log_scale ? 0.2 : impl_->default_sigma_add;
   if (impl_->sigma_prop >= 0) v(impl_->sigma_prop) = 0.1;
   return v;
 }
@@ -549,6 +564,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::VectorXd& dl_dy = modal_lease.work ? modal_lease.work->dl_dy : dl_dy_here;  // ∂ℓ/∂ŷ
   dl_dy.resize(N);
   Eigen::VectorXd sigma2, ds2_dy, dl_ds2;  // maximum likelihood only
+  Eigen::VectorXd dmu_dy;  // ∂μ/∂ŷ of the compared prediction μ: 1, or 1/ŷ on log scale
   Eigen::VectorXd z;  // censored samples: s(DV − ŷ)/σ, where Φ(z) is their probability (else unused)
   double value = 0;
   const double a = d.sigma_add >= 0 ? values(d.sigma_add) : 0.0;
@@ -562,6 +578,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     sigma2.resize(N);
     ds2_dy.resize(N);
     dl_ds2.resize(N);
+    dmu_dy.setOnes(N);
     z.setZero(N);
     // A prediction below kZeroPredictionLevel of the subject's largest is zero to rounding: the modal form gives
     // about 1e-15 for a compartment the drug has not reached yet (a sample at the time of an oral dose). With a
@@ -571,11 +588,33 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     for (int k = 0; k < N; ++k) {
       sigma2(k) = a * a + b * b * yhat(k) * yhat(k);
       ds2_dy(k) = 2 * b * b * yhat(k);
+      // The compared quantities: y and μ = ŷ, or log y and μ = log ŷ (exponential error).
+      double y = d.y(k), mu = yhat(k);
+      if (d.log_scale) {
+        y = std::log(d.y(k));
+        mu = std::log(yhat(k));
+        dmu_dy(k) = 1 / yhat(k);
+        if (!(yhat(k) > 0) && !(d.cens(k) == 1)) {  // a sample censored below its limit is certain there
+          ev.ok = false;
+          ev.message = "the prediction of the sample at TIME " + FormatNumber(d.times[static_cast<size_t>(k)]) +
+                       " is " + FormatNumber(yhat(k)) + ": the exponential error model needs a positive prediction " +
+                       "(give the sample MDV=1, or CENS=1 if it lies below a limit)";
+          return ev;
+        }
+      }
       if (const int s = d.cens(k)) {
         // Beal's M3: the probability that the value lies beyond its limit DV,
-        // ℓ_k = −log Φ(z), z = s(DV − ŷ)/σ. With h = φ(z)/Φ(z):
-        // ∂ℓ/∂ŷ = −h ∂z/∂ŷ, ∂z/∂ŷ = −s/σ − z/(2σ²) ∂σ²/∂ŷ, and ∂ℓ/∂σ² = h z/(2σ²).
-        const double beyond = s * (d.y(k) - yhat(k));
+        // ℓ_k = −log Φ(z), z = s(DV − μ)/σ (DV and μ = ŷ as logarithms for the
+        // exponential error). With h = φ(z)/Φ(z): ∂ℓ/∂ŷ = −h ∂z/∂ŷ,
+        // ∂z/∂ŷ = −(s/σ) ∂μ/∂ŷ − z/(2σ²) ∂σ²/∂ŷ, and ∂ℓ/∂σ² = h z/(2σ²).
+        const double beyond = s * (y - mu);
+        if (d.log_scale && !(yhat(k) > 0)) {  // CENS=1 with log ŷ = −∞: certainly below
+          z(k) = std::numeric_limits<double>::infinity();
+          dmu_dy(k) = 0;
+          dl_dy(k) = 0;
+          dl_ds2(k) = 0;
+          continue;
+        }
         if (!(sigma2(k) > 0)) {
           if (beyond > 0) {  // certainly beyond: probability 1, no information
             z(k) = std::numeric_limits<double>::infinity();
@@ -593,7 +632,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
         double log_cdf, h;
         internal::LogNormalCdf(z(k), &log_cdf, &h);
         value -= log_cdf;
-        dl_dy(k) = h == 0 ? 0.0 : -h * (-s / std::sqrt(sigma2(k)) - z(k) / (2 * sigma2(k)) * ds2_dy(k));
+        dl_dy(k) = h == 0 ? 0.0 : -h * (-s / std::sqrt(sigma2(k)) * dmu_dy(k) - z(k) / (2 * sigma2(k)) * ds2_dy(k));
         dl_ds2(k) = h == 0 ? 0.0 : h * z(k) / (2 * sigma2(k));
         continue;
       }
@@ -606,9 +645,15 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
         ev.message = os.str();
         return ev;
       }
+      // The exponential error's density of y is that of log y over y: the log y term
+      // keeps V comparable with the other error models' (it does not depend on θ).
+      if (d.log_scale) {
+        r(k) = y - mu;
+        value += y;
+      }
       value += 0.5 * (std::log(2 * M_PI * sigma2(k)) + r(k) * r(k) / sigma2(k));
       dl_ds2(k) = 0.5 * (1 / sigma2(k) - r(k) * r(k) / (sigma2(k) * sigma2(k)));
-      dl_dy(k) = -r(k) / sigma2(k) + dl_ds2(k) * ds2_dy(k);
+      dl_dy(k) = -r(k) / sigma2(k) * dmu_dy(k) + dl_ds2(k) * ds2_dy(k);
     }
   }
   value += cont_loss;
@@ -715,14 +760,15 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
     ev.information = ev.jacobian.transpose() * ev.jacobian;
     return ev;
   } else {
-    // The full ∂ŷ/∂θ over all free parameters (σ columns are zero).
+    // The full ∂μ/∂θ over all free parameters (σ columns are zero); μ = ŷ, or log ŷ.
     Eigen::MatrixXd jy = Eigen::MatrixXd::Zero(N, P);
-    for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos(a2)) = jm.col(a2);
-    // Expected information: Σ ∇ŷ∇ŷᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴) over the values; a
-    // censored sample's is the Tobit model's in (μ, σ) = (ŷ, √σ²), ∇σ = ∇σ²/(2σ)
+    for (int a2 = 0; a2 < pm; ++a2) jy.col(model_pos(a2)) = (jm.col(a2).array() * dmu_dy.array()).matrix();
+    // Expected information: Σ ∇μ∇μᵀ/σ² + ∇σ²∇σ²ᵀ/(2σ⁴) over the values; a
+    // censored sample's is the Tobit model's in (μ, σ) = (μ, √σ²), ∇σ = ∇σ²/(2σ)
     // (internal::CensoredInformation).
     ev.information = Eigen::MatrixXd::Zero(P, P);
     for (int k = 0; k < N; ++k) {
+      // ∇σ² = ∂σ²/∂ŷ ∇ŷ + its σ terms; ∂σ²/∂ŷ = 0 on log scale, where jy holds ∇μ = ∇ŷ/ŷ.
       Eigen::VectorXd gs = ds2_dy(k) * jy.row(k).transpose();
       for (int j = 0; j < P; ++j) {
         if (free[j] == d.sigma_add) gs(j) += ds2_dsigma_add(k);

@@ -73,6 +73,17 @@ grep -q "censored samples (CENS, Beal's M3) per ID: 1: 1, 2: 3" "$work/blq.txt" 
 [ "$(grep -c '<circle[^>]*fill="white"' "$work/blq/fit_ID2.svg")" -eq 3 ] || fail "BLQ: ID 2 should show 3 hollow samples"
 [ "$(grep -c '<circle[^>]*fill="white"' "$work/blq/gof_dv_pred.svg")" -eq 27 ] || fail "BLQ: dv_pred should show 27 hollow"
 [ "$(grep -c '<circle' "$work/blq/gof_wres_time.svg")" -eq 105 ] || fail "BLQ: residual plots hold the 105 values only"
+# The exponential error (log DV against log PRED): SIGMA_LOG estimated, WRES on log scale for the values.
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --error exponential -o "$work/blq_exp" -q ||
+  fail "BLQ fit with the exponential error failed"
+[ "$(grep -c ",SIGMA_LOG," "$work/blq_exp/estimates.csv")" -eq 12 ] || fail "exponential: 12 SIGMA_LOG estimates"
+awk -F, 'NR > 1 && $7 == 0 { if ($6 == "") bad = 1 } END { exit bad }' "$work/blq_exp/predictions.csv" ||
+  fail "exponential: every value should have a WRES"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --error exponential -o "$work/theo_exp" -q \
+  2>"$work/theo_exp.err"
+[ $? -eq 2 ] || fail "exponential error on DV = 0 should exit 2"
+grep -q "theophylline.csv:15:7: the exponential error model compares log DV with log PRED, so DV must be > 0, not 0" \
+  "$work/theo_exp.err" || fail "exponential error on DV = 0: message"
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" -o "$work/blq_ls" -q 2>"$work/blq_ls.err"
 [ $? -eq 2 ] || fail "BLQ with least squares should exit 2"
 grep -q "theophylline_blq.csv:3:13: a censored sample (CENS=1) needs maximum likelihood" "$work/blq_ls.err" ||

@@ -29,7 +29,8 @@ struct SubjectFit {
   Eigen::VectorXi censoring;   ///< per sample: 0, or 1 / -1 for a value below / above DV (CENS)
   Eigen::VectorXd pred;        ///< predictions at the estimate
   /// Weighted residuals: least squares √W(DV − PRED)/σ̂ with σ̂² = 2V/(N − p);
-  /// maximum likelihood (DV − PRED)/σ_k. NaN for a censored sample.
+  /// maximum likelihood (DV − PRED)/σ_k, or (log DV − log PRED)/SIGMA_LOG for
+  /// the exponential error. NaN for a censored sample.
   Eigen::VectorXd wres;
   /// Where the starting values came from: "data (...)" or "catalogue defaults (...)".
   std::string initial_method;

@@ -9,7 +9,13 @@
 //   maximum likelihood        ℓ_k = ½ [log(2π σ_k²) + (y_k − ŷ_k)²/σ_k²]
 //                             σ_k² = SIGMA_ADD² + (SIGMA_PROP·ŷ_k)²  (additive,
 //                             proportional or combined), the σ estimated jointly
-//   censored sample (ML)      ℓ_k = −log Φ(s_k (y_k − ŷ_k)/σ_k), Beal's M3
+//   exponential error (ML)    ℓ_k = ½ [log(2π σ²) + (log y_k − log ŷ_k)²/σ²] + log y_k
+//                             σ = SIGMA_LOG: y = ŷ·e^ε, NONMEM's log-transform-
+//                             both-sides; DV must be > 0 and ŷ > 0 at samples.
+//                             The log y_k term (constant) makes V the likelihood
+//                             of y, comparable with the other error models'.
+//   censored sample (ML)      ℓ_k = −log Φ(s_k (y_k − ŷ_k)/σ_k), Beal's M3 (with
+//                             log y_k and log ŷ_k for the exponential error)
 //   prior (optional)          ½ ((log θ − log median) / sd)²
 //
 // Censored samples (a CENS column, as in Monolix and nlmixr2): CENS=1 says the
@@ -47,7 +53,7 @@
 namespace pk {
 
 enum class Weighting { kUniform, kInverseDvSquared, kInverseDv, kColumn };
-enum class ErrorModel { kLeastSquares, kAdditive, kProportional, kCombined };
+enum class ErrorModel { kLeastSquares, kAdditive, kProportional, kCombined, kExponential };
 /// How the gradient (or residual Jacobian) is computed.
 enum class GradientRoute {
   kAuto,              ///< forward when a Jacobian is needed; else the adjoint (exact), or forward
@@ -137,7 +143,7 @@ class Objective {
   Objective(Objective&&) noexcept;
 
   /// The model's layout names (parameters, then F/ALAG/R/D per compartment),
-  /// then SIGMA_ADD and/or SIGMA_PROP for maximum likelihood.
+  /// then SIGMA_ADD and/or SIGMA_PROP for maximum likelihood (SIGMA_LOG for the exponential error).
   const std::vector<std::string>& parameter_names() const;
   int ParameterIndex(const std::string& name) const;
   /// Catalogue defaults, F=1, ALAG=0, and σ starting values from the data.

@@ -60,6 +60,7 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
     int key = layout.Index(parameter);
     if (key < 0 && upper == "SIGMA_ADD") key = -1;
     else if (key < 0 && upper == "SIGMA_PROP") key = -2;
+    else if (key < 0 && upper == "SIGMA_LOG") key = -3;
     else if (key < 0) fail(line, name + 1, "'" + parameter + "' is not a parameter of model " + model.name());
     const double estimate = number(value, "ESTIMATE");
     const auto again = seen.emplace(std::make_pair(subject, key), line);
