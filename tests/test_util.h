@@ -60,6 +60,19 @@ inline std::shared_ptr<pk::Dataset> ScenarioData(const Scenario& sc) {
   return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), sc.name));
 }
 
+/// With the exponential error, whether the scenario predicts 0 at a sample
+/// (log ŷ = −∞): only "lag" may, a sample before its lagged first dose, and the
+/// evaluation must then fail saying so. False for the other error models.
+inline bool NoLogOfZero(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free,
+                        const Scenario& sc) {
+  if (obj.options().error_model != pk::ErrorModel::kExponential) return false;
+  const auto value = obj.Evaluate(values, free, pk::Objective::Need::kValue);
+  if (value.ok) return false;
+  CHECK_THAT(value.message, Catch::Contains("needs a positive prediction"));
+  CHECK(std::string(sc.name) == "lag");
+  return true;
+}
+
 /// Fourth-order central differences of V over `free`, step 1e-3 relative (floor
 /// 1e-3). Through an adaptive ODE solver the second-order stencil's noise
 /// (≈ rtol/step) would be of the size of the tolerances under test, so the ODE
