@@ -207,6 +207,41 @@ TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-me
       CHECK(r.parameters[i].rse_pct == Approx(100 * se(i) / value(i)).epsilon(1e-6));
     }
   }
+  {  // 1cmt_oral SEs against the closed form C(t) = KA/(V(KA − k)) (e^{−kt} − e^{−KA t}), k = CL/V (unit
+     // dose into the depot), differentiated here, with a covariance that correlates all three parameters.
+    const auto model = pk::MakeModel("1cmt_oral");
+    auto closed = [](const Eigen::VectorXd& p) {  // KA, k, t½(KA), t½(k), amplitudes of e^{−KA t} and e^{−kt}
+      const double ka = p(0), k = p(1) / p(2), c = ka / (p(2) * (ka - k));
+      Eigen::VectorXd out(6);
+      out << ka, k, std::log(2.0) / ka, std::log(2.0) / k, -c, c;
+      return out;
+    };
+    Eigen::VectorXd theta(3);
+    theta << 1.2, 3, 30;  // KA, CL, V
+    Eigen::MatrixXd l(3, 3);
+    l << 0.2, 0, 0, 0.05, 0.3, 0, -0.1, 1.5, 4;
+    const Eigen::MatrixXd cov = l * l.transpose();
+    Eigen::MatrixXd jac(6, 3);
+    for (int j = 0; j < 3; ++j) {
+      const double h = 1e-5 * theta(j);
+      Eigen::VectorXd up = theta, down = theta;
+      up(j) += h;
+      down(j) -= h;
+      jac.col(j) = (closed(up) - closed(down)) / (2 * h);
+    }
+    const Eigen::VectorXd se = (jac * cov * jac.transpose()).diagonal().cwiseSqrt();
+    const Eigen::VectorXd value = closed(theta);
+    const auto r = pk::ModelExponents(*model, theta, cov);
+    REQUIRE(r.ok);
+    REQUIRE(r.parameters.size() == 6);
+    const char* names[] = {"LAMBDA1", "LAMBDA2", "THALF1", "THALF2", "AMP1", "AMP2"};
+    for (int i = 0; i < 6; ++i) {
+      INFO(names[i]);
+      CHECK(r.parameters[i].name == names[i]);
+      CHECK(r.parameters[i].value == Approx(value(i)).epsilon(1e-12));
+      CHECK(r.parameters[i].se == Approx(se(i)).epsilon(1e-6));
+    }
+  }
   {  // KA within 1e-5 of CL/V: still a sum of exponentials, with a caveat; 1e-2 apart: none.
     const auto model = pk::MakeModel("1cmt_oral");
     Eigen::VectorXd theta(3);
