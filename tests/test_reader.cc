@@ -1,5 +1,6 @@
 // The dataset reader: NM-TRAN defaults and every error path, each naming file, line and column.
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 
 #include <catch2/catch.hpp>
@@ -381,4 +382,32 @@ TEST_CASE("IGNORE= and ACCEPT= errors name what is wrong", "[reader][filter]") {
   f.ignore.clear();
   f.accept = {"ID.EQ.7"};
   CHECK(FilterError(csv, f) == "f.csv:1: the file has no data records");
+}
+
+TEST_CASE("text and files are split into the same lines (BOM, CRLF, blank lines, no final newline)", "[reader]") {
+  const std::string texts[] = {
+      "ID,TIME,DV\n1,0,1\n1,1,2\n",
+      "\xEF\xBB\xBFID,TIME,DV\r\n1,0,1\r\n\r\n1,1,2",
+      "# comment\n\nID,TIME,DV\n1,0,1\n\n\n1,1,2\r\n\n",
+  };
+  const std::string path = std::string(PK_BINARY_DIR) + "/split_lines.csv";
+  for (const std::string& text : texts) {
+    INFO(text);
+    {
+      std::ofstream out(path, std::ios::binary);
+      out << text;
+    }
+    const pk::Dataset from_text = pk::ParseDataset(text, path), from_file = pk::ReadDataset(path);
+    REQUIRE(from_text.columns == from_file.columns);
+    REQUIRE(from_text.columns == std::vector<std::string>{"ID", "TIME", "DV"});
+    REQUIRE(from_text.NumRecords() == 2);
+    REQUIRE(from_file.NumRecords() == 2);
+    for (int k = 0; k < 2; ++k) {
+      const pk::Record &a = from_text.subjects[0].records[k], &b = from_file.subjects[0].records[k];
+      CHECK(a.line == b.line);
+      CHECK(a.time == b.time);
+      CHECK(a.dv == b.dv);
+    }
+  }
+  std::remove(path.c_str());
 }
