@@ -1,5 +1,6 @@
 // Transfer-function coefficients -> exponents and compartmental parameters, with delta-method SEs.
 #include <cmath>
+#include <functional>
 
 #include <Eigen/Eigenvalues>
 #include <catch2/catch.hpp>
@@ -10,6 +11,35 @@
 #include "pk/linear_model.h"
 
 namespace {
+
+// ModelExponents of a two-exponential model against `closed` (θ ↦ λ1, λ2, t½1,
+// t½2, AMP1, AMP2, fastest first), its SEs against the delta method on
+// `closed` differentiated by central differences.
+void CheckTwoExponentials(const pk::Model& model, const Eigen::VectorXd& theta, const Eigen::MatrixXd& cov,
+                          const std::function<Eigen::VectorXd(const Eigen::VectorXd&)>& closed) {
+  const Eigen::Index m = theta.size();
+  Eigen::MatrixXd jac(6, m);
+  for (Eigen::Index j = 0; j < m; ++j) {
+    const double h = 1e-5 * theta(j);
+    Eigen::VectorXd up = theta, down = theta;
+    up(j) += h;
+    down(j) -= h;
+    jac.col(j) = (closed(up) - closed(down)) / (2 * h);
+  }
+  const Eigen::VectorXd se = (jac * cov * jac.transpose()).diagonal().cwiseSqrt();
+  const Eigen::VectorXd value = closed(theta);
+  const auto r = pk::ModelExponents(model, theta, cov);
+  REQUIRE(r.ok);
+  REQUIRE(r.parameters.size() == 6);
+  const char* names[] = {"LAMBDA1", "LAMBDA2", "THALF1", "THALF2", "AMP1", "AMP2"};
+  for (int i = 0; i < 6; ++i) {
+    INFO(names[i]);
+    CHECK(r.parameters[i].name == names[i]);
+    CHECK(r.parameters[i].value == Approx(value(i)).epsilon(1e-12));
+    CHECK(r.parameters[i].se == Approx(se(i)).epsilon(1e-6));
+    CHECK(r.parameters[i].rse_pct == Approx(100 * se(i) / std::fabs(value(i))).epsilon(1e-6));
+  }
+}
 
 pk::Exponentials IvResponse(const std::string& iv_model, const std::vector<double>& theta_values) {
   const auto model = pk::MakeModel(iv_model);
@@ -184,28 +214,7 @@ TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-me
     theta << 5, 20, 8, 60;  // CL, V1, Q, V2
     Eigen::MatrixXd l(4, 4);
     l << 0.3, 0, 0, 0, 0.8, 2, 0, 0, -0.2, 0.5, 1, 0, 1.5, -2, 3, 6;
-    const Eigen::MatrixXd cov = l * l.transpose();
-    Eigen::MatrixXd jac(6, 4);
-    for (int j = 0; j < 4; ++j) {
-      const double h = 1e-5 * theta(j);
-      Eigen::VectorXd up = theta, down = theta;
-      up(j) += h;
-      down(j) -= h;
-      jac.col(j) = (closed(up) - closed(down)) / (2 * h);
-    }
-    const Eigen::VectorXd se = (jac * cov * jac.transpose()).diagonal().cwiseSqrt();
-    const Eigen::VectorXd value = closed(theta);
-    const auto r = pk::ModelExponents(*model, theta, cov);
-    REQUIRE(r.ok);
-    REQUIRE(r.parameters.size() == 6);
-    const char* names[] = {"LAMBDA1", "LAMBDA2", "THALF1", "THALF2", "AMP1", "AMP2"};
-    for (int i = 0; i < 6; ++i) {
-      INFO(names[i]);
-      CHECK(r.parameters[i].name == names[i]);
-      CHECK(r.parameters[i].value == Approx(value(i)).epsilon(1e-12));
-      CHECK(r.parameters[i].se == Approx(se(i)).epsilon(1e-6));
-      CHECK(r.parameters[i].rse_pct == Approx(100 * se(i) / value(i)).epsilon(1e-6));
-    }
+    CheckTwoExponentials(*model, theta, l * l.transpose(), closed);
   }
   {  // 1cmt_oral SEs against the closed form C(t) = KA/(V(KA − k)) (e^{−kt} − e^{−KA t}), k = CL/V (unit
      // dose into the depot), differentiated here, with a covariance that correlates all three parameters.
@@ -220,27 +229,7 @@ TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-me
     theta << 1.2, 3, 30;  // KA, CL, V
     Eigen::MatrixXd l(3, 3);
     l << 0.2, 0, 0, 0.05, 0.3, 0, -0.1, 1.5, 4;
-    const Eigen::MatrixXd cov = l * l.transpose();
-    Eigen::MatrixXd jac(6, 3);
-    for (int j = 0; j < 3; ++j) {
-      const double h = 1e-5 * theta(j);
-      Eigen::VectorXd up = theta, down = theta;
-      up(j) += h;
-      down(j) -= h;
-      jac.col(j) = (closed(up) - closed(down)) / (2 * h);
-    }
-    const Eigen::VectorXd se = (jac * cov * jac.transpose()).diagonal().cwiseSqrt();
-    const Eigen::VectorXd value = closed(theta);
-    const auto r = pk::ModelExponents(*model, theta, cov);
-    REQUIRE(r.ok);
-    REQUIRE(r.parameters.size() == 6);
-    const char* names[] = {"LAMBDA1", "LAMBDA2", "THALF1", "THALF2", "AMP1", "AMP2"};
-    for (int i = 0; i < 6; ++i) {
-      INFO(names[i]);
-      CHECK(r.parameters[i].name == names[i]);
-      CHECK(r.parameters[i].value == Approx(value(i)).epsilon(1e-12));
-      CHECK(r.parameters[i].se == Approx(se(i)).epsilon(1e-6));
-    }
+    CheckTwoExponentials(*model, theta, l * l.transpose(), closed);
   }
   {  // KA within 1e-5 of CL/V: still a sum of exponentials, with a caveat; 1e-2 apart: none.
     const auto model = pk::MakeModel("1cmt_oral");
