@@ -408,3 +408,38 @@ TEST_CASE("the expected information of every error model is E[∇V ∇Vᵀ] over
     }
   }
 }
+
+TEST_CASE("scaled residuals: each sample's residual over its σ, none for a censored one", "[censoring]") {
+  const auto error = GENERATE(pk::ErrorModel::kLeastSquares, pk::ErrorModel::kAdditive, pk::ErrorModel::kProportional,
+                              pk::ErrorModel::kCombined, pk::ErrorModel::kExponential);
+  INFO(pk::ToString(error));
+  const std::string csv = error == pk::ErrorModel::kLeastSquares
+                              ? "ID,TIME,AMT,EVID,DV,W\n1,0,100,1,.,.\n1,1,0,0,3.1,4\n1,2,0,0,3.5,0.25\n1,8,0,0,1.5,1\n"
+                              : kCensoredData;
+  pk::ObjectiveOptions o = Options(error, pk::Propagator::kExact);
+  if (error == pk::ErrorModel::kLeastSquares) {
+    o.weighting = pk::Weighting::kColumn;
+    o.weight_column = "W";
+  }
+  const pk::Objective obj(pk::MakeModel("1cmt_oral"), Data(csv), 0, o);
+  const Eigen::VectorXd v = Values(obj);
+  const auto ev = obj.Evaluate(v, {}, pk::Objective::Need::kValue);
+  REQUIRE(ev.ok);
+  const Eigen::VectorXd scaled = obj.ScaledResiduals(v, ev.predictions);
+  REQUIRE(scaled.size() == obj.num_samples());
+  const double a = error == pk::ErrorModel::kAdditive || error == pk::ErrorModel::kCombined ? 0.4 : 0.0;
+  const double b = error == pk::ErrorModel::kProportional || error == pk::ErrorModel::kCombined ? 0.2 : 0.0;
+  for (int k = 0; k < obj.num_samples(); ++k) {
+    INFO("sample " << k);
+    const double y = obj.observations()(k), yhat = ev.predictions(k);
+    if (obj.censoring()(k) != 0) {
+      CHECK(std::isnan(scaled(k)));
+    } else if (error == pk::ErrorModel::kLeastSquares) {
+      CHECK(scaled(k) == Approx(std::sqrt(obj.weights()(k)) * (y - yhat)).epsilon(1e-14));
+    } else if (error == pk::ErrorModel::kExponential) {
+      CHECK(scaled(k) == Approx(std::log(y / yhat) / 0.3).epsilon(1e-12));
+    } else {
+      CHECK(scaled(k) == Approx((y - yhat) / std::hypot(a, b * yhat)).epsilon(1e-14));
+    }
+  }
+}

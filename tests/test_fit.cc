@@ -10,6 +10,7 @@
 #include "pk/catalogue.h"
 #include "pk/fit.h"
 #include "pk/fit_subjects.h"
+#include "pk/objective.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
 #include "identifiability.h"
@@ -359,8 +360,11 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
     req.objective.error_model = error;
     req.subjects = std::move(subjects);
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
-    if (error != pk::ErrorModel::kProportional) req.parameters.push_back({"SIGMA_ADD", NAN});
-    if (error != pk::ErrorModel::kAdditive) req.parameters.push_back({"SIGMA_PROP", NAN});
+    for (const char* sigma : {"SIGMA_ADD", "SIGMA_PROP", "SIGMA_LOG"}) {
+      if (pk::Objective(req.model, req.data, 0, req.objective).ParameterIndex(sigma) >= 0) {
+        req.parameters.push_back({sigma, NAN});
+      }
+    }
     return pk::FitSubjects(req);
   };
   const auto check_unbounded = [](const pk::SubjectFit& f, const std::string& cause) {
@@ -384,6 +388,12 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
       CHECK(fits[1].summary.converged());
       CHECK(std::isfinite(fits[1].summary.estimates[2].se));
     }
+    {  // the same with the exponential error: SIGMA_LOG falls instead
+      const auto fits = fit(optimizer, "1cmt_iv", "phenobarbital.csv", pk::ErrorModel::kExponential, {0});  // ID 1
+      REQUIRE(fits.size() == 1);
+      check_unbounded(fits[0], "SIGMA_LOG fell to");
+      CHECK_THAT(fits[0].summary.message, Catch::Contains("with 2 samples for 2 model parameters"));
+    }
     {  // theophylline, combined error: DV 0 predicted 0 at TIME 0 lets SIGMA_ADD collapse
       const auto fits =
           fit(optimizer, "1cmt_oral", "theophylline.csv", pk::ErrorModel::kCombined, {0, 1, 6});  // IDs 1, 2 and 7
@@ -399,6 +409,31 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
       }
     }
   }
+}
+
+TEST_CASE("a sample censored below its limit and predicted 0 does not make SIGMA_ADD at 0 a collapse", "[fit]") {
+  // Samples with a constant CV and a pre-dose sample below the limit: SIGMA_ADD goes to 0 (a boundary
+  // estimate). A value predicted 0 would then have σ = 0 and an unbounded density; the censored sample's
+  // probability of lying below its limit only goes to 1.
+  const std::string csv =
+      "ID,TIME,AMT,EVID,DV,CENS\n1,0,300,1,.,0\n1,0,0,0,0.5,1\n1,0.5,0,0,5.74635,0\n1,1,0,0,6.57361,0\n"
+      "1,2,0,0,8.65062,0\n1,3,0,0,7.27103,0\n1,4,0,0,7.87099,0\n1,6,0,0,5.17335,0\n1,8,0,0,5.15117,0\n"
+      "1,12,0,0,3.06573,0\n1,16,0,0,2.44439,0\n1,24,0,0,0.8845,0\n";
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel("1cmt_oral");
+  req.data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv, "cv.csv"));
+  req.objective.error_model = pk::ErrorModel::kCombined;
+  req.fit.optimizer = pk::OptimizerType::kNewton;
+  req.jobs = 1;
+  for (const char* p : {"KA", "CL", "V", "SIGMA_ADD", "SIGMA_PROP"}) req.parameters.push_back({p, NAN});
+  const std::vector<pk::SubjectFit> fits = pk::FitSubjects(req);
+  REQUIRE(fits.size() == 1);
+  INFO(fits[0].summary.FullReport());
+  REQUIRE(fits[0].ok);
+  REQUIRE(fits[0].summary.estimates[3].name == "SIGMA_ADD");
+  CHECK(fits[0].summary.estimates[3].estimate < 1e-6 * fits[0].dv.maxCoeff());  // at 0
+  CHECK(fits[0].summary.termination == pk::TerminationType::kConvergence);
+  CHECK(fits[0].summary.values(1) == Approx(3.0).epsilon(0.05));  // CL
 }
 
 TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are those of the simpler error model",

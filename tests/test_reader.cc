@@ -237,13 +237,14 @@ TEST_CASE("estimates tables: subjects in order, canonical names, other columns i
       "2,CL,3,\"0,2\",\r\n"
       "\r\n"
       "1,V,30,,\r\n"
-      "2,sigma_add,0.4,,\r\n";
+      "2,sigma_add,0.4,,\r\n"
+      "1,Sigma_Log,0.2,,\r\n";
   const auto table = pk::ParseEstimates(csv, "est.csv", *model);
   REQUIRE(table.size() == 2);
   CHECK(table[0].first == 2);
   CHECK(table[0].second == pk::ParameterValues{{"KA", 1.5}, {"CL", 3}, {"SIGMA_ADD", 0.4}});
   CHECK(table[1].first == 1);
-  CHECK(table[1].second == pk::ParameterValues{{"V", 30}});
+  CHECK(table[1].second == pk::ParameterValues{{"V", 30}, {"SIGMA_LOG", 0.2}});
   // Columns in another order, found by name.
   const auto swapped = pk::ParseEstimates("ESTIMATE,\"ID\",PARAMETER\n0.8,7,F1\n", "est.csv", *model);
   REQUIRE(swapped.size() == 1);
@@ -261,6 +262,8 @@ TEST_CASE("estimates table errors name file, line and column (the field's number
   ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CLX,2\n", 3, 2, "'CLX' is not a parameter of model 1cmt_oral");
   ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n1,CL,inf\n", 2, 3, "ESTIMATE: 'inf' is not a number");
   ExpectEstimatesError("ID,SE,PARAMETER,ESTIMATE\n1,,CL,2\n1,,cl,3\n", 3, 3, "cl is given twice for ID 1 (also line 2)");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n1,SIGMA_PROP,2\n1,sigma_prop,3\n", 3, 2, "sigma_prop is given twice for ID 1");
+  ExpectEstimatesError("ID,PARAMETER,ESTIMATE\n1,SIGMA_EXP,2\n", 2, 2, "'SIGMA_EXP' is not a parameter of model 1cmt_oral");
   // The same parameter for two subjects is not a repeat.
   CHECK(pk::ParseEstimates("ID,PARAMETER,ESTIMATE\n1,CL,2\n2,CL,3\n", "est.csv", *pk::MakeModel("1cmt_oral")).size() == 2);
 }

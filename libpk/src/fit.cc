@@ -667,22 +667,16 @@ bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, c
   const Eigen::VectorXd& y = objective.observations();
   const int nobs = static_cast<int>(y.size());
   if (nobs == 0 || yhat.size() != nobs) return false;
-  std::string what;
-  const int il = objective.ParameterIndex("SIGMA_LOG");
-  if (il >= 0) {
-    if (!SigmaAtZero(objective, values, il)) return false;
-    what = "SIGMA_LOG fell to " + Num(std::fabs(values(il)), "%.3g");
-  }
   const double scale = y.cwiseAbs().maxCoeff();
   const double a = ia >= 0 ? std::fabs(values(ia)) : 0, b = ip >= 0 ? std::fabs(values(ip)) : 0;
   const bool a_gone = SigmaAtZero(objective, values, ia), b_gone = SigmaAtZero(objective, values, ip);
+  std::string what;
   int at = -1;  // a sample predicted as 0
-  if (il >= 0) {
-    // (what is set above)
-  } else if (ia < 0 || ip < 0) {
-    if (!(ia >= 0 ? a_gone : b_gone)) return false;
-    what = ia >= 0 ? "SIGMA_ADD fell to " + Num(a, "%.3g") + ", " + Num(a / scale, "%.2g") + " of the largest DV"
-                   : "SIGMA_PROP fell to " + Num(b, "%.3g");
+  if (ia < 0 || ip < 0) {  // one σ: SIGMA_ADD, SIGMA_PROP or the exponential error's SIGMA_LOG
+    const int is = ia >= 0 ? ia : ip >= 0 ? ip : objective.ParameterIndex("SIGMA_LOG");
+    if (!SigmaAtZero(objective, values, is)) return false;
+    what = objective.parameter_names()[is] + " fell to " + Num(std::fabs(values(is)), "%.3g");
+    if (is == ia) what += ", " + Num(a / scale, "%.2g") + " of the largest DV";
   } else {
     if (!a_gone) return false;
     if (!b_gone) {

@@ -98,27 +98,14 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
     const Objective::Evaluation ev = objective.Evaluate(out->summary.values, {}, Objective::Need::kValue);
     if (ev.ok) {
       out->pred = ev.predictions;
-      const Eigen::VectorXd r = out->dv - out->pred;
-      const int n = objective.num_samples();
-      const int p = static_cast<int>(out->summary.estimated.size());
+      out->wres = objective.ScaledResiduals(out->summary.values, out->pred);
       if (objective.options().error_model == ErrorModel::kLeastSquares) {
+        // Least squares leaves σ to the residuals: σ̂² = 2V/(N − p).
+        const Eigen::VectorXd r = out->dv - out->pred;
+        const int n = objective.num_samples();
+        const int p = static_cast<int>(out->summary.estimated.size());
         const double v = 0.5 * (objective.weights().array() * r.array().square()).sum();
-        const double sigma = n > p ? std::sqrt(2 * v / (n - p)) : NAN;
-        out->wres = (objective.weights().array().sqrt() * r.array() / sigma).matrix();
-      } else {
-        const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
-        const int il = objective.ParameterIndex("SIGMA_LOG");
-        const double a = ia >= 0 ? out->summary.values(ia) : 0, b = ip >= 0 ? out->summary.values(ip) : 0;
-        out->wres.resize(n);
-        for (int k = 0; k < n; ++k) {
-          if (out->censoring(k) != 0) {
-            out->wres(k) = NAN;
-          } else if (il >= 0) {  // exponential error: on log scale
-            out->wres(k) = (std::log(out->dv(k)) - std::log(out->pred(k))) / out->summary.values(il);
-          } else {
-            out->wres(k) = r(k) / std::sqrt(a * a + b * b * out->pred(k) * out->pred(k));
-          }
-        }
+        out->wres /= n > p ? std::sqrt(2 * v / (n - p)) : NAN;
       }
     }
     // The fitted curve from the first record to a little past the last sample.

@@ -792,6 +792,25 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   return ev;
 }
 
+Eigen::VectorXd Objective::ScaledResiduals(const Eigen::VectorXd& values, const Eigen::VectorXd& predictions) const {
+  const Impl& d = *impl_;
+  const Eigen::VectorXd r = d.y - predictions;
+  if (d.options.error_model == ErrorModel::kLeastSquares) return (d.w.array().sqrt() * r.array()).matrix();
+  const double a = d.sigma_add >= 0 ? values(d.sigma_add) : 0.0;
+  const double b = d.sigma_prop >= 0 ? values(d.sigma_prop) : 0.0;
+  Eigen::VectorXd out(r.size());
+  for (Eigen::Index k = 0; k < r.size(); ++k) {
+    if (d.cens(k) != 0) {
+      out(k) = std::numeric_limits<double>::quiet_NaN();
+    } else if (d.log_scale) {
+      out(k) = (std::log(d.y(k)) - std::log(predictions(k))) / a;
+    } else {
+      out(k) = r(k) / std::sqrt(a * a + b * b * predictions(k) * predictions(k));
+    }
+  }
+  return out;
+}
+
 void Objective::CheckValues(const Eigen::VectorXd& values) const {
   internal::PrepareSubject(*impl_->model, impl_->layout, *impl_->data, impl_->subject, values.head(impl_->L()), true);
 }

@@ -51,6 +51,12 @@ std::vector<double> LinearTicks(double lo, double hi) {
   return ticks;
 }
 
+// The fill of a series' markers and legend swatch: white, outlined in the colour, for a hollow series.
+std::string Fill(const PlotSeries& s, const char* colour) {
+  return s.hollow ? std::string("fill=\"white\" stroke=\"") + colour + "\" stroke-width=\"1.5\""
+                  : std::string("fill=\"") + colour + "\"";
+}
+
 }  // namespace
 
 std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& options) {
@@ -130,12 +136,7 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
     if (s.markers) {
       for (size_t i = 0; i < s.x.size(); ++i) {
         if (!usable(s.y[i])) continue;
-        svg << "<circle cx=\"" << px(s.x[i]) << "\" cy=\"" << py(s.y[i]) << "\" r=\"3.5\" ";
-        if (s.hollow) {
-          svg << "fill=\"white\" stroke=\"" << colour << "\" stroke-width=\"1.5\"/>\n";
-        } else {
-          svg << "fill=\"" << colour << "\"/>\n";
-        }
+        svg << "<circle cx=\"" << px(s.x[i]) << "\" cy=\"" << py(s.y[i]) << "\" r=\"3.5\" " << Fill(s, colour) << "/>\n";
       }
     } else {
       svg << "<polyline fill=\"none\" stroke=\"" << colour << "\" stroke-width=\"1.6\" points=\"";
@@ -146,13 +147,8 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
     }
     if (series.size() <= 24) {
       const double ly = top + 10 + 16 * static_cast<double>(k);
-      svg << "<rect x=\"" << left + w + 12 << "\" y=\"" << ly - 8 << "\" width=\"12\" height=\"8\" ";
-      if (s.hollow) {
-        svg << "fill=\"white\" stroke=\"" << colour << "\"";
-      } else {
-        svg << "fill=\"" << colour << "\"";
-      }
-      svg << "/><text x=\"" << left + w + 30 << "\" y=\"" << ly << "\">" << Escape(s.label) << "</text>\n";
+      svg << "<rect x=\"" << left + w + 12 << "\" y=\"" << ly - 8 << "\" width=\"12\" height=\"8\" " << Fill(s, colour)
+          << "/><text x=\"" << left + w + 30 << "\" y=\"" << ly << "\">" << Escape(s.label) << "</text>\n";
     }
   }
   svg << "</svg>\n";

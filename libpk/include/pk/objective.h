@@ -180,6 +180,12 @@ class Objective {
   /// these values do not supply or supply out of range (R<n>, D<n>, F<n>, ALAG<n>).
   void CheckValues(const Eigen::VectorXd& values) const;
 
+  /// Each sample's residual on the scale of its error: √W_k (y_k − ŷ_k) for
+  /// least squares; (y_k − ŷ_k)/σ_k for maximum likelihood, or
+  /// (log y_k − log ŷ_k)/SIGMA_LOG for the exponential error; NaN for a
+  /// censored sample. `predictions` are Evaluate's at `values`.
+  Eigen::VectorXd ScaledResiduals(const Eigen::VectorXd& values, const Eigen::VectorXd& predictions) const;
+
   /// Predictions at arbitrary times (for plots): the subject's records with
   /// EVID 2 records added at `times`; returns the central concentration, or
   /// output `output` (1-based) of a nonlinear model.

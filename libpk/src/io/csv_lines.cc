@@ -16,7 +16,7 @@ namespace internal {
 // dropped, lines ending at '\n' with one '\r' before it removed, no empty line
 // after a final '\n'), without the reader's 48 MB buffer, which every
 // ParseDataset call would allocate and, under AddressSanitizer, clear.
-NumberedLines TextLines(const std::string& text, const std::string&) {
+NumberedLines TextLines(const std::string& text) {
   NumberedLines lines;
   size_t begin = text.compare(0, 3, "\xEF\xBB\xBF") == 0 ? 3 : 0;
   int number = 0;

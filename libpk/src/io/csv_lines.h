@@ -14,8 +14,8 @@ using NumberedLines = std::vector<std::pair<int, std::string>>;
 
 /// The lines of the file at `path`; throws pk::InputError when it cannot be read.
 NumberedLines ReadLines(const std::string& path);
-/// The lines of `text`, split as ReadLines splits a file's (`source` is kept for symmetry: nothing fails).
-NumberedLines TextLines(const std::string& text, const std::string& source);
+/// The lines of `text`, split as ReadLines splits a file's.
+NumberedLines TextLines(const std::string& text);
 
 /// Splits one CSV line into trimmed fields. Fields may be wrapped in double
 /// quotes ("" inside is a quote).

@@ -422,7 +422,7 @@ int Dataset::NumRecords() const {
 }
 
 Dataset ParseDataset(const std::string& text, const std::string& source, const DatasetFilter& filter) {
-  return Parser(source, filter).Parse(internal::TextLines(text, source));
+  return Parser(source, filter).Parse(internal::TextLines(text));
 }
 
 Dataset ReadDataset(const std::string& path, const DatasetFilter& filter) {

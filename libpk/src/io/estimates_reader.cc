@@ -40,7 +40,7 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
     fail(header_line, 0, "the estimates table needs the columns ID, PARAMETER and ESTIMATE");
   }
   std::vector<SubjectEstimates> out;
-  std::map<std::pair<double, int>, int> seen;  // (ID, parameter index or -1/-2 for SIGMA_*) -> line
+  std::map<std::pair<double, std::string>, int> seen;  // (ID, canonical parameter name) -> line
   for (size_t i = first + 1; i < lines.size(); ++i) {
     const int line = lines[i].first;
     if (IsSkippedLine(lines[i].second)) continue;
@@ -57,11 +57,12 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
     const double subject = number(id, "ID");
     const std::string& parameter = fields[name];
     const std::string upper = ToUpper(parameter);
-    int key = layout.Index(parameter);
-    if (key < 0 && upper == "SIGMA_ADD") key = -1;
-    else if (key < 0 && upper == "SIGMA_PROP") key = -2;
-    else if (key < 0 && upper == "SIGMA_LOG") key = -3;
-    else if (key < 0) fail(line, name + 1, "'" + parameter + "' is not a parameter of model " + model.name());
+    // A layout name (its canonical spelling) or an error model's σ.
+    const int index = layout.Index(parameter);
+    const std::string key = index >= 0 ? layout.name(index) : upper;
+    if (index < 0 && upper != "SIGMA_ADD" && upper != "SIGMA_PROP" && upper != "SIGMA_LOG") {
+      fail(line, name + 1, "'" + parameter + "' is not a parameter of model " + model.name());
+    }
     const double estimate = number(value, "ESTIMATE");
     const auto again = seen.emplace(std::make_pair(subject, key), line);
     if (!again.second) {
@@ -73,7 +74,7 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
       out.emplace_back(subject, ParameterValues());
       it = out.end() - 1;
     }
-    it->second[key >= 0 ? layout.name(key) : upper] = estimate;
+    it->second[key] = estimate;
   }
   if (out.empty()) fail(header_line, 0, "the estimates table has no rows");
   return out;
@@ -86,7 +87,7 @@ std::vector<SubjectEstimates> ReadEstimates(const std::string& path, const Model
 }
 
 std::vector<SubjectEstimates> ParseEstimates(const std::string& text, const std::string& source, const Model& model) {
-  return Parse(internal::TextLines(text, source), source, model);
+  return Parse(internal::TextLines(text), source, model);
 }
 
 }  // namespace pk
