@@ -245,7 +245,7 @@ int Main(int argc, char** argv) {
     if (req.data->ExtraColumn(name) >= 0) continue;  // the data supplies it
     add(name);
   }
-  for (const char* name : {"SIGMA_ADD", "SIGMA_PROP", "SIGMA_LOG"}) {
+  for (const char* name : {pk::kSigmaAdd, pk::kSigmaProp, pk::kSigmaLog}) {
     if (probe.ParameterIndex(name) >= 0) add(name);
   }
   for (const auto& kv : inits) add(Upper(kv.first))->initial = kv.second;

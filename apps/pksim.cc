@@ -15,6 +15,7 @@
 #include "pk/error.h"
 #include "pk/estimates.h"
 #include "pk/exposure.h"
+#include "pk/objective.h"
 #include "pk/output.h"
 #include "pk/plot.h"
 #include "pk/regimen.h"
@@ -195,7 +196,7 @@ int Main(int argc, char** argv) {
       }
       pk::ParameterValues merged;
       for (const auto& kv : it->second) {
-        if (kv.first.rfind("SIGMA_", 0) != 0) merged[kv.first] = kv.second;  // names as the model spells them
+        if (!pk::IsResidualErrorName(kv.first)) merged[kv.first] = kv.second;  // names as the model spells them
       }
       for (const auto& kv : values) merged[kv.first] = kv.second;  // --param wins
       sims.push_back(pk::SimulateSubject(*model, data, i, merged, sim_options));

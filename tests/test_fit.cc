@@ -132,6 +132,32 @@ TEST_CASE("maximum likelihood with a combined error model", "[fit]") {
   CHECK_THROWS(pk::Fit(objective, start, pk::FitOptions()));  // LM cannot do ML
 }
 
+TEST_CASE("the residual-error names are exactly the parameters each error model appends", "[fit]") {
+  const auto data = Synthetic("1cmt_oral", {{"KA", 1.7}, {"CL", 2.8}, {"V", 32}}, "1,0,320,0,0,0,0,1,.\n", kTimes);
+  const auto model = pk::MakeModel("1cmt_oral");
+  const int structural = static_cast<int>(pk::Objective(model, data, 0, pk::ObjectiveOptions()).parameter_names().size());
+  const std::vector<std::pair<pk::ErrorModel, std::vector<std::string>>> cases = {
+      {pk::ErrorModel::kLeastSquares, {}},
+      {pk::ErrorModel::kAdditive, {"SIGMA_ADD"}},
+      {pk::ErrorModel::kProportional, {"SIGMA_PROP"}},
+      {pk::ErrorModel::kCombined, {"SIGMA_ADD", "SIGMA_PROP"}},
+      {pk::ErrorModel::kExponential, {"SIGMA_LOG"}}};
+  for (const auto& c : cases) {
+    pk::ObjectiveOptions oo;
+    oo.error_model = c.first;
+    const std::vector<std::string> names = pk::Objective(model, data, 0, oo).parameter_names();
+    INFO(pk::ToString(c.first));
+    REQUIRE(names.size() == structural + c.second.size());
+    for (int i = 0; i < static_cast<int>(names.size()); ++i) {
+      INFO(names[i]);
+      CHECK(pk::IsResidualErrorName(names[i]) == (i >= structural));
+      if (i >= structural) CHECK(names[i] == c.second[i - structural]);
+    }
+  }
+  CHECK_FALSE(pk::IsResidualErrorName("sigma_add"));  // canonical spelling only
+  CHECK_FALSE(pk::IsResidualErrorName("SIGMA"));
+}
+
 TEST_CASE("fixed parameters, bounds and multiple starts", "[fit]") {
   const pk::ParameterValues truth{{"KA", 1.7}, {"CL", 2.8}, {"V", 32}};
   const pk::Objective objective(pk::MakeModel("1cmt_oral"),

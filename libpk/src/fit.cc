@@ -644,8 +644,8 @@ bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int 
   constexpr double kCollapse = 1e-6;
   if (i < 0) return false;
   const std::string& name = objective.parameter_names()[i];
-  if (name == "SIGMA_PROP" || name == "SIGMA_LOG") return std::fabs(values(i)) < kCollapse;
-  if (name != "SIGMA_ADD" || objective.observations().size() == 0) return false;
+  if (name == kSigmaProp || name == kSigmaLog) return std::fabs(values(i)) < kCollapse;
+  if (name != kSigmaAdd || objective.observations().size() == 0) return false;
   return std::fabs(values(i)) < kCollapse * objective.observations().cwiseAbs().maxCoeff();
 }
 
@@ -663,7 +663,7 @@ bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int 
 // zero level, kZeroPredictionLevel). Sets `why`.
 bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat,
                     int structural, std::string* why) {
-  const int ia = objective.ParameterIndex("SIGMA_ADD"), ip = objective.ParameterIndex("SIGMA_PROP");
+  const int ia = objective.ParameterIndex(kSigmaAdd), ip = objective.ParameterIndex(kSigmaProp);
   const Eigen::VectorXd& y = objective.observations();
   const int nobs = static_cast<int>(y.size());
   if (nobs == 0 || yhat.size() != nobs) return false;
@@ -673,7 +673,7 @@ bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, c
   std::string what;
   int at = -1;  // a sample predicted as 0
   if (ia < 0 || ip < 0) {  // one σ: SIGMA_ADD, SIGMA_PROP or the exponential error's SIGMA_LOG
-    const int is = ia >= 0 ? ia : ip >= 0 ? ip : objective.ParameterIndex("SIGMA_LOG");
+    const int is = ia >= 0 ? ia : ip >= 0 ? ip : objective.ParameterIndex(kSigmaLog);
     if (!SigmaAtZero(objective, values, is)) return false;
     what = objective.parameter_names()[is] + " fell to " + Num(std::fabs(values(is)), "%.3g");
     if (is == ia) what += ", " + Num(a / scale, "%.2g") + " of the largest DV";
@@ -824,7 +824,7 @@ FitSummary Fit(const Objective& objective, const std::vector<ParameterSpec>& par
   if (ml && n > 0 && std::isfinite(best.value)) {
     const Objective::Evaluation& end = pb.Eval(best.phi, Need::kValue);
     int structural = 0;
-    for (const std::string& name : summary.estimated) structural += name.rfind("SIGMA_", 0) == 0 ? 0 : 1;
+    for (const std::string& name : summary.estimated) structural += IsResidualErrorName(name) ? 0 : 1;
     std::string collapse;
     if (end.ok && CollapsedSigma(objective, summary.values, end.predictions, structural, &collapse)) {
       summary.termination = TerminationType::kUnbounded;

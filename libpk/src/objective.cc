@@ -47,6 +47,10 @@ const char* ToString(ErrorModel e) {
   return "?";
 }
 
+bool IsResidualErrorName(const std::string& name) {
+  return name == kSigmaAdd || name == kSigmaProp || name == kSigmaLog;
+}
+
 const char* ToString(GradientRoute r) {
   switch (r) {
     case GradientRoute::kAuto: return "auto";
@@ -214,16 +218,16 @@ Objective::Objective(std::shared_ptr<const Model> model, std::shared_ptr<const D
   d.names = d.layout.names();
   if (options.error_model == ErrorModel::kAdditive || options.error_model == ErrorModel::kCombined) {
     d.sigma_add = static_cast<int>(d.names.size());
-    d.names.push_back("SIGMA_ADD");
+    d.names.push_back(kSigmaAdd);
   }
   if (options.error_model == ErrorModel::kExponential) {
     d.sigma_add = static_cast<int>(d.names.size());
-    d.names.push_back("SIGMA_LOG");
+    d.names.push_back(kSigmaLog);
     d.log_scale = true;
   }
   if (options.error_model == ErrorModel::kProportional || options.error_model == ErrorModel::kCombined) {
     d.sigma_prop = static_cast<int>(d.names.size());
-    d.names.push_back("SIGMA_PROP");
+    d.names.push_back(kSigmaProp);
   }
   const int weight_col = options.weighting == Weighting::kColumn ? d.data->ExtraColumn(options.weight_column) : -1;
   if (options.weighting == Weighting::kColumn && weight_col < 0) {

@@ -54,6 +54,15 @@ namespace pk {
 
 enum class Weighting { kUniform, kInverseDvSquared, kInverseDv, kColumn };
 enum class ErrorModel { kLeastSquares, kAdditive, kProportional, kCombined, kExponential };
+
+/// The residual-error parameters that maximum likelihood appends to a model's
+/// parameters: SIGMA_ADD (additive and combined), SIGMA_PROP (proportional and
+/// combined) and SIGMA_LOG (exponential, σ of log DV).
+inline constexpr const char* kSigmaAdd = "SIGMA_ADD";
+inline constexpr const char* kSigmaProp = "SIGMA_PROP";
+inline constexpr const char* kSigmaLog = "SIGMA_LOG";
+/// Whether `name` (canonical upper case) names a residual-error parameter.
+bool IsResidualErrorName(const std::string& name);
 /// How the gradient (or residual Jacobian) is computed.
 enum class GradientRoute {
   kAuto,              ///< forward when a Jacobian is needed; else the adjoint (exact), or forward

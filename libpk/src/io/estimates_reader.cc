@@ -8,6 +8,7 @@
 #include "csv_lines.h"
 #include "pk/error.h"
 #include "pk/estimates.h"
+#include "pk/objective.h"
 #include "pk/output.h"
 
 namespace pk {
@@ -60,7 +61,7 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
     // A layout name (its canonical spelling) or an error model's σ.
     const int index = layout.Index(parameter);
     const std::string key = index >= 0 ? layout.name(index) : upper;
-    if (index < 0 && upper != "SIGMA_ADD" && upper != "SIGMA_PROP" && upper != "SIGMA_LOG") {
+    if (index < 0 && !IsResidualErrorName(upper)) {
       fail(line, name + 1, "'" + parameter + "' is not a parameter of model " + model.name());
     }
     const double estimate = number(value, "ESTIMATE");
