@@ -189,6 +189,12 @@ std::string DerivedTable(const std::vector<SubjectFit>& fits) {
   return out.str();
 }
 
+std::string PopulationTable(const TwoStageSummary& population) {
+  std::ostringstream out;
+  out << "\npopulation: " << population.FullReport();
+  return out.str();
+}
+
 std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
   std::ostringstream out;
   const SubjectFit* first = nullptr;
@@ -326,6 +332,65 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     html << "</tr>\n";
   }
   html << "</table>\n";
+  std::ostringstream population, omega;
+  const TwoStageSummary* pop = context.population;
+  if (pop) {
+    population << "PARAMETER,N,MEAN,SD,CV_PCT,GEOMEAN,GEOCV_PCT,MEDIAN,MIN,MAX,GTS_N,TYPICAL,TYPICAL_SE,TYPICAL_RSE_PCT,"
+                  "OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT\n";
+    for (size_t j = 0; j < pop->descriptive.size(); ++j) {
+      const DescriptiveStatistics& d = pop->descriptive[j];
+      population << d.name << "," << d.n << "," << Csv(d.mean) << "," << Csv(d.sd) << "," << Csv(d.cv_pct) << ","
+                 << Csv(d.geometric_mean) << "," << Csv(d.geometric_cv_pct) << "," << Csv(d.median) << "," << Csv(d.min)
+                 << "," << Csv(d.max);
+      if (pop->gts_ok) {
+        const PopulationParameter& q = pop->population[j];
+        population << "," << pop->gts_ids.size() << "," << Csv(q.typical) << "," << Csv(q.typical_se) << ","
+                   << Csv(q.typical_rse_pct) << "," << Csv(q.omega2) << "," << Csv(q.omega2_se) << ","
+                   << Csv(q.omega2_rse_pct) << "," << Csv(q.bsv_cv_pct) << "\n";
+      } else {
+        population << ",0,,,,,,,\n";
+      }
+    }
+    omega << "PARAMETER1,PARAMETER2,OMEGA,SE,CORRELATION\n";
+    for (size_t j = 0; pop->gts_ok && j < pop->parameters.size(); ++j) {
+      for (size_t k = 0; k <= j; ++k) {
+        if (pop->diagonal_omega && k != j) continue;
+        const auto a = static_cast<Eigen::Index>(j), b = static_cast<Eigen::Index>(k);
+        omega << pop->parameters[j] << "," << pop->parameters[k] << "," << Csv(pop->omega(a, b)) << ","
+              << Csv(pop->omega_se(a, b)) << "," << Csv(pop->omega_correlation(a, b)) << "\n";
+      }
+    }
+    html << "<h2>Population (two-stage)</h2>\n<p>" << Escape(pop->BriefReport()) << ".</p>\n"
+         << "<p>STS: statistics of the individual estimates of the " << pop->sts_ids.size()
+         << " converged fits; their spread includes each fit's estimation error. GTS: maximum likelihood of the "
+         << ToString(pop->distribution) << " population model given each fit's estimate and covariance "
+         << "(the typical value is exp(μ) for the log-normal model; BSV CV% = 100·√(exp(ω²) − 1)).</p>\n"
+         << "<table><tr><th class=\"l\">parameter</th><th>N</th><th>mean</th><th>SD</th><th>CV%</th>"
+         << "<th>geo. mean</th><th>geo. CV%</th><th>median</th><th>min</th><th>max</th>";
+    if (pop->gts_ok) html << "<th>GTS typical (RSE%)</th><th>ω² (RSE%)</th><th>BSV CV%</th>";
+    html << "</tr>\n";
+    for (size_t j = 0; j < pop->descriptive.size(); ++j) {
+      const DescriptiveStatistics& d = pop->descriptive[j];
+      html << "<tr><td class=\"l\">" << Escape(d.name) << "</td><td>" << d.n << "</td><td>" << Fmt(d.mean) << "</td><td>"
+           << Fmt(d.sd) << "</td><td>" << Fmt(d.cv_pct, "%.3g") << "</td><td>" << Fmt(d.geometric_mean) << "</td><td>"
+           << Fmt(d.geometric_cv_pct, "%.3g") << "</td><td>" << Fmt(d.median) << "</td><td>" << Fmt(d.min)
+           << "</td><td>" << Fmt(d.max) << "</td>";
+      if (pop->gts_ok) {
+        const PopulationParameter& q = pop->population[j];
+        html << "<td>" << Fmt(q.typical) << " (" << Fmt(q.typical_rse_pct, "%.3g") << ")</td><td>" << Fmt(q.omega2)
+             << " (" << Fmt(q.omega2_rse_pct, "%.3g") << ")</td><td>" << Fmt(q.bsv_cv_pct, "%.3g") << "</td>";
+      }
+      html << "</tr>\n";
+    }
+    html << "</table>\n";
+    if (!pop->excluded.empty()) {
+      html << "<ul>";
+      for (const auto& e : pop->excluded) {
+        html << "<li>ID " << FormatNumber(e.first) << " left out: " << Escape(e.second) << "</li>";
+      }
+      html << "</ul>\n";
+    }
+  }
   // Goodness of fit, per output; the files are gof_<plot>.svg (gof_<plot>_<output>.svg beyond output 1).
   std::vector<std::pair<std::string, std::string>> gof_files;
   int outputs = 1;
@@ -375,6 +440,10 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   WriteFileAtomically(dir + "/predictions.csv", pred.str());
   WriteFileAtomically(dir + "/fit_details.csv", det.str());
   if (any_derived) WriteFileAtomically(dir + "/derived.csv", derived.str());
+  if (pop) {
+    WriteFileAtomically(dir + "/population.csv", population.str());
+    WriteFileAtomically(dir + "/population_omega.csv", omega.str());
+  }
   for (const SubjectFit& f : fits) {
     WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + ".svg", SubjectSvg(f, context.log_plots));
     for (int k = 2; k <= NumPlots(f); ++k) {

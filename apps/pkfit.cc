@@ -21,6 +21,7 @@
 #include "pk/fit_subjects.h"
 #include "pk/ode_model.h"
 #include "pk/output.h"
+#include "pk/two_stage.h"
 
 namespace po = boost::program_options;
 
@@ -137,6 +138,10 @@ int Main(int argc, char** argv) {
       "linear-scale", "estimate on the natural scale instead of the log scale")(
       "output-dir,o", po::value<std::string>()->default_value("pkfit_out"), "where the results go")(
       "log", "logarithmic concentration axis in the plots")(
+      "population", po::value<std::string>()->default_value("lognormal"),
+      "two-stage population estimates over the subjects (STS statistics and GTS): lognormal, normal or none")(
+      "omega", po::value<std::string>()->default_value("diagonal"),
+      "GTS between-subject covariance: diagonal (variances only) or full")(
       "evaluate", "no fit: print objective and gradient at the given values as CSV")(
       "quiet,q", "no progress bar and no table on stdout");
   pk::cli::AddFilterOptions(&desc, &ignore, &accept);
@@ -161,6 +166,17 @@ int Main(int argc, char** argv) {
   req.fit.max_iterations = vm["max-iterations"].as<int>();
   req.fit.log_scale = vm.count("linear-scale") == 0;
   req.jobs = vm["jobs"].as<int>();
+  const std::string population_model = vm["population"].as<std::string>(), omega = vm["omega"].as<std::string>();
+  pk::TwoStageOptions two_stage;
+  if (population_model == "normal") {
+    two_stage.distribution = pk::BetweenSubjectModel::kNormal;
+  } else if (population_model != "lognormal" && population_model != "none") {
+    throw pk::InputError("", 0, 0, "--population: expected lognormal, normal or none, got '" + population_model + "'");
+  }
+  if (omega != "diagonal" && omega != "full") {
+    throw pk::InputError("", 0, 0, "--omega: expected diagonal or full, got '" + omega + "'");
+  }
+  two_stage.diagonal_omega = omega == "diagonal";
   std::string why;
   if (!req.objective.IsValid(&why) || !req.fit.IsValid(&why)) throw pk::InputError("", 0, 0, why);
   if (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt &&
@@ -328,6 +344,12 @@ int Main(int argc, char** argv) {
   context.data = req.data->source;
   for (int a = 0; a < argc; ++a) context.command_line += (a ? " " : "") + std::string(argv[a]);
   context.log_plots = vm.count("log") > 0;
+  // Stage two over the subjects, when there are several.
+  pk::TwoStageSummary population;
+  if (population_model != "none" && fits.size() >= 2) {
+    population = pk::EstimateTwoStage(fits, two_stage);
+    context.population = &population;
+  }
   const std::string dir = vm["output-dir"].as<std::string>();
   pk::cli::WriteFitOutputs(dir, fits, context);
 
@@ -344,9 +366,11 @@ int Main(int argc, char** argv) {
   if (show_initial) std::cout << pk::cli::InitialTable(fits) << "\n";
   if (!quiet) {
     std::cout << pk::cli::EstimatesTable(fits) << pk::cli::DerivedTable(fits);
+    if (context.population) std::cout << pk::cli::PopulationTable(population);
     const std::string route = fits.empty() ? "" : fits.front().summary.gradient;
     std::cout << "\npropagator " << fits.front().summary.propagator << ", gradient " << route << ", optimizer " << fits.front().summary.optimizer
-              << "; results in " << dir << "/ (report.html, estimates.csv, summary.csv, predictions.csv)\n";
+              << "; results in " << dir << "/ (report.html, estimates.csv, summary.csv, predictions.csv"
+              << (context.population ? ", population.csv" : "") << ")\n";
   }
   if (bad) std::cerr << "pkfit: " << bad << " of " << fits.size() << " subjects failed or did not converge\n";
   return bad ? 1 : 0;

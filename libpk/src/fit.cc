@@ -70,6 +70,8 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 using Need = Objective::Need;
+using internal::Cell;
+using internal::Num;
 
 // Maps an unbounded φ to θ: first to the scale s (log θ or θ), bounded by the
 // bounds' images, then θ = exp(s) or s.
@@ -623,19 +625,6 @@ RunResult RunNewton(Problem* pb, const Eigen::VectorXd& phi0, const FitOptions& 
   }
   r.phi = phi;
   return r;
-}
-
-std::string Num(double v, const char* fmt = "%.6g") {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, fmt, v);
-  return buf;
-}
-
-// A table cell of `width` columns, right-aligned; "–" when v is not finite.
-std::string Cell(double v, const char* fmt, int width) {
-  const std::string text = std::isfinite(v) ? Num(v, fmt) : "–";
-  const int columns = std::isfinite(v) ? static_cast<int>(text.size()) : 1;
-  return std::string(static_cast<size_t>(std::max(0, width - columns)), ' ') + text;
 }
 
 // Whether parameter `i` is a σ gone to 0: SIGMA_ADD below 1e-6 of the largest

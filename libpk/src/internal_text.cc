@@ -1,8 +1,10 @@
 #include "internal_text.h"
 
+#include <algorithm>
 #include <cctype>
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 
 namespace pk {
@@ -38,6 +40,18 @@ std::string Join(const std::vector<std::string>& items, const std::string& separ
     out += items[i];
   }
   return out;
+}
+
+std::string Num(double v, const char* fmt) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, fmt, v);
+  return buf;
+}
+
+std::string Cell(double v, const char* fmt, int width) {
+  const std::string text = std::isfinite(v) ? Num(v, fmt) : "–";
+  const int columns = std::isfinite(v) ? static_cast<int>(text.size()) : 1;
+  return std::string(static_cast<size_t>(std::max(0, width - columns)), ' ') + text;
 }
 
 }  // namespace internal

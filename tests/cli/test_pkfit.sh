@@ -33,6 +33,27 @@ if [ -n "$pksim" ]; then
     if ($1 != $4 || $2 != $5) bad = 1; d = $3 - $6; if (d < 0) d = -d; if (d > 1e-10 * (1 + ($6 < 0 ? -$6 : $6))) bad = 1
   } END { exit bad }' || fail "pksim at the estimates does not reproduce pkfit's predictions"
 fi
+# Two-stage population estimates over the subjects: one row per structural parameter, in the report and on stdout.
+head -1 "$work/theo/population.csv" | grep -qx "PARAMETER,N,MEAN,SD,CV_PCT,GEOMEAN,GEOCV_PCT,MEDIAN,MIN,MAX,GTS_N,TYPICAL,TYPICAL_SE,TYPICAL_RSE_PCT,OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT" ||
+  fail "population header"
+[ "$(awk -F, 'NR > 1 && $2 == 12 && $11 == 12' "$work/theo/population.csv" | cut -d, -f1 | tr '\n' ' ')" = "KA CL V " ] ||
+  fail "population.csv should summarise KA, CL and V over 12 subjects"
+# The STS mean is the mean of the estimates in estimates.csv.
+mean_cl=$(awk -F, '$2 == "CL" { s += $3; n++ } END { printf "%.10g", s / n }' "$work/theo/estimates.csv")
+awk -F, -v m="$mean_cl" '$1 == "CL" { d = $3 - m; if (d < 0) d = -d; exit !(d < 1e-8 * m) }' "$work/theo/population.csv" ||
+  fail "population.csv: the STS mean of CL is not the mean of the estimates"
+[ "$(tail -n +2 "$work/theo/population_omega.csv" | wc -l)" -eq 3 ] || fail "a diagonal Omega has 3 entries"
+grep -q "<h2>Population (two-stage)</h2>" "$work/theo/report.html" || fail "report lacks the population section"
+grep -q "^population: two-stage" "$work/theo.txt" || fail "no population table on stdout"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --omega full --population lognormal \
+  -o "$work/theo_full" -q || fail "--omega full failed"
+[ "$(tail -n +2 "$work/theo_full/population_omega.csv" | wc -l)" -eq 6 ] || fail "a full Omega has 6 entries"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --population none --subject 1 --subject 2 \
+  -o "$work/theo_nopop" -q || fail "--population none failed"
+[ ! -e "$work/theo_nopop/population.csv" ] || fail "--population none wrote population.csv"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --omega block -o "$work/bad_omega" 2>"$work/bad_omega.err"
+[ $? -eq 2 ] || fail "--omega block should exit 2"
+grep -q "omega: expected diagonal or full, got 'block'" "$work/bad_omega.err" || fail "--omega error message"
 # The output directory is made with its parents.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 -o "$work/nested/a/b" -q ||
   fail "pkfit into a new nested directory"

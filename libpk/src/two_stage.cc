@@ -1,0 +1,556 @@
+// Stage two of the two-stage population methods (pk/two_stage.h; derivation
+// in docs/fitting.md, "Population estimates in two stages").
+#include "pk/two_stage.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+
+#include <nlopt.h>
+
+#include "internal_text.h"
+#include "pk/error.h"
+#include "pk/objective.h"
+#include "pk/output.h"
+
+namespace pk {
+
+namespace {
+
+using internal::Cell;
+using internal::Num;
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kLog2Pi = 1.8378770664093454836;
+
+// μ and Ω as one point of the EM map.
+struct Point {
+  Eigen::VectorXd mu;
+  Eigen::MatrixXd omega;
+};
+
+class Gts {
+ public:
+  Gts(std::vector<Eigen::VectorXd> phi, std::vector<Eigen::MatrixXd> c, bool diagonal)
+      : phi_(std::move(phi)), c_(std::move(c)), diagonal_(diagonal), p_(static_cast<int>(phi_[0].size())) {}
+
+  int p() const { return p_; }
+  int n() const { return static_cast<int>(phi_.size()); }
+
+  // ℓ(μ, Ω) of pk/two_stage.h; −∞ when some Ω + C_i is not positive definite.
+  double LogLikelihood(const Point& x) const {
+    double l = 0;
+    for (int i = 0; i < n(); ++i) {
+      const Eigen::LLT<Eigen::MatrixXd> llt(x.omega + c_[i]);
+      if (llt.info() != Eigen::Success) return -std::numeric_limits<double>::infinity();
+      const Eigen::VectorXd r = phi_[i] - x.mu;
+      const Eigen::VectorXd z = llt.matrixL().solve(r);
+      l -= 0.5 * (2 * llt.matrixLLT().diagonal().array().log().sum() + z.squaredNorm() + p_ * kLog2Pi);
+    }
+    return l;
+  }
+
+  // One EM step: the E-step's shrunken estimates φ*_i and their covariances P_i,
+  // then the M-step's μ and Ω. False when some Ω + C_i is not positive definite.
+  bool Step(const Point& x, Point* next, std::vector<Eigen::VectorXd>* shrunken = nullptr) const {
+    Eigen::VectorXd sum_phi = Eigen::VectorXd::Zero(p_);
+    Eigen::MatrixXd sum_p = Eigen::MatrixXd::Zero(p_, p_);
+    std::vector<Eigen::VectorXd> star(n());
+    for (int i = 0; i < n(); ++i) {
+      const Eigen::LLT<Eigen::MatrixXd> llt(x.omega + c_[i]);
+      if (llt.info() != Eigen::Success) return false;
+      // K_i = Ω(Ω + C_i)⁻¹, computed as ((Ω + C_i)⁻¹Ω)ᵀ.
+      const Eigen::MatrixXd k = llt.solve(x.omega).transpose();
+      star[i] = x.mu + k * (phi_[i] - x.mu);
+      sum_p += x.omega - k * x.omega;  // P_i = (I − K_i)Ω
+      sum_phi += star[i];
+    }
+    next->mu = sum_phi / n();
+    Eigen::MatrixXd s = sum_p;
+    for (int i = 0; i < n(); ++i) {
+      const Eigen::VectorXd d = star[i] - next->mu;
+      s += d * d.transpose();
+    }
+    s /= n();
+    next->omega = 0.5 * (s + s.transpose());
+    if (diagonal_) next->omega = Eigen::MatrixXd(next->omega.diagonal().asDiagonal());
+    if (shrunken) *shrunken = std::move(star);
+    return true;
+  }
+
+  // The free entries of Ω (its lower triangle, or its diagonal), which are
+  // also those of its Cholesky factor L.
+  std::vector<std::pair<int, int>> OmegaEntries() const {
+    std::vector<std::pair<int, int>> e;
+    for (int j = 0; j < p_; ++j) {
+      for (int k = diagonal_ ? j : 0; k <= j; ++k) e.emplace_back(j, k);
+    }
+    return e;
+  }
+
+  // v = (μ, the free entries of L) ↦ (μ, Ω = LLᵀ).
+  Point FromFactor(const double* v) const {
+    const auto entries = OmegaEntries();
+    Point x{Eigen::Map<const Eigen::VectorXd>(v, p_), Eigen::MatrixXd::Zero(p_, p_)};
+    Eigen::MatrixXd l = Eigen::MatrixXd::Zero(p_, p_);
+    for (size_t a = 0; a < entries.size(); ++a) l(entries[a].first, entries[a].second) = v[p_ + a];
+    x.omega = l * l.transpose();
+    return x;
+  }
+
+  // ℓ at v = (μ, L) and its gradient: ∂ℓ/∂μ = Σ_i Σ_i⁻¹r_i and ∂ℓ/∂L = 2GL with
+  // G = ∂ℓ/∂Ω = ½ Σ_i (Σ_i⁻¹r_i r_iᵀΣ_i⁻¹ − Σ_i⁻¹), Σ_i = LLᵀ + C_i, r_i = φ̂_i − μ.
+  double FactorLogLikelihood(const double* v, double* gradient) const {
+    const auto entries = OmegaEntries();
+    const Point x = FromFactor(v);
+    Eigen::MatrixXd l = Eigen::MatrixXd::Zero(p_, p_);
+    for (size_t a = 0; a < entries.size(); ++a) l(entries[a].first, entries[a].second) = v[p_ + a];
+    Eigen::VectorXd g_mu = Eigen::VectorXd::Zero(p_);
+    Eigen::MatrixXd g = Eigen::MatrixXd::Zero(p_, p_);
+    double value = 0;
+    const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(p_, p_);
+    for (int i = 0; i < n(); ++i) {
+      const Eigen::LLT<Eigen::MatrixXd> llt(x.omega + c_[i]);
+      if (llt.info() != Eigen::Success) return -std::numeric_limits<double>::infinity();
+      const Eigen::VectorXd r = phi_[i] - x.mu;
+      const Eigen::VectorXd sr = llt.solve(r);
+      value -= 0.5 * (2 * llt.matrixLLT().diagonal().array().log().sum() + r.dot(sr) + p_ * kLog2Pi);
+      g_mu += sr;
+      g += 0.5 * (sr * sr.transpose() - llt.solve(identity));
+    }
+    if (gradient) {
+      Eigen::Map<Eigen::VectorXd>(gradient, p_) = g_mu;
+      const Eigen::MatrixXd gl = 2 * g * l;
+      for (size_t a = 0; a < entries.size(); ++a) gradient[p_ + a] = gl(entries[a].first, entries[a].second);
+    }
+    return value;
+  }
+
+  // The expected information about μ, Σ_i Σ_i⁻¹, and about Ω's free entries ω_a,
+  // I_ab = ½ Σ_i tr(Σ_i⁻¹ E_a Σ_i⁻¹ E_b) with E_a = ∂Ω/∂ω_a (pk/two_stage.h).
+  void Information(const Point& x, Eigen::MatrixXd* info_mu, Eigen::MatrixXd* info_omega) const {
+    const auto entries = OmegaEntries();
+    const int q = static_cast<int>(entries.size());
+    *info_mu = Eigen::MatrixXd::Zero(p_, p_);
+    *info_omega = Eigen::MatrixXd::Zero(q, q);
+    std::vector<Eigen::MatrixXd> a(q);
+    for (int i = 0; i < n(); ++i) {
+      const Eigen::MatrixXd s = (x.omega + c_[i]).llt().solve(Eigen::MatrixXd::Identity(p_, p_));
+      *info_mu += s;
+      for (int e = 0; e < q; ++e) {  // Σ⁻¹E_a: E_a has ones at (j,k) and (k,j)
+        const int j = entries[e].first, k = entries[e].second;
+        a[e] = Eigen::MatrixXd::Zero(p_, p_);
+        a[e].col(k) += s.col(j);
+        if (j != k) a[e].col(j) += s.col(k);
+      }
+      for (int e = 0; e < q; ++e) {
+        for (int f = 0; f <= e; ++f) {
+          const double t = 0.5 * (a[e].array() * a[f].transpose().array()).sum();
+          (*info_omega)(e, f) += t;
+          if (f != e) (*info_omega)(f, e) += t;
+        }
+      }
+    }
+  }
+
+ private:
+  std::vector<Eigen::VectorXd> phi_;
+  std::vector<Eigen::MatrixXd> c_;
+  bool diagonal_;
+  int p_;
+};
+
+double Median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+DescriptiveStatistics Describe(const std::string& name, const std::vector<double>& v) {
+  DescriptiveStatistics d;
+  d.name = name;
+  d.n = static_cast<int>(v.size());
+  if (v.empty()) return d;
+  double sum = 0, sum_log = 0;
+  bool positive = true;
+  for (double x : v) {
+    sum += x;
+    positive = positive && x > 0;
+    if (x > 0) sum_log += std::log(x);
+  }
+  d.mean = sum / d.n;
+  d.median = Median(v);
+  d.min = *std::min_element(v.begin(), v.end());
+  d.max = *std::max_element(v.begin(), v.end());
+  if (positive) d.geometric_mean = std::exp(sum_log / d.n);
+  if (d.n < 2) return d;
+  double ss = 0, ss_log = 0;
+  for (double x : v) {
+    ss += (x - d.mean) * (x - d.mean);
+    if (positive) ss_log += (std::log(x) - sum_log / d.n) * (std::log(x) - sum_log / d.n);
+  }
+  d.sd = std::sqrt(ss / (d.n - 1));
+  d.cv_pct = d.mean != 0 ? 100 * d.sd / std::fabs(d.mean) : kNaN;
+  if (positive) d.geometric_cv_pct = 100 * std::sqrt(std::expm1(ss_log / (d.n - 1)));
+  return d;
+}
+
+bool AllFinite(const Eigen::MatrixXd& m) { return m.size() > 0 && m.allFinite(); }
+
+struct LbfgsData {
+  const Gts* gts;
+  int evaluations = 0;
+};
+
+double NegativeLogLikelihood(unsigned n, const double* v, double* gradient, void* data) {
+  auto* d = static_cast<LbfgsData*>(data);
+  ++d->evaluations;
+  const double l = d->gts->FactorLogLikelihood(v, gradient);
+  if (gradient) {
+    for (unsigned k = 0; k < n; ++k) gradient[k] = -gradient[k];
+  }
+  return std::isfinite(l) ? -l : std::numeric_limits<double>::max();
+}
+
+// EM for a start (kEmSteps iterations: it never decreases ℓ and keeps Ω
+// positive definite), then L-BFGS over μ and Ω's Cholesky factor L, in which
+// a singular Ω (a variance or a correlation at its bound) is an ordinary
+// point, where EM would creep towards it.
+constexpr int kEmSteps = 50;
+constexpr int kLbfgsRounds = 5;
+// |∂ℓ/∂v_k|·scale_k: a move of one scale changes ℓ by less than this.
+constexpr double kGradientTolerance = 1e-6;
+
+void Maximise(const Gts& gts, const Eigen::VectorXd& scale, const TwoStageOptions& options, Point* x,
+              TwoStageSummary* out) {
+  const int p = gts.p();
+  int em = 0;
+  for (; em < std::min(kEmSteps, options.max_iterations); ++em) {
+    Point next;
+    if (!gts.Step(*x, &next)) break;
+    *x = next;
+  }
+  const auto entries = gts.OmegaEntries();
+  const int dim = p + static_cast<int>(entries.size());
+  std::vector<double> v(dim);
+  for (int j = 0; j < p; ++j) v[j] = x->mu(j);
+  const Eigen::MatrixXd l = x->omega.llt().matrixL();
+  for (size_t a = 0; a < entries.size(); ++a) v[p + a] = l(entries[a].first, entries[a].second);
+  // NLopt's L-BFGS may stop with a generic failure when its line search can
+  // no longer improve ℓ near the optimum; so convergence is judged by the
+  // gradient, with each entry in units of the parameter's scale (s_j for μ_j
+  // and L_jk), and L-BFGS restarted from its best point while that is large.
+  auto scaled_gradient = [&](const std::vector<double>& at) {
+    std::vector<double> g(dim);
+    gts.FactorLogLikelihood(at.data(), g.data());
+    double m = 0;
+    for (int j = 0; j < p; ++j) m = std::max(m, std::fabs(g[j]) * scale(j));
+    for (size_t a = 0; a < entries.size(); ++a) m = std::max(m, std::fabs(g[p + a]) * scale(entries[a].first));
+    return m;
+  };
+  LbfgsData data{&gts};
+  nlopt_result result = NLOPT_FAILURE;
+  double best = gts.FactorLogLikelihood(v.data(), nullptr);
+  for (int round = 0; round < kLbfgsRounds && em + data.evaluations < options.max_iterations; ++round) {
+    nlopt_opt opt = nlopt_create(NLOPT_LD_LBFGS, static_cast<unsigned>(dim));
+    nlopt_set_min_objective(opt, NegativeLogLikelihood, &data);
+    nlopt_set_xtol_rel(opt, options.tolerance);
+    nlopt_set_maxeval(opt, std::max(1, options.max_iterations - em - data.evaluations));
+    std::vector<double> trial = v;
+    double value = 0;
+    result = nlopt_optimize(opt, trial.data(), &value);
+    nlopt_destroy(opt);
+    const double l_trial = gts.FactorLogLikelihood(trial.data(), nullptr);
+    if (std::isfinite(l_trial) && l_trial >= best) {
+      best = l_trial;
+      v = trial;
+    }
+    if (scaled_gradient(v) <= kGradientTolerance) break;
+  }
+  out->gts_converged = scaled_gradient(v) <= kGradientTolerance;
+  out->gts_iterations = em + data.evaluations;
+  if (!out->gts_converged) {
+    out->gts_message = std::string("the maximisation stopped short of a stationary point after ") +
+                       std::to_string(out->gts_iterations) + " iterations (L-BFGS: " + nlopt_result_to_string(result) + ")";
+  }
+  *x = gts.FromFactor(v.data());
+}
+
+void RunGts(const std::vector<Eigen::VectorXd>& phi, const std::vector<Eigen::MatrixXd>& c,
+            const TwoStageOptions& options, TwoStageSummary* out) {
+  const bool log_normal = options.distribution == BetweenSubjectModel::kLogNormal;
+  const Gts gts(phi, c, options.diagonal_omega);
+  const int p = gts.p(), n = gts.n();
+  // Start from the STS mean and the estimates' covariance (divisor n) less the
+  // mean C_i: its positive part, plus a tenth of mean C_i's diagonal.
+  Point x{Eigen::VectorXd::Zero(p), Eigen::MatrixXd::Zero(p, p)};
+  Eigen::MatrixXd mean_c = Eigen::MatrixXd::Zero(p, p);
+  for (int i = 0; i < n; ++i) {
+    x.mu += phi[i] / n;
+    mean_c += c[i] / n;
+  }
+  Eigen::MatrixXd s = Eigen::MatrixXd::Zero(p, p);
+  for (int i = 0; i < n; ++i) s += (phi[i] - x.mu) * (phi[i] - x.mu).transpose() / n;
+  const Eigen::VectorXd scale = (s.diagonal() + mean_c.diagonal()).cwiseSqrt().cwiseMax(1e-300);
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(s - mean_c);
+  x.omega = eig.eigenvectors() * eig.eigenvalues().cwiseMax(0).asDiagonal() * eig.eigenvectors().transpose();
+  x.omega.diagonal() += 0.1 * mean_c.diagonal();
+  if (options.diagonal_omega) x.omega = Eigen::MatrixXd(x.omega.diagonal().asDiagonal());
+
+  Maximise(gts, scale, options, &x, out);
+
+  out->mu = x.mu;
+  out->omega = x.omega;
+  out->minus2ll = -2 * gts.LogLikelihood(x);
+  Eigen::MatrixXd info_mu, info_omega;
+  gts.Information(x, &info_mu, &info_omega);
+  out->mu_covariance = info_mu.llt().solve(Eigen::MatrixXd::Identity(p, p));
+  out->omega_se = Eigen::MatrixXd::Constant(p, p, kNaN);
+  const auto entries = gts.OmegaEntries();
+  Eigen::FullPivLU<Eigen::MatrixXd> lu(info_omega);
+  if (lu.isInvertible()) {
+    const Eigen::MatrixXd cov = lu.inverse();
+    for (size_t a = 0; a < entries.size(); ++a) {
+      const double v = cov(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(a));
+      out->omega_se(entries[a].first, entries[a].second) = out->omega_se(entries[a].second, entries[a].first) =
+          v > 0 ? std::sqrt(v) : kNaN;
+    }
+  }
+  out->omega_correlation = Eigen::MatrixXd::Identity(p, p);
+  for (int j = 0; j < p; ++j) {
+    for (int k = 0; k < j; ++k) {
+      const double d = std::sqrt(x.omega(j, j) * x.omega(k, k));
+      out->omega_correlation(j, k) = out->omega_correlation(k, j) = d > 0 ? x.omega(j, k) / d : kNaN;
+    }
+  }
+  std::vector<std::string> at_zero;
+  for (int j = 0; j < p; ++j) {
+    PopulationParameter q;
+    q.name = out->parameters[j];
+    const double se_mu = std::sqrt(out->mu_covariance(j, j));
+    q.typical = log_normal ? std::exp(x.mu(j)) : x.mu(j);
+    q.typical_se = log_normal ? q.typical * se_mu : se_mu;
+    q.typical_rse_pct = 100 * q.typical_se / std::fabs(q.typical);
+    q.omega2 = x.omega(j, j);
+    q.omega2_se = out->omega_se(j, j);
+    q.omega2_rse_pct = 100 * q.omega2_se / q.omega2;
+    q.bsv_cv_pct = log_normal ? 100 * std::sqrt(std::expm1(q.omega2)) : 100 * std::sqrt(q.omega2) / std::fabs(x.mu(j));
+    out->population.push_back(q);
+    if (q.omega2 < 1e-6 * scale(j) * scale(j)) at_zero.push_back(q.name);
+  }
+  auto note = [&](const std::string& text) {
+    if (!out->gts_message.empty()) out->gts_message += "; ";
+    out->gts_message += text;
+  };
+  if (!at_zero.empty()) {
+    note("the between-subject variance of " + internal::Join(at_zero, ", ") +
+         " is at its bound of 0: the estimates vary no more than their standard errors explain");
+  } else if (!options.diagonal_omega && p > 1) {
+    const Eigen::VectorXd r = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(out->omega_correlation).eigenvalues();
+    if (r.minCoeff() < 1e-6) {
+      note("Ω is singular (the smallest eigenvalue of its correlation matrix is " + Num(std::max(0.0, r.minCoeff()), "%.2g") +
+           "): some random effects are perfectly correlated; consider a diagonal Ω");
+    }
+  }
+  std::vector<Eigen::VectorXd> star;
+  Point unused;
+  gts.Step(x, &unused, &star);
+  out->shrunken.resize(n, p);
+  for (int i = 0; i < n; ++i) {
+    out->shrunken.row(i) = log_normal ? Eigen::VectorXd(star[i].array().exp()).transpose() : star[i].transpose();
+  }
+  out->gts_ok = true;
+}
+
+}  // namespace
+
+const char* ToString(BetweenSubjectModel m) {
+  return m == BetweenSubjectModel::kLogNormal ? "log-normal" : "normal";
+}
+
+bool TwoStageOptions::IsValid(std::string* error) const {
+  std::string why;
+  if (max_iterations < 1) why = "max_iterations must be at least 1";
+  if (!(tolerance > 0) || !std::isfinite(tolerance)) why = "tolerance must be positive and finite";
+  if (error) *error = why;
+  return why.empty();
+}
+
+TwoStageSummary EstimateTwoStage(const std::vector<std::string>& names, const std::vector<double>& ids,
+                                 const std::vector<Eigen::VectorXd>& estimates,
+                                 const std::vector<Eigen::MatrixXd>& covariances, const TwoStageOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("", 0, 0, "two-stage options: " + why);
+  const int p = static_cast<int>(names.size());
+  if (ids.size() != estimates.size() || ids.size() != covariances.size()) {
+    throw InputError("", 0, 0, "two-stage: IDs, estimates and covariances differ in number");
+  }
+  TwoStageSummary out;
+  out.distribution = options.distribution;
+  out.diagonal_omega = options.diagonal_omega;
+  out.parameters = names;
+  const bool log_normal = options.distribution == BetweenSubjectModel::kLogNormal;
+  std::vector<std::vector<double>> columns(p);
+  std::vector<Eigen::VectorXd> phi;
+  std::vector<Eigen::MatrixXd> c;
+  for (size_t i = 0; i < ids.size(); ++i) {
+    const Eigen::VectorXd& theta = estimates[i];
+    const Eigen::MatrixXd& cov = covariances[i];
+    if (theta.size() != p || (cov.size() > 0 && (cov.rows() != p || cov.cols() != p))) {
+      throw InputError("", 0, 0, "two-stage: subject " + FormatNumber(ids[i]) + " has estimates of another size");
+    }
+    if (!theta.allFinite()) {
+      out.excluded.emplace_back(ids[i], "an estimate is not finite");
+      continue;
+    }
+    out.sts_ids.push_back(ids[i]);
+    for (int j = 0; j < p; ++j) columns[j].push_back(theta(j));
+    if (log_normal && (theta.array() <= 0).any()) {
+      int j = 0;
+      while (theta(j) > 0) ++j;
+      out.excluded.emplace_back(ids[i], "GTS: " + names[j] + " = " + Num(theta(j)) + " is not positive (log-normal model)");
+      continue;
+    }
+    if (!AllFinite(cov)) {
+      out.excluded.emplace_back(ids[i], "GTS: no covariance of the estimates");
+      continue;
+    }
+    // C_i on the scale of φ: D⁻¹ Cov D⁻¹ for φ = log θ.
+    const Eigen::VectorXd d = log_normal ? Eigen::VectorXd(theta.cwiseInverse()) : Eigen::VectorXd::Ones(p);
+    Eigen::MatrixXd ci = d.asDiagonal() * cov * d.asDiagonal();
+    ci = 0.5 * (ci + ci.transpose());
+    if (ci.llt().info() != Eigen::Success) {
+      out.excluded.emplace_back(ids[i], "GTS: the covariance of the estimates is not positive definite");
+      continue;
+    }
+    out.gts_ids.push_back(ids[i]);
+    phi.push_back(log_normal ? Eigen::VectorXd(theta.array().log()) : theta);
+    c.push_back(ci);
+  }
+  for (int j = 0; j < p; ++j) out.descriptive.push_back(Describe(names[j], columns[j]));
+  if (p == 0) {
+    out.gts_message = "no structural parameter was estimated";
+  } else if (phi.size() < 2) {
+    out.gts_message = "GTS needs at least two subjects with covariances; there " +
+                      std::string(phi.size() == 1 ? "is 1" : "are 0");
+  } else {
+    RunGts(phi, c, options, &out);
+  }
+  return out;
+}
+
+TwoStageSummary EstimateTwoStage(const std::vector<SubjectFit>& fits, const TwoStageOptions& options) {
+  std::vector<std::string> names;
+  bool have_names = false;
+  std::vector<double> ids;
+  std::vector<Eigen::VectorXd> estimates;
+  std::vector<Eigen::MatrixXd> covariances;
+  std::vector<std::pair<double, std::string>> excluded;
+  for (const SubjectFit& f : fits) {
+    if (!f.ok) {
+      excluded.emplace_back(f.id, "not fitted: " + f.error);
+      continue;
+    }
+    if (!f.summary.converged()) {
+      excluded.emplace_back(f.id, "the fit did not converge (" + f.summary.message + ")");
+      continue;
+    }
+    std::vector<int> index;  // into summary.estimated
+    std::vector<std::string> mine;
+    for (size_t k = 0; k < f.summary.estimated.size(); ++k) {
+      if (IsResidualErrorName(f.summary.estimated[k])) continue;
+      index.push_back(static_cast<int>(k));
+      mine.push_back(f.summary.estimated[k]);
+    }
+    if (!have_names) {
+      names = mine;
+      have_names = true;
+    } else if (mine != names) {
+      excluded.emplace_back(f.id, "estimates other parameters (" + internal::Join(mine, ", ") + ")");
+      continue;
+    }
+    const int p = static_cast<int>(index.size());
+    Eigen::VectorXd theta(p);
+    for (int j = 0; j < p; ++j) {
+      const auto it = std::find_if(f.summary.estimates.begin(), f.summary.estimates.end(),
+                                   [&](const ParameterEstimate& e) { return e.name == mine[j]; });
+      theta(j) = it != f.summary.estimates.end() ? it->estimate : kNaN;
+    }
+    Eigen::MatrixXd cov;
+    const Eigen::MatrixXd& full = f.summary.covariance;
+    if (full.rows() == static_cast<Eigen::Index>(f.summary.estimated.size()) && full.cols() == full.rows()) {
+      cov.resize(p, p);
+      for (int j = 0; j < p; ++j) {
+        for (int k = 0; k < p; ++k) cov(j, k) = full(index[j], index[k]);
+      }
+    }
+    ids.push_back(f.id);
+    estimates.push_back(theta);
+    covariances.push_back(cov);
+  }
+  TwoStageSummary out = EstimateTwoStage(names, ids, estimates, covariances, options);
+  out.excluded.insert(out.excluded.begin(), excluded.begin(), excluded.end());
+  return out;
+}
+
+std::string TwoStageSummary::BriefReport() const {
+  std::ostringstream out;
+  out << "two-stage population estimates (" << ToString(distribution) << "): STS over " << sts_ids.size()
+      << " subjects";
+  if (gts_ok) {
+    out << "; GTS over " << gts_ids.size() << " subjects, " << (diagonal_omega ? "diagonal" : "full") << " Ω, "
+        << (gts_converged ? "converged" : "not converged") << " after " << gts_iterations << " iterations, -2LL "
+        << Num(minus2ll);
+  } else {
+    out << "; no GTS";
+  }
+  if (!gts_message.empty()) out << " (" << gts_message << ")";
+  return out.str();
+}
+
+std::string TwoStageSummary::FullReport() const {
+  std::ostringstream out;
+  out << BriefReport() << "\n\n";
+  char line[512];
+  std::snprintf(line, sizeof line, "  %-10s %4s %11s %11s %7s %11s %8s %11s %11s %11s\n", "STS", "N", "mean", "SD",
+                "CV%", "geo. mean", "geo. CV%", "median", "min", "max");
+  out << line;
+  for (const DescriptiveStatistics& d : descriptive) {
+    std::snprintf(line, sizeof line, "  %-10s %4d %s %s %s %s %s %s %s %s\n", d.name.c_str(), d.n,
+                  Cell(d.mean, "%.5g", 11).c_str(), Cell(d.sd, "%.4g", 11).c_str(), Cell(d.cv_pct, "%.3g", 7).c_str(),
+                  Cell(d.geometric_mean, "%.5g", 11).c_str(), Cell(d.geometric_cv_pct, "%.3g", 8).c_str(),
+                  Cell(d.median, "%.5g", 11).c_str(), Cell(d.min, "%.5g", 11).c_str(), Cell(d.max, "%.5g", 11).c_str());
+    out << line;
+  }
+  if (gts_ok) {
+    std::snprintf(line, sizeof line, "\n  %-10s %11s %11s %7s %11s %11s %7s %8s\n", "GTS", "typical", "SE", "RSE%",
+                  "omega^2", "SE", "RSE%", "BSV CV%");
+    out << line;
+    for (const PopulationParameter& q : population) {
+      std::snprintf(line, sizeof line, "  %-10s %s %s %s %s %s %s %s\n", q.name.c_str(), Cell(q.typical, "%.5g", 11).c_str(),
+                    Cell(q.typical_se, "%.4g", 11).c_str(), Cell(q.typical_rse_pct, "%.3g", 7).c_str(),
+                    Cell(q.omega2, "%.4g", 11).c_str(), Cell(q.omega2_se, "%.4g", 11).c_str(),
+                    Cell(q.omega2_rse_pct, "%.3g", 7).c_str(), Cell(q.bsv_cv_pct, "%.3g", 8).c_str());
+      out << line;
+    }
+    if (!diagonal_omega && parameters.size() > 1) {
+      out << "\n  correlation of the random effects\n";
+      for (size_t j = 0; j < parameters.size(); ++j) {
+        std::snprintf(line, sizeof line, "  %-10s", parameters[j].c_str());
+        out << line;
+        for (size_t k = 0; k <= j; ++k) {
+          out << " " << Cell(omega_correlation(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(k)), "%.3f", 7);
+        }
+        out << "\n";
+      }
+    }
+  }
+  for (const auto& e : excluded) out << "  left out: ID " << FormatNumber(e.first) << ": " << e.second << "\n";
+  return out.str();
+}
+
+}  // namespace pk
