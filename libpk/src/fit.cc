@@ -977,15 +977,7 @@ std::string FitSummary::FullReport() const {
   }
   if (!covariance_message.empty()) out << "  (" << CovarianceNote() << ")\n";
   if (correlation.size() > 0 && estimated.size() > 1) {
-    out << "\n  correlation\n";
-    for (size_t i = 0; i < estimated.size(); ++i) {
-      std::snprintf(line, sizeof line, "  %-12s", estimated[i].c_str());
-      out << line;
-      for (size_t j = 0; j <= i; ++j) {
-        out << " " << Cell(correlation(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)), "%.3f", 7);
-      }
-      out << "\n";
-    }
+    out << "\n  correlation\n" << internal::LowerTriangle(estimated, correlation, 12);
   }
   out << "\n  samples " << num_samples << ", evaluations " << evaluations << ", best start " << best_start
       << "\n  -2LL " << Num(minus2ll) << ", AIC " << Num(aic) << ", BIC " << Num(bic) << "\n";

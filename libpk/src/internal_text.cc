@@ -54,5 +54,15 @@ std::string Cell(double v, const char* fmt, int width) {
   return std::string(static_cast<size_t>(std::max(0, width - columns)), ' ') + text;
 }
 
+std::string LowerTriangle(const std::vector<std::string>& names, const Eigen::MatrixXd& m, int name_width) {
+  std::string out;
+  for (size_t i = 0; i < names.size(); ++i) {
+    out += "  " + names[i] + std::string(static_cast<size_t>(std::max(0, name_width - static_cast<int>(names[i].size()))), ' ');
+    for (size_t j = 0; j <= i; ++j) out += " " + Cell(m(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)), "%.3f", 7);
+    out += "\n";
+  }
+  return out;
+}
+
 }  // namespace internal
 }  // namespace pk

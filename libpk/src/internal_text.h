@@ -5,6 +5,8 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Core>
+
 namespace pk {
 namespace internal {
 
@@ -17,6 +19,9 @@ std::string Join(const std::vector<std::string>& items, const std::string& separ
 std::string Num(double v, const char* fmt = "%.6g");
 /// A table cell of `width` columns, right-aligned; "–" when v is not finite.
 std::string Cell(double v, const char* fmt, int width);
+/// The lower triangle of a correlation matrix, a row per name (names left-aligned
+/// in `name_width` columns, indented by two spaces), three decimals.
+std::string LowerTriangle(const std::vector<std::string>& names, const Eigen::MatrixXd& m, int name_width);
 
 }  // namespace internal
 }  // namespace pk

@@ -538,15 +538,7 @@ std::string TwoStageSummary::FullReport() const {
       out << line;
     }
     if (!diagonal_omega && parameters.size() > 1) {
-      out << "\n  correlation of the random effects\n";
-      for (size_t j = 0; j < parameters.size(); ++j) {
-        std::snprintf(line, sizeof line, "  %-10s", parameters[j].c_str());
-        out << line;
-        for (size_t k = 0; k <= j; ++k) {
-          out << " " << Cell(omega_correlation(static_cast<Eigen::Index>(j), static_cast<Eigen::Index>(k)), "%.3f", 7);
-        }
-        out << "\n";
-      }
+      out << "\n  correlation of the random effects\n" << internal::LowerTriangle(parameters, omega_correlation, 10);
     }
   }
   for (const auto& e : excluded) out << "  left out: ID " << FormatNumber(e.first) << ": " << e.second << "\n";
