@@ -11,7 +11,8 @@ mkdir -p out
 
 echo "== pkfit: theophylline (12 subjects, single oral dose), 1cmt_oral, least squares =="
 build/apps/pkfit --model 1cmt_oral --data datasets/theophylline.csv --output-dir out/theophylline
-echo "open out/theophylline/report.html for the fits, goodness-of-fit plots, standard errors and correlations"
+echo "open out/theophylline/report.html for the fits, goodness-of-fit plots, standard errors, correlations and the"
+echo "two-stage population summary (out/theophylline/population.csv)"
 echo
 
 echo "== pkfit: theophylline below an imposed limit of 2 mg/L (27 of 132 samples censored), Beal's M3 =="

@@ -314,6 +314,8 @@ TEST_CASE("GTS takes an Omega variance to its bound of 0 when the estimates vary
   CHECK(s.gts_iterations < 500);  // EM alone creeps towards a bound
   if (s.omega(1, 1) < 1e-6) {
     CHECK(s.gts_message.find("between-subject variance of CL is at its bound of 0") != std::string::npos);
+    CHECK(std::isnan(s.population[1].omega2_rse_pct));
+    CHECK(std::isfinite(s.population[0].omega2_rse_pct));
   }
   // Whether it reached 0 or stopped above: the profile likelihood in Ω_CL,CL falls from there.
   const double l = LogLikelihood(s.mu, s.omega, in.phi, in.c);

@@ -339,8 +339,11 @@ void RunGts(const std::vector<Eigen::VectorXd>& phi, const std::vector<Eigen::Ma
     q.omega2_se = out->omega_se(j, j);
     q.omega2_rse_pct = 100 * q.omega2_se / q.omega2;
     q.bsv_cv_pct = log_normal ? 100 * std::sqrt(std::expm1(q.omega2)) : 100 * std::sqrt(q.omega2) / std::fabs(x.mu(j));
+    if (q.omega2 < 1e-6 * scale(j) * scale(j)) {  // at its bound: a relative SE means nothing
+      at_zero.push_back(q.name);
+      q.omega2_rse_pct = kNaN;
+    }
     out->population.push_back(q);
-    if (q.omega2 < 1e-6 * scale(j) * scale(j)) at_zero.push_back(q.name);
   }
   auto note = [&](const std::string& text) {
     if (!out->gts_message.empty()) out->gts_message += "; ";
