@@ -157,11 +157,17 @@ TEST_CASE("two-stage on R's stage one: the same STS statistics and GTS optimum a
       CHECK(q.typical == Approx(ref.Get(label, "typical", "", kNames[j])).epsilon(1e-5));
       CHECK(q.typical_se == Approx(ref.Get(label, "typical_se", "", kNames[j])).epsilon(1e-4));
       CHECK(q.bsv_cv_pct == Approx(ref.Get(label, "bsv_cv_pct", "", kNames[j])).epsilon(1e-4));
+      CHECK(q.typical_rse_pct == Approx(100 * q.typical_se / q.typical).epsilon(1e-12));
+      CHECK(q.omega2_rse_pct == Approx(100 * q.omega2_se / q.omega2).epsilon(1e-12));
       for (int k = 0; k <= j; ++k) {
         if (diagonal && k != j) continue;
         INFO(kNames[k]);
-        CHECK(s.omega(j, k) == Approx(ref.Get(label, "omega", "", kNames[j], kNames[k])).margin(1e-5));
+        const double r_omega = ref.Get(label, "omega", "", kNames[j], kNames[k]);
+        CHECK(s.omega(j, k) == Approx(r_omega).margin(1e-5));
         CHECK(s.omega_se(j, k) == Approx(ref.Get(label, "omega_se", "", kNames[j], kNames[k])).epsilon(1e-3));
+        const double r_corr = r_omega / std::sqrt(ref.Get(label, "omega", "", kNames[j], kNames[j]) *
+                                                  ref.Get(label, "omega", "", kNames[k], kNames[k]));
+        CHECK(s.omega_correlation(j, k) == Approx(r_corr).margin(1e-4));
       }
     }
     if (diagonal) CHECK(s.omega(1, 0) == 0);
@@ -227,6 +233,11 @@ TEST_CASE("GTS ends where the marginal likelihood is stationary, for a full and 
   CHECK(s.gts_converged);
   const double l = LogLikelihood(s.mu, s.omega, in.phi, in.c);
   CHECK(s.minus2ll == Approx(-2 * l).epsilon(1e-12));
+  // At the optimum μ is the mean of the shrunken estimates (the M-step's fixed point).
+  REQUIRE(s.shrunken.rows() == 25);
+  for (int j = 0; j < 3; ++j) {
+    CHECK(s.shrunken.col(j).array().log().mean() == Approx(s.mu(j)).margin(1e-6 * std::sqrt(s.mu_covariance(j, j))));
+  }
   // ℓ is maximised over μ and positive semi-definite Ω = SSᵀ. Its derivatives in μ
   // and in the entries of Ω's symmetric square root S (the diagonal of S for a
   // diagonal Ω) by central differences vanish, also where Ω is singular.
@@ -290,6 +301,8 @@ TEST_CASE("GTS with estimation errors of nearly 0 is the sample mean and the cov
     CHECK(s.population[j].bsv_cv_pct == Approx(100 * std::sqrt(std::expm1(cov(j, j)))).epsilon(1e-8));
     CHECK(s.descriptive[j].geometric_cv_pct == Approx(100 * std::sqrt(std::expm1(cov(j, j) * 15 / 14))).epsilon(1e-12));
     for (int k = 0; k < 3; ++k) CHECK(s.omega(j, k) == Approx(cov(j, k)).margin(1e-9));
+    // Nothing to shrink: the shrunken estimates are the estimates.
+    for (int i = 0; i < 15; ++i) CHECK(s.shrunken(i, j) == Approx(in.theta[i](j)).epsilon(1e-9));
     // With C_i = 0: Cov(μ̂) = Ω/N, Var(ω̂_jj) = 2ω_jj²/N.
     CHECK(s.mu_covariance(j, j) == Approx(cov(j, j) / 15).epsilon(1e-8));
     CHECK(s.omega_se(j, j) == Approx(std::sqrt(2.0 / 15) * cov(j, j)).epsilon(1e-6));
@@ -323,6 +336,32 @@ TEST_CASE("GTS takes an Omega variance to its bound of 0 when the estimates vary
   more(1, 1) += 1e-4;
   CHECK(LogLikelihood(s.mu, more, in.phi, in.c) < l);
   CHECK(s.omega(1, 1) < 0.2 * 0.05 * 0.2);  // far below the estimation error's variance
+}
+
+TEST_CASE("GTS names a singular full Omega: random effects that move together", "[two_stage]") {
+  // log CL and log V vary together exactly (V = 10·CL in every subject), KA on its own.
+  std::mt19937 rng(4);
+  std::normal_distribution<double> z(0, 1);
+  std::vector<double> ids;
+  std::vector<Eigen::VectorXd> theta;
+  std::vector<Eigen::MatrixXd> cov;
+  for (int i = 0; i < 30; ++i) {
+    const double eta = 0.3 * z(rng);
+    Eigen::VectorXd t(3);
+    t << std::exp(0.4 + 0.4 * z(rng)), std::exp(1.1 + eta), std::exp(3.4 + eta);
+    ids.push_back(i + 1);
+    theta.push_back(t);
+    cov.push_back(1e-3 * t.asDiagonal() * Eigen::MatrixXd::Identity(3, 3) * t.asDiagonal());
+  }
+  pk::TwoStageOptions options;
+  const pk::TwoStageSummary s = pk::EstimateTwoStage(kNames, ids, theta, cov, options);
+  INFO(s.FullReport());
+  REQUIRE(s.gts_ok);
+  CHECK(s.gts_converged);
+  CHECK(s.omega_correlation(2, 1) == Approx(1).margin(1e-6));
+  CHECK(s.gts_message.find("Ω is singular") != std::string::npos);
+  options.diagonal_omega = true;
+  CHECK(pk::EstimateTwoStage(kNames, ids, theta, cov, options).gts_message.empty());
 }
 
 TEST_CASE("a simulated population: GTS recovers the truth, where STS's variances hold the estimation error",

@@ -42,43 +42,52 @@ class Gts {
   int n() const { return static_cast<int>(phi_.size()); }
 
   // ℓ(μ, Ω) of pk/two_stage.h; −∞ when some Ω + C_i is not positive definite.
-  double LogLikelihood(const Point& x) const {
+  // With g_mu and g also its gradient: ∂ℓ/∂μ = Σ_i Σ_i⁻¹r_i and
+  // G = ∂ℓ/∂Ω = ½ Σ_i (Σ_i⁻¹r_i r_iᵀΣ_i⁻¹ − Σ_i⁻¹), Σ_i = Ω + C_i, r_i = φ̂_i − μ.
+  double LogLikelihood(const Point& x, Eigen::VectorXd* g_mu = nullptr, Eigen::MatrixXd* g = nullptr) const {
+    if (g_mu) *g_mu = Eigen::VectorXd::Zero(p_);
+    if (g) *g = Eigen::MatrixXd::Zero(p_, p_);
     double l = 0;
     for (int i = 0; i < n(); ++i) {
       const Eigen::LLT<Eigen::MatrixXd> llt(x.omega + c_[i]);
       if (llt.info() != Eigen::Success) return -std::numeric_limits<double>::infinity();
       const Eigen::VectorXd r = phi_[i] - x.mu;
-      const Eigen::VectorXd z = llt.matrixL().solve(r);
-      l -= 0.5 * (2 * llt.matrixLLT().diagonal().array().log().sum() + z.squaredNorm() + p_ * kLog2Pi);
+      const Eigen::VectorXd sr = llt.solve(r);
+      l -= 0.5 * (2 * llt.matrixLLT().diagonal().array().log().sum() + r.dot(sr) + p_ * kLog2Pi);
+      if (g_mu) *g_mu += sr;
+      if (g) *g += 0.5 * (sr * sr.transpose() - llt.solve(Eigen::MatrixXd::Identity(p_, p_)));
     }
     return l;
   }
 
-  // One EM step: the E-step's shrunken estimates φ*_i and their covariances P_i,
-  // then the M-step's μ and Ω. False when some Ω + C_i is not positive definite.
-  bool Step(const Point& x, Point* next, std::vector<Eigen::VectorXd>* shrunken = nullptr) const {
-    Eigen::VectorXd sum_phi = Eigen::VectorXd::Zero(p_);
-    Eigen::MatrixXd sum_p = Eigen::MatrixXd::Zero(p_, p_);
-    std::vector<Eigen::VectorXd> star(n());
+  // The E-step: the shrunken estimates φ*_i = μ + K_i(φ̂_i − μ) with
+  // K_i = Ω(Ω + C_i)⁻¹, and Σ_i P_i with P_i = (I − K_i)Ω their covariances.
+  // False when some Ω + C_i is not positive definite.
+  bool Shrink(const Point& x, std::vector<Eigen::VectorXd>* star, Eigen::MatrixXd* sum_p) const {
+    star->resize(n());
+    *sum_p = Eigen::MatrixXd::Zero(p_, p_);
     for (int i = 0; i < n(); ++i) {
       const Eigen::LLT<Eigen::MatrixXd> llt(x.omega + c_[i]);
       if (llt.info() != Eigen::Success) return false;
-      // K_i = Ω(Ω + C_i)⁻¹, computed as ((Ω + C_i)⁻¹Ω)ᵀ.
-      const Eigen::MatrixXd k = llt.solve(x.omega).transpose();
-      star[i] = x.mu + k * (phi_[i] - x.mu);
-      sum_p += x.omega - k * x.omega;  // P_i = (I − K_i)Ω
-      sum_phi += star[i];
+      const Eigen::MatrixXd k = llt.solve(x.omega).transpose();  // ((Ω + C_i)⁻¹Ω)ᵀ
+      (*star)[i] = x.mu + k * (phi_[i] - x.mu);
+      *sum_p += x.omega - k * x.omega;
     }
-    next->mu = sum_phi / n();
-    Eigen::MatrixXd s = sum_p;
-    for (int i = 0; i < n(); ++i) {
-      const Eigen::VectorXd d = star[i] - next->mu;
-      s += d * d.transpose();
-    }
+    return true;
+  }
+
+  // One EM step: the E-step, then the M-step's μ = mean φ*_i and
+  // Ω = mean [P_i + (φ*_i − μ)(φ*_i − μ)ᵀ] (its diagonal for a diagonal Ω).
+  bool Step(const Point& x, Point* next) const {
+    std::vector<Eigen::VectorXd> star;
+    Eigen::MatrixXd s;
+    if (!Shrink(x, &star, &s)) return false;
+    next->mu = Eigen::VectorXd::Zero(p_);
+    for (const Eigen::VectorXd& e : star) next->mu += e / n();
+    for (const Eigen::VectorXd& e : star) s += (e - next->mu) * (e - next->mu).transpose();
     s /= n();
     next->omega = 0.5 * (s + s.transpose());
     if (diagonal_) next->omega = Eigen::MatrixXd(next->omega.diagonal().asDiagonal());
-    if (shrunken) *shrunken = std::move(star);
     return true;
   }
 
@@ -92,41 +101,30 @@ class Gts {
     return e;
   }
 
-  // v = (μ, the free entries of L) ↦ (μ, Ω = LLᵀ).
-  Point FromFactor(const double* v) const {
+  // L from v = (μ, the free entries of L).
+  Eigen::MatrixXd Factor(const double* v) const {
     const auto entries = OmegaEntries();
-    Point x{Eigen::Map<const Eigen::VectorXd>(v, p_), Eigen::MatrixXd::Zero(p_, p_)};
     Eigen::MatrixXd l = Eigen::MatrixXd::Zero(p_, p_);
     for (size_t a = 0; a < entries.size(); ++a) l(entries[a].first, entries[a].second) = v[p_ + a];
-    x.omega = l * l.transpose();
-    return x;
+    return l;
   }
 
-  // ℓ at v = (μ, L) and its gradient: ∂ℓ/∂μ = Σ_i Σ_i⁻¹r_i and ∂ℓ/∂L = 2GL with
-  // G = ∂ℓ/∂Ω = ½ Σ_i (Σ_i⁻¹r_i r_iᵀΣ_i⁻¹ − Σ_i⁻¹), Σ_i = LLᵀ + C_i, r_i = φ̂_i − μ.
+  // v = (μ, the free entries of L) ↦ (μ, Ω = LLᵀ).
+  Point FromFactor(const double* v) const {
+    const Eigen::MatrixXd l = Factor(v);
+    return Point{Eigen::Map<const Eigen::VectorXd>(v, p_), l * l.transpose()};
+  }
+
+  // ℓ at v = (μ, L), and its gradient there: ∂ℓ/∂μ, and ∂ℓ/∂L = 2GL.
   double FactorLogLikelihood(const double* v, double* gradient) const {
+    if (!gradient) return LogLikelihood(FromFactor(v));
+    Eigen::VectorXd g_mu;
+    Eigen::MatrixXd g;
+    const double value = LogLikelihood(FromFactor(v), &g_mu, &g);
+    Eigen::Map<Eigen::VectorXd>(gradient, p_) = g_mu;
+    const Eigen::MatrixXd gl = 2 * g * Factor(v);
     const auto entries = OmegaEntries();
-    const Point x = FromFactor(v);
-    Eigen::MatrixXd l = Eigen::MatrixXd::Zero(p_, p_);
-    for (size_t a = 0; a < entries.size(); ++a) l(entries[a].first, entries[a].second) = v[p_ + a];
-    Eigen::VectorXd g_mu = Eigen::VectorXd::Zero(p_);
-    Eigen::MatrixXd g = Eigen::MatrixXd::Zero(p_, p_);
-    double value = 0;
-    const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(p_, p_);
-    for (int i = 0; i < n(); ++i) {
-      const Eigen::LLT<Eigen::MatrixXd> llt(x.omega + c_[i]);
-      if (llt.info() != Eigen::Success) return -std::numeric_limits<double>::infinity();
-      const Eigen::VectorXd r = phi_[i] - x.mu;
-      const Eigen::VectorXd sr = llt.solve(r);
-      value -= 0.5 * (2 * llt.matrixLLT().diagonal().array().log().sum() + r.dot(sr) + p_ * kLog2Pi);
-      g_mu += sr;
-      g += 0.5 * (sr * sr.transpose() - llt.solve(identity));
-    }
-    if (gradient) {
-      Eigen::Map<Eigen::VectorXd>(gradient, p_) = g_mu;
-      const Eigen::MatrixXd gl = 2 * g * l;
-      for (size_t a = 0; a < entries.size(); ++a) gradient[p_ + a] = gl(entries[a].first, entries[a].second);
-    }
+    for (size_t a = 0; a < entries.size(); ++a) gradient[p_ + a] = gl(entries[a].first, entries[a].second);
     return value;
   }
 
@@ -175,27 +173,30 @@ DescriptiveStatistics Describe(const std::string& name, const std::vector<double
   d.name = name;
   d.n = static_cast<int>(v.size());
   if (v.empty()) return d;
-  double sum = 0, sum_log = 0;
-  bool positive = true;
-  for (double x : v) {
-    sum += x;
-    positive = positive && x > 0;
-    if (x > 0) sum_log += std::log(x);
+  const bool positive = std::all_of(v.begin(), v.end(), [](double x) { return x > 0; });
+  std::vector<double> logs;
+  if (positive) {
+    for (double x : v) logs.push_back(std::log(x));
   }
-  d.mean = sum / d.n;
+  // Mean and SD (divisor n − 1; NaN for one value).
+  auto moments = [](const std::vector<double>& x, double* mean, double* sd) {
+    double sum = 0, ss = 0;
+    for (double e : x) sum += e;
+    *mean = sum / x.size();
+    for (double e : x) ss += (e - *mean) * (e - *mean);
+    *sd = x.size() > 1 ? std::sqrt(ss / (x.size() - 1)) : kNaN;
+  };
+  moments(v, &d.mean, &d.sd);
+  d.cv_pct = d.mean != 0 ? 100 * d.sd / std::fabs(d.mean) : kNaN;
   d.median = Median(v);
   d.min = *std::min_element(v.begin(), v.end());
   d.max = *std::max_element(v.begin(), v.end());
-  if (positive) d.geometric_mean = std::exp(sum_log / d.n);
-  if (d.n < 2) return d;
-  double ss = 0, ss_log = 0;
-  for (double x : v) {
-    ss += (x - d.mean) * (x - d.mean);
-    if (positive) ss_log += (std::log(x) - sum_log / d.n) * (std::log(x) - sum_log / d.n);
+  if (positive) {
+    double mean_log = 0, sd_log = 0;
+    moments(logs, &mean_log, &sd_log);
+    d.geometric_mean = std::exp(mean_log);
+    d.geometric_cv_pct = 100 * std::sqrt(std::expm1(sd_log * sd_log));
   }
-  d.sd = std::sqrt(ss / (d.n - 1));
-  d.cv_pct = d.mean != 0 ? 100 * d.sd / std::fabs(d.mean) : kNaN;
-  if (positive) d.geometric_cv_pct = 100 * std::sqrt(std::expm1(ss_log / (d.n - 1)));
   return d;
 }
 
@@ -269,9 +270,9 @@ void Maximise(const Gts& gts, const Eigen::VectorXd& scale, const TwoStageOption
       best = l_trial;
       v = trial;
     }
-    if (scaled_gradient(v) <= kGradientTolerance) break;
+    out->gts_converged = scaled_gradient(v) <= kGradientTolerance;
+    if (out->gts_converged) break;
   }
-  out->gts_converged = scaled_gradient(v) <= kGradientTolerance;
   out->gts_iterations = em + data.evaluations;
   if (!out->gts_converged) {
     out->gts_message = std::string("the maximisation stopped short of a stationary point after ") +
@@ -360,8 +361,8 @@ void RunGts(const std::vector<Eigen::VectorXd>& phi, const std::vector<Eigen::Ma
     }
   }
   std::vector<Eigen::VectorXd> star;
-  Point unused;
-  gts.Step(x, &unused, &star);
+  Eigen::MatrixXd unused;
+  gts.Shrink(x, &star, &unused);
   out->shrunken.resize(n, p);
   for (int i = 0; i < n; ++i) {
     out->shrunken.row(i) = log_normal ? Eigen::VectorXd(star[i].array().exp()).transpose() : star[i].transpose();
@@ -435,11 +436,11 @@ TwoStageSummary EstimateTwoStage(const std::vector<std::string>& names, const st
     c.push_back(ci);
   }
   for (int j = 0; j < p; ++j) out.descriptive.push_back(Describe(names[j], columns[j]));
-  if (p == 0) {
-    out.gts_message = "no structural parameter was estimated";
-  } else if (phi.size() < 2) {
+  if (phi.size() < 2) {
     out.gts_message = "GTS needs at least two subjects with covariances; there " +
                       std::string(phi.size() == 1 ? "is 1" : "are 0");
+  } else if (p == 0) {
+    out.gts_message = "no structural parameter was estimated";
   } else {
     RunGts(phi, c, options, &out);
   }
@@ -458,10 +459,6 @@ TwoStageSummary EstimateTwoStage(const std::vector<SubjectFit>& fits, const TwoS
       excluded.emplace_back(f.id, "not fitted: " + f.error);
       continue;
     }
-    if (!f.summary.converged()) {
-      excluded.emplace_back(f.id, "the fit did not converge (" + f.summary.message + ")");
-      continue;
-    }
     std::vector<int> index;  // into summary.estimated
     std::vector<std::string> mine;
     for (size_t k = 0; k < f.summary.estimated.size(); ++k) {
@@ -469,10 +466,17 @@ TwoStageSummary EstimateTwoStage(const std::vector<SubjectFit>& fits, const TwoS
       index.push_back(static_cast<int>(k));
       mine.push_back(f.summary.estimated[k]);
     }
+    // The parameters are named by the first fit that ran, converged or not,
+    // so that a summary over no converged fit still lists them (with N = 0).
     if (!have_names) {
       names = mine;
       have_names = true;
-    } else if (mine != names) {
+    }
+    if (!f.summary.converged()) {
+      excluded.emplace_back(f.id, "the fit did not converge (" + f.summary.message + ")");
+      continue;
+    }
+    if (mine != names) {
       excluded.emplace_back(f.id, "estimates other parameters (" + internal::Join(mine, ", ") + ")");
       continue;
     }

@@ -51,6 +51,12 @@ grep -q "^population: two-stage" "$work/theo.txt" || fail "no population table o
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --population none --subject 1 --subject 2 \
   -o "$work/theo_nopop" -q || fail "--population none failed"
 [ ! -e "$work/theo_nopop/population.csv" ] || fail "--population none wrote population.csv"
+# Every row has all 18 fields, also when no fit converged and neither STS nor GTS could run.
+awk -F, '{ if (NF != 18) bad = 1 } END { exit bad }' "$work/theo/population.csv" || fail "population.csv row widths"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --subject 2 --max-iterations 1 \
+  -o "$work/theo_unconverged" -q 2>/dev/null
+[ "$(awk -F, 'NR > 1 && NF == 18 && $2 == 0 && $3 == "" && $11 == 0 && $12 == ""' "$work/theo_unconverged/population.csv" |
+  cut -d, -f1 | tr '\n' ' ')" = "KA CL V " ] || fail "population.csv without converged fits: N = 0 rows"
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --omega block -o "$work/bad_omega" 2>"$work/bad_omega.err"
 [ $? -eq 2 ] || fail "--omega block should exit 2"
 grep -q "omega: expected diagonal or full, got 'block'" "$work/bad_omega.err" || fail "--omega error message"
