@@ -17,7 +17,7 @@ double ToNumber(const std::string& text, const std::string& option, const std::s
   char* end = nullptr;
   const double v = std::strtod(text.c_str(), &end);
   if (text.empty() || *end != '\0' || !std::isfinite(v)) {
-    throw InputError("", 0, 0, option + ": '" + item + "': '" + text + "' is not a number");
+    throw InputError(option + ": '" + item + "': '" + text + "' is not a number");
   }
   return v;
 }
@@ -29,7 +29,7 @@ ParameterValues ParseAssignments(const std::vector<std::string>& items, const st
   for (const std::string& item : items) {
     const size_t eq = item.find('=');
     if (eq == std::string::npos || eq == 0) {
-      throw InputError("", 0, 0, option + ": expected NAME=VALUE, got '" + item + "'");
+      throw InputError(option + ": expected NAME=VALUE, got '" + item + "'");
     }
     values[item.substr(0, eq)] = ToNumber(item.substr(eq + 1), option, item);
   }
@@ -48,13 +48,13 @@ std::vector<double> ParseTimes(const std::vector<std::string>& specs) {
         continue;
       }
       const size_t c2 = part.find(':', c1 + 1);
-      if (c2 == std::string::npos) throw InputError("", 0, 0, "--times: expected FROM:STEP:TO, got '" + part + "'");
+      if (c2 == std::string::npos) throw InputError("--times: expected FROM:STEP:TO, got '" + part + "'");
       const double from = ToNumber(part.substr(0, c1), "--times", spec);
       const double step = ToNumber(part.substr(c1 + 1, c2 - c1 - 1), "--times", spec);
       const double to = ToNumber(part.substr(c2 + 1), "--times", spec);
-      if (step <= 0 || to < from) throw InputError("", 0, 0, "--times: '" + part + "' needs STEP > 0 and TO >= FROM");
+      if (step <= 0 || to < from) throw InputError("--times: '" + part + "' needs STEP > 0 and TO >= FROM");
       const long count = std::lround(std::floor((to - from) / step + 1e-9));
-      if (count > 10000000) throw InputError("", 0, 0, "--times: '" + part + "' asks for too many times");
+      if (count > 10000000) throw InputError("--times: '" + part + "' asks for too many times");
       for (long k = 0; k <= count; ++k) times.push_back(from + static_cast<double>(k) * step);
     }
   }
@@ -104,7 +104,7 @@ DatasetFilter ParseFilter(const std::vector<std::string>& ignore, const std::vec
     if (item.size() != 1) {
       filter.ignore.push_back(item);
     } else if (filter.ignore_character != 0 && filter.ignore_character != item[0]) {
-      throw InputError("", 0, 0, std::string("--ignore: one ignore character, not both '") + filter.ignore_character +
+      throw InputError(std::string("--ignore: one ignore character, not both '") + filter.ignore_character +
                                      "' and '" + item + "' (NM-TRAN's IGNORE=c takes one)");
     } else {
       filter.ignore_character = item[0];
@@ -118,7 +118,7 @@ Propagator ParsePropagator(const std::string& text) {
   for (Propagator p : {Propagator::kAuto, Propagator::kExact, Propagator::kOde}) {
     if (text == ToString(p)) return p;
   }
-  throw InputError("", 0, 0, "--propagator must be auto, exact or ode, not '" + text + "'");
+  throw InputError("--propagator must be auto, exact or ode, not '" + text + "'");
 }
 
 }  // namespace cli

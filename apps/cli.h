@@ -10,6 +10,7 @@
 #include <boost/program_options.hpp>
 
 #include "pk/dataset.h"
+#include "pk/error.h"
 #include "pk/parameters.h"
 #include "pk/propagator.h"
 
@@ -35,6 +36,17 @@ Propagator ParsePropagator(const std::string& text);
 /// returns false when --help was given.
 bool ParseCommandLine(int argc, char** argv, const boost::program_options::options_description& desc,
                       const char* usage, boost::program_options::variables_map* vm);
+
+/// Runs `parse` and prefixes the message of a pk::InputError it throws with `option`
+/// ("--gradient: expected ...").
+template <typename Parse>
+auto Parsed(const std::string& option, const Parse& parse) -> decltype(parse()) {
+  try {
+    return parse();
+  } catch (const InputError& e) {
+    throw InputError(option + ": " + e.message());
+  }
+}
 
 /// Runs `body` and maps errors to exit codes: pk::InputError and bad options -> 2
 /// with one line "<program>: error: ..." on stderr; other exceptions -> 3.

@@ -36,60 +36,12 @@ const char* const kUsage =
     "  pkfit --model 1cmt_oral --data d.csv --init ALAG1=0.5 --error combined --optimizer newton\n"
     "  pkfit --model 1cmt_oral --data d.csv --evaluate --init KA=1.2 --gradient adjoint\n";
 
-pk::GradientRoute ParseRoute(const std::string& s) {
-  if (s == "auto") return pk::GradientRoute::kAuto;
-  if (s == "forward") return pk::GradientRoute::kForward;
-  if (s == "adjoint") return pk::GradientRoute::kAdjoint;
-  if (s == "fd") return pk::GradientRoute::kFiniteDifference;
-  if (s == "companion") return pk::GradientRoute::kCompanion;
-  throw pk::InputError("", 0, 0, "--gradient: expected auto, forward, adjoint, fd or companion, got '" + s + "'");
-}
-
-void ParseOptimizer(const std::string& s, pk::FitOptions* o) {
-  if (s == "lm") {
-    o->optimizer = pk::OptimizerType::kLevenbergMarquardt;
-  } else if (s == "bfgs") {
-    o->optimizer = pk::OptimizerType::kBfgs;
-  } else if (s == "newton") {
-    o->optimizer = pk::OptimizerType::kNewton;
-  } else if (s.rfind("nlopt:", 0) == 0) {
-    o->optimizer = pk::OptimizerType::kNlopt;
-    o->nlopt_algorithm = s.substr(6);
-  } else {
-    throw pk::InputError("", 0, 0, "--optimizer: expected lm, bfgs, newton or nlopt:NAME, got '" + s + "'");
-  }
-}
-
-void ParseWeighting(const std::string& s, pk::ObjectiveOptions* o) {
-  if (s == "uniform") {
-    o->weighting = pk::Weighting::kUniform;
-  } else if (s == "dv2") {
-    o->weighting = pk::Weighting::kInverseDvSquared;
-  } else if (s == "dv") {
-    o->weighting = pk::Weighting::kInverseDv;
-  } else if (s.rfind("column:", 0) == 0 && s.size() > 7) {
-    o->weighting = pk::Weighting::kColumn;
-    o->weight_column = s.substr(7);
-  } else {
-    throw pk::InputError("", 0, 0, "--weighting: expected uniform, dv2, dv or column:NAME, got '" + s + "'");
-  }
-}
-
-pk::ErrorModel ParseError(const std::string& s) {
-  if (s == "none" || s == "ls") return pk::ErrorModel::kLeastSquares;
-  if (s == "additive") return pk::ErrorModel::kAdditive;
-  if (s == "proportional") return pk::ErrorModel::kProportional;
-  if (s == "combined") return pk::ErrorModel::kCombined;
-  if (s == "exponential") return pk::ErrorModel::kExponential;
-  throw pk::InputError("", 0, 0, "--error: expected additive, proportional, combined or exponential, got '" + s + "'");
-}
-
 std::vector<pk::LogNormalPrior> ParsePriors(const std::vector<std::string>& items) {
   std::vector<pk::LogNormalPrior> priors;
   for (const std::string& item : items) {
     const size_t eq = item.find('='), comma = item.find(',');
     if (eq == std::string::npos || comma == std::string::npos || comma < eq) {
-      throw pk::InputError("", 0, 0, "--prior: expected NAME=MEDIAN,SD_LOG, got '" + item + "'");
+      throw pk::InputError("--prior: expected NAME=MEDIAN,SD_LOG, got '" + item + "'");
     }
     const pk::ParameterValues v = pk::cli::ParseAssignments(
         {"m=" + item.substr(eq + 1, comma - eq - 1), "s=" + item.substr(comma + 1)}, "--prior");
@@ -147,7 +99,7 @@ int Main(int argc, char** argv) {
   pk::cli::AddFilterOptions(&desc, &ignore, &accept);
   po::variables_map vm;
   if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
-  if (!vm.count("model") || !vm.count("data")) throw pk::InputError("", 0, 0, "--model and --data are required");
+  if (!vm.count("model") || !vm.count("data")) throw pk::InputError("--model and --data are required");
   pk::FitSubjectsRequest req;
   req.model = pk::MakeModel(vm["model"].as<std::string>());
   req.objective.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
@@ -157,11 +109,15 @@ int Main(int argc, char** argv) {
   req.objective.ode.checkpoint_steps = vm["checkpoint-steps"].as<int>();
   req.data = std::make_shared<pk::Dataset>(
       pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(ignore, accept)));
-  req.objective.gradient = ParseRoute(vm["gradient"].as<std::string>());
-  ParseWeighting(vm["weighting"].as<std::string>(), &req.objective);
-  if (vm.count("error")) req.objective.error_model = ParseError(vm["error"].as<std::string>());
+  req.objective.gradient =
+      pk::cli::Parsed("--gradient", [&] { return pk::ParseGradientRoute(vm["gradient"].as<std::string>()); });
+  pk::cli::Parsed("--weighting", [&] { pk::ParseWeighting(vm["weighting"].as<std::string>(), &req.objective); return 0; });
+  if (vm.count("error")) {
+    req.objective.error_model =
+        pk::cli::Parsed("--error", [&] { return pk::MakeResidualError(vm["error"].as<std::string>()); });
+  }
   req.priors = ParsePriors(priors);
-  ParseOptimizer(vm["optimizer"].as<std::string>(), &req.fit);
+  req.fit.optimizer = vm["optimizer"].as<std::string>();
   req.fit.starts = vm["starts"].as<int>();
   req.fit.max_iterations = vm["max-iterations"].as<int>();
   req.fit.log_scale = vm.count("linear-scale") == 0;
@@ -171,21 +127,19 @@ int Main(int argc, char** argv) {
   if (population_model == "normal") {
     two_stage.distribution = pk::BetweenSubjectModel::kNormal;
   } else if (population_model != "lognormal" && population_model != "none") {
-    throw pk::InputError("", 0, 0, "--population: expected lognormal, normal or none, got '" + population_model + "'");
+    throw pk::InputError("--population: expected lognormal, normal or none, got '" + population_model + "'");
   }
   if (omega != "diagonal" && omega != "full") {
-    throw pk::InputError("", 0, 0, "--omega: expected diagonal or full, got '" + omega + "'");
+    throw pk::InputError("--omega: expected diagonal or full, got '" + omega + "'");
   }
   two_stage.diagonal_omega = omega == "diagonal";
   std::string why;
-  if (!req.objective.IsValid(&why) || !req.fit.IsValid(&why)) throw pk::InputError("", 0, 0, why);
-  if (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt &&
-      req.objective.error_model != pk::ErrorModel::kLeastSquares && !vm["optimizer"].defaulted()) {
-    throw pk::InputError("", 0, 0, "--optimizer lm minimises a sum of squares; with --error use bfgs, newton or nlopt:NAME");
+  if (!req.objective.IsValid(&why) || !req.fit.IsValid(&why)) throw pk::InputError(why);
+  if (req.fit.optimizer == "lm" && req.objective.error_model->is_likelihood() && !vm["optimizer"].defaulted()) {
+    throw pk::InputError("--optimizer lm minimises a sum of squares; with --error use bfgs, newton or nlopt:NAME");
   }
-  if (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt &&
-      req.objective.error_model != pk::ErrorModel::kLeastSquares) {
-    req.fit.optimizer = pk::OptimizerType::kNewton;  // the default optimiser for maximum likelihood
+  if (req.fit.optimizer == "lm" && req.objective.error_model->is_likelihood()) {
+    req.fit.optimizer = "newton";  // the default optimiser for maximum likelihood
   }
   // Continuous records (CONT=1) give a loss without residuals: LM cannot take them.
   const int cont_col = req.data->ExtraColumn("CONT");
@@ -193,13 +147,12 @@ int Main(int argc, char** argv) {
   for (const pk::Subject& s : req.data->subjects) {
     for (const pk::Record& r : s.records) continuous = continuous || (cont_col >= 0 && r.extra[cont_col] == 1);
   }
-  if (continuous && (req.fit.optimizer == pk::OptimizerType::kLevenbergMarquardt ||
-                     req.fit.optimizer == pk::OptimizerType::kNewton)) {
+  if (continuous && (req.fit.optimizer == "lm" || req.fit.optimizer == "newton")) {
     if (!vm["optimizer"].defaulted()) {
-      throw pk::InputError("", 0, 0, "continuous records (CONT=1) have no residual vector: use --optimizer bfgs or "
+      throw pk::InputError("continuous records (CONT=1) have no residual vector: use --optimizer bfgs or "
                                      "nlopt:NAME");
     }
-    req.fit.optimizer = pk::OptimizerType::kBfgs;
+    req.fit.optimizer = "bfgs";
   }
 
   // Subjects.
@@ -213,7 +166,7 @@ int Main(int argc, char** argv) {
           found = true;
         }
       }
-      if (!found) throw pk::InputError("", 0, 0, "--subject: no ID " + text + " in " + req.data->source);
+      if (!found) throw pk::InputError("--subject: no ID " + text + " in " + req.data->source);
     }
   }
 
@@ -240,7 +193,7 @@ int Main(int argc, char** argv) {
       if (probe.ParameterIndex(kv.first) < 0) {
         std::string names;
         for (const std::string& n : probe.parameter_names()) names += (names.empty() ? "" : ", ") + n;
-        throw pk::InputError("", 0, 0, "unknown parameter '" + kv.first + "'; this model has " + names);
+        throw pk::InputError("unknown parameter '" + kv.first + "'; this model has " + names);
       }
     }
   }

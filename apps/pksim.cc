@@ -123,34 +123,34 @@ int Main(int argc, char** argv) {
     }
     return 0;
   }
-  if (!vm.count("model")) throw pk::InputError("", 0, 0, "--model is required (see --list-models)");
+  if (!vm.count("model")) throw pk::InputError("--model is required (see --list-models)");
   const auto model = pk::MakeModel(vm["model"].as<std::string>());
   const pk::ParameterValues values = pk::cli::ParseAssignments(params, "--param");
   const std::vector<double> grid = pk::cli::ParseTimes(times);
 
   pk::Dataset data;
   if (vm.count("data")) {
-    if (vm.count("dose")) throw pk::InputError("", 0, 0, "give either --data or --dose, not both");
+    if (vm.count("dose")) throw pk::InputError("give either --data or --dose, not both");
     data = pk::AddOutputTimes(pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(ignore, accept)),
                               grid);
   } else {
-    if (!vm.count("dose")) throw pk::InputError("", 0, 0, "give --data FILE or a regimen (--dose AMT ...)");
+    if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
     pk::Dose dose;
     dose.amount = vm["dose"].as<double>();
     dose.cmt = vm["cmt"].as<int>();
     dose.time = vm["dose-time"].as<double>();
     dose.ii = vm["ii"].as<double>();
     dose.ss = vm["ss"].as<int>();
-    if (vm.count("doses") && vm.count("addl")) throw pk::InputError("", 0, 0, "give --doses or --addl, not both");
+    if (vm.count("doses") && vm.count("addl")) throw pk::InputError("give --doses or --addl, not both");
     if (vm.count("doses")) dose.addl = vm["doses"].as<int>() - 1;
     if (vm.count("addl")) dose.addl = vm["addl"].as<int>();
-    if (vm.count("rate") && vm.count("duration")) throw pk::InputError("", 0, 0, "give --rate or --duration, not both");
+    if (vm.count("rate") && vm.count("duration")) throw pk::InputError("give --rate or --duration, not both");
     if (vm.count("rate")) dose.rate = vm["rate"].as<double>();
     if (vm.count("duration")) {
       dose.duration = vm["duration"].as<double>();
-      if (dose.duration <= 0) throw pk::InputError("", 0, 0, "--duration must be positive");
+      if (dose.duration <= 0) throw pk::InputError("--duration must be positive");
     }
-    if (grid.empty()) throw pk::InputError("", 0, 0, "a regimen needs output times (--times FROM:STEP:TO)");
+    if (grid.empty()) throw pk::InputError("a regimen needs output times (--times FROM:STEP:TO)");
     pk::Regimen regimen;
     regimen.doses.push_back(dose);
     regimen.times = grid;

@@ -43,20 +43,20 @@ std::shared_ptr<const Model> MakeModel(const std::string& spec) {
   if (colon != std::string::npos) {
     const std::string option = internal::ToUpper(spec.substr(colon + 1));
     if (internal::ToUpper(name) != "1CMT_ORAL_TRANSIT" || option.rfind("NTR=", 0) != 0) {
-      throw InputError("", 0, 0, "model '" + name + "' has no option '" + spec.substr(colon + 1) +
+      throw InputError("model '" + name + "' has no option '" + spec.substr(colon + 1) +
                                      "' (only 1cmt_oral_transit takes one: NTR=<1..50>)");
     }
     char* end = nullptr;
     const long ntr = std::strtol(option.c_str() + 4, &end, 10);
     if (*end != '\0' || end == option.c_str() + 4 || ntr < 1 || ntr > 50) {
-      throw InputError("", 0, 0, "NTR must be an integer from 1 to 50, not '" + option.substr(4) + "'");
+      throw InputError("NTR must be an integer from 1 to 50, not '" + option.substr(4) + "'");
     }
     return models::OneCmtOralTransit(static_cast<int>(ntr));
   }
   for (const auto& entry : Registry()) {
     if (internal::ToUpper(entry.first) == internal::ToUpper(name)) return entry.second();
   }
-  throw InputError("", 0, 0, "unknown model '" + name + "'; the catalogue has " +
+  throw InputError("unknown model '" + name + "'; the catalogue has " +
                                  internal::Join(CatalogueModelNames(), ", "));
 }
 

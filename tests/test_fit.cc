@@ -59,15 +59,13 @@ TEST_CASE("noise-free synthetic data: every optimiser recovers the truth to 1e-6
        {{"KA", 1.2}, {"CL", 3}, {"V", 30}, {"ALAG1", 0.2}},
        "1,0,100,0,12,2,0,1,.\n"},
   };
-  const auto optimizer = GENERATE(pk::OptimizerType::kLevenbergMarquardt, pk::OptimizerType::kBfgs,
-                                  pk::OptimizerType::kNewton, pk::OptimizerType::kNlopt);
+  const std::string optimizer = GENERATE(as<std::string>{}, "lm", "bfgs", "newton", "nlopt:LD_SLSQP");
   for (const Case& c : cases) {
-    INFO(c.model << " with " << pk::ToString(optimizer));
+    INFO(c.model << " with " << optimizer);
     const pk::Objective objective(pk::MakeModel(c.model), Synthetic(c.model, c.truth, c.doses, kTimes), 0,
                                   pk::ObjectiveOptions());
     pk::FitOptions options;
     options.optimizer = optimizer;
-    options.nlopt_algorithm = "LD_SLSQP";
     options.max_iterations = 5000;
     options.function_tolerance = 1e-15;
     options.parameter_tolerance = 1e-13;
@@ -110,14 +108,14 @@ TEST_CASE("maximum likelihood with a combined error model", "[fit]") {
   for (int k = 1; k <= 40; ++k) times.push_back(0.2 * k * k / 4);
   const auto data = Synthetic("2cmt_iv", truth, "1,0,500,0,0,0,0,1,.\n", times, 0.08, 3);
   pk::ObjectiveOptions oo;
-  oo.error_model = pk::ErrorModel::kCombined;
+  oo.error_model = pk::MakeResidualError("combined");
   const pk::Objective objective(pk::MakeModel("2cmt_iv"), data, 0, oo);
   std::vector<pk::ParameterSpec> start{{"CL", 3}, {"V1", 10}, {"Q", 5}, {"V2", 30}, {"SIGMA_ADD", 0.05},
                                        {"SIGMA_PROP", 0.2}};
   pk::FitOptions fo;
-  fo.optimizer = pk::OptimizerType::kNewton;
+  fo.optimizer = "newton";
   const pk::FitSummary newton = pk::Fit(objective, start, fo);
-  fo.optimizer = pk::OptimizerType::kBfgs;
+  fo.optimizer = "bfgs";
   const pk::FitSummary bfgs = pk::Fit(objective, start, fo);
   INFO(newton.FullReport() << "\n" << bfgs.FullReport());
   REQUIRE(newton.converged());
@@ -136,17 +134,17 @@ TEST_CASE("the residual-error names are exactly the parameters each error model 
   const auto data = Synthetic("1cmt_oral", {{"KA", 1.7}, {"CL", 2.8}, {"V", 32}}, "1,0,320,0,0,0,0,1,.\n", kTimes);
   const auto model = pk::MakeModel("1cmt_oral");
   const int structural = static_cast<int>(pk::Objective(model, data, 0, pk::ObjectiveOptions()).parameter_names().size());
-  const std::vector<std::pair<pk::ErrorModel, std::vector<std::string>>> cases = {
-      {pk::ErrorModel::kLeastSquares, {}},
-      {pk::ErrorModel::kAdditive, {"SIGMA_ADD"}},
-      {pk::ErrorModel::kProportional, {"SIGMA_PROP"}},
-      {pk::ErrorModel::kCombined, {"SIGMA_ADD", "SIGMA_PROP"}},
-      {pk::ErrorModel::kExponential, {"SIGMA_LOG"}}};
+  const std::vector<std::pair<std::shared_ptr<const pk::ResidualErrorModel>, std::vector<std::string>>> cases = {
+      {pk::MakeResidualError("least-squares"), {}},
+      {pk::MakeResidualError("additive"), {"SIGMA_ADD"}},
+      {pk::MakeResidualError("proportional"), {"SIGMA_PROP"}},
+      {pk::MakeResidualError("combined"), {"SIGMA_ADD", "SIGMA_PROP"}},
+      {pk::MakeResidualError("exponential"), {"SIGMA_LOG"}}};
   for (const auto& c : cases) {
     pk::ObjectiveOptions oo;
     oo.error_model = c.first;
     const std::vector<std::string> names = pk::Objective(model, data, 0, oo).parameter_names();
-    INFO(pk::ToString(c.first));
+    INFO(c.first->name());
     REQUIRE(names.size() == structural + c.second.size());
     for (int i = 0; i < static_cast<int>(names.size()); ++i) {
       INFO(names[i]);
@@ -179,7 +177,7 @@ TEST_CASE("fixed parameters, bounds and multiple starts", "[fit]") {
   SECTION("flip-flop: a start on the wrong branch finds the better minimum with --starts") {
     // KA and k = CL/V swap roles in the flip-flop branch; from there one start stays stuck.
     pk::FitOptions one;
-    one.optimizer = pk::OptimizerType::kBfgs;
+    one.optimizer = "bfgs";
     const std::vector<pk::ParameterSpec> wrong{{"KA", 0.09}, {"CL", 50}, {"V", 3}};
     const auto single = pk::Fit(objective, wrong, one);
     pk::FitOptions many = one;
@@ -193,8 +191,7 @@ TEST_CASE("fixed parameters, bounds and multiple starts", "[fit]") {
     CHECK_THROWS_WITH(pk::Fit(objective, {{"KQ", 1}}, pk::FitOptions()), Catch::Contains("unknown parameter 'KQ'"));
     CHECK_THROWS_WITH(pk::Fit(objective, {{"KA", -1}}, pk::FitOptions()), Catch::Contains("must be positive"));
     pk::FitOptions bad;
-    bad.optimizer = pk::OptimizerType::kNlopt;
-    bad.nlopt_algorithm = "LD_NOSUCH";
+    bad.optimizer = "nlopt:LD_NOSUCH";
     CHECK_THROWS_WITH(pk::Fit(objective, {{"KA", 1}}, bad), Catch::Contains("unknown NLopt algorithm"));
   }
 }
@@ -217,8 +214,8 @@ TEST_CASE("weighted residuals of FitSubjects: sqrt(W)(DV - PRED)/sigma and (DV -
     }
   }
   SECTION("maximum likelihood, proportional error") {
-    req.objective.error_model = pk::ErrorModel::kProportional;
-    req.fit.optimizer = pk::OptimizerType::kNewton;
+    req.objective.error_model = pk::MakeResidualError("proportional");
+    req.fit.optimizer = "newton";
     req.parameters.push_back({"SIGMA_PROP", NAN});
     const pk::SubjectFit f = pk::FitSubjects(req).at(0);
     REQUIRE(f.ok);
@@ -238,15 +235,15 @@ TEST_CASE("a proportional error with a zero prediction is a failed evaluation th
       std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/theophylline.csv"));
   const std::vector<int> free{0, 1, 2, 3};
   for (const bool modal : {true, false}) {
-    for (const pk::ErrorModel error : {pk::ErrorModel::kProportional, pk::ErrorModel::kCombined}) {
-      INFO("modal " << modal << ", combined " << (error == pk::ErrorModel::kCombined));
+    for (const auto& error : {pk::MakeResidualError("proportional"), pk::MakeResidualError("combined")}) {
+      INFO("modal " << modal << ", combined " << (std::string(error->name()) == "combined"));
       pk::ObjectiveOptions oo;
       oo.modal_propagation = modal;
       oo.error_model = error;
       const pk::Objective objective(pk::MakeModel("1cmt_oral"), data, 1, oo);  // ID 2
       const Eigen::VectorXd v = objective.DefaultValues();
       const auto ev = objective.Evaluate(v, free, pk::Objective::Need::kValue);
-      if (error == pk::ErrorModel::kProportional) {
+      if (std::string(error->name()) == "proportional") {
         CHECK_FALSE(ev.ok);
         CHECK_THAT(ev.message, Catch::Contains("sample at TIME 0 is zero") && Catch::Contains("MDV=1"));
       } else {
@@ -270,9 +267,8 @@ pk::FitSubjectsRequest DatasetRequest(const char* model, const std::string& data
 
 pk::FitSubjectsRequest RemifentanilRequest() { return DatasetRequest("2cmt_iv", "remifentanil.csv"); }
 
-std::vector<pk::SubjectFit> FitWith(pk::FitSubjectsRequest req, pk::OptimizerType type, const std::string& algorithm) {
-  req.fit.optimizer = type;
-  req.fit.nlopt_algorithm = algorithm;
+std::vector<pk::SubjectFit> FitWith(pk::FitSubjectsRequest req, const std::string& optimizer) {
+  req.fit.optimizer = optimizer;
   return pk::FitSubjects(req);
 }
 
@@ -319,20 +315,20 @@ TEST_CASE("Newton's trust region keeps maximum likelihood out of degenerate vall
   // and 134.8. SLSQP, which controls its own steps, is the reference.
   pk::FitSubjectsRequest req = RemifentanilRequest();
   struct Case {
-    pk::ErrorModel error;
+    std::shared_ptr<const pk::ResidualErrorModel> error;
     std::vector<int> subjects;  // indices: ID - 1
     std::vector<std::string> sigmas;
   };
-  const Case cases[] = {{pk::ErrorModel::kProportional, {2, 7, 9, 19, 22, 25}, {"SIGMA_PROP"}},
-                        {pk::ErrorModel::kCombined, {8, 9}, {"SIGMA_ADD", "SIGMA_PROP"}}};
+  const Case cases[] = {{pk::MakeResidualError("proportional"), {2, 7, 9, 19, 22, 25}, {"SIGMA_PROP"}},
+                        {pk::MakeResidualError("combined"), {8, 9}, {"SIGMA_ADD", "SIGMA_PROP"}}};
   for (const Case& c : cases) {
     req.objective.error_model = c.error;
     req.subjects = c.subjects;
     req.parameters.clear();
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
     for (const std::string& p : c.sigmas) req.parameters.push_back({p, NAN});
-    const auto newton = FitWith(req, pk::OptimizerType::kNewton, "");
-    const auto slsqp = FitWith(req, pk::OptimizerType::kNlopt, "LD_SLSQP");
+    const auto newton = FitWith(req, "newton");
+    const auto slsqp = FitWith(req, "nlopt:LD_SLSQP");
     REQUIRE(newton.size() == c.subjects.size());
     for (size_t k = 0; k < newton.size(); ++k) {
       INFO("ID " << newton[k].id << ": " << newton[k].summary.BriefReport());
@@ -355,12 +351,12 @@ TEST_CASE("L-BFGS does not extrapolate into a flat likelihood: remifentanil with
   // reference stops 2e-7 short of SLSQP's.
   pk::FitSubjectsRequest req = RemifentanilRequest();
   req.subjects = {4, 6, 7, 8};  // IDs 5, 7, 8 and 9
-  req.objective.error_model = pk::ErrorModel::kProportional;
+  req.objective.error_model = pk::MakeResidualError("proportional");
   for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
   req.parameters.push_back({"SIGMA_PROP", NAN});
-  const auto bfgs = FitWith(req, pk::OptimizerType::kBfgs, "");
-  const auto slsqp = FitWith(req, pk::OptimizerType::kNlopt, "LD_SLSQP");
-  const auto mma = FitWith(req, pk::OptimizerType::kNlopt, "LD_MMA");
+  const auto bfgs = FitWith(req, "bfgs");
+  const auto slsqp = FitWith(req, "nlopt:LD_SLSQP");
+  const auto mma = FitWith(req, "nlopt:LD_MMA");
   REQUIRE(bfgs.size() == req.subjects.size());
   for (size_t k = 0; k < bfgs.size(); ++k) {
     INFO("ID " << bfgs[k].id << ": " << bfgs[k].summary.BriefReport());
@@ -379,7 +375,7 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
           "[fit]") {
   // Optimisers stop on such data wherever their tests happen to hold (sigma of 1e-6 to 1e-150, objectives of -20
   // to -500), and used to report convergence there.
-  const auto fit = [](pk::OptimizerType optimizer, const char* model, const char* data, pk::ErrorModel error,
+  const auto fit = [](std::string optimizer, const char* model, const char* data, std::shared_ptr<const pk::ResidualErrorModel> error,
                       std::vector<int> subjects) {
     pk::FitSubjectsRequest req = DatasetRequest(model, data);
     req.fit.optimizer = optimizer;
@@ -403,10 +399,10 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
     CHECK(std::isnan(f.summary.minus2ll));
     CHECK(std::isnan(f.summary.estimates[0].se));
   };
-  for (const pk::OptimizerType optimizer : {pk::OptimizerType::kNewton, pk::OptimizerType::kBfgs}) {
-    INFO(pk::ToString(optimizer));
+  for (const std::string optimizer : {"newton", "bfgs"}) {
+    INFO(optimizer);
     {  // phenobarbital, additive error: the curve passes through 2 samples, not through 3
-      const auto fits = fit(optimizer, "1cmt_iv", "phenobarbital.csv", pk::ErrorModel::kAdditive, {0, 4});  // IDs 1, 5
+      const auto fits = fit(optimizer, "1cmt_iv", "phenobarbital.csv", pk::MakeResidualError("additive"), {0, 4});  // IDs 1, 5
       REQUIRE(fits.size() == 2);
       REQUIRE(fits[0].dv.size() == 2);
       check_unbounded(fits[0], "with 2 samples for 2 model parameters the curve passes through every sample");
@@ -415,14 +411,14 @@ TEST_CASE("a likelihood without a maximum ends as unbounded, not converged, and 
       CHECK(std::isfinite(fits[1].summary.estimates[2].se));
     }
     {  // the same with the exponential error: SIGMA_LOG falls instead
-      const auto fits = fit(optimizer, "1cmt_iv", "phenobarbital.csv", pk::ErrorModel::kExponential, {0});  // ID 1
+      const auto fits = fit(optimizer, "1cmt_iv", "phenobarbital.csv", pk::MakeResidualError("exponential"), {0});  // ID 1
       REQUIRE(fits.size() == 1);
       check_unbounded(fits[0], "SIGMA_LOG fell to");
       CHECK_THAT(fits[0].summary.message, Catch::Contains("with 2 samples for 2 model parameters"));
     }
     {  // theophylline, combined error: DV 0 predicted 0 at TIME 0 lets SIGMA_ADD collapse
       const auto fits =
-          fit(optimizer, "1cmt_oral", "theophylline.csv", pk::ErrorModel::kCombined, {0, 1, 6});  // IDs 1, 2 and 7
+          fit(optimizer, "1cmt_oral", "theophylline.csv", pk::MakeResidualError("combined"), {0, 1, 6});  // IDs 1, 2 and 7
       REQUIRE(fits.size() == 3);
       check_unbounded(fits[1], "the sample at TIME 0 (DV 0, prediction 0)");
       CHECK_THAT(fits[1].summary.message, Catch::Contains("give it MDV=1, or fix SIGMA_ADD"));
@@ -448,8 +444,8 @@ TEST_CASE("a sample censored below its limit and predicted 0 does not make SIGMA
   pk::FitSubjectsRequest req;
   req.model = pk::MakeModel("1cmt_oral");
   req.data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv, "cv.csv"));
-  req.objective.error_model = pk::ErrorModel::kCombined;
-  req.fit.optimizer = pk::OptimizerType::kNewton;
+  req.objective.error_model = pk::MakeResidualError("combined");
+  req.fit.optimizer = "newton";
   req.jobs = 1;
   for (const char* p : {"KA", "CL", "V", "SIGMA_ADD", "SIGMA_PROP"}) req.parameters.push_back({p, NAN});
   const std::vector<pk::SubjectFit> fits = pk::FitSubjects(req);
@@ -470,25 +466,25 @@ TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are tho
     const char* model;
     const char* data;
     std::vector<int> subjects;
-    pk::ErrorModel simpler;
+    std::shared_ptr<const pk::ResidualErrorModel> simpler;
     const char* at_zero;
   };
-  const Case cases[] = {{"2cmt_iv", "indomethacin.csv", {0, 1, 2, 3, 4}, pk::ErrorModel::kProportional, "SIGMA_ADD"},
-                        {"1cmt_oral", "theophylline.csv", {6, 11}, pk::ErrorModel::kAdditive, "SIGMA_PROP"}};
+  const Case cases[] = {{"2cmt_iv", "indomethacin.csv", {0, 1, 2, 3, 4}, pk::MakeResidualError("proportional"), "SIGMA_ADD"},
+                        {"1cmt_oral", "theophylline.csv", {6, 11}, pk::MakeResidualError("additive"), "SIGMA_PROP"}};
   for (const Case& c : cases) {
     pk::FitSubjectsRequest req = DatasetRequest(c.model, c.data);
     req.subjects = c.subjects;
-    req.fit.optimizer = pk::OptimizerType::kNewton;
+    req.fit.optimizer = "newton";
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
-    const auto with_sigmas = [&](pk::ErrorModel error, std::vector<std::string> sigmas) {
+    const auto with_sigmas = [&](std::shared_ptr<const pk::ResidualErrorModel> error, std::vector<std::string> sigmas) {
       pk::FitSubjectsRequest r = req;
       r.objective.error_model = error;
       for (const std::string& s : sigmas) r.parameters.push_back({s, NAN});
       return pk::FitSubjects(r);
     };
-    const auto combined = with_sigmas(pk::ErrorModel::kCombined, {"SIGMA_ADD", "SIGMA_PROP"});
+    const auto combined = with_sigmas(pk::MakeResidualError("combined"), {"SIGMA_ADD", "SIGMA_PROP"});
     const auto simpler = with_sigmas(
-        c.simpler, {c.simpler == pk::ErrorModel::kAdditive ? "SIGMA_ADD" : "SIGMA_PROP"});
+        c.simpler, {std::string(c.simpler->name()) == "additive" ? "SIGMA_ADD" : "SIGMA_PROP"});
     REQUIRE(combined.size() == c.subjects.size());
     for (size_t k = 0; k < combined.size(); ++k) {
       const pk::FitSummary& a = combined[k].summary;
@@ -531,7 +527,7 @@ TEST_CASE("a singular information matrix names what the data do not determine", 
     INFO((log_scale ? "log scale" : "natural scale"));
     pk::FitSubjectsRequest req = DatasetRequest("1cmt_oral", "theophylline.csv");
     req.subjects = {0};
-    req.fit.optimizer = pk::OptimizerType::kBfgs;
+    req.fit.optimizer = "bfgs";
     req.fit.log_scale = log_scale;
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
     req.parameters.push_back({"F1", 0.8});

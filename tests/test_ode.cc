@@ -45,7 +45,7 @@ const std::vector<Scenario>& Scenarios() {
   return s;
 }
 
-pk::ObjectiveOptions OdeOptions(pk::ErrorModel e = pk::ErrorModel::kLeastSquares) {
+pk::ObjectiveOptions OdeOptions(std::shared_ptr<const pk::ResidualErrorModel> e = pk::MakeResidualError("least-squares")) {
   pk::ObjectiveOptions o;
   o.error_model = e;
   o.propagator = pk::Propagator::kOde;
@@ -56,7 +56,7 @@ pk::ObjectiveOptions OdeOptions(pk::ErrorModel e = pk::ErrorModel::kLeastSquares
 }
 
 // The same, solved to 1e-12: the values behind the finite-difference reference.
-pk::ObjectiveOptions ReferenceOptions(pk::ErrorModel e = pk::ErrorModel::kLeastSquares) {
+pk::ObjectiveOptions ReferenceOptions(std::shared_ptr<const pk::ResidualErrorModel> e = pk::MakeResidualError("least-squares")) {
   pk::ObjectiveOptions o = OdeOptions(e);
   o.ode.relative_tolerance = 1e-12;
   o.ode.absolute_tolerance = 1e-14;
@@ -117,8 +117,8 @@ TEST_CASE("ODE routes agree: forward sensitivities, adjoint and finite differenc
   const auto model = pk::MakeModel(name);
   for (const Scenario& sc : Scenarios()) {
     const auto error_model =
-        GENERATE(pk::ErrorModel::kLeastSquares, pk::ErrorModel::kCombined, pk::ErrorModel::kExponential);
-    INFO(name << " / " << sc.name << " / " << pk::ToString(error_model));
+        GENERATE(pk::MakeResidualError("least-squares"), pk::MakeResidualError("combined"), pk::MakeResidualError("exponential"));
+    INFO(name << " / " << sc.name << " / " << error_model->name());
     const pk::Objective obj(model, pk_test::ScenarioData(sc), 0, OdeOptions(error_model));
     Eigen::VectorXd values;
     std::vector<int> free;
@@ -135,7 +135,7 @@ TEST_CASE("ODE routes agree: forward sensitivities, adjoint and finite differenc
     REQUIRE(adj.ok);
     // The loss does not touch the routes, so differences on least squares suffice.
     const pk::Objective reference(model, pk_test::ScenarioData(sc), 0, ReferenceOptions(error_model));
-    const Eigen::VectorXd fd = error_model == pk::ErrorModel::kLeastSquares ? pk_test::CentralDifferences(reference, values, free)
+    const Eigen::VectorXd fd = std::string(error_model->name()) == "least-squares" ? pk_test::CentralDifferences(reference, values, free)
                                                                            : Eigen::VectorXd(fwd.gradient);
     // Separate integrations (with and without sensitivity error control) agree to the tolerance.
     CHECK(std::fabs(fwd.value - adj.value) <= 1e-8 * std::fabs(fwd.value));
@@ -388,7 +388,7 @@ TEST_CASE("ODE fits on several threads give the single-threaded results bit for 
     for (const std::string& p : req.model->parameter_names()) req.parameters.push_back({p, NAN});
     req.curve_points = 2;
     if (adjoint) {
-      req.fit.optimizer = pk::OptimizerType::kBfgs;
+      req.fit.optimizer = "bfgs";
       req.objective.gradient = pk::GradientRoute::kAdjoint;
     }
     req.jobs = 1;
@@ -709,7 +709,7 @@ TEST_CASE("a continuous effect record identifies the PD parameters", "[ode][fit]
     specs.push_back(s);
   }
   pk::FitOptions fo;
-  fo.optimizer = pk::OptimizerType::kBfgs;
+  fo.optimizer = "bfgs";
   const pk::FitSummary fit = pk::Fit(obj, specs, fo);
   INFO(fit.BriefReport());
   // The record's linear interpolation leaves V(truth) > 0; the optimum can only be lower.

@@ -116,23 +116,23 @@ TEST_CASE("theophylline below a limit of 2 mg/L (M3): R's optimum and estimates"
                      {error == "additive" ? "SIGMA_ADD" : "SIGMA_LOG", std::stod(f[7])}}});
   }
   REQUIRE(refs.size() == 24);
-  const pk::ErrorModel error = GENERATE(pk::ErrorModel::kAdditive, pk::ErrorModel::kExponential);
-  const pk::OptimizerType optimizer = GENERATE(pk::OptimizerType::kNewton, pk::OptimizerType::kBfgs);
+  const std::shared_ptr<const pk::ResidualErrorModel> error = GENERATE(pk::MakeResidualError("additive"), pk::MakeResidualError("exponential"));
+  const std::string optimizer = GENERATE(as<std::string>{}, "newton", "bfgs");
   pk::FitSubjectsRequest req;
   req.model = pk::MakeModel("1cmt_oral");
   req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/theophylline_blq.csv"));
   req.objective.error_model = error;
   req.fit.optimizer = optimizer;
   for (const char* p : {"KA", "CL", "V"}) req.parameters.push_back({p, NAN});
-  req.parameters.push_back({error == pk::ErrorModel::kAdditive ? "SIGMA_ADD" : "SIGMA_LOG", NAN});
+  req.parameters.push_back({std::string(error->name()) == "additive" ? "SIGMA_ADD" : "SIGMA_LOG", NAN});
   req.jobs = 2;
   const std::vector<pk::SubjectFit> fits = pk::FitSubjects(req);
   REQUIRE(fits.size() == 12);
   int compared = 0;
   for (const Row& ref : refs) {
-    if (ref.error != pk::ToString(error)) continue;
+    if (ref.error != error->name()) continue;
     const pk::SubjectFit& fit = fits[static_cast<size_t>(compared++)];
-    INFO("ID " << ref.id << ", " << ref.error << " error, " << pk::ToString(optimizer) << "\n" << fit.summary.FullReport());
+    INFO("ID " << ref.id << ", " << ref.error << " error, " << optimizer << "\n" << fit.summary.FullReport());
     REQUIRE(fit.id == ref.id);
     REQUIRE(fit.ok);
     CHECK(fit.censoring.cwiseAbs().sum() == ref.censored);

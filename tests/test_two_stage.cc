@@ -401,14 +401,14 @@ TEST_CASE("a simulated population: GTS recovers the truth, where STS's variances
   pk::FitSubjectsRequest req;
   req.model = pk::MakeModel("1cmt_oral");
   req.data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), "population.csv"));
-  req.objective.error_model = pk::ErrorModel::kExponential;
+  req.objective.error_model = pk::MakeResidualError("exponential");
   for (const std::string& name : kNames) req.parameters.push_back({name, NAN});
   pk::ParameterSpec sigma;
   sigma.name = "SIGMA_LOG";
   sigma.initial = 0.1;
   sigma.fixed = true;
   req.parameters.push_back(sigma);
-  req.fit.optimizer = pk::OptimizerType::kNewton;
+  req.fit.optimizer = "newton";
   req.fit.starts = 3;
   const std::vector<pk::SubjectFit> fits = pk::FitSubjects(req);
   pk::TwoStageOptions options;

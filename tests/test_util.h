@@ -65,7 +65,7 @@ inline std::shared_ptr<pk::Dataset> ScenarioData(const Scenario& sc) {
 /// evaluation must then fail saying so. False for the other error models.
 inline bool NoLogOfZero(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free,
                         const Scenario& sc) {
-  if (obj.options().error_model != pk::ErrorModel::kExponential) return false;
+  if (!obj.options().error_model->log_transformed()) return false;
   const auto value = obj.Evaluate(values, free, pk::Objective::Need::kValue);
   if (value.ok) return false;
   CHECK_THAT(value.message, Catch::Contains("needs a positive prediction"));

@@ -21,4 +21,6 @@ InputError::InputError(std::string file, int line, int column, std::string messa
       column_(column),
       message_(std::move(message)) {}
 
+InputError::InputError(std::string message) : InputError("", 0, 0, std::move(message)) {}
+
 }  // namespace pk

@@ -33,7 +33,7 @@
 #include <Eigen/Core>
 
 #include "autodiff.h"
-#include "exact/numerical_failure.h"
+#include "numerical_failure.h"
 #include "pk/dataset.h"
 #include "pk/model.h"
 #include "pk/output.h"

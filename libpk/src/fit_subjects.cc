@@ -99,7 +99,7 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
     if (ev.ok) {
       out->pred = ev.predictions;
       out->wres = objective.ScaledResiduals(out->summary.values, out->pred);
-      if (objective.options().error_model == ErrorModel::kLeastSquares) {
+      if (!objective.error_model().is_likelihood()) {
         // Least squares leaves σ to the residuals: σ̂² = 2V/(N − p).
         const Eigen::VectorXd r = out->dv - out->pred;
         const int n = objective.num_samples();
@@ -141,7 +141,7 @@ std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request, const std
   std::string why;
   if (!request.objective.IsValid(&why) || !request.fit.IsValid(&why) ||
       !IsCompatible(request.fit, request.objective, &why)) {
-    throw InputError("", 0, 0, why);
+    throw InputError(why);
   }
   std::vector<int> subjects = request.subjects;
   if (subjects.empty()) {
@@ -152,7 +152,7 @@ std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request, const std
   for (int i = 0; cens_col >= 0 && i < static_cast<int>(subjects.size()); ++i) {
     for (const Record& r : request.data->subjects[static_cast<size_t>(subjects[i])].records) {
       if (r.IsSample()) {
-        internal::CheckedCensoring(*request.data, r, cens_col, request.objective.error_model != ErrorModel::kLeastSquares);
+        internal::CheckedCensoring(*request.data, r, cens_col, request.objective.error_model->is_likelihood());
       }
     }
   }

@@ -11,6 +11,7 @@ namespace pk {
 namespace internal {
 
 std::string ToUpper(std::string s);
+std::string ToLower(std::string s);
 std::string Trim(const std::string& s);
 /// Parses the whole of `text` as a finite double; false if it is not one.
 bool ParseDouble(const std::string& text, double* value);

@@ -40,7 +40,7 @@ Eigen::VectorXd ParameterLayout::Resolve(const ParameterValues& values) const {
   for (const auto& kv : values) {
     const int i = Index(kv.first);
     if (i < 0) {
-      throw InputError("", 0, 0, "unknown parameter '" + kv.first + "'; this model has " +
+      throw InputError("unknown parameter '" + kv.first + "'; this model has " +
                                      internal::Join(names_, ", "));
     }
     p(i) = kv.second;

@@ -88,7 +88,7 @@ bool SimulationOptions::IsValid(std::string* error) const { return ode.IsValid(e
 SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int subject,
                                   const ParameterValues& values, const SimulationOptions& options) {
   std::string why;
-  if (!options.IsValid(&why)) throw InputError("", 0, 0, why);
+  if (!options.IsValid(&why)) throw InputError(why);
   const auto* linear = dynamic_cast<const LinearModel*>(&model);
   const Propagator propagator = ResolvePropagator(model, options.propagator);
   const ParameterLayout layout(model);

@@ -10,8 +10,8 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
-#include <nlopt.h>
 
+#include "estimation/nlopt.h"
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/objective.h"
@@ -202,20 +202,6 @@ DescriptiveStatistics Describe(const std::string& name, const std::vector<double
 
 bool AllFinite(const Eigen::MatrixXd& m) { return m.size() > 0 && m.allFinite(); }
 
-struct LbfgsData {
-  const Gts* gts;
-  int evaluations = 0;
-};
-
-double NegativeLogLikelihood(unsigned n, const double* v, double* gradient, void* data) {
-  auto* d = static_cast<LbfgsData*>(data);
-  ++d->evaluations;
-  const double l = d->gts->FactorLogLikelihood(v, gradient);
-  if (gradient) {
-    for (unsigned k = 0; k < n; ++k) gradient[k] = -gradient[k];
-  }
-  return std::isfinite(l) ? -l : std::numeric_limits<double>::max();
-}
 
 // EM for a start (kEmSteps iterations: it never decreases ℓ and keeps Ω
 // positive definite), then L-BFGS over μ and Ω's Cholesky factor L, in which
@@ -253,18 +239,23 @@ void Maximise(const Gts& gts, const Eigen::VectorXd& scale, const TwoStageOption
     for (size_t a = 0; a < entries.size(); ++a) m = std::max(m, std::fabs(g[p + a]) * scale(entries[a].first));
     return m;
   };
-  LbfgsData data{&gts};
-  nlopt_result result = NLOPT_FAILURE;
+  int evaluations = 0;
+  const internal::NloptFunction minus_l = [&](const double* at, double* gradient) {
+    ++evaluations;
+    const double l = gts.FactorLogLikelihood(at, gradient);
+    if (gradient) {
+      for (int k = 0; k < dim; ++k) gradient[k] = -gradient[k];
+    }
+    return std::isfinite(l) ? -l : std::numeric_limits<double>::max();
+  };
+  std::string result = "FAILURE";
   double best = gts.FactorLogLikelihood(v.data(), nullptr);
-  for (int round = 0; round < kLbfgsRounds && em + data.evaluations < options.max_iterations; ++round) {
-    nlopt_opt opt = nlopt_create(NLOPT_LD_LBFGS, static_cast<unsigned>(dim));
-    nlopt_set_min_objective(opt, NegativeLogLikelihood, &data);
-    nlopt_set_xtol_rel(opt, options.tolerance);
-    nlopt_set_maxeval(opt, std::max(1, options.max_iterations - em - data.evaluations));
+  for (int round = 0; round < kLbfgsRounds && em + evaluations < options.max_iterations; ++round) {
+    internal::Nlopt opt("LD_LBFGS", dim);
+    opt.SetRelativeTolerances(0, options.tolerance);
+    opt.SetMaxEvaluations(std::max(1, options.max_iterations - em - evaluations));
     std::vector<double> trial = v;
-    double value = 0;
-    result = nlopt_optimize(opt, trial.data(), &value);
-    nlopt_destroy(opt);
+    result = opt.Minimize(minus_l, &trial).result;
     const double l_trial = gts.FactorLogLikelihood(trial.data(), nullptr);
     if (std::isfinite(l_trial) && l_trial >= best) {
       best = l_trial;
@@ -273,10 +264,10 @@ void Maximise(const Gts& gts, const Eigen::VectorXd& scale, const TwoStageOption
     out->gts_converged = scaled_gradient(v) <= kGradientTolerance;
     if (out->gts_converged) break;
   }
-  out->gts_iterations = em + data.evaluations;
+  out->gts_iterations = em + evaluations;
   if (!out->gts_converged) {
     out->gts_message = std::string("the maximisation stopped short of a stationary point after ") +
-                       std::to_string(out->gts_iterations) + " iterations (L-BFGS: " + nlopt_result_to_string(result) + ")";
+                       std::to_string(out->gts_iterations) + " iterations (L-BFGS: " + result + ")";
   }
   *x = gts.FromFactor(v.data());
 }
@@ -388,10 +379,10 @@ TwoStageSummary EstimateTwoStage(const std::vector<std::string>& names, const st
                                  const std::vector<Eigen::VectorXd>& estimates,
                                  const std::vector<Eigen::MatrixXd>& covariances, const TwoStageOptions& options) {
   std::string why;
-  if (!options.IsValid(&why)) throw InputError("", 0, 0, "two-stage options: " + why);
+  if (!options.IsValid(&why)) throw InputError("two-stage options: " + why);
   const int p = static_cast<int>(names.size());
   if (ids.size() != estimates.size() || ids.size() != covariances.size()) {
-    throw InputError("", 0, 0, "two-stage: IDs, estimates and covariances differ in number");
+    throw InputError("two-stage: IDs, estimates and covariances differ in number");
   }
   TwoStageSummary out;
   out.distribution = options.distribution;
@@ -405,7 +396,7 @@ TwoStageSummary EstimateTwoStage(const std::vector<std::string>& names, const st
     const Eigen::VectorXd& theta = estimates[i];
     const Eigen::MatrixXd& cov = covariances[i];
     if (theta.size() != p || (cov.size() > 0 && (cov.rows() != p || cov.cols() != p))) {
-      throw InputError("", 0, 0, "two-stage: subject " + FormatNumber(ids[i]) + " has estimates of another size");
+      throw InputError("two-stage: subject " + FormatNumber(ids[i]) + " has estimates of another size");
     }
     if (!theta.allFinite()) {
       out.excluded.emplace_back(ids[i], "an estimate is not finite");

@@ -20,6 +20,8 @@ class InputError : public std::runtime_error {
   /// `file` may be empty (input that did not come from a file); `line` and
   /// `column` are 1-based, 0 when unknown.
   InputError(std::string file, int line, int column, std::string message);
+  /// An error with no place: a bad option or an inconsistent request.
+  explicit InputError(std::string message);
 
   const std::string& file() const { return file_; }
   int line() const { return line_; }

@@ -11,14 +11,14 @@
 // on the log scale when log_scale is on), so every optimiser works unbounded.
 // Parameters not listed in `params` keep the objective's default values.
 //
-// Optimisers:
-//   kLevenbergMarquardt  MINPACK's lmder (cminpack, the C translation of the
-//                        Fortran original); least squares only. Iterations
-//                        are its Jacobian evaluations.
-//   kBfgs                NLopt's LD_LBFGS (limited-memory BFGS)
-//   kNewton              damped Newton with the Gauss–Newton matrix (least
-//                        squares) or the expected Fisher information (ML)
-//   kNlopt               any NLopt algorithm by name, e.g. LN_BOBYQA, LD_MMA
+// Optimisers (FitOptions::optimizer), one file each in libpk/src/estimation/:
+//   "lm"          MINPACK's lmder (cminpack, the C translation of the Fortran
+//                 original); least squares only. Iterations are its Jacobian
+//                 evaluations.
+//   "bfgs"        NLopt's LD_LBFGS (limited-memory BFGS)
+//   "newton"      Newton in a trust region with the Gauss–Newton matrix (least
+//                 squares) or the expected Fisher information (ML)
+//   "nlopt:NAME"  any NLopt algorithm by name, e.g. nlopt:LN_BOBYQA, nlopt:LD_MMA
 //
 // Numerical failure never throws: the summary says what happened.
 #ifndef PK_FIT_H_
@@ -34,13 +34,8 @@
 
 namespace pk {
 
-enum class OptimizerType { kLevenbergMarquardt, kBfgs, kNewton, kNlopt };
-
-const char* ToString(OptimizerType o);
-
 struct FitOptions {
-  OptimizerType optimizer = OptimizerType::kLevenbergMarquardt;  ///< the optimiser
-  std::string nlopt_algorithm;     ///< for kNlopt: an NLopt name such as "LN_BOBYQA"
+  std::string optimizer = "lm";    ///< "lm", "bfgs", "newton" or "nlopt:NAME" (see above)
   int max_iterations = 1000;       ///< iterations (LM, Newton) or evaluations (NLopt)
   double function_tolerance = 1e-12;   ///< relative change of V that ends the search
   double parameter_tolerance = 1e-10;  ///< relative change of the parameters that ends it
@@ -124,7 +119,8 @@ struct FitSummary {
 
 /// Whether an optimiser can work with an objective's settings: Levenberg–Marquardt
 /// needs least squares; LM and Newton need the residual Jacobian, which the
-/// adjoint route does not give. Sets `why` when not.
+/// adjoint route does not give. Sets `why` when not. (An unknown optimiser is
+/// FitOptions::IsValid's to report.)
 bool IsCompatible(const FitOptions& fit, const ObjectiveOptions& objective, std::string* why);
 
 /// Fits `params` (names from objective.parameter_names()). Throws

@@ -49,20 +49,14 @@
 #include "pk/model.h"
 #include "pk/ode_options.h"
 #include "pk/propagator.h"
+#include "pk/residual_error.h"
 
 namespace pk {
+namespace internal {
+struct ObjectiveState;
+}  // namespace internal
 
 enum class Weighting { kUniform, kInverseDvSquared, kInverseDv, kColumn };
-enum class ErrorModel { kLeastSquares, kAdditive, kProportional, kCombined, kExponential };
-
-/// The residual-error parameters that maximum likelihood appends to a model's
-/// parameters: SIGMA_ADD (additive and combined), SIGMA_PROP (proportional and
-/// combined) and SIGMA_LOG (exponential, σ of log DV).
-inline constexpr const char* kSigmaAdd = "SIGMA_ADD";
-inline constexpr const char* kSigmaProp = "SIGMA_PROP";
-inline constexpr const char* kSigmaLog = "SIGMA_LOG";
-/// Whether `name` (canonical upper case) names a residual-error parameter.
-bool IsResidualErrorName(const std::string& name);
 /// How the gradient (or residual Jacobian) is computed.
 enum class GradientRoute {
   kAuto,              ///< forward when a Jacobian is needed; else the adjoint (exact), or forward
@@ -75,13 +69,20 @@ enum class GradientRoute {
 };
 
 const char* ToString(Weighting w);
-const char* ToString(ErrorModel e);
 const char* ToString(GradientRoute r);
+/// The route of this name (as ToString spells it); throws pk::InputError listing the names otherwise.
+GradientRoute ParseGradientRoute(const std::string& text);
+
+struct ObjectiveOptions;
+/// "uniform", "dv2", "dv" or "column:NAME" into options->weighting (and weight_column); throws
+/// pk::InputError otherwise.
+void ParseWeighting(const std::string& text, ObjectiveOptions* options);
 
 struct ObjectiveOptions {
   Weighting weighting = Weighting::kUniform;  ///< least squares only
   std::string weight_column;                  ///< the data column for Weighting::kColumn
-  ErrorModel error_model = ErrorModel::kLeastSquares;
+  /// Least squares, or a likelihood (pk/residual_error.h: MakeResidualError("additive"), ...).
+  std::shared_ptr<const ResidualErrorModel> error_model = LeastSquares();
   GradientRoute gradient = GradientRoute::kAuto;
   /// Central-difference step relative to |θ| (floor 1e-8). 0 (the default)
   /// picks it: 1e-5 for the exact propagator; for the ODE propagator
@@ -176,6 +177,9 @@ class Objective {
   double subject_id() const;
   const Model& model() const;
   const ObjectiveOptions& options() const;
+  /// The residual-error model (options().error_model) and the positions of its σ in parameter_names().
+  const ResidualErrorModel& error_model() const;
+  std::vector<int> sigma_indices() const;
 
   /// Evaluates at `values` (natural scale, one per parameter_names()),
   /// differentiating with respect to the parameters listed in `free`.
@@ -202,8 +206,7 @@ class Objective {
                                 int output = 1) const;
 
  private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
+  std::unique_ptr<internal::ObjectiveState> impl_;
 };
 
 }  // namespace pk

@@ -32,7 +32,6 @@
 #ifndef PK_ODE_MODEL_H_
 #define PK_ODE_MODEL_H_
 
-#include <atomic>
 #include <memory>
 #include <string>
 #include <utility>
@@ -59,10 +58,13 @@ struct OdeModelSpec {
   int default_dose = 1;  ///< 1-based compartment receiving doses with CMT=0
 };
 
-/// The runtime interface of a nonlinear model. Implemented by
-/// AutoDiffOdeModel (use MakeOdeModel); derivatives always come from AD.
+/// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use
+/// MakeOdeModel); derivatives always come from AD. f is recorded on a tape (RecordRhs) at each
+/// (x, θ) it is asked about, per thread, and the recording is swept forward for directional
+/// derivatives and backward for vector–Jacobian products (libpk/src/ode_model.cc).
 class OdeModel : public Model {
  public:
+  ~OdeModel() override;
   bool is_linear() const override { return false; }
   int num_outputs() const { return static_cast<int>(outputs_.size()); }
   const std::vector<std::string>& output_names() const { return outputs_; }
@@ -75,12 +77,12 @@ class OdeModel : public Model {
   /// f and, for k directions (columns of dx, n×k, and dtheta, m×k), the
   /// directional derivatives df = f_x dx + f_θ dtheta (n×k). With dx = [I 0]
   /// and dtheta = [0 I] they are the Jacobians [f_x f_θ].
-  virtual void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
-                              const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const = 0;
+  void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
+                      const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const;
   /// f and the vector–Jacobian products wᵀf_x (n) and wᵀf_θ (m), by one
   /// reverse-mode pass (the adjoint route's λᵀf_x and λᵀf_θ).
-  virtual void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
-                                 Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const = 0;
+  void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
+                         Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const;
   /// y = g_output(x, θ), output numbered from 1.
   virtual double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const = 0;
   /// y and dy = g_x dx + g_θ dtheta (1×k).
@@ -90,9 +92,12 @@ class OdeModel : public Model {
 
  protected:
   explicit OdeModel(const OdeModelSpec& spec);
+  /// Evaluates f with tape variables x (n) and θ (m) into f (n), recording it on the active tape.
+  virtual void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const = 0;
 
  private:
   std::vector<std::string> outputs_;
+  unsigned long id_;  // identifies this model in the per-thread recordings (an address may be reused)
 };
 
 /// An OdeModel from a functor with templated `Rhs` and `Output` (see above).
@@ -106,53 +111,6 @@ class AutoDiffOdeModel final : public OdeModel {
   void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const override {
     f->resize(num_compartments());
     f_.Rhs(x.data(), theta.data(), f->data());
-  }
-
-  void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
-                      const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const override {
-    // Forward mode over the recording of f at (x, θ) (see RhsVectorJacobian):
-    // each node's tangents are its parents' times its recorded partials. Unlike
-    // Dual, nothing is allocated per operation.
-    Recording& rec = Recorded(x, theta);
-    const int n = num_compartments();
-    const Eigen::Index m = theta.size();
-    const Eigen::Index k = dx.cols();
-    static thread_local std::vector<double> tangents;
-    tangents.resize(static_cast<size_t>(rec.tape.size()) * static_cast<size_t>(k));
-    for (int i = 0; i < n; ++i) {
-      for (Eigen::Index j = 0; j < k; ++j) tangents[i * k + j] = dx(i, j);
-    }
-    for (Eigen::Index r = 0; r < m; ++r) {
-      for (Eigen::Index j = 0; j < k; ++j) tangents[(n + r) * k + j] = dtheta(r, j);
-    }
-    rec.tape.Tangents(static_cast<int>(k), &tangents);
-    *f = rec.f;
-    df->setZero(n, k);
-    for (int i = 0; i < n; ++i) {
-      if (rec.fi[i] < 0) continue;
-      for (Eigen::Index j = 0; j < k; ++j) (*df)(i, j) = tangents[rec.fi[i] * k + j];
-    }
-  }
-
-  void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
-                         Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const override {
-    // The backward solve asks at one (x, θ) several times with different w:
-    // each Newton iteration, then the quadrature. The recording of f depends
-    // on (x, θ) alone, so the last one is kept per thread and swept again (and
-    // serves RhsDirectional too).
-    Recording& rec = Recorded(x, theta);
-    const int n = num_compartments();
-    const Eigen::Index m = theta.size();
-    rec.adj.assign(rec.tape.size(), 0.0);
-    for (int i = 0; i < n; ++i) {
-      if (rec.fi[i] >= 0) rec.adj[rec.fi[i]] += w(i);
-    }
-    rec.tape.Sweep(&rec.adj, n + static_cast<int>(m));  // x and θ are nodes 0…n+m−1
-    *f = rec.f;
-    wfx->resize(n);
-    wftheta->resize(m);
-    for (int i = 0; i < n; ++i) (*wfx)(i) = rec.adj[i];
-    for (Eigen::Index j = 0; j < m; ++j) (*wftheta)(j) = rec.adj[n + j];
   }
 
   double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override {
@@ -174,63 +132,16 @@ class AutoDiffOdeModel final : public OdeModel {
     }
   }
 
+ protected:
+  void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const override { f_.Rhs(x, theta, f); }
+
  private:
   static void Seed(const Eigen::VectorXd& v, const Eigen::MatrixXd& d, std::vector<Dual>* out) {
     out->resize(v.size());
     for (Eigen::Index i = 0; i < v.size(); ++i) (*out)[i] = Dual(v(i), d.row(i).transpose());
   }
 
-  // A recording of f at (x, θ): nodes 0…n−1 are x, n…n+m−1 are θ, and f_i is
-  // node fi[i] (−1 for a constant).
-  struct Recording {
-    unsigned long model = 0;
-    Eigen::VectorXd x, theta, f;
-    Tape tape;
-    std::vector<int> fi;
-    std::vector<double> adj;
-  };
-  // The calling thread's recording of f, made at (x, θ) unless it is there.
-  Recording& Recorded(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
-    static thread_local Recording rec;
-    if (rec.model != id_ || rec.x.size() != x.size() || rec.theta.size() != theta.size() || rec.x != x ||
-        rec.theta != theta) {
-      Record(x, theta, &rec);
-    }
-    return rec;
-  }
-  void Record(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Recording* rec) const {
-    const int n = num_compartments();
-    const Eigen::Index m = theta.size();
-    rec->model = 0;  // invalid until complete (the functor may throw)
-    Tape& tape = Tape::Active();
-    tape.Clear();
-    static thread_local std::vector<TapeScalar> xt, tt, ft;
-    xt.resize(n);
-    tt.resize(m);
-    ft.assign(n, TapeScalar());
-    for (int i = 0; i < n; ++i) xt[i] = TapeScalar::Variable(x(i));
-    for (Eigen::Index j = 0; j < m; ++j) tt[j] = TapeScalar::Variable(theta(j));
-    f_.Rhs(xt.data(), tt.data(), ft.data());
-    rec->f.resize(n);
-    rec->fi.resize(n);
-    for (int i = 0; i < n; ++i) {
-      rec->f(i) = ft[i].value();
-      rec->fi[i] = ft[i].index();
-    }
-    rec->tape.Swap(tape);
-    tape.Clear();
-    rec->x = x;
-    rec->theta = theta;
-    rec->model = id_;
-  }
-  // Identifies this model in the per-thread recording (an address could be reused by another model).
-  static unsigned long NextId() {
-    static std::atomic<unsigned long> next{1};
-    return next++;
-  }
-
   Functor f_;
-  unsigned long id_ = NextId();
 };
 
 /// Wraps a functor into a model (see the example at the top of this file).

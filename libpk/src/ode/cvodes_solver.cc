@@ -12,7 +12,7 @@
 #include <sunlinsol/sunlinsol_dense.h>
 #include <sunmatrix/sunmatrix_dense.h>
 
-#include "../exact/numerical_failure.h"
+#include "numerical_failure.h"
 #include "sundials_kernels.h"
 
 namespace pk {

@@ -32,7 +32,7 @@
 
 #include "../autodiff.h"
 #include "../events.h"
-#include "../exact/numerical_failure.h"
+#include "numerical_failure.h"
 #include "cvodes_solver.h"
 #include "ode_system.h"
 

@@ -26,7 +26,7 @@ OdeSystem::OdeSystem(const Model& model)
       n_(model.num_compartments()),
       m_(model.num_parameters()) {
   if (linear_ == nullptr && ode_ == nullptr) {
-    throw InputError("", 0, 0, "model " + model.name() + " is neither linear nor an OdeModel");
+    throw InputError("model " + model.name() + " is neither linear nor an OdeModel");
   }
 }
 

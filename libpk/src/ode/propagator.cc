@@ -16,7 +16,7 @@ const char* ToString(Propagator p) {
 
 Propagator ResolvePropagator(const Model& model, Propagator requested) {
   if (requested == Propagator::kExact && !model.is_linear()) {
-    throw InputError("", 0, 0, "model " + model.name() +
+    throw InputError("model " + model.name() +
                                    " is nonlinear: the exact (Φ/Γ) propagator needs a linear model; use "
                                    "--propagator ode");
   }

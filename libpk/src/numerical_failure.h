@@ -1,7 +1,7 @@
 // A numerical failure of one evaluation (not installed): reported through a
 // result or summary, never a crash.
-#ifndef PK_SRC_EXACT_NUMERICAL_FAILURE_H_
-#define PK_SRC_EXACT_NUMERICAL_FAILURE_H_
+#ifndef PK_SRC_NUMERICAL_FAILURE_H_
+#define PK_SRC_NUMERICAL_FAILURE_H_
 
 #include <stdexcept>
 
@@ -16,4 +16,4 @@ class NumericalFailure : public std::runtime_error {
 }  // namespace internal
 }  // namespace pk
 
-#endif  // PK_SRC_EXACT_NUMERICAL_FAILURE_H_
+#endif  // PK_SRC_NUMERICAL_FAILURE_H_

@@ -1,0 +1,94 @@
+#include "objective/objective_state.h"
+
+#include <cmath>
+#include <utility>
+
+#include "pk/ode_model.h"
+
+namespace pk {
+namespace internal {
+
+ModalLease::~ModalLease() {
+  if (owner == nullptr || !work) return;
+  ModalWork* empty = nullptr;
+  if (owner->modal_spare.compare_exchange_strong(empty, work.get())) {
+    work.release();
+    return;
+  }
+  std::lock_guard<std::mutex> lock(owner->modal_mutex);
+  owner->modal_pool.push_back(std::move(work));
+}
+
+ObjectiveState::ObjectiveState(std::shared_ptr<const Model> m, std::shared_ptr<const Dataset> d, int subj,
+                               const ObjectiveOptions& o)
+    : model(std::move(m)), data(std::move(d)), subject(subj), options(o), layout(*model) {
+  error = options.error_model.get();
+  linear = dynamic_cast<const LinearModel*>(model.get());
+  propagator = ResolvePropagator(*model, options.propagator);
+  // Dose modifiers (R, D, ...) are checked when values are given (Objective::CheckValues).
+  prepared = PrepareSubject(*model, layout, *data, subject, layout.Defaults(), false);
+  if (propagator == Propagator::kOde) {
+    ode_system.reset(new OdeSystem(*model));
+    ode.system = ode_system.get();
+    ode.layout = &layout;
+    ode.options = options.ode;
+  }
+  names = layout.names();
+  for (const std::string& name : error->sigma_names()) {
+    sigma.push_back(static_cast<int>(names.size()));
+    names.push_back(name);
+  }
+}
+
+ObjectiveState::~ObjectiveState() { delete modal_spare.load(); }
+
+void ObjectiveState::Sigmas(const Eigen::VectorXd& values, double* out) const {
+  for (size_t j = 0; j < sigma.size(); ++j) out[j] = values(sigma[j]);
+}
+
+std::shared_ptr<const EventSchedule> ObjectiveState::Schedule(const Eigen::VectorXd& values) const {
+  const int m = model->num_parameters();
+  const auto key = values.segment(m, L() - m);
+  {
+    std::lock_guard<std::mutex> lock(schedule_mutex);
+    // Unused modifiers are NaN: NaN matches NaN.
+    if (schedule && SameValues(schedule->key, key)) return schedule;
+  }
+  PreparedSubject s = prepared;
+  RebindParameters(layout, values.head(L()), &s);
+  auto made = std::make_shared<EventSchedule>(RecordSchedule(layout, s, m));
+  made->key = key;
+  std::lock_guard<std::mutex> lock(schedule_mutex);
+  schedule = made;
+  return made;
+}
+
+ModalEvaluator* ObjectiveState::Modal(const Eigen::VectorXd& values, const std::vector<int>& model_free,
+                                      ModalLease* lease) const {
+  lease->work.reset(modal_spare.exchange(nullptr));
+  if (!lease->work) {
+    std::lock_guard<std::mutex> lock(modal_mutex);
+    if (!modal_pool.empty()) {
+      lease->work = std::move(modal_pool.back());
+      modal_pool.pop_back();
+    }
+  }
+  if (!lease->work) {
+    lease->work.reset(new ModalWork);
+    lease->work->evaluator = NewModalEvaluator(*linear);
+  }
+  lease->owner = this;
+  ModalWork& w = *lease->work;
+  const int m = model->num_parameters();
+  if (!w.schedule || !SameValues(w.schedule->key, values.segment(m, L() - m))) w.schedule = Schedule(values);
+  if (!w.evaluator->Reset(*w.schedule, values, prepared, model_free)) return nullptr;
+  return w.evaluator.get();
+}
+
+double ObjectiveState::FdStep() const {
+  if (options.fd_relative_step > 0) return options.fd_relative_step;
+  return propagator == Propagator::kOde ? std::cbrt(options.ode.relative_tolerance) : 1e-5;
+}
+
+}  // namespace internal
+}  // namespace pk
