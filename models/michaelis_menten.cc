@@ -55,6 +55,7 @@ std::shared_ptr<const OdeModel> OneCmtIvMm() {
   s.description = "one compartment, Michaelis-Menten elimination";
   s.compartments = {"CENTRAL"};
   s.parameters = {{"VMAX", 20.0}, {"KM", 2.0}, {"V", 30.0}};
+  s.initial_structure = {InitialStructure::Kind::kMammillary, 1, false, {"CL", "V"}, "VMAX", "KM"};
   return MakeOdeModel(s, OneCmtIvMmRhs());
 }
 
@@ -66,6 +67,7 @@ std::shared_ptr<const OdeModel> OneCmtOralMm() {
   s.parameters = {{"KA", 1.5}, {"VMAX", 20.0}, {"KM", 2.0}, {"V", 30.0}};
   s.central = 2;
   s.default_dose = 1;
+  s.initial_structure = {InitialStructure::Kind::kMammillary, 1, true, {"KA", "CL", "V"}, "VMAX", "KM"};
   return MakeOdeModel(s, OneCmtOralMmRhs());
 }
 
@@ -75,6 +77,7 @@ std::shared_ptr<const OdeModel> TwoCmtIvMm() {
   s.description = "two compartments, Michaelis-Menten elimination from the central one";
   s.compartments = {"CENTRAL", "PERIPHERAL"};
   s.parameters = {{"VMAX", 20.0}, {"KM", 2.0}, {"V1", 20.0}, {"Q", 5.0}, {"V2", 40.0}};
+  s.initial_structure = {InitialStructure::Kind::kMammillary, 2, false, {"CL", "V1", "Q", "V2"}, "VMAX", "KM"};
   return MakeOdeModel(s, TwoCmtIvMmRhs());
 }
 

@@ -11,6 +11,7 @@ std::shared_ptr<const LinearModel> OneCmtIv() {
   b.ClearanceFlow(central, LinearModelBuilder::kOutside, cl);
   b.SetCentral(central);
   b.SetDefaultDose(central);
+  b.SetInitialStructure({InitialStructure::Kind::kMammillary, 1, false, {"CL", "V"}, "", ""});
   return b.Build();
 }
 
@@ -22,6 +23,7 @@ std::shared_ptr<const LinearModel> OneCmtOral() {
   b.ClearanceFlow(central, LinearModelBuilder::kOutside, cl);
   b.SetCentral(central);
   b.SetDefaultDose(depot);
+  b.SetInitialStructure({InitialStructure::Kind::kMammillary, 1, true, {"KA", "CL", "V"}, "", ""});
   return b.Build();
 }
 

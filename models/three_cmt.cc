@@ -26,6 +26,7 @@ int Disposition(LinearModelBuilder& b) {
 std::shared_ptr<const LinearModel> ThreeCmtIv() {
   LinearModelBuilder b("3cmt_iv", "three compartments (mammillary), IV bolus or infusion");
   b.SetDefaultDose(Disposition(b));
+  b.SetInitialStructure({InitialStructure::Kind::kMammillary, 3, false, {"CL", "V1", "Q2", "V2", "Q3", "V3"}, "", ""});
   return b.Build();
 }
 
@@ -36,6 +37,7 @@ std::shared_ptr<const LinearModel> ThreeCmtOral() {
   const int central = Disposition(b);
   b.RateFlow(depot, central, ka);
   b.SetDefaultDose(depot);
+  b.SetInitialStructure({InitialStructure::Kind::kMammillary, 3, true, {"KA", "CL", "V1", "Q2", "V2", "Q3", "V3"}, "", ""});
   return b.Build();
 }
 

@@ -7,7 +7,7 @@
 #include "catalogue_models.h"
 #include <cmath>
 
-#include "pk/initial_estimates.h"
+#include "pk/conversion.h"
 
 namespace pk {
 namespace models {
@@ -33,7 +33,8 @@ std::shared_ptr<const LinearModel> TransferFunction(int n) {
   Eigen::VectorXd defaults = Eigen::Map<Eigen::VectorXd>(coeffs.data(), 2 * n);
   return LinearModel::FromTerms("tf" + std::to_string(n),
                                 "transfer function of order " + std::to_string(n) + " (companion form)", states,
-                                params, defaults, 1, 1, a_terms, std::vector<std::vector<LinearTerm>>(n, output), n);
+                                params, defaults, 1, 1, a_terms, std::vector<std::vector<LinearTerm>>(n, output), n,
+                                {InitialStructure::Kind::kTransferFunction, n, false, params, "", ""});
 }
 
 }  // namespace models

@@ -24,6 +24,7 @@ std::shared_ptr<const LinearModel> TwoCmtIv() {
   int central = 0;
   Disposition(b, &central);
   b.SetDefaultDose(central);
+  b.SetInitialStructure({InitialStructure::Kind::kMammillary, 2, false, {"CL", "V1", "Q", "V2"}, "", ""});
   return b.Build();
 }
 
@@ -35,6 +36,7 @@ std::shared_ptr<const LinearModel> TwoCmtOral() {
   Disposition(b, &central);
   b.RateFlow(depot, central, ka);
   b.SetDefaultDose(depot);
+  b.SetInitialStructure({InitialStructure::Kind::kMammillary, 2, true, {"KA", "CL", "V1", "Q", "V2"}, "", ""});
   return b.Build();
 }
 

@@ -7,6 +7,7 @@
 #include <catch2/catch.hpp>
 
 #include "pk/catalogue.h"
+#include "pk/conversion.h"
 #include "pk/fit_subjects.h"
 #include "pk/initial_estimates.h"
 #include "pk/linear_model.h"
@@ -157,4 +158,72 @@ TEST_CASE("transfer functions: the same fit as the compartmental model, and conv
   CHECK(coeffs[1] == Approx(0.05));
   CHECK(coeffs[2] == Approx(3.0));
   CHECK(coeffs[3] == Approx(0.7));
+}
+
+TEST_CASE("each catalogue model declares the structure its starting values assume, in its own names", "[initial]") {
+  using Kind = pk::InitialStructure::Kind;
+  for (const std::string& name : pk::CatalogueModelNames()) {
+    INFO(name);
+    const auto model = pk::MakeModel(name);
+    const pk::InitialStructure& s = model->initial_structure();
+    if (s.kind == Kind::kNone) {
+      // Only the models the exponential method cannot describe: transit absorption and an effect compartment.
+      CHECK((name == "1cmt_oral_transit" || name == "1cmt_iv_emax"));
+      continue;
+    }
+    const int expected = s.kind == Kind::kTransferFunction ? 2 * s.order : 2 * s.order + (s.depot ? 1 : 0);
+    CHECK(static_cast<int>(s.names.size()) == expected);
+    for (size_t k = 0; k < s.names.size(); ++k) {
+      // The saturable models' clearance slot is the linear block's CL, which becomes VMAX and KM.
+      const bool clearance_slot = !s.vmax.empty() && k == (s.depot ? 1u : 0u);
+      CHECK((model->ParameterIndex(s.names[k]) >= 0) != clearance_slot);
+    }
+    if (!s.vmax.empty()) {
+      CHECK(model->ParameterIndex(s.vmax) >= 0);
+      CHECK(model->ParameterIndex(s.km) >= 0);
+    }
+    CHECK(s.depot == (model->default_dose_compartment() != model->central_compartment()));
+  }
+}
+
+TEST_CASE("a model without a declared structure, or with one the method cannot convert, says so", "[initial]") {
+  // A four-compartment mammillary model, built here and absent from the catalogue.
+  const auto build = [](bool declare) {
+    pk::LinearModelBuilder b("4cmt_iv", "four compartments");
+    const int cl = b.Parameter("CL", 3), v1 = b.Parameter("V1", 10);
+    const int central = b.Compartment("CENTRAL", v1);
+    b.ClearanceFlow(central, pk::LinearModelBuilder::kOutside, cl);
+    std::vector<std::string> names = {"CL", "V1"};
+    for (int k = 2; k <= 4; ++k) {
+      const int q = b.Parameter("Q" + std::to_string(k), 2.0 * k), v = b.Parameter("V" + std::to_string(k), 10.0 * k);
+      const int p = b.Compartment("P" + std::to_string(k), v);
+      b.ClearanceFlow(central, p, q);
+      b.ClearanceFlow(p, central, q);
+      names.push_back("Q" + std::to_string(k));
+      names.push_back("V" + std::to_string(k));
+    }
+    b.SetCentral(central);
+    b.SetDefaultDose(central);
+    if (declare) b.SetInitialStructure({pk::InitialStructure::Kind::kMammillary, 4, false, names, "", ""});
+    return b.Build();
+  };
+  const pk::ParameterValues truth = {{"CL", 3}, {"V1", 10}, {"Q2", 20}, {"V2", 20}, {"Q3", 4}, {"V3", 30},
+                                     {"Q4", 0.5}, {"V4", 80}};
+  // Samples of the model's own curve, so that four exponentials fit it exactly.
+  std::ostringstream grid, csv;
+  grid << "ID,TIME,AMT,RATE,EVID,DV\n1,0,100,0,1,.\n";
+  csv.precision(17);
+  csv << "ID,TIME,AMT,RATE,EVID,DV\n1,0,100,0,1,.\n";
+  const std::vector<double> times = {0.05, 0.1, 0.2, 0.3, 0.6, 1.0, 2.0, 4.0, 8.0, 12.0, 24.0, 48.0, 96.0};
+  for (double t : times) grid << "1," << t << ",0,0,2,.\n";
+  const auto sim = pk::SimulateSubject(*build(false), pk::ParseDataset(grid.str(), "grid"), 0, truth);
+  REQUIRE(sim.ok);
+  for (size_t k = 0; k < times.size(); ++k) csv << "1," << times[k] << ",0,0,0," << sim.rows[k].cp << "\n";
+  const pk::Dataset data = pk::ParseDataset(csv.str(), "four.csv");
+  const pk::InitialEstimate none = pk::EstimateInitialValues(*build(false), data, 0);
+  CHECK_FALSE(none.ok);
+  CHECK(none.message == "model 4cmt_iv declares no structure for starting values from the data");
+  const pk::InitialEstimate four = pk::EstimateInitialValues(*build(true), data, 0);
+  CHECK_FALSE(four.ok);
+  CHECK_THAT(four.message, Catch::Contains("1, 2 or 3 exponentials"));
 }

@@ -8,7 +8,6 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
-#include "pk/initial_estimates.h"
 #include "pk/linear_model.h"
 
 namespace pk {
@@ -261,6 +260,84 @@ std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::Vector
     out[2].message = "the oral reading needs tf2 to tf4";
   }
   return out;
+}
+
+bool ExponentialsToMammillary(const Exponentials& e, std::vector<double>* p, std::string* why) {
+  const int m = static_cast<int>(e.rate.size());
+  auto fail = [&](const std::string& w) {
+    if (why) *why = w;
+    return false;
+  };
+  double b0 = 0;
+  for (double a : e.amplitude) b0 += a;
+  if (!(b0 > 0)) return fail("the amplitudes do not sum to a positive concentration");
+  const double v1 = 1 / b0;
+  p->clear();
+  if (m == 1) {
+    *p = {e.rate[0] * v1, v1};
+    return true;
+  }
+  if (m == 2) {
+    const double a1 = e.amplitude[0], a2 = e.amplitude[1], l1 = e.rate[0], l2 = e.rate[1];
+    const double k21 = (a1 * l2 + a2 * l1) / (a1 + a2);
+    const double k10 = l1 * l2 / k21;
+    const double k12 = l1 + l2 - k21 - k10;
+    if (!(k21 > 0 && k10 > 0 && k12 > 0)) return fail("the exponentials give a negative micro-constant");
+    *p = {k10 * v1, v1, k12 * v1, k12 * v1 / k21};
+    return true;
+  }
+  if (m == 3) {
+    // A(s) = Π(s + λ_i) = s³ + a1 s² + a2 s + a3; B(s) = Σ a_i Π_{j≠i}(s + λ_j) = b0 s² + b1 s + b2.
+    const double l1 = e.rate[0], l2 = e.rate[1], l3 = e.rate[2];
+    const double a1 = l1 + l2 + l3, a2 = l1 * l2 + l1 * l3 + l2 * l3, a3 = l1 * l2 * l3;
+    double b1 = 0, b2 = 0;
+    for (int i = 0; i < 3; ++i) {
+      const double lj = e.rate[(i + 1) % 3], lk = e.rate[(i + 2) % 3];
+      b1 += e.amplitude[i] * (lj + lk);
+      b2 += e.amplitude[i] * lj * lk;
+    }
+    // B(s)/b0 = (s + k21)(s + k31).
+    const double sum = b1 / b0, prod = b2 / b0, disc = sum * sum - 4 * prod;
+    if (!(disc >= 0) || !(prod > 0)) return fail("the peripheral rates are complex (no mammillary model fits)");
+    const double k21 = (sum + std::sqrt(disc)) / 2, k31 = (sum - std::sqrt(disc)) / 2;
+    if (!(k31 > 0)) return fail("a peripheral rate is not positive");
+    const double k10 = a3 / (k21 * k31);
+    const double s1 = a1 - k10 - k21 - k31;
+    const double s2 = a2 - k10 * (k21 + k31) - k21 * k31;
+    if (std::fabs(k21 - k31) < 1e-12 * k21) return fail("the peripheral rates coincide: the labelling is not identifiable");
+    // k12 k31 + k13 k21 = s2, k12 + k13 = s1.
+    const double k12 = (s2 - s1 * k21) / (k31 - k21), k13 = s1 - k12;
+    if (!(k10 > 0 && k12 > 0 && k13 > 0)) return fail("the exponentials give a negative micro-constant");
+    *p = {k10 * v1, v1, k12 * v1, k12 * v1 / k21, k13 * v1, k13 * v1 / k31};
+    return true;
+  }
+  return fail("only 1, 2 or 3 exponentials are supported");
+}
+
+void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* coefficients) {
+  const int n = static_cast<int>(e.rate.size());
+  // Polynomial products, highest power first: {1} · (s + λ).
+  auto product = [&](int skip) {
+    std::vector<double> p{1.0};
+    for (int i = 0; i < n; ++i) {
+      if (i == skip) continue;
+      std::vector<double> q(p.size() + 1, 0.0);
+      for (size_t k = 0; k < p.size(); ++k) {
+        q[k] += p[k];
+        q[k + 1] += p[k] * e.rate[i];
+      }
+      p = q;
+    }
+    return p;
+  };
+  const std::vector<double> a = product(-1);  // size n+1, a[0] = 1
+  std::vector<double> b(n, 0.0);
+  for (int i = 0; i < n; ++i) {
+    const std::vector<double> p = product(i);  // size n
+    for (int k = 0; k < n; ++k) b[k] += e.amplitude[i] * p[k];
+  }
+  coefficients->assign(a.begin() + 1, a.end());
+  coefficients->insert(coefficients->end(), b.begin(), b.end());
 }
 
 }  // namespace pk

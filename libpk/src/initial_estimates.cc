@@ -1,6 +1,6 @@
 #include "pk/initial_estimates.h"
 
-#include "pk/catalogue.h"
+#include "pk/conversion.h"
 
 #include <algorithm>
 #include <cmath>
@@ -135,196 +135,78 @@ void Combinations(int grid, int m, int start, std::vector<int>* current, std::ve
   }
 }
 
-}  // namespace
-
-bool ExponentialsToMammillary(const Exponentials& e, std::vector<double>* p, std::string* why) {
-  const int m = static_cast<int>(e.rate.size());
-  auto fail = [&](const std::string& w) {
-    if (why) *why = w;
-    return false;
-  };
-  double b0 = 0;
-  for (double a : e.amplitude) b0 += a;
-  if (!(b0 > 0)) return fail("the amplitudes do not sum to a positive concentration");
-  const double v1 = 1 / b0;
-  p->clear();
-  if (m == 1) {
-    *p = {e.rate[0] * v1, v1};
-    return true;
-  }
-  if (m == 2) {
-    const double a1 = e.amplitude[0], a2 = e.amplitude[1], l1 = e.rate[0], l2 = e.rate[1];
-    const double k21 = (a1 * l2 + a2 * l1) / (a1 + a2);
-    const double k10 = l1 * l2 / k21;
-    const double k12 = l1 + l2 - k21 - k10;
-    if (!(k21 > 0 && k10 > 0 && k12 > 0)) return fail("the exponentials give a negative micro-constant");
-    *p = {k10 * v1, v1, k12 * v1, k12 * v1 / k21};
-    return true;
-  }
-  if (m == 3) {
-    // A(s) = Π(s + λ_i) = s³ + a1 s² + a2 s + a3; B(s) = Σ a_i Π_{j≠i}(s + λ_j) = b0 s² + b1 s + b2.
-    const double l1 = e.rate[0], l2 = e.rate[1], l3 = e.rate[2];
-    const double a1 = l1 + l2 + l3, a2 = l1 * l2 + l1 * l3 + l2 * l3, a3 = l1 * l2 * l3;
-    double b1 = 0, b2 = 0;
-    for (int i = 0; i < 3; ++i) {
-      const double lj = e.rate[(i + 1) % 3], lk = e.rate[(i + 2) % 3];
-      b1 += e.amplitude[i] * (lj + lk);
-      b2 += e.amplitude[i] * lj * lk;
-    }
-    // B(s)/b0 = (s + k21)(s + k31).
-    const double sum = b1 / b0, prod = b2 / b0, disc = sum * sum - 4 * prod;
-    if (!(disc >= 0) || !(prod > 0)) return fail("the peripheral rates are complex (no mammillary model fits)");
-    const double k21 = (sum + std::sqrt(disc)) / 2, k31 = (sum - std::sqrt(disc)) / 2;
-    if (!(k31 > 0)) return fail("a peripheral rate is not positive");
-    const double k10 = a3 / (k21 * k31);
-    const double s1 = a1 - k10 - k21 - k31;
-    const double s2 = a2 - k10 * (k21 + k31) - k21 * k31;
-    if (std::fabs(k21 - k31) < 1e-12 * k21) return fail("the peripheral rates coincide: the labelling is not identifiable");
-    // k12 k31 + k13 k21 = s2, k12 + k13 = s1.
-    const double k12 = (s2 - s1 * k21) / (k31 - k21), k13 = s1 - k12;
-    if (!(k10 > 0 && k12 > 0 && k13 > 0)) return fail("the exponentials give a negative micro-constant");
-    *p = {k10 * v1, v1, k12 * v1, k12 * v1 / k21, k13 * v1, k13 * v1 / k31};
-    return true;
-  }
-  return fail("only 1, 2 or 3 exponentials are supported");
-}
-
-void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* coefficients) {
-  const int n = static_cast<int>(e.rate.size());
-  // Polynomial products, highest power first: {1} · (s + λ).
-  auto product = [&](int skip) {
-    std::vector<double> p{1.0};
-    for (int i = 0; i < n; ++i) {
-      if (i == skip) continue;
-      std::vector<double> q(p.size() + 1, 0.0);
-      for (size_t k = 0; k < p.size(); ++k) {
-        q[k] += p[k];
-        q[k + 1] += p[k] * e.rate[i];
-      }
-      p = q;
-    }
-    return p;
-  };
-  const std::vector<double> a = product(-1);  // size n+1, a[0] = 1
-  std::vector<double> b(n, 0.0);
-  for (int i = 0; i < n; ++i) {
-    const std::vector<double> p = product(i);  // size n
-    for (int k = 0; k < n; ++k) b[k] += e.amplitude[i] * p[k];
-  }
-  coefficients->assign(a.begin() + 1, a.end());
-  coefficients->insert(coefficients->end(), b.begin(), b.end());
-}
-
-namespace {
-
 // A measured concentration: a sample that is not censored (a censored one's DV is its limit).
 bool Measured(const Record& r, int cens_col) {
   return r.IsSample() && (cens_col < 0 || std::isnan(r.extra[static_cast<size_t>(cens_col)]) ||
                           r.extra[static_cast<size_t>(cens_col)] == 0);
 }
 
-}  // namespace
-
-InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, int subject) {
+// The subject's doses (ADDL expanded up to its last record) and the positive samples after the
+// first dose. Returns "" or why the method does not apply.
+std::string Inputs(const Model& model, const InitialStructure& structure, const Dataset& data, int subject,
+                   std::vector<DoseInput>* doses, std::vector<double>* ts, std::vector<double>* cs) {
   const int cens_col = data.ExtraColumn("CENS");
-  const std::string& model_name = model.name();
-  if (model_name.size() > 3 && model_name.compare(model_name.size() - 3, 3, "_mm") == 0) {
-    // Michaelis-Menten: the linear counterpart's clearance CL at the median
-    // observed concentration C̃, with KM = C̃ (half-saturated there):
-    // VMAX·C̃/(KM + C̃) = CL·C̃ gives VMAX = CL·(KM + C̃).
-    InitialEstimate out = EstimateInitialValues(*MakeModel(model_name.substr(0, model_name.size() - 3)), data, subject);
-    if (!out.ok) return out;
-    std::vector<double> c;
-    for (const Record& r : data.subjects[subject].records) {
-      if (Measured(r, cens_col) && r.dv > 0) c.push_back(r.dv);
-    }
-    std::sort(c.begin(), c.end());
-    const double median = c[c.size() / 2];
-    const double cl = out.values.at("CL");
-    out.values.erase("CL");
-    out.values["KM"] = median;
-    out.values["VMAX"] = cl * 2 * median;
-    out.method += " on the linear model; KM = median concentration, VMAX = CL (KM + median)";
-    return out;
-  }
-  InitialEstimate out;
-  out.method = "terminal log-linear regression, exponential grid with linear amplitudes";
-  const std::string& name = model.name();
-  int phases = 0;
-  if (name.rfind("1cmt", 0) == 0) phases = 1;
-  if (name.rfind("2cmt", 0) == 0) phases = 2;
-  if (name.rfind("3cmt", 0) == 0) phases = 3;
-  const bool tf = name.size() == 3 && name.rfind("tf", 0) == 0;
-  if (tf) phases = name[2] - '0';
-  const bool oral = name.find("oral") != std::string::npos;
-  if (phases == 0 || !model.is_linear()) {
-    out.message = "automatic initial values cover the 1-3 compartment catalogue models";
-    return out;
-  }
-  // The dose history and the samples.
+  const bool tf = structure.kind == InitialStructure::Kind::kTransferFunction;
   const Subject& s = data.subjects[subject];
-  std::vector<DoseInput> doses;
   std::vector<double> t, c;
   double end_time = -INFINITY;  // implied doses after the last record do not matter
   for (const Record& r : s.records) end_time = std::max(end_time, r.time);
   for (const Record& r : s.records) {
     if (r.evid == Evid::kReset || r.evid == Evid::kResetDose || r.ss != 0 || r.rate < 0) {
-      out.message = "steady-state doses, resets and modelled rates are not handled";
-      return out;
+      return "steady-state doses, resets and modelled rates are not handled";
     }
     if (r.IsDose()) {
       if (r.cmt != 0 && r.cmt != model.default_dose_compartment()) {
-        out.message = "doses into a compartment other than the default are not handled";
-        return out;
+        return "doses into a compartment other than the default are not handled";
       }
       const double duration = r.rate > 0 ? r.amt / r.rate : 0.0;
-      if (oral && duration > 0) {
-        out.message = "infusions into the depot are not handled";
-        return out;
-      }
+      if (structure.depot && duration > 0) return "infusions into the depot are not handled";
       for (int k = 0; k <= r.addl && (k == 0 || r.time + k * r.ii <= end_time); ++k) {
-        doses.push_back({r.time + k * r.ii, r.amt, duration});
+        doses->push_back({r.time + k * r.ii, r.amt, duration});
       }
     } else if (Measured(r, cens_col) && r.dv > 0 && (tf || r.cmt == 0 || r.cmt == model.central_compartment())) {
       t.push_back(r.time);
       c.push_back(r.dv);
     }
   }
-  if (doses.empty()) {
-    out.message = "no dose";
-    return out;
-  }
-  // Samples after the first dose only.
-  std::vector<double> ts, cs;
+  if (doses->empty()) return "no dose";
   for (size_t k = 0; k < t.size(); ++k) {
-    if (t[k] > doses.front().time) {
-      ts.push_back(t[k]);
-      cs.push_back(c[k]);
+    if (t[k] > doses->front().time) {
+      ts->push_back(t[k]);
+      cs->push_back(c[k]);
     }
   }
-  const int unknowns = phases + (oral ? 1 : 0);
-  if (static_cast<int>(ts.size()) < unknowns + 1) {
-    out.message = "too few positive samples after the dose";
-    return out;
-  }
-  const double first = ts.front() - doses.front().time, span = ts.back() - doses.front().time;
+  const int unknowns = structure.order + (structure.depot ? 1 : 0);
+  if (static_cast<int>(ts->size()) < unknowns + 1) return "too few positive samples after the dose";
+  return "";
+}
+
+// The candidate rates: a log-spaced grid from about 1/20 of the observed time span to about 20/first
+// sample time, joined by the terminal rate from log-linear regression, so that the slowest phase can
+// be matched exactly rather than to the grid's resolution.
+std::vector<double> RateGrid(int phases, const std::vector<double>& ts, const std::vector<double>& cs, double t0) {
+  const double first = ts.front() - t0, span = ts.back() - t0;
   const double lo = 0.05 / span, hi = 20 / first;
   const int grid = phases == 1 ? 40 : (phases == 2 ? 28 : (phases == 3 ? 16 : 11));
   std::vector<double> rates(grid);
   for (int i = 0; i < grid; ++i) rates[i] = lo * std::pow(hi / lo, static_cast<double>(i) / (grid - 1));
-  // The terminal rate from log-linear regression joins the grid, so the slowest
-  // phase can be matched exactly rather than to the grid's resolution.
   const double lambda_z = TerminalRate(ts, cs);
   if (lambda_z > 0) {
     rates.push_back(lambda_z);
     std::sort(rates.begin(), rates.end());
   }
+  return rates;
+}
+
+// The best few rate combinations, in order of cost, so an infeasible conversion can fall back to the next.
+std::vector<Candidate> GridSearch(const InitialStructure& structure, const std::vector<DoseInput>& doses,
+                                  const std::vector<double>& ts, const std::vector<double>& cs) {
+  const int phases = structure.order;
+  const std::vector<double> rates = RateGrid(phases, ts, cs, doses.front().time);
   const int grid_size = static_cast<int>(rates.size());
   std::vector<std::vector<int>> combos;
   std::vector<int> current;
   Combinations(grid_size, phases, 0, &current, &combos);
-
-  // Keep the best few candidates, in order of cost, so an infeasible conversion can fall back to the next.
   const size_t kKeep = 20;
   std::vector<Candidate> best;
   KernelColumns columns(doses, ts, cs, rates);
@@ -346,39 +228,74 @@ InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, i
     if (best.size() > kKeep) best.pop_back();
   };
   for (const std::vector<int>& idx : combos) {
-    if (!oral) {
+    if (!structure.depot) {
       consider(idx, -1);
     } else {
       // Absorption faster than every disposition rate (the usual, non-flip-flop branch).
       for (int j = idx.back() + 1; j < grid_size; ++j) consider(idx, j);
     }
   }
+  return best;
+}
+
+// The first candidate that converts into the model's parameters.
+void Convert(const InitialStructure& structure, const std::vector<Candidate>& best, InitialEstimate* out) {
   for (const Candidate& cand : best) {
     Exponentials e;
     e.rate = cand.rates;
     for (int i = 0; i < cand.amplitudes.size(); ++i) e.amplitude.push_back(cand.amplitudes(i));
     std::vector<double> p;
     std::string why;
-    if (tf) {
+    if (structure.kind == InitialStructure::Kind::kTransferFunction) {
       ExponentialsToTransferFunction(e, &p);
-      for (size_t k = 0; k < p.size(); ++k) out.values[model.parameter_names()[k]] = p[k];
-      out.ok = true;
-      out.message.clear();
-      return out;
-    }
-    if (!ExponentialsToMammillary(e, &p, &why)) {
-      out.message = why;
+    } else if (!ExponentialsToMammillary(e, &p, &why)) {
+      out->message = why;
       continue;
+    } else if (structure.depot) {
+      p.insert(p.begin(), cand.ka);
     }
-    // Catalogue order: [KA,] then the disposition parameters.
-    int k = 0;
-    if (oral) out.values[model.parameter_names()[k++]] = cand.ka;
-    for (double v : p) out.values[model.parameter_names()[k++]] = v;
-    out.ok = true;
-    out.message.clear();
+    for (size_t k = 0; k < p.size() && k < structure.names.size(); ++k) out->values[structure.names[k]] = p[k];
+    out->ok = true;
+    out->message.clear();
+    return;
+  }
+  if (out->message.empty()) out->message = "no candidate with positive amplitudes";
+}
+
+// Saturable elimination: the linear block's clearance CL at the median observed concentration C̃,
+// with KM = C̃ (half-saturated there): VMAX·C̃/(KM + C̃) = CL·C̃ gives VMAX = CL·(KM + C̃).
+void Saturable(const InitialStructure& structure, const Dataset& data, int subject, InitialEstimate* out) {
+  const int cens_col = data.ExtraColumn("CENS");
+  std::vector<double> c;
+  for (const Record& r : data.subjects[subject].records) {
+    if (Measured(r, cens_col) && r.dv > 0) c.push_back(r.dv);
+  }
+  std::sort(c.begin(), c.end());
+  const double median = c[c.size() / 2];
+  const std::string& clearance = structure.names[structure.depot ? 1 : 0];
+  const double cl = out->values.at(clearance);
+  out->values.erase(clearance);
+  out->values[structure.km] = median;
+  out->values[structure.vmax] = cl * 2 * median;
+  out->method += " on the linear model; KM = median concentration, VMAX = CL (KM + median)";
+}
+
+}  // namespace
+
+InitialEstimate EstimateInitialValues(const Model& model, const Dataset& data, int subject) {
+  const InitialStructure& structure = model.initial_structure();
+  InitialEstimate out;
+  out.method = "terminal log-linear regression, exponential grid with linear amplitudes";
+  if (structure.kind == InitialStructure::Kind::kNone || structure.order < 1) {
+    out.message = "model " + model.name() + " declares no structure for starting values from the data";
     return out;
   }
-  if (out.message.empty()) out.message = "no candidate with positive amplitudes";
+  std::vector<DoseInput> doses;
+  std::vector<double> ts, cs;
+  out.message = Inputs(model, structure, data, subject, &doses, &ts, &cs);
+  if (!out.message.empty()) return out;
+  Convert(structure, GridSearch(structure, doses, ts, cs), &out);
+  if (out.ok && !structure.vmax.empty()) Saturable(structure, data, subject, &out);
   return out;
 }
 

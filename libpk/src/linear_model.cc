@@ -23,7 +23,8 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
                                                           Eigen::VectorXd defaults, int central, int default_dose,
                                                           std::vector<LinearTerm> system_terms,
                                                           std::vector<std::vector<LinearTerm>> output_terms,
-                                                          int transfer_function_order) {
+                                                          int transfer_function_order,
+                                                          InitialStructure initial_structure) {
   const int n = static_cast<int>(compartments.size()), m = static_cast<int>(parameters.size());
   auto bad = [&](const std::string& what) { throw std::logic_error("model " + name + ": " + what); };
   if (static_cast<int>(output_terms.size()) != n) bad("one output row per compartment is needed");
@@ -38,11 +39,12 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
     for (const LinearTerm& t : row) check(t);
   }
   for (std::string& p : parameters) p = internal::ToUpper(p);
-  return std::shared_ptr<const LinearModel>(new LinearModel(std::move(name), std::move(description),
-                                                            std::move(compartments), std::move(parameters),
-                                                            std::move(defaults), central, default_dose,
-                                                            std::move(system_terms), std::move(output_terms),
-                                                            transfer_function_order));
+  std::shared_ptr<LinearModel> model(new LinearModel(std::move(name), std::move(description), std::move(compartments),
+                                                     std::move(parameters), std::move(defaults), central,
+                                                     default_dose, std::move(system_terms), std::move(output_terms),
+                                                     transfer_function_order));
+  model->set_initial_structure(std::move(initial_structure));
+  return model;
 }
 
 double LinearModel::Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
@@ -100,9 +102,11 @@ std::shared_ptr<const LinearModel> LinearModelBuilder::Build() const {
   // Observing compartment c gives its concentration (amount / volume), or its amount.
   std::vector<std::vector<LinearTerm>> c_terms(n);
   for (int c = 0; c < n; ++c) c_terms[c].push_back({0, c, 1.0, -1, volumes_[c]});
-  return std::shared_ptr<const LinearModel>(new LinearModel(name_, description_, compartments_, parameters_, defaults,
-                                                            central_ + 1, default_dose_ + 1, std::move(a_terms),
-                                                            std::move(c_terms), 0));
+  std::shared_ptr<LinearModel> model(new LinearModel(name_, description_, compartments_, parameters_, defaults,
+                                                     central_ + 1, default_dose_ + 1, std::move(a_terms),
+                                                     std::move(c_terms), 0));
+  model->set_initial_structure(initial_structure_);
+  return model;
 }
 
 }  // namespace pk

@@ -45,7 +45,9 @@ OdeModel::OdeModel(const OdeModelSpec& spec)
     : Model(spec.name, spec.description, spec.compartments, Names(spec), Defaults(spec), spec.central,
             spec.default_dose),
       outputs_(spec.outputs),
-      id_(NextModelId()) {}
+      id_(NextModelId()) {
+  set_initial_structure(spec.initial_structure);
+}
 
 OdeModel::~OdeModel() = default;
 

@@ -21,10 +21,28 @@
 
 #include <Eigen/Core>
 
-#include "pk/initial_estimates.h"
 #include "pk/model.h"
 
 namespace pk {
+
+/// The unit-dose IV response of a mammillary disposition: Σ_i a_i e^{−λ_i t}.
+struct Exponentials {
+  std::vector<double> amplitude;  ///< a_i (concentration per unit dose)
+  std::vector<double> rate;       ///< λ_i > 0
+};
+
+/// Mammillary micro-constants, then clearances and volumes, from a unit-dose
+/// sum of 1, 2 or 3 exponentials: {CL, V} / {CL, V1, Q, V2} / {CL, V1, Q2, V2,
+/// Q3, V3} in catalogue order. For three exponentials the peripheral rates
+/// k21 ≥ k31 are the roots of s² − (b₁/b₀)s + b₂/b₀ from the transfer
+/// function's numerator, so the faster-equilibrating peripheral is labelled 2.
+/// Returns false with `why` for infeasible values (negative or complex rates).
+bool ExponentialsToMammillary(const Exponentials& e, std::vector<double>* parameters, std::string* why);
+
+/// The transfer function of a unit-dose sum of exponentials:
+/// A(s) = Π(s + λ_i) = sⁿ + a₁sⁿ⁻¹ + … + aₙ and B(s) = Σ a_i Π_{j≠i}(s + λ_j) =
+/// b₁sⁿ⁻¹ + … + bₙ; `coefficients` = {a₁..aₙ, b₁..bₙ}, the tf<n> parameter order.
+void ExponentialsToTransferFunction(const Exponentials& e, std::vector<double>* coefficients);
 
 struct DerivedParameter {
   std::string name;  ///< e.g. LAMBDA1, THALF1, AMP1, CL, V1, Q, V2, KA

@@ -63,7 +63,8 @@ class LinearModel final : public Model {
                                                       int central, int default_dose,
                                                       std::vector<LinearTerm> system_terms,
                                                       std::vector<std::vector<LinearTerm>> output_terms,
-                                                      int transfer_function_order = 0);
+                                                      int transfer_function_order = 0,
+                                                      InitialStructure initial_structure = {});
 
   const std::vector<LinearTerm>& system_terms() const { return a_terms_; }
   /// The terms of the output row C_c(θ) of compartment `cmt` (1-based).
@@ -143,6 +144,8 @@ class LinearModelBuilder {
   void ClearanceFlow(int from, int to, int cl);
   void SetCentral(int compartment);
   void SetDefaultDose(int compartment);
+  /// Declares the structure data-driven starting values may assume (pk/model.h).
+  void SetInitialStructure(InitialStructure structure) { initial_structure_ = std::move(structure); }
   /// Validates the graph and builds the model; throws std::logic_error on a malformed graph.
   std::shared_ptr<const LinearModel> Build() const;
 
@@ -156,6 +159,7 @@ class LinearModelBuilder {
   std::vector<LinearFlow> flows_;
   int central_ = -1;
   int default_dose_ = -1;
+  InitialStructure initial_structure_;
 };
 
 }  // namespace pk

@@ -8,11 +8,33 @@
 #define PK_MODEL_H_
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
 
 namespace pk {
+
+/// The structure that the data-driven starting values (pk/initial_estimates.h) rely on, as a
+/// model declares it. A model that declares none starts from its defaults, and says so.
+struct InitialStructure {
+  enum class Kind {
+    kNone,              ///< no method: the catalogue defaults
+    kMammillary,        ///< a mammillary block of `order` compartments (1–3), optionally behind a depot
+    kTransferFunction,  ///< tf<order>: y = B(s)/A(s)·u, every observation the output
+  };
+  Kind kind = Kind::kNone;
+  int order = 0;
+  /// Doses enter a depot with first-order absorption into the central compartment.
+  bool depot = false;
+  /// The model's names for the method's values, in the method's order: [KA,] CL, V1[, Q2, V2[,
+  /// Q3, V3]] (ExponentialsToMammillary, pk/conversion.h), or A1..An, B1..Bn.
+  std::vector<std::string> names;
+  /// Saturable (Michaelis–Menten) elimination in place of a clearance: `names` then holds the
+  /// linear block's CL, which becomes KM = C̃ and VMAX = CL·(KM + C̃), C̃ the median
+  /// concentration, under these names.
+  std::string vmax, km;
+};
 
 class Model {
  public:
@@ -33,6 +55,9 @@ class Model {
   int default_dose_compartment() const { return default_dose_; }
   /// Index of a parameter by name (case-insensitive), or -1.
   int ParameterIndex(const std::string& name) const;
+  /// What the data-driven starting values may assume of this model (InitialStructure::kNone
+  /// unless the model declares it).
+  const InitialStructure& initial_structure() const { return initial_structure_; }
 
   /// True when dx/dt = A(θ)x + u; such a model can use the exact propagator.
   virtual bool is_linear() const = 0;
@@ -45,6 +70,7 @@ class Model {
   Model(std::string name, std::string description, std::vector<std::string> compartment_names,
         std::vector<std::string> parameter_names, Eigen::VectorXd default_parameters, int central,
         int default_dose);
+  void set_initial_structure(InitialStructure s) { initial_structure_ = std::move(s); }
 
  private:
   std::string name_;
@@ -54,6 +80,7 @@ class Model {
   Eigen::VectorXd default_parameters_;
   int central_;
   int default_dose_;
+  InitialStructure initial_structure_;
 };
 
 }  // namespace pk

@@ -56,6 +56,8 @@ struct OdeModelSpec {
   std::vector<std::string> outputs = {"CP"};
   int central = 1;       ///< 1-based compartment shown as the central one
   int default_dose = 1;  ///< 1-based compartment receiving doses with CMT=0
+  /// What data-driven starting values may assume (pk/model.h); none by default.
+  InitialStructure initial_structure;
 };
 
 /// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use
