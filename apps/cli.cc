@@ -115,10 +115,7 @@ DatasetFilter ParseFilter(const std::vector<std::string>& ignore, const std::vec
 }
 
 Propagator ParsePropagator(const std::string& text) {
-  for (Propagator p : {Propagator::kAuto, Propagator::kExact, Propagator::kOde}) {
-    if (text == ToString(p)) return p;
-  }
-  throw InputError("--propagator must be auto, exact or ode, not '" + text + "'");
+  return Parsed("--propagator", [&] { return pk::ParsePropagator(text); });
 }
 
 }  // namespace cli

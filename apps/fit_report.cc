@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <sstream>
 
+#include "fit_csv.h"
 #include "pk/output.h"
 #include "pk/plot.h"
 
@@ -13,24 +14,11 @@ namespace pk {
 namespace cli {
 namespace {
 
-std::string Csv(double v) { return std::isfinite(v) ? FormatNumber(v) : ""; }
-
 std::string Fmt(double v, const char* f = "%.4g") {
   if (!std::isfinite(v)) return "–";
   char buf[64];
   std::snprintf(buf, sizeof buf, f, v);
   return buf;
-}
-
-std::string Status(const SubjectFit& f) {
-  if (!f.ok) return "failed";
-  switch (f.summary.termination) {
-    case TerminationType::kConvergence: return "converged";
-    case TerminationType::kNoConvergence: return "not converged";
-    case TerminationType::kFailure: return "failed";
-    case TerminationType::kUnbounded: return "unbounded";
-  }
-  return "?";
 }
 
 std::string Escape(const std::string& s) {
@@ -42,13 +30,6 @@ std::string Escape(const std::string& s) {
     else out += c;
   }
   return out;
-}
-
-std::string Quote(const std::string& s) {
-  if (s.find_first_of(",\"\n") == std::string::npos) return s;
-  std::string out = "\"";
-  for (char c : s) out += c == '"' ? std::string("\"\"") : std::string(1, c);
-  return out + "\"";
 }
 
 // The plot of output `output` (1-based); models with one output have only output 1.
@@ -216,7 +197,7 @@ std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
   out << "\n";
   for (const SubjectFit& f : fits) {
     std::snprintf(buf, sizeof buf, "%-6s %5d %12s  %-13s", FormatNumber(f.id).c_str(), static_cast<int>(f.dv.size()),
-                  f.ok ? Fmt(f.summary.objective, "%.6g").c_str() : "–", Status(f).c_str());
+                  f.ok ? Fmt(f.summary.objective, "%.6g").c_str() : "–", FitStatus(f).c_str());
     out << buf;
     if (!f.ok) {
       out << " " << f.error << "\n";
@@ -244,53 +225,9 @@ std::string EstimatesTable(const std::vector<SubjectFit>& fits) {
   return out.str();
 }
 
-void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits, const ReportContext& context) {
-  std::error_code error;
-  std::filesystem::create_directories(dir, error);  // with its parents, like mkdir -p
-  if (!std::filesystem::is_directory(dir)) {
-    throw std::runtime_error(dir + ": cannot create the output directory" + (error ? " (" + error.message() + ")" : ""));
-  }
+namespace {
 
-  std::ostringstream est, sum, pred, det, derived;
-  bool any_derived = false;
-  derived << "ID,READING,PARAMETER,VALUE,SE,RSE_PCT,NOTE\n";
-  est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
-  sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS\n";
-  pred << "ID,TIME,DV,PRED,RES,WRES,CENS\n";
-  det << "ID,STATUS,MESSAGE,INITIAL_OBJECTIVE,EVALUATIONS,BEST_START,MINUS2LL,AIC,BIC,INITIAL_VALUES,COVARIANCE\n";
-  for (const SubjectFit& f : fits) {
-    const std::string id = FormatNumber(f.id);
-    const FitSummary& s = f.summary;
-    det << id << "," << Quote(Status(f)) << "," << Quote(f.ok ? s.message : f.error) << "," << Csv(s.initial_objective)
-        << "," << s.evaluations << "," << s.best_start << "," << Csv(s.minus2ll) << "," << Csv(s.aic) << ","
-        << Csv(s.bic) << "," << Quote(f.initial_method) << "," << Quote(f.ok ? s.covariance_message : "") << "\n";
-    sum << id << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations << ","
-        << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "," << s.propagator
-        << "," << f.censoring.cwiseAbs().sum() << "\n";
-    if (!f.ok) continue;
-    for (const TransferFunctionReading& r : f.derived) {
-      any_derived = true;
-      if (!r.ok) derived << id << "," << r.reading << ",,,,," << Quote(r.message) << "\n";
-      for (const DerivedParameter& d : r.parameters) {
-        derived << id << "," << r.reading << "," << d.name << "," << Csv(d.value) << "," << Csv(d.se) << ","
-                << Csv(d.rse_pct) << "," << Quote(r.message) << "\n";
-      }
-    }
-    for (const ParameterEstimate& e : s.estimates) {
-      est << id << "," << e.name << "," << Csv(e.estimate) << "," << (e.fixed ? "" : Csv(e.se)) << ","
-          << (e.fixed ? "" : Csv(e.rse_pct)) << "\n";
-    }
-    for (int k = 0; k < f.pred.size(); ++k) {
-      // A censored sample's DV is its limit: it has no residual.
-      const int cens = k < f.censoring.size() ? f.censoring(k) : 0;
-      pred << id << "," << Csv(f.times[k]) << "," << Csv(f.dv(k)) << "," << Csv(f.pred(k)) << ","
-           << (cens != 0 ? "" : Csv(f.dv(k) - f.pred(k))) << "," << (k < f.wres.size() ? Csv(f.wres(k)) : "") << ","
-           << cens << "\n";
-    }
-  }
-
-  // The report: a run header, the summary and estimates tables, and one section per subject.
-  std::ostringstream html;
+void HtmlHeader(const std::vector<SubjectFit>& fits, const ReportContext& context, std::ostringstream& html) {
   html << "<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>pkfit report</title>\n"
        << "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse;margin:1em 0}"
        << "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}th{background:#f3f3f3}"
@@ -307,7 +244,11 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     html << " " << censored << " censored samples (CENS) enter by their probability of lying beyond their limit "
          << "(Beal's M3); the plots show them hollow, at their limit";
   }
-  html << ".</p>\n<h2>Estimates</h2>\n<table><tr><th class=\"l\">ID</th><th>NOBS</th><th>objective</th><th class=\"l\">status</th>";
+  html << ".</p>\n";
+}
+
+void HtmlEstimates(const std::vector<SubjectFit>& fits, std::ostringstream& html) {
+  html << "<h2>Estimates</h2>\n<table><tr><th class=\"l\">ID</th><th>NOBS</th><th>objective</th><th class=\"l\">status</th>";
   const SubjectFit* first = nullptr;
   for (const SubjectFit& f : fits) {
     if (f.ok && !first) first = &f;
@@ -319,7 +260,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   for (const SubjectFit& f : fits) {
     html << "<tr><td class=\"l\"><a href=\"#id" << FormatNumber(f.id) << "\">" << FormatNumber(f.id) << "</a></td><td>"
          << f.dv.size() << "</td><td>" << (f.ok ? Fmt(f.summary.objective, "%.6g") : "–") << "</td><td class=\"l"
-         << (f.ok && f.summary.converged() ? "" : " bad") << "\">" << Status(f) << "</td>";
+         << (f.ok && f.summary.converged() ? "" : " bad") << "\">" << FitStatus(f) << "</td>";
     if (f.ok) {
       for (const ParameterEstimate& e : f.summary.estimates) {
         html << "<td>" << Fmt(e.estimate) << (e.fixed ? " (fixed)" : " (" + Fmt(e.rse_pct, "%.3g") + ")") << "</td>";
@@ -332,66 +273,45 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     html << "</tr>\n";
   }
   html << "</table>\n";
-  std::ostringstream population, omega;
-  const TwoStageSummary* pop = context.population;
-  if (pop) {
-    population << "PARAMETER,N,MEAN,SD,CV_PCT,GEOMEAN,GEOCV_PCT,MEDIAN,MIN,MAX,GTS_N,TYPICAL,TYPICAL_SE,TYPICAL_RSE_PCT,"
-                  "OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT\n";
-    for (size_t j = 0; j < pop->descriptive.size(); ++j) {
-      const DescriptiveStatistics& d = pop->descriptive[j];
-      population << d.name << "," << d.n << "," << Csv(d.mean) << "," << Csv(d.sd) << "," << Csv(d.cv_pct) << ","
-                 << Csv(d.geometric_mean) << "," << Csv(d.geometric_cv_pct) << "," << Csv(d.median) << "," << Csv(d.min)
-                 << "," << Csv(d.max);
-      if (pop->gts_ok) {
-        const PopulationParameter& q = pop->population[j];
-        population << "," << pop->gts_ids.size() << "," << Csv(q.typical) << "," << Csv(q.typical_se) << ","
-                   << Csv(q.typical_rse_pct) << "," << Csv(q.omega2) << "," << Csv(q.omega2_se) << ","
-                   << Csv(q.omega2_rse_pct) << "," << Csv(q.bsv_cv_pct) << "\n";
-      } else {
-        population << ",0,,,,,,,\n";
-      }
+}
+
+void HtmlPopulation(const TwoStageSummary& pop, std::ostringstream& html) {
+  html << "<h2>Population (two-stage)</h2>\n<p>" << Escape(pop.BriefReport()) << ".</p>\n"
+       << "<p>STS: statistics of the individual estimates of the " << pop.sts_ids.size()
+       << " converged fits; their spread includes each fit's estimation error. GTS: maximum likelihood of the "
+       << ToString(pop.distribution) << " population model given each fit's estimate and covariance "
+       << "(the typical value is exp(μ) for the log-normal model; BSV CV% = 100·√(exp(ω²) − 1)).</p>\n"
+       << "<table><tr><th class=\"l\">parameter</th><th>N</th><th>mean</th><th>SD</th><th>CV%</th>"
+       << "<th>geo. mean</th><th>geo. CV%</th><th>median</th><th>min</th><th>max</th>";
+  if (pop.gts_ok) html << "<th>GTS typical (RSE%)</th><th>ω² (RSE%)</th><th>BSV CV%</th>";
+  html << "</tr>\n";
+  for (size_t j = 0; j < pop.descriptive.size(); ++j) {
+    const DescriptiveStatistics& d = pop.descriptive[j];
+    html << "<tr><td class=\"l\">" << Escape(d.name) << "</td><td>" << d.n << "</td><td>" << Fmt(d.mean) << "</td><td>"
+         << Fmt(d.sd) << "</td><td>" << Fmt(d.cv_pct, "%.3g") << "</td><td>" << Fmt(d.geometric_mean) << "</td><td>"
+         << Fmt(d.geometric_cv_pct, "%.3g") << "</td><td>" << Fmt(d.median) << "</td><td>" << Fmt(d.min)
+         << "</td><td>" << Fmt(d.max) << "</td>";
+    if (pop.gts_ok) {
+      const PopulationParameter& q = pop.population[j];
+      html << "<td>" << Fmt(q.typical) << " (" << Fmt(q.typical_rse_pct, "%.3g") << ")</td><td>" << Fmt(q.omega2)
+           << " (" << Fmt(q.omega2_rse_pct, "%.3g") << ")</td><td>" << Fmt(q.bsv_cv_pct, "%.3g") << "</td>";
     }
-    omega << "PARAMETER1,PARAMETER2,OMEGA,SE,CORRELATION\n";
-    for (size_t j = 0; pop->gts_ok && j < pop->parameters.size(); ++j) {
-      for (size_t k = 0; k <= j; ++k) {
-        if (pop->diagonal_omega && k != j) continue;
-        const auto a = static_cast<Eigen::Index>(j), b = static_cast<Eigen::Index>(k);
-        omega << pop->parameters[j] << "," << pop->parameters[k] << "," << Csv(pop->omega(a, b)) << ","
-              << Csv(pop->omega_se(a, b)) << "," << Csv(pop->omega_correlation(a, b)) << "\n";
-      }
-    }
-    html << "<h2>Population (two-stage)</h2>\n<p>" << Escape(pop->BriefReport()) << ".</p>\n"
-         << "<p>STS: statistics of the individual estimates of the " << pop->sts_ids.size()
-         << " converged fits; their spread includes each fit's estimation error. GTS: maximum likelihood of the "
-         << ToString(pop->distribution) << " population model given each fit's estimate and covariance "
-         << "(the typical value is exp(μ) for the log-normal model; BSV CV% = 100·√(exp(ω²) − 1)).</p>\n"
-         << "<table><tr><th class=\"l\">parameter</th><th>N</th><th>mean</th><th>SD</th><th>CV%</th>"
-         << "<th>geo. mean</th><th>geo. CV%</th><th>median</th><th>min</th><th>max</th>";
-    if (pop->gts_ok) html << "<th>GTS typical (RSE%)</th><th>ω² (RSE%)</th><th>BSV CV%</th>";
     html << "</tr>\n";
-    for (size_t j = 0; j < pop->descriptive.size(); ++j) {
-      const DescriptiveStatistics& d = pop->descriptive[j];
-      html << "<tr><td class=\"l\">" << Escape(d.name) << "</td><td>" << d.n << "</td><td>" << Fmt(d.mean) << "</td><td>"
-           << Fmt(d.sd) << "</td><td>" << Fmt(d.cv_pct, "%.3g") << "</td><td>" << Fmt(d.geometric_mean) << "</td><td>"
-           << Fmt(d.geometric_cv_pct, "%.3g") << "</td><td>" << Fmt(d.median) << "</td><td>" << Fmt(d.min)
-           << "</td><td>" << Fmt(d.max) << "</td>";
-      if (pop->gts_ok) {
-        const PopulationParameter& q = pop->population[j];
-        html << "<td>" << Fmt(q.typical) << " (" << Fmt(q.typical_rse_pct, "%.3g") << ")</td><td>" << Fmt(q.omega2)
-             << " (" << Fmt(q.omega2_rse_pct, "%.3g") << ")</td><td>" << Fmt(q.bsv_cv_pct, "%.3g") << "</td>";
-      }
-      html << "</tr>\n";
-    }
-    html << "</table>\n";
-    if (!pop->excluded.empty()) {
-      html << "<ul>";
-      for (const auto& e : pop->excluded) {
-        html << "<li>ID " << FormatNumber(e.first) << " left out: " << Escape(e.second) << "</li>";
-      }
-      html << "</ul>\n";
-    }
   }
-  // Goodness of fit, per output; the files are gof_<plot>.svg (gof_<plot>_<output>.svg beyond output 1).
+  html << "</table>\n";
+  if (!pop.excluded.empty()) {
+    html << "<ul>";
+    for (const auto& e : pop.excluded) {
+      html << "<li>ID " << FormatNumber(e.first) << " left out: " << Escape(e.second) << "</li>";
+    }
+    html << "</ul>\n";
+  }
+}
+
+// Goodness of fit, per output, into the report; returns the files gof_<plot>.svg
+// (gof_<plot>_<output>.svg beyond output 1) with their contents.
+std::vector<std::pair<std::string, std::string>> HtmlGoodnessOfFit(const std::vector<SubjectFit>& fits,
+                                                                   std::ostringstream& html) {
   std::vector<std::pair<std::string, std::string>> gof_files;
   int outputs = 1;
   for (const SubjectFit& f : fits) outputs = std::max(outputs, f.ok ? NumPlots(f) : 1);
@@ -405,6 +325,27 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
       gof_files.push_back({"gof_" + plot.first + (k > 1 ? "_" + std::to_string(k) : "") + ".svg", plot.second});
     }
   }
+  return gof_files;
+}
+
+void HtmlDerived(const TransferFunctionReading& r, std::ostringstream& html) {
+  const char* title = r.reading == "exponents" ? "Exponents and half-lives" :
+                      (r.reading == "iv" ? "As an IV compartment model" : "As an oral compartment model (fastest rate = KA)");
+  html << "<h4>" << title << "</h4>\n";
+  if (!r.ok) {
+    html << "<p class=\"bad\">" << Escape(r.message) << "</p>\n";
+    return;
+  }
+  html << "<table><tr><th class=\"l\">parameter</th><th>value</th><th>SE</th><th>RSE%</th></tr>\n";
+  for (const DerivedParameter& d : r.parameters) {
+    html << "<tr><td class=\"l\">" << Escape(d.name) << "</td><td>" << Fmt(d.value) << "</td><td>" << Fmt(d.se)
+         << "</td><td>" << Fmt(d.rse_pct, "%.3g") << "</td></tr>\n";
+  }
+  html << "</table>\n";
+  if (!r.message.empty()) html << "<p>" << Escape(r.message) << ".</p>\n";
+}
+
+void HtmlSubjects(const std::vector<SubjectFit>& fits, bool log_plots, std::ostringstream& html) {
   html << "<h2>Subjects</h2>\n";
   for (const SubjectFit& f : fits) {
     html << "<h3 id=\"id" << FormatNumber(f.id) << "\">ID " << FormatNumber(f.id) << "</h3>\n";
@@ -415,34 +356,41 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     html << "<p>Starting values from " << Escape(f.initial_method) << ":";
     for (const auto& kv : f.initial) html << " " << Escape(kv.first) << " = " << Fmt(kv.second);
     html << ".</p>\n<pre>" << Escape(f.summary.FullReport()) << "</pre>\n";
-    for (const TransferFunctionReading& r : f.derived) {
-      const char* title = r.reading == "exponents" ? "Exponents and half-lives" :
-                          (r.reading == "iv" ? "As an IV compartment model" : "As an oral compartment model (fastest rate = KA)");
-      html << "<h4>" << title << "</h4>\n";
-      if (!r.ok) {
-        html << "<p class=\"bad\">" << Escape(r.message) << "</p>\n";
-        continue;
-      }
-      html << "<table><tr><th class=\"l\">parameter</th><th>value</th><th>SE</th><th>RSE%</th></tr>\n";
-      for (const DerivedParameter& d : r.parameters) {
-        html << "<tr><td class=\"l\">" << Escape(d.name) << "</td><td>" << Fmt(d.value) << "</td><td>" << Fmt(d.se)
-             << "</td><td>" << Fmt(d.rse_pct, "%.3g") << "</td></tr>\n";
-      }
-      html << "</table>\n";
-      if (!r.message.empty()) html << "<p>" << Escape(r.message) << ".</p>\n";
-    }
-    for (int k = 1; k <= NumPlots(f); ++k) html << SubjectSvg(f, context.log_plots, k) << "\n";
+    for (const TransferFunctionReading& r : f.derived) HtmlDerived(r, html);
+    for (int k = 1; k <= NumPlots(f); ++k) html << SubjectSvg(f, log_plots, k) << "\n";
   }
+}
+
+void CreateDirectory(const std::string& dir) {
+  std::error_code error;
+  std::filesystem::create_directories(dir, error);  // with its parents, like mkdir -p
+  if (!std::filesystem::is_directory(dir)) {
+    throw std::runtime_error(dir + ": cannot create the output directory" + (error ? " (" + error.message() + ")" : ""));
+  }
+}
+
+}  // namespace
+
+void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits, const ReportContext& context) {
+  CreateDirectory(dir);
+  // The report: a run header, the summary and estimates tables, and one section per subject.
+  std::ostringstream html;
+  HtmlHeader(fits, context, html);
+  HtmlEstimates(fits, html);
+  if (context.population) HtmlPopulation(*context.population, html);
+  const auto gof_files = HtmlGoodnessOfFit(fits, html);
+  HtmlSubjects(fits, context.log_plots, html);
   html << "</body></html>\n";
 
-  WriteFileAtomically(dir + "/estimates.csv", est.str());
-  WriteFileAtomically(dir + "/summary.csv", sum.str());
-  WriteFileAtomically(dir + "/predictions.csv", pred.str());
-  WriteFileAtomically(dir + "/fit_details.csv", det.str());
-  if (any_derived) WriteFileAtomically(dir + "/derived.csv", derived.str());
-  if (pop) {
-    WriteFileAtomically(dir + "/population.csv", population.str());
-    WriteFileAtomically(dir + "/population_omega.csv", omega.str());
+  WriteFileAtomically(dir + "/estimates.csv", EstimatesCsv(fits));
+  WriteFileAtomically(dir + "/summary.csv", SummaryCsv(fits));
+  WriteFileAtomically(dir + "/predictions.csv", PredictionsCsv(fits));
+  WriteFileAtomically(dir + "/fit_details.csv", FitDetailsCsv(fits));
+  const std::string derived = DerivedCsv(fits);
+  if (!derived.empty()) WriteFileAtomically(dir + "/derived.csv", derived);
+  if (context.population) {
+    WriteFileAtomically(dir + "/population.csv", PopulationCsv(*context.population));
+    WriteFileAtomically(dir + "/population_omega.csv", PopulationOmegaCsv(*context.population));
   }
   for (const SubjectFit& f : fits) {
     WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + ".svg", SubjectSvg(f, context.log_plots));

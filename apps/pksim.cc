@@ -81,13 +81,16 @@ std::string SummaryCsv(const std::vector<pk::Exposure>& exposures) {
   return out.str();
 }
 
-int Main(int argc, char** argv) {
-  po::options_description desc("Options");
+// The repeatable options, as given.
+struct Lists {
   std::vector<std::string> params, times, ignore, accept;
-  desc.add_options()("help,h", "show this help")("list-models", "print the model catalogue and exit")(
+};
+
+void DeclareOptions(po::options_description* desc, Lists* a) {
+  desc->add_options()("help,h", "show this help")("list-models", "print the model catalogue and exit")(
       "model,m", po::value<std::string>(), "catalogue model, e.g. 2cmt_oral")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
-      "param,p", po::value<std::vector<std::string>>(&params)->composing(),
+      "param,p", po::value<std::vector<std::string>>(&a->params)->composing(),
       "NAME=VALUE for a model parameter or dose modifier (F1, ALAG1, R1, D1); repeatable")(
       "estimates", po::value<std::string>(),
       "per-subject parameters from a table with columns ID, PARAMETER, ESTIMATE (pkfit's estimates.csv); "
@@ -100,7 +103,7 @@ int Main(int argc, char** argv) {
       "rate", po::value<double>(), "infusion rate (default: bolus)")(
       "duration", po::value<double>(), "infusion duration (alternative to --rate)")(
       "ss", po::value<int>()->default_value(0), "steady-state flag of the dose (0, 1, 2)")(
-      "times,t", po::value<std::vector<std::string>>(&times)->composing(),
+      "times,t", po::value<std::vector<std::string>>(&a->times)->composing(),
       "output times FROM:STEP:TO or a,b,c; repeatable")("out,o", po::value<std::string>(),
                                                           "write the simulation CSV here (default: stdout)")(
       "summary", "print Cmax, Tmax, Cmin, trough and AUC per subject and dosing interval")(
@@ -111,113 +114,55 @@ int Main(int argc, char** argv) {
       "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
       "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
       "log", "logarithmic concentration axis for --plot");
-  pk::cli::AddFilterOptions(&desc, &ignore, &accept);
-  po::variables_map vm;
-  if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
-  if (vm.count("list-models")) {
-    for (const std::string& name : pk::CatalogueModelNames()) {
-      const auto model = pk::MakeModel(name);
-      std::string ps;
-      for (const std::string& p : model->parameter_names()) ps += (ps.empty() ? "" : ", ") + p;
-      std::printf("%-17s (%s)  %s\n", name.c_str(), ps.c_str(), model->description().c_str());
-    }
-    return 0;
-  }
-  if (!vm.count("model")) throw pk::InputError("--model is required (see --list-models)");
-  const auto model = pk::MakeModel(vm["model"].as<std::string>());
-  const pk::ParameterValues values = pk::cli::ParseAssignments(params, "--param");
-  const std::vector<double> grid = pk::cli::ParseTimes(times);
+  pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
+}
 
-  pk::Dataset data;
-  if (vm.count("data")) {
-    if (vm.count("dose")) throw pk::InputError("give either --data or --dose, not both");
-    data = pk::AddOutputTimes(pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(ignore, accept)),
-                              grid);
-  } else {
-    if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
-    pk::Dose dose;
-    dose.amount = vm["dose"].as<double>();
-    dose.cmt = vm["cmt"].as<int>();
-    dose.time = vm["dose-time"].as<double>();
-    dose.ii = vm["ii"].as<double>();
-    dose.ss = vm["ss"].as<int>();
-    if (vm.count("doses") && vm.count("addl")) throw pk::InputError("give --doses or --addl, not both");
-    if (vm.count("doses")) dose.addl = vm["doses"].as<int>() - 1;
-    if (vm.count("addl")) dose.addl = vm["addl"].as<int>();
-    if (vm.count("rate") && vm.count("duration")) throw pk::InputError("give --rate or --duration, not both");
-    if (vm.count("rate")) dose.rate = vm["rate"].as<double>();
-    if (vm.count("duration")) {
-      dose.duration = vm["duration"].as<double>();
-      if (dose.duration <= 0) throw pk::InputError("--duration must be positive");
-    }
-    if (grid.empty()) throw pk::InputError("a regimen needs output times (--times FROM:STEP:TO)");
-    pk::Regimen regimen;
-    regimen.doses.push_back(dose);
-    regimen.times = grid;
-    // The flags go through the same reader checks as a file would.
-    const pk::Dataset built = pk::RegimenToDataset(regimen);
-    std::ostringstream csv;
-    csv << "ID,TIME,AMT,RATE,II,ADDL,SS,EVID,CMT,MDV\n";
-    for (const pk::Record& r : built.subjects[0].records) {
-      csv << 1 << "," << pk::FormatNumber(r.time) << "," << pk::FormatNumber(r.amt) << "," << pk::FormatNumber(r.rate)
-          << "," << pk::FormatNumber(r.ii) << "," << r.addl << "," << r.ss << "," << static_cast<int>(r.evid) << ","
-          << r.cmt << "," << r.mdv << "\n";
-    }
-    data = pk::ParseDataset(csv.str(), "command-line regimen");
+void ListModels() {
+  for (const std::string& name : pk::CatalogueModelNames()) {
+    const auto model = pk::MakeModel(name);
+    std::string ps;
+    for (const std::string& p : model->parameter_names()) ps += (ps.empty() ? "" : ", ") + p;
+    std::printf("%-17s (%s)  %s\n", name.c_str(), ps.c_str(), model->description().c_str());
   }
+}
 
-  pk::SimulationOptions sim_options;
-  sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
-  sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
-  sim_options.ode.absolute_tolerance = vm["atol"].as<double>();
-  std::vector<pk::SubjectSimulation> sims;
-  if (vm.count("estimates")) {
-    const std::string path = vm["estimates"].as<std::string>();
-    const auto estimates = pk::ReadEstimates(path, *model);
-    if (!vm.count("data")) {
-      // The regimen for every subject of the table, under its ID.
-      const pk::Subject regimen = data.subjects.front();
-      data.subjects.clear();
-      for (const auto& e : estimates) {
-        data.subjects.push_back(regimen);
-        data.subjects.back().id = e.first;
-      }
-    }
-    for (int i = 0; i < static_cast<int>(data.subjects.size()); ++i) {
-      const double id = data.subjects[i].id;
-      const auto it = std::find_if(estimates.begin(), estimates.end(), [&](const auto& e) { return e.first == id; });
-      if (it == estimates.end()) {
-        pk::SubjectSimulation missing;
-        missing.id = id;
-        missing.ok = false;
-        missing.message = "no estimates for this ID in " + path;
-        sims.push_back(std::move(missing));
-        continue;
-      }
-      pk::ParameterValues merged;
-      for (const auto& kv : it->second) {
-        if (!pk::IsResidualErrorName(kv.first)) merged[kv.first] = kv.second;  // names as the model spells them
-      }
-      for (const auto& kv : values) merged[kv.first] = kv.second;  // --param wins
-      sims.push_back(pk::SimulateSubject(*model, data, i, merged, sim_options));
-    }
-  } else {
-    sims = pk::Simulate(*model, data, values, sim_options);
+// The regimen the dose flags give, with output records at `grid`.
+pk::Dataset RegimenFromFlags(const po::variables_map& vm, const std::vector<double>& grid) {
+  pk::Dose dose;
+  dose.amount = vm["dose"].as<double>();
+  dose.cmt = vm["cmt"].as<int>();
+  dose.time = vm["dose-time"].as<double>();
+  dose.ii = vm["ii"].as<double>();
+  dose.ss = vm["ss"].as<int>();
+  if (vm.count("doses") && vm.count("addl")) throw pk::InputError("give --doses or --addl, not both");
+  if (vm.count("doses")) dose.addl = vm["doses"].as<int>() - 1;
+  if (vm.count("addl")) dose.addl = vm["addl"].as<int>();
+  if (vm.count("rate") && vm.count("duration")) throw pk::InputError("give --rate or --duration, not both");
+  if (vm.count("rate")) dose.rate = vm["rate"].as<double>();
+  if (vm.count("duration")) {
+    dose.duration = vm["duration"].as<double>();
+    if (dose.duration <= 0) throw pk::InputError("--duration must be positive");
   }
-  const auto* ode_model = dynamic_cast<const pk::OdeModel*>(model.get());
+  if (grid.empty()) throw pk::InputError("a regimen needs output times (--times FROM:STEP:TO)");
+  pk::Regimen regimen;
+  regimen.doses.push_back(dose);
+  regimen.times = grid;
+  pk::Dataset data = pk::cli::Parsed("--dose", [&] { return pk::RegimenToDataset(regimen); });
+  data.source = "command-line regimen";
+  return data;
+}
+
+// One row per simulated record: ID, TIME, EVID, CP, the model's further outputs, the amounts.
+std::string SimulationCsv(const pk::Model& model, const std::vector<pk::SubjectSimulation>& sims) {
+  const auto* ode_model = dynamic_cast<const pk::OdeModel*>(&model);
   const int extra_outputs = ode_model ? ode_model->num_outputs() - 1 : 0;
-  int failed = 0;
   std::ostringstream csv;
   csv << "ID,TIME,EVID,CP";
   for (int k = 1; k <= extra_outputs; ++k) csv << "," << ode_model->output_names()[k];
-  for (int c = 1; c <= model->num_compartments(); ++c) csv << ",A" << c;
+  for (int c = 1; c <= model.num_compartments(); ++c) csv << ",A" << c;
   csv << "\n";
   for (const pk::SubjectSimulation& s : sims) {
-    if (!s.ok) {
-      ++failed;
-      std::cerr << "pksim: ID " << pk::FormatNumber(s.id) << ": simulation failed: " << s.message << "\n";
-      continue;
-    }
+    if (!s.ok) continue;
     for (const pk::SimulatedRecord& r : s.rows) {
       csv << pk::FormatNumber(s.id) << "," << pk::FormatNumber(r.time) << "," << static_cast<int>(r.evid) << ","
           << pk::FormatNumber(r.cp);
@@ -226,33 +171,79 @@ int Main(int argc, char** argv) {
       csv << "\n";
     }
   }
+  return csv.str();
+}
+
+std::string PlotSvg(const pk::Model& model, const std::vector<pk::SubjectSimulation>& sims, bool log) {
+  std::vector<pk::PlotSeries> series;
+  for (const pk::SubjectSimulation& s : sims) {
+    if (!s.ok) continue;
+    pk::PlotSeries line;
+    line.label = "ID " + pk::FormatNumber(s.id);
+    for (const pk::SimulatedRecord& r : s.rows) {
+      line.x.push_back(r.time);
+      line.y.push_back(r.cp);
+    }
+    series.push_back(std::move(line));
+  }
+  pk::PlotOptions options;
+  options.title = "pksim: " + model.name();
+  options.log_y = log;
+  return pk::RenderSvg(series, options);
+}
+
+int Main(int argc, char** argv) {
+  po::options_description desc("Options");
+  Lists lists;
+  DeclareOptions(&desc, &lists);
+  po::variables_map vm;
+  if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
+  if (vm.count("list-models")) {
+    ListModels();
+    return 0;
+  }
+  if (!vm.count("model")) throw pk::InputError("--model is required (see --list-models)");
+  const auto model = pk::MakeModel(vm["model"].as<std::string>());
+  const pk::ParameterValues values = pk::cli::ParseAssignments(lists.params, "--param");
+  const std::vector<double> grid = pk::cli::ParseTimes(lists.times);
+  pk::Dataset data;
+  if (vm.count("data")) {
+    if (vm.count("dose")) throw pk::InputError("give either --data or --dose, not both");
+    data = pk::AddOutputTimes(
+        pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(lists.ignore, lists.accept)), grid);
+  } else {
+    if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
+    data = RegimenFromFlags(vm, grid);
+  }
+  pk::SimulationOptions sim_options;
+  sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
+  sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
+  sim_options.ode.absolute_tolerance = vm["atol"].as<double>();
+  std::vector<pk::SubjectSimulation> sims;
+  if (vm.count("estimates")) {
+    const std::string path = vm["estimates"].as<std::string>();
+    const auto estimates = pk::ReadEstimates(path, *model);
+    if (!vm.count("data")) data = pk::RepeatForEach(data, estimates);  // the regimen for every ID of the table
+    sims = pk::SimulateWithEstimates(*model, data, estimates, values, sim_options, path);
+  } else {
+    sims = pk::Simulate(*model, data, values, sim_options);
+  }
+  int failed = 0;
+  for (const pk::SubjectSimulation& s : sims) {
+    if (s.ok) continue;
+    ++failed;
+    std::cerr << "pksim: ID " << pk::FormatNumber(s.id) << ": simulation failed: " << s.message << "\n";
+  }
   std::vector<pk::Exposure> exposures;
   for (const pk::SubjectSimulation& s : sims) exposures.push_back(pk::ComputeExposure(s));
-
   if (vm.count("out")) {
-    pk::WriteFileAtomically(vm["out"].as<std::string>(), csv.str());
+    pk::WriteFileAtomically(vm["out"].as<std::string>(), SimulationCsv(*model, sims));
   } else if (!vm.count("summary")) {
-    std::cout << csv.str();
+    std::cout << SimulationCsv(*model, sims);
   }
   if (vm.count("summary")) std::cout << FormatTable(exposures, sims);
   if (vm.count("summary-csv")) pk::WriteFileAtomically(vm["summary-csv"].as<std::string>(), SummaryCsv(exposures));
-  if (vm.count("plot")) {
-    std::vector<pk::PlotSeries> series;
-    for (const pk::SubjectSimulation& s : sims) {
-      if (!s.ok) continue;
-      pk::PlotSeries line;
-      line.label = "ID " + pk::FormatNumber(s.id);
-      for (const pk::SimulatedRecord& r : s.rows) {
-        line.x.push_back(r.time);
-        line.y.push_back(r.cp);
-      }
-      series.push_back(std::move(line));
-    }
-    pk::PlotOptions options;
-    options.title = "pksim: " + model->name();
-    options.log_y = vm.count("log") > 0;
-    pk::WriteFileAtomically(vm["plot"].as<std::string>(), pk::RenderSvg(series, options));
-  }
+  if (vm.count("plot")) pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, sims, vm.count("log") > 0));
   return failed > 0 ? 1 : 0;
 }
 

@@ -4,6 +4,9 @@
 #include <cmath>
 #include <limits>
 
+#include "pk/error.h"
+#include "pk/output.h"
+
 namespace pk {
 
 Dataset RegimenToDataset(const Regimen& regimen) {
@@ -26,6 +29,10 @@ Dataset RegimenToDataset(const Regimen& regimen) {
     r.evid = Evid::kDose;
     r.cmt = d.cmt;
     r.mdv = 1;
+    const RecordProblem problem = CheckRecord(r);
+    if (!problem.message.empty()) {
+      throw InputError("the dose at TIME " + FormatNumber(d.time) + ": " + problem.message);
+    }
     s.records.push_back(r);
   }
   Dataset with_doses = data;

@@ -1,9 +1,14 @@
 #include "pk/simulate.h"
 
+#include <algorithm>
+
+#include "pk/residual_error.h"
+
 #include "events.h"
 #include "exact/exact_propagator.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
+#include "pk/residual_error.h"
 #include "ode/ode_propagator.h"
 
 namespace pk {
@@ -119,6 +124,42 @@ std::vector<SubjectSimulation> Simulate(const Model& model, const Dataset& data,
   std::vector<SubjectSimulation> out;
   for (int i = 0; i < static_cast<int>(data.subjects.size()); ++i) {
     out.push_back(SimulateSubject(model, data, i, values, options));
+  }
+  return out;
+}
+
+std::vector<SubjectSimulation> SimulateWithEstimates(const Model& model, const Dataset& data,
+                                                     const std::vector<SubjectEstimates>& estimates,
+                                                     const ParameterValues& overrides,
+                                                     const SimulationOptions& options, const std::string& source) {
+  std::vector<SubjectSimulation> sims;
+  for (int i = 0; i < static_cast<int>(data.subjects.size()); ++i) {
+    const double id = data.subjects[i].id;
+    const auto it = std::find_if(estimates.begin(), estimates.end(), [&](const auto& e) { return e.first == id; });
+    if (it == estimates.end()) {
+      SubjectSimulation missing;
+      missing.id = id;
+      missing.ok = false;
+      missing.message = "no estimates for this ID in " + source;
+      sims.push_back(std::move(missing));
+      continue;
+    }
+    ParameterValues merged;
+    for (const auto& kv : it->second) {
+      if (!IsResidualErrorName(kv.first)) merged[kv.first] = kv.second;  // names as the model spells them
+    }
+    for (const auto& kv : overrides) merged[kv.first] = kv.second;
+    sims.push_back(SimulateSubject(model, data, i, merged, options));
+  }
+  return sims;
+}
+
+Dataset RepeatForEach(const Dataset& one, const std::vector<SubjectEstimates>& estimates) {
+  Dataset out = one;
+  out.subjects.clear();
+  for (const auto& e : estimates) {
+    out.subjects.push_back(one.subjects.front());
+    out.subjects.back().id = e.first;
   }
   return out;
 }

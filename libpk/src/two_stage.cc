@@ -367,6 +367,12 @@ const char* ToString(BetweenSubjectModel m) {
   return m == BetweenSubjectModel::kLogNormal ? "log-normal" : "normal";
 }
 
+BetweenSubjectModel ParseBetweenSubjectModel(const std::string& text) {
+  if (text == "lognormal" || text == "log-normal") return BetweenSubjectModel::kLogNormal;
+  if (text == "normal") return BetweenSubjectModel::kNormal;
+  throw InputError("expected lognormal or normal, got '" + text + "'");
+}
+
 bool TwoStageOptions::IsValid(std::string* error) const {
   std::string why;
   if (max_iterations < 1) why = "max_iterations must be at least 1";

@@ -113,6 +113,16 @@ Dataset ReadDataset(const std::string& path, const DatasetFilter& filter = {});
 /// Parses dataset text; `source` names it in error messages.
 Dataset ParseDataset(const std::string& text, const std::string& source, const DatasetFilter& filter = {});
 
+/// What is wrong with one record's items as NONMEM defines them, and the column it concerns.
+struct RecordProblem {
+  std::string column;   ///< AMT, RATE, II, ADDL, SS or CMT
+  std::string message;  ///< empty: nothing is wrong
+};
+/// The first problem with `r`: negative AMT, II or ADDL; a RATE other than > 0, 0, -1 or -2; SS
+/// outside 0–2; a negative CMT; dose items on a record that is not a dose; a dose that needs an
+/// amount or an interval it lacks. The reader and RegimenToDataset apply it to every record.
+RecordProblem CheckRecord(const Record& r);
+
 }  // namespace pk
 
 #endif  // PK_DATASET_H_

@@ -72,6 +72,52 @@ struct FitSubjectsRequest {
   int curve_points = 400;              ///< grid size of the fitted curve
 };
 
+/// The parameter settings a user gives by name (pkfit's --init, --fix, --lower and --upper).
+struct ParameterSettings {
+  ParameterValues initial, fixed, lower, upper;
+};
+
+/// The parameters a request fits: every model parameter that no data column supplies, then the
+/// error model's σ, then every other name in `settings` (dose modifiers such as F1 or ALAG1),
+/// with the initial values (NaN where none is given: from the data or the defaults), fixes and
+/// bounds of `settings`. Throws pk::InputError naming the model's parameters for a name it does
+/// not have.
+std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request, const ParameterSettings& settings);
+
+/// The optimiser for `request`: `requested` ("lm", "bfgs", "newton" or "nlopt:NAME") when the
+/// data allow it, else the default: Levenberg–Marquardt for least squares, Newton for maximum
+/// likelihood, BFGS where continuous records (CONT=1) leave no residual vector. A requested
+/// optimiser that cannot work (LM with maximum likelihood, LM or Newton with continuous records)
+/// is a pk::InputError. An empty `requested` asks for the default.
+std::string ChooseOptimizer(const FitSubjectsRequest& request, const std::string& requested);
+
+/// The indices into data.subjects of the subjects with these IDs, every occurrence of a repeated
+/// ID, in the order given. Throws pk::InputError for an ID the data do not have.
+std::vector<int> SubjectIndices(const Dataset& data, const std::vector<double>& ids);
+
+/// request.subjects, or every subject when it is empty.
+std::vector<int> SelectedSubjects(const FitSubjectsRequest& request);
+
+/// Binds every selected subject to the model and options before anything runs, so that data the
+/// model cannot take is a pk::InputError naming file, line and column. Returns notes for the user:
+/// observations of a linear model outside its central compartment (legitimate in NONMEM's meaning
+/// of CMT, but most often a dataset written for another model).
+std::vector<std::string> CheckSubjects(const FitSubjectsRequest& request);
+
+/// The objective and its gradient at the starting values, with no fit.
+struct SubjectEvaluation {
+  double id = 0;
+  bool ok = false;
+  std::string message;             ///< why the evaluation failed, when !ok
+  std::vector<std::string> names;  ///< request.parameters' names, as the model spells them
+  Eigen::VectorXd values;          ///< their values
+  double value = 0;                ///< the objective V
+  Eigen::VectorXd gradient;        ///< ∂V over each of them
+};
+/// Per selected subject, at ParameterSpec::initial (NaN: the objective's default). Throws
+/// pk::InputError for values a dose cannot take; a failed evaluation is reported in its entry.
+std::vector<SubjectEvaluation> EvaluateSubjects(const FitSubjectsRequest& request);
+
 /// Fits each subject on its own. Invalid or incompatible options throw
 /// pk::InputError before anything runs. A subject that cannot be fitted is reported
 /// in its SubjectFit; the others still run. `progress(done, total)` is called

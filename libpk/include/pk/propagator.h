@@ -14,6 +14,8 @@ namespace pk {
 enum class Propagator { kAuto, kExact, kOde };
 
 const char* ToString(Propagator p);
+/// "auto", "exact" or "ode"; throws pk::InputError otherwise.
+Propagator ParsePropagator(const std::string& text);
 
 /// The propagator `requested` resolves to for `model`. Throws pk::InputError
 /// when `exact` is asked of a nonlinear model.

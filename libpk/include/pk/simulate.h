@@ -22,6 +22,7 @@
 #include <Eigen/Core>
 
 #include "pk/dataset.h"
+#include "pk/estimates.h"
 #include "pk/model.h"
 #include "pk/ode_options.h"
 #include "pk/parameters.h"
@@ -78,6 +79,17 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
 std::vector<SubjectSimulation> Simulate(const Model& model, const Dataset& data,
                                         const ParameterValues& values,
                                         const SimulationOptions& options = SimulationOptions());
+
+/// Simulates every subject of `data` with its own parameters from `estimates` (per-subject
+/// tables such as pkfit's estimates.csv; residual-error σ are left out), `overrides` taking
+/// precedence. A subject without an entry is a failed simulation whose message names `source`.
+std::vector<SubjectSimulation> SimulateWithEstimates(const Model& model, const Dataset& data,
+                                                     const std::vector<SubjectEstimates>& estimates,
+                                                     const ParameterValues& overrides,
+                                                     const SimulationOptions& options, const std::string& source);
+
+/// A one-subject dataset (a regimen) repeated once under each ID of `estimates`.
+Dataset RepeatForEach(const Dataset& one, const std::vector<SubjectEstimates>& estimates);
 
 }  // namespace pk
 

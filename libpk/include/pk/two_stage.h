@@ -66,6 +66,8 @@ enum class BetweenSubjectModel {
 };
 
 const char* ToString(BetweenSubjectModel m);
+/// "lognormal" (or "log-normal") or "normal"; throws pk::InputError otherwise.
+BetweenSubjectModel ParseBetweenSubjectModel(const std::string& text);
 
 struct TwoStageOptions {
   BetweenSubjectModel distribution = BetweenSubjectModel::kLogNormal;

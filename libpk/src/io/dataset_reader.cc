@@ -358,32 +358,12 @@ class Parser {
   }
 
   void Validate(int line, const Record& r) const {
-    if (r.amt < 0) Fail(line, Col(kAmt), "AMT must not be negative");
-    if (r.rate < 0 && r.rate != -1 && r.rate != -2) {
-      Fail(line, Col(kRate), "RATE must be positive, 0, -1 (modelled rate) or -2 (modelled duration)");
+    const RecordProblem problem = CheckRecord(r);
+    if (problem.message.empty()) return;
+    for (int k = 0; k < kNumItems; ++k) {
+      if (problem.column == kItemNames[k]) Fail(line, Col(static_cast<Item>(k)), problem.message);
     }
-    if (r.ii < 0) Fail(line, Col(kIi), "II must not be negative");
-    if (r.addl < 0) Fail(line, Col(kAddl), "ADDL must not be negative");
-    if (r.ss < 0 || r.ss > 2) Fail(line, Col(kSs), "SS must be 0, 1 or 2, not " + std::to_string(r.ss));
-    if (r.cmt < 0) Fail(line, Col(kCmt), "a negative CMT (turning a compartment off) is not supported");
-    if (!r.IsDose()) {
-      if (r.amt != 0) Fail(line, Col(kAmt), "AMT must be 0 on a record that is not a dose (EVID 0, 2 or 3)");
-      if (r.rate != 0) Fail(line, Col(kRate), "RATE must be 0 on a record that is not a dose");
-      if (r.ss != 0) Fail(line, Col(kSs), "SS must be 0 on a record that is not a dose");
-      if (r.addl != 0) Fail(line, Col(kAddl), "ADDL must be 0 on a record that is not a dose");
-      return;
-    }
-    const bool constant_infusion = r.ss > 0 && r.amt == 0 && r.rate != 0 && r.ii == 0;
-    if (constant_infusion) {
-      if (r.rate == -2) Fail(line, Col(kRate), "a steady-state constant infusion (AMT=0, II=0) cannot have a modelled duration (RATE=-2)");
-      if (r.addl != 0) Fail(line, Col(kAddl), "ADDL must be 0 on a steady-state constant infusion (AMT=0, II=0)");
-      return;
-    }
-    if (r.amt == 0) Fail(line, Col(kAmt), "AMT must be positive on a dose record");
-    if (r.addl > 0 && r.ii <= 0) Fail(line, Col(kIi), "ADDL>0 needs II>0");
-    if (r.ss > 0 && r.ii <= 0) {
-      Fail(line, Col(kIi), "a steady-state dose needs II>0 (or AMT=0, RATE>0, II=0 for a constant infusion)");
-    }
+    Fail(line, 0, problem.message);
   }
 
   std::string source_;
@@ -398,6 +378,39 @@ class Parser {
 };
 
 }  // namespace
+
+RecordProblem CheckRecord(const Record& r) {
+  const auto bad = [](const char* column, std::string message) { return RecordProblem{column, std::move(message)}; };
+  if (r.amt < 0) return bad("AMT", "AMT must not be negative");
+  if (r.rate < 0 && r.rate != -1 && r.rate != -2) {
+    return bad("RATE", "RATE must be positive, 0, -1 (modelled rate) or -2 (modelled duration)");
+  }
+  if (r.ii < 0) return bad("II", "II must not be negative");
+  if (r.addl < 0) return bad("ADDL", "ADDL must not be negative");
+  if (r.ss < 0 || r.ss > 2) return bad("SS", "SS must be 0, 1 or 2, not " + std::to_string(r.ss));
+  if (r.cmt < 0) return bad("CMT", "a negative CMT (turning a compartment off) is not supported");
+  if (!r.IsDose()) {
+    if (r.amt != 0) return bad("AMT", "AMT must be 0 on a record that is not a dose (EVID 0, 2 or 3)");
+    if (r.rate != 0) return bad("RATE", "RATE must be 0 on a record that is not a dose");
+    if (r.ss != 0) return bad("SS", "SS must be 0 on a record that is not a dose");
+    if (r.addl != 0) return bad("ADDL", "ADDL must be 0 on a record that is not a dose");
+    return {};
+  }
+  const bool constant_infusion = r.ss > 0 && r.amt == 0 && r.rate != 0 && r.ii == 0;
+  if (constant_infusion) {
+    if (r.rate == -2) {
+      return bad("RATE", "a steady-state constant infusion (AMT=0, II=0) cannot have a modelled duration (RATE=-2)");
+    }
+    if (r.addl != 0) return bad("ADDL", "ADDL must be 0 on a steady-state constant infusion (AMT=0, II=0)");
+    return {};
+  }
+  if (r.amt == 0) return bad("AMT", "AMT must be positive on a dose record");
+  if (r.addl > 0 && r.ii <= 0) return bad("II", "ADDL>0 needs II>0");
+  if (r.ss > 0 && r.ii <= 0) {
+    return bad("II", "a steady-state dose needs II>0 (or AMT=0, RATE>0, II=0 for a constant infusion)");
+  }
+  return {};
+}
 
 int Dataset::ExtraColumn(const std::string& name) const {
   const std::string upper = ToUpper(name);

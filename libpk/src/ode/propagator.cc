@@ -14,6 +14,13 @@ const char* ToString(Propagator p) {
   return "?";
 }
 
+Propagator ParsePropagator(const std::string& text) {
+  for (Propagator p : {Propagator::kAuto, Propagator::kExact, Propagator::kOde}) {
+    if (text == ToString(p)) return p;
+  }
+  throw InputError("expected auto, exact or ode, got '" + text + "'");
+}
+
 Propagator ResolvePropagator(const Model& model, Propagator requested) {
   if (requested == Propagator::kExact && !model.is_linear()) {
     throw InputError("model " + model.name() +

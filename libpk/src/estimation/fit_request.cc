@@ -1,0 +1,163 @@
+// A FitSubjectsRequest from what a user gives: the parameters by name, the optimiser's default,
+// subjects by ID, and the checks that run before any fit.
+#include <algorithm>
+#include <cmath>
+#include <map>
+
+#include "internal_text.h"
+#include "pk/error.h"
+#include "pk/fit_subjects.h"
+#include "pk/ode_model.h"
+#include "pk/output.h"
+
+namespace pk {
+namespace {
+
+// Every name of `settings` must be one of the objective's parameters.
+void CheckNames(const Objective& probe, const ParameterSettings& settings) {
+  for (const ParameterValues* group : {&settings.initial, &settings.fixed, &settings.lower, &settings.upper}) {
+    for (const auto& kv : *group) {
+      if (probe.ParameterIndex(kv.first) < 0) {
+        throw InputError("unknown parameter '" + kv.first + "'; this model has " +
+                         internal::Join(probe.parameter_names(), ", "));
+      }
+    }
+  }
+}
+
+bool HasContinuousRecords(const Dataset& data) {
+  const int cont_col = data.ExtraColumn("CONT");
+  for (const Subject& s : data.subjects) {
+    for (const Record& r : s.records) {
+      if (cont_col >= 0 && r.extra[cont_col] == 1) return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace
+
+std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request, const ParameterSettings& settings) {
+  const Objective probe(request.model, request.data, request.subjects.empty() ? 0 : request.subjects[0],
+                        request.objective, request.priors);
+  CheckNames(probe, settings);
+  std::map<std::string, ParameterSpec> specs;
+  std::vector<std::string> order;
+  auto add = [&](const std::string& name) {
+    if (!specs.count(name)) {
+      ParameterSpec s;
+      s.name = name;
+      s.initial = NAN;
+      specs[name] = s;
+      order.push_back(name);
+    }
+    return &specs[name];
+  };
+  for (int i = 0; i < request.model->num_parameters(); ++i) {
+    const std::string& name = probe.parameter_names()[i];
+    if (request.data->ExtraColumn(name) < 0) add(name);  // else the data supply it
+  }
+  for (int i : probe.sigma_indices()) add(probe.parameter_names()[i]);
+  for (const auto& kv : settings.initial) add(internal::ToUpper(kv.first))->initial = kv.second;
+  for (const auto& kv : settings.fixed) {
+    ParameterSpec* s = add(internal::ToUpper(kv.first));
+    s->initial = kv.second;
+    s->fixed = true;
+  }
+  for (const auto& kv : settings.lower) add(internal::ToUpper(kv.first))->lower = kv.second;
+  for (const auto& kv : settings.upper) add(internal::ToUpper(kv.first))->upper = kv.second;
+  std::vector<ParameterSpec> out;
+  for (const std::string& name : order) out.push_back(specs[name]);
+  return out;
+}
+
+std::string ChooseOptimizer(const FitSubjectsRequest& request, const std::string& requested) {
+  const bool likelihood = request.objective.error_model->is_likelihood();
+  if (requested == "lm" && likelihood) {
+    throw InputError("lm (Levenberg-Marquardt) minimises a sum of squares; with maximum likelihood use bfgs, newton or "
+                     "nlopt:NAME");
+  }
+  std::string optimizer = requested.empty() ? (likelihood ? "newton" : "lm") : requested;
+  // Continuous records (CONT=1) give a loss without residuals: LM and Newton cannot take them.
+  if (HasContinuousRecords(*request.data) && (optimizer == "lm" || optimizer == "newton")) {
+    if (!requested.empty()) {
+      throw InputError(optimizer + " needs a residual vector, which continuous records (CONT=1) do not give: use bfgs or "
+                       "nlopt:NAME");
+    }
+    optimizer = "bfgs";
+  }
+  return optimizer;
+}
+
+std::vector<int> SubjectIndices(const Dataset& data, const std::vector<double>& ids) {
+  std::vector<int> out;
+  for (double id : ids) {
+    bool found = false;
+    for (int i = 0; i < static_cast<int>(data.subjects.size()); ++i) {
+      if (data.subjects[i].id == id) {
+        out.push_back(i);
+        found = true;
+      }
+    }
+    if (!found) throw InputError("no ID " + FormatNumber(id) + " in " + data.source);
+  }
+  return out;
+}
+
+std::vector<int> SelectedSubjects(const FitSubjectsRequest& request) {
+  std::vector<int> all = request.subjects;
+  if (all.empty()) {
+    for (int i = 0; i < static_cast<int>(request.data->subjects.size()); ++i) all.push_back(i);
+  }
+  return all;
+}
+
+std::vector<std::string> CheckSubjects(const FitSubjectsRequest& request) {
+  const std::vector<int> all = SelectedSubjects(request);
+  for (int i : all) Objective(request.model, request.data, i, request.objective, request.priors);
+  // A nonlinear model's observations measure the output their DVID names, whatever their CMT.
+  std::vector<std::string> notes;
+  if (dynamic_cast<const OdeModel*>(request.model.get()) != nullptr) return notes;
+  const Model& model = *request.model;
+  std::map<int, int> elsewhere;
+  for (int i : all) {
+    for (const Record& r : request.data->subjects[static_cast<size_t>(i)].records) {
+      if (r.IsSample() && r.cmt > 0 && r.cmt != model.central_compartment()) ++elsewhere[r.cmt];
+    }
+  }
+  for (const auto& kv : elsewhere) {
+    notes.push_back(std::to_string(kv.second) + " observation" + (kv.second > 1 ? "s" : "") + " with CMT " +
+                    std::to_string(kv.first) + " measure " + model.compartment_names()[static_cast<size_t>(kv.first - 1)] +
+                    ", not " + model.compartment_names()[static_cast<size_t>(model.central_compartment() - 1)] +
+                    " (CMT " + std::to_string(model.central_compartment()) + ") of " + model.name());
+  }
+  return notes;
+}
+
+std::vector<SubjectEvaluation> EvaluateSubjects(const FitSubjectsRequest& request) {
+  std::vector<SubjectEvaluation> out;
+  for (int i : SelectedSubjects(request)) {
+    const Objective objective(request.model, request.data, i, request.objective, request.priors);
+    SubjectEvaluation e;
+    e.id = objective.subject_id();
+    Eigen::VectorXd values = objective.DefaultValues();
+    std::vector<int> free;
+    for (const ParameterSpec& s : request.parameters) {
+      const int k = objective.ParameterIndex(s.name);
+      if (!std::isnan(s.initial)) values(k) = s.initial;
+      free.push_back(k);
+      e.names.push_back(objective.parameter_names()[k]);
+    }
+    objective.CheckValues(values);
+    const Objective::Evaluation ev = objective.Evaluate(values, free, Objective::Need::kGradient);
+    e.ok = ev.ok;
+    e.message = ev.message;
+    e.values = values(free);
+    e.value = ev.value;
+    e.gradient = ev.gradient;
+    out.push_back(std::move(e));
+  }
+  return out;
+}
+
+}  // namespace pk
