@@ -30,11 +30,6 @@ class Minimizer {
 /// null with `why`.
 std::unique_ptr<Minimizer> MakeMinimizer(const std::string& name, std::string* why);
 
-std::unique_ptr<Minimizer> MakeLevenbergMarquardt(const std::string& argument, std::string* why);
-std::unique_ptr<Minimizer> MakeBfgs(const std::string& argument, std::string* why);
-std::unique_ptr<Minimizer> MakeNewton(const std::string& argument, std::string* why);
-std::unique_ptr<Minimizer> MakeNloptMinimizer(const std::string& argument, std::string* why);
-
 /// NLopt from φ0 with `algorithm` (nlopt_minimizer.cc; BFGS is LD_LBFGS).
 RunResult RunNlopt(Problem* pb, const std::string& algorithm, const Eigen::VectorXd& phi0, const FitOptions& o);
 

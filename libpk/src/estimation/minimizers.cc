@@ -5,6 +5,13 @@
 
 namespace pk {
 namespace internal {
+
+// One line each here and in Registry(), for the minimiser in its own file of this folder.
+std::unique_ptr<Minimizer> MakeLevenbergMarquardt(const std::string& argument, std::string* why);
+std::unique_ptr<Minimizer> MakeBfgs(const std::string& argument, std::string* why);
+std::unique_ptr<Minimizer> MakeNewton(const std::string& argument, std::string* why);
+std::unique_ptr<Minimizer> MakeNloptMinimizer(const std::string& argument, std::string* why);
+
 namespace {
 
 struct Entry {

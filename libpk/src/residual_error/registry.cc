@@ -10,6 +10,14 @@
 
 namespace pk {
 namespace internal {
+
+// One line each here and in Registry(), for the model in its own file of this folder.
+std::shared_ptr<const ResidualErrorModel> MakeLeastSquares();
+std::shared_ptr<const ResidualErrorModel> MakeAdditiveError();
+std::shared_ptr<const ResidualErrorModel> MakeProportionalError();
+std::shared_ptr<const ResidualErrorModel> MakeCombinedError();
+std::shared_ptr<const ResidualErrorModel> MakeExponentialError();
+
 namespace {
 
 using Factory = std::shared_ptr<const ResidualErrorModel> (*)();
