@@ -121,17 +121,40 @@ TEST_CASE("SS=1 cancels pending additional doses", "[events][ss]") {
   CHECK(RelDiff(with_addl.rows[0].cp, only_ss.rows[0].cp) < 1e-13);
 }
 
-TEST_CASE("steady-state constant infusion gives R/CL and keeps running", "[events][ss]") {
-  const auto sim = SimulateText("2cmt_iv", "ID,TIME,AMT,RATE,II,SS,EVID\n1,0,0,12,0,1,1\n1,0,0,0,0,0,0\n1,50,0,0,0,0,0\n",
+TEST_CASE("steady-state constant infusion gives R/CL at the record, then stops", "[events][ss]") {
+  const auto sim = SimulateText("2cmt_iv", "ID,TIME,AMT,RATE,II,SS,EVID\n1,0,0,12,0,1,1\n1,0,0,0,0,0,0\n",
                                 {{"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}});
   REQUIRE(sim.ok);
   CHECK(RelDiff(sim.rows[0].cp, 12.0 / 4) < 1e-12);
-  CHECK(RelDiff(sim.rows[1].cp, 12.0 / 4) < 1e-12);
-  CHECK(RelDiff(sim.rows[1].amounts(1), 12.0 / 4 * 60) < 1e-12);  // peripheral at equilibrium
-  // An EVID 3 reset stops it.
-  const auto reset = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,II,SS,EVID\n1,0,0,12,0,1,1\n1,5,0,0,0,0,3\n1,6,0,0,0,0,0\n",
+  CHECK(RelDiff(sim.rows[0].amounts(1), 12.0 / 4 * 60) < 1e-12);  // peripheral at equilibrium
+  // After the record nothing flows in: one compartment decays from R/CL as (R/CL) e^{−(CL/V)t}.
+  const auto decay = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,II,SS,EVID\n1,0,0,12,0,1,1\n1,5,0,0,0,0,0\n",
                                   {{"CL", 4}, {"V", 25}});
-  CHECK(reset.rows[0].cp == 0);
+  REQUIRE(decay.ok);
+  CHECK(RelDiff(decay.rows[0].cp, 3.0 * std::exp(-4.0 / 25 * 5)) < 1e-13);
+  // SS=2 adds the infusion's steady state to what is there, and stops too.
+  const auto added = SimulateText("1cmt_iv", "ID,TIME,AMT,RATE,II,SS,EVID\n1,0,100,0,0,0,1\n1,0,0,12,0,2,1\n1,5,0,0,0,0,0\n",
+                                  {{"CL", 4}, {"V", 25}});
+  REQUIRE(added.ok);
+  CHECK(RelDiff(added.rows[0].cp, (100.0 / 25 + 3.0) * std::exp(-4.0 / 25 * 5)) < 1e-13);
+}
+
+TEST_CASE("a steady-state constant infusion into the depot: NONMEM 7.5.1's concentrations", "[events][ss]") {
+  // mrgsolve/nmtests, dosing scenario 1001, ID 29: ADVAN2 TRANS2 with CL = 1.1, V = 20, KA = 1.5, IPRED =
+  // A(2)/(V/1000), and a record AMT=0, RATE=100, II=0, SS=1 into the depot at TIME 0. NONMEM's table gives
+  // 90909 at TIME 0, 88547 at 1 and 84367 at 2 (five significant digits): the infusion stops at the record.
+  const auto sim = SimulateText("1cmt_oral",
+                                "ID,TIME,AMT,RATE,II,SS,EVID,CMT\n1,0,0,100,0,1,1,1\n1,0,0,0,0,0,0,2\n"
+                                "1,1,0,0,0,0,0,2\n1,2,0,0,0,0,0,2\n",
+                                {{"KA", 1.5}, {"CL", 1.1}, {"V", 20}});
+  REQUIRE(sim.ok);
+  REQUIRE(sim.rows.size() == 3);
+  const double nonmem[] = {90909, 88547, 84367};
+  for (int k = 0; k < 3; ++k) {
+    const double ipred = 1000 * sim.rows[k].cp;  // A(2)/(V/1000)
+    INFO("TIME " << k << ": " << ipred);
+    CHECK(std::fabs(ipred - nonmem[k]) <= 0.5);
+  }
 }
 
 TEST_CASE("record order at equal times", "[events][order]") {

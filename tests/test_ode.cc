@@ -311,11 +311,15 @@ TEST_CASE("nonlinear steady states: Newton's fixed point against long regimens a
     REQUIRE(b.ok);
     CHECK(a.rows[0].cp == Approx(b.rows[0].cp).epsilon(1e-8));
   }
-  SECTION("constant infusion: Vmax C/(Km + C) = R") {
-    auto ss = Parse("ID,TIME,AMT,RATE,SS,EVID\n1,0,0,10,1,1\n1,4,0,0,0,2\n");
+  SECTION("constant infusion: Vmax C/(Km + C) = R at the record, then it stops") {
+    auto ss = Parse("ID,TIME,AMT,RATE,SS,EVID\n1,0,0,10,1,1\n1,0,0,0,0,2\n1,4,0,0,0,2\n");
     const auto a = pk::SimulateSubject(*model, *ss, 0, p, TightOde());
     REQUIRE(a.ok);
     CHECK(a.rows[0].cp == Approx(10.0 * 2 / (20 - 10)).epsilon(1e-10));
+    // Free Michaelis–Menten elimination from C₀ = 2: V dC/dt = −VMAX C/(KM + C), so
+    // KM log(C₀/C) + (C₀ − C) = (VMAX/V) t. The concentration at t = 4 satisfies it.
+    const double c = a.rows[1].cp;
+    CHECK(2 * std::log(2.0 / c) + (2.0 - c) == Approx(20.0 / 30 * 4).epsilon(1e-8));
   }
   SECTION("no steady state when the rate exceeds the capacity") {
     auto ss = Parse("ID,TIME,AMT,RATE,SS,EVID\n1,0,0,25,1,1\n1,4,0,0,0,2\n");

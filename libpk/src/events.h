@@ -246,14 +246,14 @@ class EventEngine {
     const Vec<T>& p = sets_[set];
     const int c = s_.cmt[r];
     if (rec.ss > 0 && rec.amt == 0 && rec.ii == 0) {
-      // Steady state of a constant infusion: it keeps running afterwards, as
-      // in NONMEM and mrgsolve, until a reset. ALAG and F do not apply.
+      // Steady state of a constant infusion, which then stops at the record's time, as NONMEM 7.5
+      // computes it (docs/events.md; mrgsolve/nmtests dosing scenario 1001, ID 29). ALAG and F do
+      // not apply.
       const T rate = rec.rate == -1 ? p(layout_.Rate(c)) : T(rec.rate);
       if (rec.ss == 1) Reset();
       Vec<T> u = Vec<T>::Zero(n_);
       u(c) = rate;
       v_->SteadyInfusion(u, set, rec.ss == 2);
-      active_.push_back({c, rate, T(std::numeric_limits<double>::infinity())});
       return;
     }
     DoseSpec dose;
