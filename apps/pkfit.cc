@@ -48,6 +48,15 @@ std::vector<pk::LogNormalPrior> ParsePriors(const std::vector<std::string>& item
   return priors;
 }
 
+// The likelihood error models' names, for the help text.
+std::string ErrorNames() {
+  std::string names;
+  for (const std::string& name : pk::ResidualErrorNames()) {
+    if (pk::MakeResidualError(name)->is_likelihood()) names += (names.empty() ? "" : ", ") + name;
+  }
+  return names;
+}
+
 // The repeatable options, as given.
 struct Lists {
   std::vector<std::string> init, fix, lower, upper, params, priors, subject_ids, ignore, accept;
@@ -78,7 +87,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "ODE adjoint: at most this many integration steps between checkpoints (storage against recomputation)")(
       "optimizer", po::value<std::string>()->default_value("lm"), "lm, bfgs, newton or nlopt:NAME")(
       "weighting", po::value<std::string>()->default_value("uniform"), "uniform, dv2, dv or column:NAME")(
-      "error", po::value<std::string>(), "maximum likelihood: additive, proportional, combined or exponential (log DV against log PRED)")(
+      "error", po::value<std::string>(), ("maximum likelihood: " + ErrorNames() + " (exponential: log DV against log PRED)").c_str())(
       "subject", po::value<std::vector<std::string>>(&a->subject_ids)->composing(), "fit only this ID (repeatable)")(
       "starts", po::value<int>()->default_value(1), "starts spread around the initial values; the best is kept")(
       "jobs,j", po::value<int>()->default_value(0), "parallel fits (0 = all cores)")(
@@ -122,7 +131,7 @@ pk::FitSubjectsRequest BaseRequest(const po::variables_map& vm, const Lists& a) 
   if (!req.objective.IsValid(&why)) throw pk::InputError(why);
   const std::string optimizer = vm["optimizer"].defaulted() ? "" : vm["optimizer"].as<std::string>();
   req.fit.optimizer = pk::cli::Parsed("--optimizer", [&] { return pk::ChooseOptimizer(req, optimizer); });
-  if (!req.fit.IsValid(&why)) throw pk::InputError("--optimizer: " + why);
+  if (!req.fit.IsValid(&why)) throw pk::InputError(why);
   return req;
 }
 
@@ -209,7 +218,11 @@ int Main(int argc, char** argv) {
   const std::string population_model = vm["population"].as<std::string>(), omega = vm["omega"].as<std::string>();
   pk::TwoStageOptions two_stage;
   if (population_model != "none") {
-    two_stage.distribution = pk::cli::Parsed("--population", [&] { return pk::ParseBetweenSubjectModel(population_model); });
+    try {
+      two_stage.distribution = pk::ParseBetweenSubjectModel(population_model);
+    } catch (const pk::InputError&) {
+      throw pk::InputError("--population: expected lognormal, normal or none, got '" + population_model + "'");
+    }
   }
   if (omega != "diagonal" && omega != "full") {
     throw pk::InputError("--omega: expected diagonal or full, got '" + omega + "'");

@@ -17,6 +17,13 @@ Model::Model(std::string name, std::string description, std::vector<std::string>
       central_(central),
       default_dose_(default_dose) {}
 
+void Model::set_initial_structure(InitialStructure s) {
+  for (std::string& name : s.names) name = internal::ToUpper(name);
+  s.vmax = internal::ToUpper(s.vmax);
+  s.km = internal::ToUpper(s.km);
+  initial_structure_ = std::move(s);
+}
+
 int Model::ParameterIndex(const std::string& name) const {
   const std::string upper = internal::ToUpper(name);
   for (size_t i = 0; i < parameter_names_.size(); ++i) {

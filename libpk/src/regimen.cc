@@ -37,7 +37,11 @@ Dataset RegimenToDataset(const Regimen& regimen) {
   }
   Dataset with_doses = data;
   with_doses.subjects.push_back(s);
-  return AddOutputTimes(with_doses, regimen.times);
+  Dataset out = AddOutputTimes(with_doses, regimen.times);
+  // Numbered as the lines of the same records in a file with a header, so messages can point at them.
+  int line = 1;
+  for (Record& r : out.subjects.front().records) r.line = ++line;
+  return out;
 }
 
 Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times) {

@@ -2,8 +2,6 @@
 
 #include <algorithm>
 
-#include "pk/residual_error.h"
-
 #include "events.h"
 #include "exact/exact_propagator.h"
 #include "pk/error.h"
@@ -155,6 +153,9 @@ std::vector<SubjectSimulation> SimulateWithEstimates(const Model& model, const D
 }
 
 Dataset RepeatForEach(const Dataset& one, const std::vector<SubjectEstimates>& estimates) {
+  if (one.subjects.size() != 1) {
+    throw InputError(one.source + ": a regimen to repeat has one subject, not " + std::to_string(one.subjects.size()));
+  }
   Dataset out = one;
   out.subjects.clear();
   for (const auto& e : estimates) {

@@ -10,7 +10,6 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
-
 #include "estimation/nlopt.h"
 #include "internal_text.h"
 #include "pk/error.h"

@@ -70,7 +70,8 @@ class Model {
   Model(std::string name, std::string description, std::vector<std::string> compartment_names,
         std::vector<std::string> parameter_names, Eigen::VectorXd default_parameters, int central,
         int default_dose);
-  void set_initial_structure(InitialStructure s) { initial_structure_ = std::move(s); }
+  /// Sets what data-driven starting values may assume; the names are taken as upper case.
+  void set_initial_structure(InitialStructure s);
 
  private:
   std::string name_;

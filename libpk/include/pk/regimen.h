@@ -30,8 +30,10 @@ struct Regimen {
 };
 
 /// The regimen as a one-subject dataset. Output records at the same time as a
-/// dose come after it (they see the post-dose state). Throws pk::InputError
-/// for a dose that no dataset record could hold (CheckRecord, pk/dataset.h).
+/// dose come after it (they see the post-dose state). Records are numbered as
+/// the lines of a file holding them under a header (2, 3, ...). Throws
+/// pk::InputError for a dose that no dataset record could hold (CheckRecord,
+/// pk/dataset.h).
 Dataset RegimenToDataset(const Regimen& regimen);
 
 /// Adds an EVID 2 record at each of `times` to every subject of `data`. An added

@@ -13,7 +13,8 @@
 // The per-sample loss (ℓ_k = ½[log 2πv + (T(y) − T(ŷ))²/v], plus log y under the log
 // transform, and Beal's M3 for censored samples) is written once, in the library, from
 // what a model declares here. Adding an error model is one file that implements this
-// interface and one line in libpk/src/residual_error/registry.cc (docs/architecture.md).
+// interface, its factory's two lines in libpk/src/residual_error/registry.cc, and the file in
+// libpk/CMakeLists.txt (docs/architecture.md).
 #ifndef PK_RESIDUAL_ERROR_H_
 #define PK_RESIDUAL_ERROR_H_
 
@@ -53,6 +54,9 @@ class ResidualErrorModel {
   /// The variance v of the compared quantity for prediction ŷ and σ (sigma_names() values),
   /// with ∂v/∂ŷ and ∂v/∂σ_j (dv_dsigma has sigma_names().size() entries).
   virtual void Variance(double yhat, const double* sigma, double* v, double* dv_dyhat, double* dv_dsigma) const;
+  /// The standard deviation √v for scaled residuals (IWRES); a model with one σ returns |σ| so
+  /// that a σ of 1e-160 still divides.
+  virtual double StandardDeviation(double yhat, const double* sigma) const;
 };
 
 /// The error model of this name (case-insensitive): "least-squares" (also "ls", "none"),

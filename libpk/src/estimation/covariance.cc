@@ -37,8 +37,10 @@ bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int 
 // What collapsed, or "" when nothing did. With one σ: that it fell to 0. With several: either all
 // fell, or some did and a sample predicted as 0 has only those in its variance (a combined
 // error's SIGMA_ADD alone may go to 0 at a finite likelihood: data with a constant CV, a boundary
-// estimate; a sample predicted as 0 then has a σ of 0). Sets `at` to that sample.
-std::string Collapse(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat, int* at) {
+// estimate; a sample predicted as 0 then has a σ of 0). Sets `at` to that sample and `alone` to
+// the name of the σ that was all its variance.
+std::string Collapse(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat, int* at,
+                     std::string* alone) {
   const std::vector<int> sigma = objective.sigma_indices();
   const Eigen::VectorXd& y = objective.observations();
   const double scale = y.cwiseAbs().maxCoeff();
@@ -63,15 +65,25 @@ std::string Collapse(const Objective& objective, const Eigen::VectorXd& values, 
     }
     return what;
   }
-  // (A censored sample predicted as 0 is not one: its probability goes to 1, not its density to ∞.)
+  // The variance of a prediction of 0 with the fallen σ at 0: when it vanishes, a sample predicted as 0
+  // has a σ of 0. (A censored sample predicted as 0 is not one: its probability goes to 1, not its
+  // density to ∞.)
+  std::vector<double> rest(sigma.size()), dv_dsigma(sigma.size());
+  for (size_t q = 0; q < sigma.size(); ++q) rest[q] = values(sigma[q]);
+  for (int q : gone) rest[static_cast<size_t>(q)] = 0;
+  double v0, dv0;
+  objective.error_model().Variance(0.0, rest.data(), &v0, &dv0, dv_dsigma.data());
+  if (v0 > 0) return "";
   const double zero = kZeroPredictionLevel * yhat.cwiseAbs().maxCoeff();
   for (int k = 0; k < y.size() && *at < 0; ++k) {
     if (std::fabs(yhat(k)) <= zero && objective.censoring()(k) == 0) *at = k;
   }
-  if (*at < 0 || gone.front() != 0) return "";
-  const double v = std::fabs(values(sigma[0]));
+  if (*at < 0) return "";
+  const int q = gone.front();
+  const double v = std::fabs(values(sigma[q]));
+  *alone = names[sigma[q]];
   return "the sample at TIME " + Num(objective.sample_times()[*at]) + " (DV " + Num(y(*at)) + ", prediction " +
-         Num(yhat(*at), "%.3g") + ") has a σ of " + Num(v, "%.3g") + of_dv(0, v);
+         Num(yhat(*at), "%.3g") + ") has a σ of " + Num(v, "%.3g") + of_dv(q, v);
 }
 
 }  // namespace
@@ -88,14 +100,15 @@ bool CollapsedSigma(const Objective& objective, const Eigen::VectorXd& values, c
   const int nobs = static_cast<int>(objective.observations().size());
   if (nobs == 0 || yhat.size() != nobs || objective.sigma_indices().empty()) return false;
   int at = -1;
-  const std::string what = Collapse(objective, values, yhat, &at);
+  std::string alone;
+  const std::string what = Collapse(objective, values, yhat, &at, &alone);
   if (what.empty()) return false;
   std::string cause;
   if (nobs <= structural) {
     cause = "with " + std::to_string(nobs) + " samples for " + std::to_string(structural) +
             " model parameters the curve passes through every sample; fix some parameters or σ, or fit the population";
   } else if (at >= 0) {
-    cause = "its prediction is 0, so its σ is SIGMA_ADD alone; give it MDV=1, or fix SIGMA_ADD";
+    cause = "its prediction is 0, so its σ is " + alone + " alone; give it MDV=1, or fix " + alone;
   } else {
     cause = "the curve passes through the samples; fix σ, or use least squares";
   }

@@ -38,7 +38,7 @@ bool IsCompatible(const FitOptions& fit, const ObjectiveOptions& objective, std:
   const auto minimizer = internal::MakeMinimizer(fit.optimizer, &unused);
   if (!minimizer) return true;  // FitOptions::IsValid says why
   if (objective.error_model->is_likelihood() && minimizer->needs_residuals()) {
-    if (why) *why = "Levenberg-Marquardt minimises a sum of squares; for maximum likelihood use bfgs, newton or nlopt:NAME";
+    if (why) *why = fit.optimizer + " minimises a sum of squares; for maximum likelihood use bfgs, newton or nlopt:NAME";
     return false;
   }
   if (objective.gradient == GradientRoute::kAdjoint && minimizer->needs_jacobian()) {

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <map>
 
+#include "estimation/minimizer.h"
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/fit_subjects.h"
@@ -73,16 +74,18 @@ std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request,
 
 std::string ChooseOptimizer(const FitSubjectsRequest& request, const std::string& requested) {
   const bool likelihood = request.objective.error_model->is_likelihood();
-  if (requested == "lm" && likelihood) {
-    throw InputError("lm (Levenberg-Marquardt) minimises a sum of squares; with maximum likelihood use bfgs, newton or "
-                     "nlopt:NAME");
-  }
   std::string optimizer = requested.empty() ? (likelihood ? "newton" : "lm") : requested;
-  // Continuous records (CONT=1) give a loss without residuals: LM and Newton cannot take them.
-  if (HasContinuousRecords(*request.data) && (optimizer == "lm" || optimizer == "newton")) {
+  std::string why;
+  const auto minimizer = internal::MakeMinimizer(optimizer, &why);
+  if (!minimizer) return optimizer;  // FitOptions::IsValid says why
+  if (minimizer->needs_residuals() && likelihood) {
+    throw InputError(optimizer + " minimises a sum of squares; with maximum likelihood use bfgs, newton or nlopt:NAME");
+  }
+  // Continuous records (CONT=1) give a loss without residuals or a Jacobian.
+  if (HasContinuousRecords(*request.data) && minimizer->needs_jacobian()) {
     if (!requested.empty()) {
-      throw InputError(optimizer + " needs a residual vector, which continuous records (CONT=1) do not give: use bfgs or "
-                       "nlopt:NAME");
+      throw InputError(optimizer + " needs the residual Jacobian, which continuous records (CONT=1) do not give: use "
+                       "bfgs or nlopt:NAME");
     }
     optimizer = "bfgs";
   }
@@ -144,6 +147,10 @@ std::vector<SubjectEvaluation> EvaluateSubjects(const FitSubjectsRequest& reques
     std::vector<int> free;
     for (const ParameterSpec& s : request.parameters) {
       const int k = objective.ParameterIndex(s.name);
+      if (k < 0) {
+        throw InputError("unknown parameter '" + s.name + "'; this model has " +
+                         internal::Join(objective.parameter_names(), ", "));
+      }
       if (!std::isnan(s.initial)) values(k) = s.initial;
       free.push_back(k);
       e.names.push_back(objective.parameter_names()[k]);

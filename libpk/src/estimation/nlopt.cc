@@ -1,5 +1,8 @@
 #include "estimation/nlopt.h"
 
+#include <new>
+#include <stdexcept>
+
 #include <nlopt.h>
 
 namespace pk {
@@ -8,17 +11,37 @@ namespace {
 
 nlopt_opt Opt(void* p) { return static_cast<nlopt_opt>(p); }
 
-double Trampoline(unsigned n, const double* x, double* gradient, void* data) {
-  (void)n;
-  return (*static_cast<const NloptFunction*>(data))(x, gradient);
+struct Call {
+  const NloptFunction* f;
+  nlopt_opt opt;
+  std::string error;  // what the function threw, if it did
+};
+
+// An exception must not unwind through NLopt's C frames: it is kept, NLopt is stopped, and the
+// outcome is a failure with its message (as NLopt's own C++ interface reports it).
+double Trampoline(unsigned, const double* x, double* gradient, void* data) {
+  Call* call = static_cast<Call*>(data);
+  try {
+    return (*call->f)(x, gradient);
+  } catch (const std::exception& e) {
+    call->error = e.what();
+  } catch (...) {
+    call->error = "unknown exception";
+  }
+  nlopt_force_stop(call->opt);
+  return 0;
 }
 
 }  // namespace
 
 bool Nlopt::Knows(const std::string& algorithm) { return nlopt_algorithm_from_string(algorithm.c_str()) >= 0; }
 
-Nlopt::Nlopt(const std::string& algorithm, int n)
-    : opt_(nlopt_create(nlopt_algorithm_from_string(algorithm.c_str()), static_cast<unsigned>(n))), n_(n) {}
+Nlopt::Nlopt(const std::string& algorithm, int n) : n_(n) {
+  const int code = nlopt_algorithm_from_string(algorithm.c_str());
+  if (code < 0) throw std::invalid_argument("unknown NLopt algorithm '" + algorithm + "'");
+  opt_ = nlopt_create(static_cast<nlopt_algorithm>(code), static_cast<unsigned>(n));
+  if (opt_ == nullptr) throw std::bad_alloc();
+}
 
 Nlopt::~Nlopt() { nlopt_destroy(Opt(opt_)); }
 
@@ -36,8 +59,16 @@ void Nlopt::SetMaxEvaluations(int evaluations) { nlopt_set_maxeval(Opt(opt_), ev
 
 Nlopt::Outcome Nlopt::Minimize(const NloptFunction& f, std::vector<double>* x) {
   Outcome out;
-  nlopt_set_min_objective(Opt(opt_), Trampoline, const_cast<NloptFunction*>(&f));
+  Call call{&f, Opt(opt_), ""};
+  nlopt_set_min_objective(Opt(opt_), Trampoline, &call);
   const nlopt_result result = nlopt_optimize(Opt(opt_), x->data(), &out.value);
+  if (!call.error.empty()) {
+    out.evaluations = nlopt_get_numevals(Opt(opt_));
+    out.result = nlopt_result_to_string(result);
+    out.kind = Outcome::kFailure;
+    out.error = call.error;
+    return out;
+  }
   out.evaluations = nlopt_get_numevals(Opt(opt_));
   out.result = nlopt_result_to_string(result);
   switch (result) {

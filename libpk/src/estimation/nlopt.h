@@ -18,7 +18,7 @@ class Nlopt {
   /// Whether NLopt knows the algorithm (by NLopt's name, e.g. "LD_LBFGS").
   static bool Knows(const std::string& algorithm);
 
-  /// The algorithm must be known (Knows).
+  /// Throws std::invalid_argument for an algorithm NLopt does not know (see Knows).
   Nlopt(const std::string& algorithm, int n);
   ~Nlopt();
   Nlopt(const Nlopt&) = delete;
@@ -42,7 +42,7 @@ class Nlopt {
   std::string algorithm_name() const;
 
  private:
-  void* opt_;  // nlopt_opt
+  void* opt_ = nullptr;  // nlopt_opt
   int n_;
 };
 

@@ -8,6 +8,7 @@
 // kBoxMoves moves is reported as not determined by the data.
 #include <algorithm>
 #include <cmath>
+#include <utility>
 #include <vector>
 
 #include "estimation/minimizer.h"

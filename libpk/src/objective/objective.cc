@@ -3,6 +3,7 @@
 // residuals and the information matrix.
 #include "pk/objective.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -326,18 +327,17 @@ Eigen::VectorXd Objective::ScaledResiduals(const Eigen::VectorXd& values, const 
   const internal::ObjectiveState& d = *impl_;
   const Eigen::VectorXd r = d.y - predictions;
   if (!d.likelihood()) return (d.w.array().sqrt() * r.array()).matrix();
-  std::vector<double> sigma(d.sigma.size()), dv_dsigma(d.sigma.size());
+  std::vector<double> sigma(d.sigma.size());
   d.Sigmas(values, sigma.data());
   Eigen::VectorXd out(r.size());
   for (Eigen::Index k = 0; k < r.size(); ++k) {
-    double v, dv;
-    d.error->Variance(predictions(k), sigma.data(), &v, &dv, dv_dsigma.data());
+    const double sd = d.error->StandardDeviation(predictions(k), sigma.data());
     if (d.cens(k) != 0) {
       out(k) = std::numeric_limits<double>::quiet_NaN();
     } else if (d.error->log_transformed()) {
-      out(k) = (std::log(d.y(k)) - std::log(predictions(k))) / std::sqrt(v);
+      out(k) = (std::log(d.y(k)) - std::log(predictions(k))) / sd;
     } else {
-      out(k) = r(k) / std::sqrt(v);
+      out(k) = r(k) / sd;
     }
   }
   return out;

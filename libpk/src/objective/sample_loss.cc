@@ -116,9 +116,10 @@ bool Likelihood(const ResidualErrorModel& error, const SampleSet& samples, const
     if (!(v > 0) || std::fabs(yhat(k)) <= zero_level) {
       std::ostringstream os;
       os << "the residual variance of the sample at TIME " << At(samples, static_cast<int>(k)) << " is zero: "
-         << (relative ? "its prediction is 0 with a proportional error (give it MDV=1, or use a combined error "
-                        "with SIGMA_ADD fixed)"
-                      : "a σ of 0");
+         << (relative ? "its prediction is 0 and the " + std::string(error.name()) +
+                            " error's variance vanishes with it (give it MDV=1, or use a combined error with "
+                            "SIGMA_ADD fixed)"
+                      : std::string("a σ of 0"));
       return Fail(why, os.str());
     }
     // The exponential error's density of y is that of log y over y: the log y term keeps V

@@ -1,4 +1,6 @@
 // The additive error: y = ŷ + ε, ε ~ N(0, SIGMA_ADD²) (NONMEM's Y = F + EPS(1)).
+#include <cmath>
+
 #include "pk/residual_error.h"
 #include "residual_error/registry.h"
 
@@ -17,6 +19,7 @@ class Additive final : public ResidualErrorModel {
     *dv_dyhat = 0;
     dv_dsigma[0] = 2 * sigma[0];
   }
+  double StandardDeviation(double, const double* sigma) const override { return std::fabs(sigma[0]); }
 };
 
 }  // namespace

@@ -1,6 +1,8 @@
 // The exponential error: y = ŷ·e^ε, ε ~ N(0, SIGMA_LOG²), fitted as log y against log ŷ
 // (NONMEM's log-transform-both-sides). DV must be positive, and so must the predictions
 // at samples.
+#include <cmath>
+
 #include "pk/residual_error.h"
 #include "residual_error/registry.h"
 
@@ -19,6 +21,7 @@ class Exponential final : public ResidualErrorModel {
     *dv_dyhat = 0;
     dv_dsigma[0] = 2 * sigma[0];
   }
+  double StandardDeviation(double, const double* sigma) const override { return std::fabs(sigma[0]); }
 };
 
 }  // namespace

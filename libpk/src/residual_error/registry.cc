@@ -2,7 +2,7 @@
 #include "residual_error/registry.h"
 
 #include <cmath>
-#include <functional>
+#include <set>
 #include <utility>
 
 #include "internal_text.h"
@@ -50,6 +50,13 @@ void ResidualErrorModel::Variance(double, const double*, double* v, double* dv_d
   *dv_dyhat = 0;
 }
 
+double ResidualErrorModel::StandardDeviation(double yhat, const double* sigma) const {
+  std::vector<double> dv_dsigma(sigma_names().size());
+  double v, dv_dyhat;
+  Variance(yhat, sigma, &v, &dv_dyhat, dv_dsigma.data());
+  return std::sqrt(v);
+}
+
 std::shared_ptr<const ResidualErrorModel> MakeResidualError(const std::string& name) {
   std::string key = internal::ToLower(name);
   if (key == "ls" || key == "none") key = "least-squares";
@@ -71,12 +78,14 @@ std::shared_ptr<const ResidualErrorModel> LeastSquares() {
 }
 
 bool IsResidualErrorName(const std::string& name) {
-  for (const auto& entry : internal::Registry()) {
-    for (const std::string& sigma : entry.second()->sigma_names()) {
-      if (sigma == name) return true;
+  static const std::set<std::string> names = [] {
+    std::set<std::string> all;
+    for (const auto& entry : internal::Registry()) {
+      for (const std::string& sigma : entry.second()->sigma_names()) all.insert(sigma);
     }
-  }
-  return false;
+    return all;
+  }();
+  return names.count(name) > 0;
 }
 
 }  // namespace pk
