@@ -8,17 +8,15 @@
 #include <boost/program_options.hpp>
 
 #include "pk/error.h"
+#include "pk/output.h"
 
 namespace pk {
 namespace cli {
 namespace {
 
 double ToNumber(const std::string& text, const std::string& option, const std::string& item) {
-  char* end = nullptr;
-  const double v = std::strtod(text.c_str(), &end);
-  if (text.empty() || *end != '\0' || !std::isfinite(v)) {
-    throw InputError(option + ": '" + item + "': '" + text + "' is not a number");
-  }
+  double v = 0;
+  if (!ParseNumber(text, &v)) throw InputError(option + ": '" + item + "': '" + text + "' is not a number");
   return v;
 }
 

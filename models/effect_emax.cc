@@ -35,6 +35,7 @@ std::shared_ptr<const OdeModel> OneCmtIvEmax() {
   s.description = "one compartment with an effect compartment and a sigmoid Emax response (DVID 1: C, 2: E)";
   s.compartments = {"CENTRAL", "EFFECT"};
   s.parameters = {{"CL", 3.0}, {"V", 30.0}, {"KE0", 0.5}, {"E0", 10.0}, {"EMAX", 50.0}, {"EC50", 1.0}, {"HILL", 1.5}};
+  s.signed_parameters = {"E0", "EMAX"};  // a baseline and an inhibitory or stimulatory maximum
   s.outputs = {"CP", "EFFECT"};
   return MakeOdeModel(s, EffectEmax());
 }

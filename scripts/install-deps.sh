@@ -12,6 +12,7 @@ packages=(
   libfccp-dev                       # CSV line reading
   catch2                            # unit tests (Catch2 v2)
   libbenchmark-dev                  # benchmarks
+  locales                           # localedef's sources: the tests read and write numbers under a comma-decimal locale
 )
 
 missing=()

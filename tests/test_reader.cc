@@ -1,6 +1,8 @@
 // The dataset reader: NM-TRAN defaults and every error path, each naming file, line and column.
 #include <cmath>
+#include <clocale>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 
 #include <catch2/catch.hpp>
@@ -9,6 +11,7 @@
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/estimates.h"
+#include "pk/output.h"
 #include "pk/simulate.h"
 
 namespace {
@@ -413,4 +416,61 @@ TEST_CASE("text and files are split into the same lines (BOM, CRLF, blank lines,
     }
   }
   std::remove(path.c_str());
+}
+
+TEST_CASE("bytes a text line cannot hold are refused with their place", "[reader][trust]") {
+  const auto error_of = [](const std::string& text) {
+    try {
+      pk::ParseDataset(text, "bad.csv");
+    } catch (const pk::InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  // A NUL inside DV would end the line early and read "2.\0 84" as 2.
+  CHECK_THAT(error_of(std::string("ID,TIME,DV\n1,0,2.\0 84\n", 23)), Catch::StartsWith("bad.csv:2:3: a NUL byte"));
+  // CR-only line ends would make the whole file one header line.
+  CHECK_THAT(error_of("ID,TIME,DV\r1,0,1\r1,1,2\r"), Catch::StartsWith("bad.csv:1:3: a carriage return (CR)"));
+  CHECK(error_of("ID,TIME,DV\r\n1,0,1\r\n") == "no error");  // CRLF is fine
+  CHECK_THAT(error_of("ID,TIME,DV\n1,0,0x1p-2\n"), Catch::Contains("is not a number (write numbers in decimal)"));
+  CHECK_THAT(error_of("ID,TIME,DV\n1,0,inf\n"), Catch::Contains("'inf' is not a number"));
+  CHECK_THAT(error_of("ID,TIME,DV\n1,0,\x01\xff\n"), Catch::Contains("'\\x01\\xFF' is not a number"));
+  CHECK_THAT(error_of("ID,TIME,DV\n2.5,0,1\n"), Catch::StartsWith("bad.csv:2:1: ID must be a whole number"));
+  CHECK_THAT(error_of("ID,TIME,DV\n1e300,0,1\n"), Catch::StartsWith("bad.csv:2:1: ID must be a whole number"));
+  CHECK_THAT(error_of("ID,TIME,DV\n1,1e300,1\n"), Catch::StartsWith("bad.csv:2:2: TIME 1e+300 is beyond"));
+  try {
+    pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets");
+    FAIL("a directory was read");
+  } catch (const pk::InputError& e) {
+    CHECK_THAT(e.what(), Catch::EndsWith("datasets: is a directory, not a data file"));
+  }
+  pk::DatasetFilter unbalanced;
+  unbalanced.ignore = {"(ID.GT.1"};
+  CHECK_THROWS_WITH(pk::ParseDataset("ID,TIME,DV\n1,0,1\n", "f.csv", unbalanced), Catch::Contains("unbalanced parentheses"));
+}
+
+TEST_CASE("numbers are read and written the same under a comma-decimal locale", "[reader][locale]") {
+  // tests/cli/test_locale.sh runs this with PK_TEST_COMMA_LOCALE set to a locale it generated, whose
+  // decimal point is a comma; without it the checks run in the C locale.
+  const char* comma = std::getenv("PK_TEST_COMMA_LOCALE");
+  if (comma != nullptr) {
+    REQUIRE(std::setlocale(LC_ALL, comma) != nullptr);
+    REQUIRE(std::string(std::localeconv()->decimal_point) == ",");
+  }
+  double v = 0;
+  CHECK(pk::ParseNumber("0.25", &v));
+  CHECK(v == 0.25);
+  CHECK(pk::ParseNumber(" +1.5e-3 ", &v));
+  CHECK(v == 1.5e-3);
+  CHECK_FALSE(pk::ParseNumber("0,25", &v));
+  CHECK_FALSE(pk::ParseNumber("0x1p-2", &v));
+  CHECK_FALSE(pk::ParseNumber("nan", &v));
+  CHECK_FALSE(pk::ParseNumber("+-1", &v));
+  CHECK(pk::FormatNumber(0.25) == "0.25");
+  CHECK(pk::FormatNumber(0.1 + 0.2) == "0.30000000000000004");
+  CHECK(pk::FormatNumber(1e-300) == "1e-300");
+  const pk::Dataset d = pk::ParseDataset("ID,TIME,AMT,DV\n1,0,320.5,.\n1,0.25,0,2.84\n", "d.csv");
+  CHECK(d.subjects[0].records[0].amt == 320.5);
+  CHECK(d.subjects[0].records[1].dv == 2.84);
+  if (comma != nullptr) std::setlocale(LC_ALL, "C");
 }

@@ -49,8 +49,31 @@ void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base
   }
 }
 
+namespace {
+
+// A clearance, volume or rate constant of zero or below gives rising concentrations or a "converged"
+// fit of nonsense: every parameter the model does not declare signed must be positive on record r.
+// Values from data columns are always checked; given ones when `given`.
+void CheckPositive(const Model& model, const ParameterLayout& layout, const PreparedSubject& s, size_t r, bool given) {
+  const Record& rec = s.records()[r];
+  const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
+  for (int i = 0; i < model.num_parameters(); ++i) {
+    if (!model.must_be_positive(i) || !(p(i) <= 0)) continue;  // NaN: not given, reported where it is used
+    const int col = s.column_of_parameter[i];
+    const bool from_data = col >= 0 && !std::isnan(rec.extra[col]);
+    if (!from_data && !given) continue;
+    const Dataset& data = *s.data;
+    const std::string why = layout.name(i) + " of " + model.name() + " must be positive, not " + FormatNumber(p(i));
+    // A subject's own data fail that subject; a value given for every subject is the request's error.
+    if (from_data) throw ParameterValueError(data.source, rec.line, data.ColumnNumber(layout.name(i)), why);
+    throw InputError(why + " (as given)");
+  }
+}
+
+}  // namespace
+
 PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
-                               int subject, const Eigen::VectorXd& base, bool check_modifiers) {
+                               int subject, const Eigen::VectorXd& base, bool check_modifiers, bool check_given) {
   PreparedSubject s;
   s.data = &data;
   s.subject = subject;
@@ -81,6 +104,7 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
     const int c = rec.cmt > 0 ? rec.cmt - 1 : (rec.IsDose() ? model.default_dose_compartment() - 1
                                                             : model.central_compartment() - 1);
     s.cmt[r] = c;
+    if (check_modifiers) CheckPositive(model, layout, s, r, check_given);
     if (!rec.IsDose() || !check_modifiers) continue;
     const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
     // A modifier the dose needs must be a finite value in range; name where it came from.

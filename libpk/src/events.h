@@ -35,6 +35,7 @@
 #include "autodiff.h"
 #include "numerical_failure.h"
 #include "pk/dataset.h"
+#include "pk/error.h"
 #include "pk/model.h"
 #include "pk/output.h"
 #include "pk/parameters.h"
@@ -90,7 +91,15 @@ struct PreparedSubject {
 /// data column supplies a value. Throws pk::InputError (file, line, column)
 /// for CMT out of range and for modifiers a dose needs but nobody supplies.
 PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
-                               int subject, const Eigen::VectorXd& base, bool check_modifiers = true);
+                               int subject, const Eigen::VectorXd& base, bool check_modifiers = true,
+                               bool check_given = true);
+
+/// A parameter value the model cannot take (zero or below where it must be positive), on one
+/// subject: that subject fails with this message, and the others go on.
+class ParameterValueError : public InputError {
+ public:
+  using InputError::InputError;
+};
 
 /// Equal parameter vectors, where NaN (an unused modifier) matches NaN.
 inline bool SameValues(const Eigen::Ref<const Eigen::VectorXd>& a, const Eigen::Ref<const Eigen::VectorXd>& b) {

@@ -7,6 +7,8 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "pk/output.h"
+
 namespace pk {
 namespace internal {
 
@@ -28,14 +30,30 @@ std::string Trim(const std::string& s) {
 }
 
 bool ParseDouble(const std::string& text, double* value) {
-  if (text.empty()) return false;
-  const char* begin = text.c_str();
-  char* end = nullptr;
-  errno = 0;
-  const double v = std::strtod(begin, &end);
-  if (end != begin + text.size() || errno == ERANGE || !std::isfinite(v)) return false;
-  *value = v;
-  return true;
+  return pk::ParseNumber(text, value);
+}
+
+std::string Printable(const std::string& text) {
+  std::string out;
+  for (size_t i = 0; i < text.size(); ++i) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    // A UTF-8 sequence stays as it is; a control character or a stray byte is written as \xNN.
+    size_t n = c < 0x80 ? 1 : (c >> 5) == 0x6 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E ? 4 : 0;
+    for (size_t k = 1; k < n; ++k) {
+      if (i + k >= text.size() || (static_cast<unsigned char>(text[i + k]) >> 6) != 0x2) n = 0;
+    }
+    if (n == 1 && c >= 0x20 && c != 0x7F) {
+      out += text[i];
+    } else if (n > 1) {
+      out += text.substr(i, n);
+      i += n - 1;
+    } else {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\x%02X", c);
+      out += buf;
+    }
+  }
+  return out;
 }
 
 std::string Join(const std::vector<std::string>& items, const std::string& separator) {

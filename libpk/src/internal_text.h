@@ -12,6 +12,9 @@ namespace internal {
 
 std::string ToUpper(std::string s);
 std::string ToLower(std::string s);
+/// The text with control characters and bytes that are not UTF-8 written as \xNN, for messages
+/// that quote input.
+std::string Printable(const std::string& text);
 std::string Trim(const std::string& s);
 /// Parses the whole of `text` as a finite double; false if it is not one.
 bool ParseDouble(const std::string& text, double* value);

@@ -44,6 +44,8 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
                                                      default_dose, std::move(system_terms), std::move(output_terms),
                                                      transfer_function_order));
   model->set_initial_structure(std::move(initial_structure));
+  // A transfer function's coefficients take either sign; a compartment model's parameters are positive.
+  if (transfer_function_order > 0) model->set_signed_parameters(model->parameter_names());
   return model;
 }
 

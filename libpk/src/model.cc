@@ -1,5 +1,6 @@
 #include "pk/model.h"
 
+#include <stdexcept>
 #include <utility>
 
 #include "internal_text.h"
@@ -22,6 +23,15 @@ void Model::set_initial_structure(InitialStructure s) {
   s.vmax = internal::ToUpper(s.vmax);
   s.km = internal::ToUpper(s.km);
   initial_structure_ = std::move(s);
+}
+
+void Model::set_signed_parameters(const std::vector<std::string>& names) {
+  signed_.assign(parameter_names_.size(), false);
+  for (const std::string& name : names) {
+    const int i = ParameterIndex(name);
+    if (i < 0) throw std::logic_error("model " + name_ + ": no parameter " + name + " to declare signed");
+    signed_[static_cast<size_t>(i)] = true;
+  }
 }
 
 int Model::ParameterIndex(const std::string& name) const {

@@ -47,6 +47,7 @@ OdeModel::OdeModel(const OdeModelSpec& spec)
       outputs_(spec.outputs),
       id_(NextModelId()) {
   set_initial_structure(spec.initial_structure);
+  set_signed_parameters(spec.signed_parameters);
 }
 
 OdeModel::~OdeModel() = default;

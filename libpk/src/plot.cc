@@ -1,5 +1,7 @@
 #include "pk/plot.h"
 
+#include <charconv>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -26,10 +28,10 @@ std::string Escape(const std::string& s) {
   return out;
 }
 
+// SVG coordinates and labels in the same form whatever the C locale (std::to_chars, not printf).
 std::string Num(double v) {
   char buf[32];
-  std::snprintf(buf, sizeof buf, "%.4g", v);
-  return buf;
+  return std::string(buf, std::to_chars(buf, buf + sizeof buf, v, std::chars_format::general, 4).ptr);
 }
 
 // "Nice" linear tick positions covering [lo, hi].
@@ -64,7 +66,7 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
   double y_lo = x_lo, y_hi = -x_lo;
   auto usable = [&](double y) { return std::isfinite(y) && (!options.log_y || y > 0); };
   for (const PlotSeries& s : series) {
-    for (size_t i = 0; i < s.x.size(); ++i) {
+    for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
       if (!usable(s.y[i]) || !std::isfinite(s.x[i])) continue;
       x_lo = std::min(x_lo, s.x[i]);
       x_hi = std::max(x_hi, s.x[i]);
@@ -134,13 +136,13 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
     const PlotSeries& s = series[k];
     const char* colour = kColours[k % (sizeof kColours / sizeof kColours[0])];
     if (s.markers) {
-      for (size_t i = 0; i < s.x.size(); ++i) {
+      for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
         if (!usable(s.y[i])) continue;
         svg << "<circle cx=\"" << px(s.x[i]) << "\" cy=\"" << py(s.y[i]) << "\" r=\"3.5\" " << Fill(s, colour) << "/>\n";
       }
     } else {
       svg << "<polyline fill=\"none\" stroke=\"" << colour << "\" stroke-width=\"1.6\" points=\"";
-      for (size_t i = 0; i < s.x.size(); ++i) {
+      for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
         if (usable(s.y[i])) svg << px(s.x[i]) << "," << py(s.y[i]) << " ";
       }
       svg << "\"/>\n";

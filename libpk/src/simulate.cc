@@ -95,10 +95,16 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
   const auto* linear = dynamic_cast<const LinearModel*>(&model);
   const Propagator propagator = ResolvePropagator(model, options.propagator);
   const ParameterLayout layout(model);
-  const internal::PreparedSubject s =
-      internal::PrepareSubject(model, layout, data, subject, layout.Resolve(values));
   SubjectSimulation out;
   out.id = data.subjects[subject].id;
+  internal::PreparedSubject s;
+  try {
+    s = internal::PrepareSubject(model, layout, data, subject, layout.Resolve(values), true, options.check_values);
+  } catch (const internal::ParameterValueError& e) {
+    out.ok = false;
+    out.message = e.what();
+    return out;
+  }
   try {
     const internal::OdeSystem sys(model);
     if (propagator == Propagator::kExact) {

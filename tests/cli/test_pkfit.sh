@@ -252,4 +252,25 @@ for f in fit_ID1.svg fit_ID1_EFFECT.svg report.html; do [ -s "$work/emax/$f" ] |
 for f in gof_dv_pred.svg gof_dv_pred_2.svg gof_wres_time_2.svg; do [ -s "$work/emax/$f" ] || fail "emax: missing $f"; done
 grep -q "observed against predicted (EFFECT, DVID 2)" "$work/emax/gof_dv_pred_2.svg" || fail "emax: DVID 2 plot title"
 
+# Settings that cannot make a fit are option errors, before any fitting (exit 2, one line).
+theo="$root/datasets/theophylline.csv"
+expect2() {  # expect2 MESSAGE-FRAGMENT ARGS...
+  local want=$1; shift
+  "$pkfit" --model 1cmt_oral --data "$theo" -o "$work/conflict" -q "$@" 2>"$work/conflict.err"; local rc=$?
+  [ $rc -eq 2 ] || fail "$* should exit 2, got $rc"
+  grep -q -- "$want" "$work/conflict.err" || fail "$*: expected '$want', got: $(cat "$work/conflict.err")"
+  [ "$(wc -l <"$work/conflict.err")" -eq 1 ] || fail "$*: more than one line on stderr"
+}
+expect2 "KA: the lower bound 2 is not below the upper bound 1" --lower KA=2 --upper KA=1
+expect2 "KA of 1cmt_oral must be positive, not 0" --init KA=0
+expect2 "the initial value of KA (1) must lie strictly within its bounds (2, inf)" --lower KA=2 --init KA=1
+expect2 "V of 1cmt_oral must be positive, not 0" --fix V=0
+expect2 "CL of 1cmt_oral must be positive, not -1" --param CL=-1
+# A data column the model takes as a parameter: a subject whose value is impossible fails with its place.
+printf 'ID,TIME,AMT,DV,EVID,CMT,CL\n1,0,100,.,1,1,-3\n1,1,0,5,0,2,-3\n1,4,0,3,0,2,-3\n2,0,100,.,1,1,3\n2,1,0,5,0,2,3\n2,2,0,4,0,2,3\n2,4,0,3,0,2,3\n2,8,0,1,0,2,3\n' >"$work/negcl.csv"
+"$pkfit" --model 1cmt_oral --data "$work/negcl.csv" -o "$work/negcl" -q 2>"$work/negcl.err"; rc=$?
+[ $rc -eq 1 ] || fail "a subject with CL=-3 in the data should fail alone (exit 1), got $rc"
+grep -q "ID 1: .*negcl.csv:2:7: CL of 1cmt_oral must be positive, not -3" "$work/negcl.err" ||
+  fail "CL=-3 in the data: message: $(cat "$work/negcl.err")"
+
 if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi

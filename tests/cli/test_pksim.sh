@@ -112,4 +112,9 @@ grep -q "sim.csv: cannot write (could not create .*: No such file or directory)"
   fail "--out into a missing directory: message"
 [ ! -e "$work/no" ] || fail "--out into a missing directory: nothing should be created"
 
+# An impossible parameter given for every subject is an option error.
+"$pksim" --model 1cmt_iv --dose 100 --times 0:1:2 --param CL=-1 >/dev/null 2>"$work/negcl.err"; rc=$?
+[ $rc -eq 2 ] || fail "--param CL=-1 should exit 2, got $rc"
+grep -q "CL of 1cmt_iv must be positive, not -1" "$work/negcl.err" || fail "--param CL=-1: message"
+
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi

@@ -81,7 +81,9 @@ struct ParameterSettings {
 /// error model's σ, then every other name in `settings` (dose modifiers such as F1 or ALAG1),
 /// with the initial values (NaN where none is given: from the data or the defaults), fixes and
 /// bounds of `settings`. Throws pk::InputError naming the model's parameters for a name it does
-/// not have.
+/// not have, and for settings that cannot make a fit: bounds the wrong way round, an initial value
+/// outside its bounds or not positive on the log scale (request.fit.log_scale), or a value of zero or
+/// below for a parameter the model requires positive (Model::must_be_positive).
 std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request, const ParameterSettings& settings);
 
 /// The optimiser for `request`: `requested` ("lm", "bfgs", "newton" or "nlopt:NAME") when the

@@ -58,6 +58,9 @@ class Model {
   /// What the data-driven starting values may assume of this model (InitialStructure::kNone
   /// unless the model declares it).
   const InitialStructure& initial_structure() const { return initial_structure_; }
+  /// Whether parameter i must be positive (a clearance, volume, rate constant, ...: the default),
+  /// or may take any sign (a transfer function's coefficients; a baseline or an Emax).
+  bool must_be_positive(int i) const { return signed_.empty() || !signed_[static_cast<size_t>(i)]; }
 
   /// True when dx/dt = A(θ)x + u; such a model can use the exact propagator.
   virtual bool is_linear() const = 0;
@@ -72,6 +75,8 @@ class Model {
         int default_dose);
   /// Sets what data-driven starting values may assume; the names are taken as upper case.
   void set_initial_structure(InitialStructure s);
+  /// Declares parameters that may be zero or negative (by name; the others must be positive).
+  void set_signed_parameters(const std::vector<std::string>& names);
 
  private:
   std::string name_;
@@ -82,6 +87,7 @@ class Model {
   int central_;
   int default_dose_;
   InitialStructure initial_structure_;
+  std::vector<bool> signed_;  // per parameter; empty: none
 };
 
 }  // namespace pk

@@ -58,6 +58,8 @@ struct OdeModelSpec {
   int default_dose = 1;  ///< 1-based compartment receiving doses with CMT=0
   /// What data-driven starting values may assume (pk/model.h); none by default.
   InitialStructure initial_structure;
+  /// Parameters that may be zero or negative; every other one must be positive.
+  std::vector<std::string> signed_parameters;
 };
 
 /// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use

@@ -11,8 +11,13 @@ namespace pk {
 /// naming the path on failure.
 void WriteFileAtomically(const std::string& path, const std::string& contents);
 
-/// Shortest decimal text that reads back as the same double ("%.17g" trimmed).
+/// Shortest decimal text that reads back as the same double ("%.17g" trimmed), in the
+/// same form whatever the C locale.
 std::string FormatNumber(double value);
+
+/// A finite decimal number (surrounding spaces and one leading '+' allowed), read the same
+/// whatever the C locale; false for anything else, hexadecimal, infinities and NaN included.
+bool ParseNumber(const std::string& text, double* value);
 
 }  // namespace pk
 

@@ -34,6 +34,10 @@ struct SimulationOptions {
   bool track_auc = true;  ///< carry the AUC of the central concentration
   Propagator propagator = Propagator::kAuto;
   OdeOptions ode;         ///< tolerances of the ODE propagator
+  /// Refuse given values of zero or below for parameters the model requires positive
+  /// (Model::must_be_positive). Data columns are always checked. Off for values a fit produced,
+  /// which may sit at the edge of their range.
+  bool check_values = true;
 
   bool IsValid(std::string* error) const;
 };

@@ -26,6 +26,33 @@ void CheckNames(const Objective& probe, const ParameterSettings& settings) {
   }
 }
 
+// Settings that cannot make a fit: bounds the wrong way round, a start outside its bounds or not
+// positive on the log scale, a parameter that must be positive given as zero or below.
+void CheckSpecs(const FitSubjectsRequest& request, const std::vector<ParameterSpec>& specs) {
+  const Model& model = *request.model;
+  for (const ParameterSpec& s : specs) {
+    const int i = model.ParameterIndex(s.name);
+    const bool positive = i >= 0 && model.must_be_positive(i);
+    const std::string value = FormatNumber(s.initial);
+    if (positive && !std::isnan(s.initial) && s.initial <= 0) {
+      throw InputError(s.name + " of " + model.name() + " must be positive, not " + value);
+    }
+    if (s.fixed) continue;
+    if (!(s.lower < s.upper)) {
+      throw InputError(s.name + ": the lower bound " + FormatNumber(s.lower) + " is not below the upper bound " +
+                       FormatNumber(s.upper));
+    }
+    if (!std::isnan(s.initial) && !(s.initial > s.lower && s.initial < s.upper)) {
+      throw InputError("the initial value of " + s.name + " (" + value + ") must lie strictly within its bounds (" +
+                       FormatNumber(s.lower) + ", " + FormatNumber(s.upper) + ")");
+    }
+    if (request.fit.log_scale && !std::isnan(s.initial) && !(s.initial > 0)) {
+      throw InputError(s.name + " is estimated on the log scale, so its initial value must be positive, not " + value +
+                       " (--linear-scale estimates it on its own scale)");
+    }
+  }
+}
+
 bool HasContinuousRecords(const Dataset& data) {
   const int cont_col = data.ExtraColumn("CONT");
   for (const Subject& s : data.subjects) {
@@ -69,6 +96,7 @@ std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request,
   for (const auto& kv : settings.upper) add(internal::ToUpper(kv.first))->upper = kv.second;
   std::vector<ParameterSpec> out;
   for (const std::string& name : order) out.push_back(specs[name]);
+  CheckSpecs(request, out);
   return out;
 }
 

@@ -15,7 +15,7 @@ using NumberedLines = std::vector<std::pair<int, std::string>>;
 /// The lines of the file at `path`; throws pk::InputError when it cannot be read.
 NumberedLines ReadLines(const std::string& path);
 /// The lines of `text`, split as ReadLines splits a file's.
-NumberedLines TextLines(const std::string& text);
+NumberedLines TextLines(const std::string& text, const std::string& source = "text");
 
 /// Splits one CSV line into trimmed fields. Fields may be wrapped in double
 /// quotes ("" inside is a quote).

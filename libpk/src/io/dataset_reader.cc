@@ -25,6 +25,9 @@ using internal::ToUpper;
 using internal::Trim;
 
 constexpr double kMissing = std::numeric_limits<double>::quiet_NaN();
+// A TIME beyond this is a mistake (1e10 h is a million years; 1e10 min, nineteen thousand): with it,
+// every exponential of a rate times a time under- or overflows.
+constexpr double kMaxTime = 1e10;
 
 // The PREDPP data items, in the order of Item.
 const char* const kItemNames[] = {"ID", "TIME", "AMT", "RATE", "II", "ADDL",
@@ -245,7 +248,9 @@ class Parser {
     if (text.empty() || text == ".") return kMissing;
     double v = 0;
     if (!ParseDouble(text, &v)) {
-      Fail(line, c + 1, "column " + ToUpper(header_[c]) + ": '" + text + "' is not a number");
+      const bool hexadecimal = text.find_first_of("xX") != std::string::npos;
+      Fail(line, c + 1, "column " + ToUpper(header_[c]) + ": '" + internal::Printable(text) + "' is not a number" +
+                            (hexadecimal ? " (write numbers in decimal)" : ""));
     }
     return v;
   }
@@ -274,10 +279,17 @@ class Parser {
     Record r;
     r.line = line;
     r.id = Value(line, fields, kId, 1.0);
+    if (r.id != std::floor(r.id) || std::fabs(r.id) >= 1e15) {
+      Fail(line, Col(kId), "ID must be a whole number (of at most 15 digits), not " + fields[item_column_[kId]]);
+    }
     const bool translated = data->relative_times;
     long day = 0;
     const double time = translated ? DayAndHours(line, fields, &day) : Value(line, fields, kTime, kMissing);
     if (std::isnan(time)) Fail(line, Col(kTime), "TIME is missing");
+    if (std::fabs(time) > kMaxTime) {
+      Fail(line, Col(kTime), "TIME " + FormatNumber(time) + " is beyond ±" + FormatNumber(kMaxTime) +
+                                 " (no dosing history spans that long in any unit)");
+    }
     r.time = time;
     r.amt = Value(line, fields, kAmt, 0.0);
     r.rate = Value(line, fields, kRate, 0.0);
@@ -435,7 +447,7 @@ int Dataset::NumRecords() const {
 }
 
 Dataset ParseDataset(const std::string& text, const std::string& source, const DatasetFilter& filter) {
-  return Parser(source, filter).Parse(internal::TextLines(text));
+  return Parser(source, filter).Parse(internal::TextLines(text, source));
 }
 
 Dataset ReadDataset(const std::string& path, const DatasetFilter& filter) {

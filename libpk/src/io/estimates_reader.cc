@@ -88,7 +88,7 @@ std::vector<SubjectEstimates> ReadEstimates(const std::string& path, const Model
 }
 
 std::vector<SubjectEstimates> ParseEstimates(const std::string& text, const std::string& source, const Model& model) {
-  return Parse(internal::TextLines(text), source, model);
+  return Parse(internal::TextLines(text, source), source, model);
 }
 
 }  // namespace pk

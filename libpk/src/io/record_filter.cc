@@ -24,7 +24,11 @@ const Spelling kSpellings[] = {{".EQN.", 0}, {".NEN.", 1}, {".EQ.", 0}, {".NE.",
 // "(A, B)" or "A, B" into A and B (a quoted value may hold a comma).
 std::vector<std::string> SplitList(std::string spec) {
   spec = Trim(spec);
-  if (spec.size() >= 2 && spec.front() == '(' && spec.back() == ')') spec = spec.substr(1, spec.size() - 2);
+  const bool open = !spec.empty() && spec.front() == '(', close = !spec.empty() && spec.back() == ')';
+  if (open != close || (open && spec.size() < 2)) {
+    throw InputError("'" + spec + "': unbalanced parentheses (write (A, B) or A, B)");
+  }
+  if (open) spec = spec.substr(1, spec.size() - 2);
   std::vector<std::string> out(1);
   char quote = 0;
   for (char c : spec) {

@@ -363,6 +363,7 @@ std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const st
   }
   SimulationOptions opts;
   opts.track_auc = false;
+  opts.check_values = false;  // fitted values, possibly at the edge of their range
   opts.propagator = d.propagator;
   opts.ode = d.options.ode;
   const SubjectSimulation sim = SimulateSubject(*d.model, one, 0, named, opts);
