@@ -20,7 +20,7 @@ std::string Quote(const std::string& s) {
 std::string FitStatus(const SubjectFit& f) {
   if (!f.ok) return "failed";
   switch (f.summary.termination) {
-    case TerminationType::kConvergence: return "converged";
+    case TerminationType::kConvergence: return f.summary.identifiable ? "converged" : "not identifiable";
     case TerminationType::kNoConvergence: return "not converged";
     case TerminationType::kFailure: return "failed";
     case TerminationType::kUnbounded: return "unbounded";

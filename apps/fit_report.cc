@@ -235,9 +235,9 @@ void HtmlHeader(const std::vector<SubjectFit>& fits, const ReportContext& contex
        << "<h1>pkfit report</h1>\n<p>Model <b>" << Escape(context.model) << "</b>, data <code>" << Escape(context.data)
        << "</code>.<br>Command: <code>" << Escape(context.command_line) << "</code></p>\n";
   int failed = 0;
-  for (const SubjectFit& f : fits) failed += f.ok && f.summary.converged() ? 0 : 1;
-  html << "<p>" << fits.size() << " subjects, " << fits.size() - failed << " converged";
-  if (failed) html << ", <span class=\"bad\">" << failed << " failed or not converged</span>";
+  for (const SubjectFit& f : fits) failed += f.ok && f.summary.converged() && f.summary.identifiable ? 0 : 1;
+  html << "<p>" << fits.size() << " subjects, " << fits.size() - failed << " converged and identifiable";
+  if (failed) html << ", <span class=\"bad\">" << failed << " failed, not converged or not identifiable</span>";
   int censored = 0;
   for (const SubjectFit& f : fits) censored += f.censoring.cwiseAbs().sum();
   if (censored > 0) {
@@ -260,7 +260,7 @@ void HtmlEstimates(const std::vector<SubjectFit>& fits, std::ostringstream& html
   for (const SubjectFit& f : fits) {
     html << "<tr><td class=\"l\"><a href=\"#id" << FormatNumber(f.id) << "\">" << FormatNumber(f.id) << "</a></td><td>"
          << f.dv.size() << "</td><td>" << (f.ok ? Fmt(f.summary.objective, "%.6g") : "–") << "</td><td class=\"l"
-         << (f.ok && f.summary.converged() ? "" : " bad") << "\">" << FitStatus(f) << "</td>";
+         << (f.ok && f.summary.converged() && f.summary.identifiable ? "" : " bad") << "\">" << FitStatus(f) << "</td>";
     if (f.ok) {
       for (const ParameterEstimate& e : f.summary.estimates) {
         html << "<td>" << Fmt(e.estimate) << (e.fixed ? " (fixed)" : " (" + Fmt(e.rse_pct, "%.3g") + ")") << "</td>";

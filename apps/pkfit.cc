@@ -202,6 +202,10 @@ int ReportProblems(const std::vector<pk::SubjectFit>& fits) {
     } else if (!f.summary.converged()) {
       ++bad;
       std::cerr << "pkfit: ID " << pk::FormatNumber(f.id) << ": " << f.summary.message << "\n";
+    } else if (!f.summary.identifiable) {
+      ++bad;
+      std::cerr << "pkfit: ID " << pk::FormatNumber(f.id) << ": not identifiable: " << f.summary.covariance_message
+                << "\n";
     }
   }
   return bad;
@@ -257,7 +261,9 @@ int Main(int argc, char** argv) {
               << "/ (report.html, estimates.csv, summary.csv, predictions.csv"
               << (context.population ? ", population.csv" : "") << ")\n";
   }
-  if (bad) std::cerr << "pkfit: " << bad << " of " << fits.size() << " subjects failed or did not converge\n";
+  if (bad) {
+    std::cerr << "pkfit: " << bad << " of " << fits.size() << " subjects failed, did not converge or are not identifiable\n";
+  }
   return bad ? 1 : 0;
 }
 

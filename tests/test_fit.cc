@@ -10,6 +10,7 @@
 #include "pk/catalogue.h"
 #include "pk/fit.h"
 #include "pk/fit_subjects.h"
+#include "pk/two_stage.h"
 #include "pk/objective.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
@@ -673,4 +674,32 @@ TEST_CASE("the words for a singular information matrix: parameters without effec
   CHECK(Unidentified(info_of({a, zero, -a, c}), 2, {"A", "B", "C", "D"}, Eigen::VectorXd::Ones(4), true) ==
         "B does not affect the predictions; A and C are not determined separately: changing log A and log C in the "
         "proportions 1 : 1 leaves the fit unchanged");
+}
+
+TEST_CASE("a fit the data cannot identify is flagged, and two-stage leaves it out", "[fit][identifiable]") {
+  // Subject 1's concentrations are constant: a one-compartment oral model fits them with KA and CL on a
+  // ridge (the optimiser "converges" at CL ≈ 0, KA large). Subject 2's data determine every parameter.
+  const std::string csv =
+      "ID,TIME,AMT,DV,EVID,CMT\n1,0,100,.,1,1\n1,0.5,0,5,0,2\n1,1,0,5,0,2\n1,2,0,5,0,2\n1,4,0,5,0,2\n1,8,0,5,0,2\n"
+      "1,12,0,5,0,2\n1,24,0,5,0,2\n2,0,100,.,1,1\n2,0.5,0,3,0,2\n2,1,0,5,0,2\n2,2,0,6,0,2\n2,4,0,5,0,2\n"
+      "2,8,0,3.5,0,2\n2,12,0,2.4,0,2\n2,24,0,0.8,0,2\n3,0,100,.,1,1\n3,0.5,0,2.5,0,2\n3,1,0,4.4,0,2\n"
+      "3,2,0,5.6,0,2\n3,4,0,5.1,0,2\n3,8,0,3.9,0,2\n3,12,0,2.8,0,2\n3,24,0,1.0,0,2\n";
+  pk::FitSubjectsRequest req;
+  req.model = pk::MakeModel("1cmt_oral");
+  req.data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv, "constant.csv"));
+  for (const char* p : {"KA", "CL", "V"}) req.parameters.push_back({p, NAN});
+  req.jobs = 1;
+  const auto fits = pk::FitSubjects(req);
+  REQUIRE(fits.size() == 3);
+  INFO(fits[0].summary.FullReport());
+  CHECK(fits[0].summary.converged());
+  CHECK_FALSE(fits[0].summary.identifiable);
+  CHECK_THAT(fits[0].summary.BriefReport(), Catch::Contains("converged, not identifiable"));
+  CHECK(fits[1].summary.identifiable);
+  CHECK(fits[2].summary.identifiable);
+  const pk::TwoStageSummary pop = pk::EstimateTwoStage(fits, pk::TwoStageOptions());
+  CHECK(pop.sts_ids == std::vector<double>{2, 3});
+  REQUIRE_FALSE(pop.excluded.empty());
+  CHECK(pop.excluded.front().first == 1);
+  CHECK_THAT(pop.excluded.front().second, Catch::StartsWith("not identifiable (the information matrix is singular"));
 }

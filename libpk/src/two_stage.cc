@@ -472,6 +472,10 @@ TwoStageSummary EstimateTwoStage(const std::vector<SubjectFit>& fits, const TwoS
       excluded.emplace_back(f.id, "the fit did not converge (" + f.summary.message + ")");
       continue;
     }
+    if (!f.summary.identifiable) {
+      excluded.emplace_back(f.id, "not identifiable (" + f.summary.covariance_message + ")");
+      continue;
+    }
     if (mine != names) {
       excluded.emplace_back(f.id, "estimates other parameters (" + internal::Join(mine, ", ") + ")");
       continue;

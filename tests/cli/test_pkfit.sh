@@ -135,9 +135,14 @@ grep -q "data (terminal log-linear regression" "$work/auto/fit_details.csv" || f
   >"$work/cat.txt" || true
 grep -q "catalogue defaults" "$work/cat.txt" || fail "--catalogue-init did not start from the defaults"
 
-# Oral data alone do not determine CL, V and F1 separately: pkfit says so under its table and in fit_details.csv.
+# Oral data alone do not determine CL, V and F1 separately: pkfit says so under its table, in fit_details.csv,
+# on stderr and in its exit code (1: a fit that is not identifiable is not an answer).
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --init F1=0.8 --optimizer bfgs \
-  -o "$work/f1" >"$work/f1.txt" || fail "fit with F1 free failed"
+  -o "$work/f1" >"$work/f1.txt" 2>"$work/f1.err"; rc=$?
+[ $rc -eq 1 ] || fail "an unidentifiable fit should exit 1, got $rc"
+grep -q "^pkfit: ID 1: not identifiable: the information matrix is singular" "$work/f1.err" ||
+  fail "stderr does not say the fit is not identifiable: $(cat "$work/f1.err")"
+grep -q "^1,not identifiable," "$work/f1/fit_details.csv" || fail "fit_details STATUS is not 'not identifiable'"
 grep -q "^ID 1: no standard errors: the information matrix is singular: CL, V and F1 are not determined separately" \
   "$work/f1.txt" || fail "pkfit does not say what the data leave undetermined"
 head -1 "$work/f1/fit_details.csv" | grep -q ",COVARIANCE$" || fail "fit_details lacks the COVARIANCE column"

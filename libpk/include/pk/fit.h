@@ -97,6 +97,11 @@ struct FitSummary {
   std::vector<std::string> estimated;        ///< the names of the estimated ones
   Eigen::MatrixXd covariance;                ///< of the estimated ones, natural scale
   Eigen::MatrixXd correlation;
+  /// False when the information matrix is singular at the estimate: the data do not determine
+  /// some parameter (covariance_message names it), so the estimates are one point of a ridge,
+  /// not the answer, even when the optimiser converged. pkfit counts such a fit as failed, and
+  /// the two-stage population estimates leave it out.
+  bool identifiable = true;
   /// Why SEs are missing, if they are. With maximum likelihood a σ that went
   /// to 0 (one part of a combined error) gets no SE, and the others' SEs hold
   /// it at 0; this message then names it.

@@ -156,6 +156,7 @@ void Covariance(Problem* pb, const Objective::Evaluation& ev, const Eigen::Vecto
     const std::string what = Unidentified(info, nk - static_cast<int>(lu.rank()), kept_names, ds_dphi, log_scale);
     summary->covariance_message = "the information matrix is singular: " +
                                   (what.empty() ? std::string("some parameters are not identifiable") : what);
+    summary->identifiable = false;
     return;
   }
   Eigen::MatrixXd kept = lu.inverse();

@@ -226,7 +226,7 @@ std::string FitSummary::BriefReport() const {
   std::ostringstream out;
   const char* status = "failed";
   switch (termination) {
-    case TerminationType::kConvergence: status = "converged"; break;
+    case TerminationType::kConvergence: status = identifiable ? "converged" : "converged, not identifiable"; break;
     case TerminationType::kNoConvergence: status = "did not converge"; break;
     case TerminationType::kUnbounded: status = "unbounded"; break;
     case TerminationType::kFailure: break;
