@@ -14,6 +14,15 @@ namespace pk {
 namespace cli {
 namespace {
 
+// A subject in file names and anchors: its ID, and its occurrence when the ID came back ("1_occ2").
+std::string Key(const SubjectFit& f) {
+  return FormatNumber(f.id) + (f.occurrence > 1 ? "_occ" + std::to_string(f.occurrence) : "");
+}
+// ... and in text: "1 (occurrence 2)".
+std::string Label(const SubjectFit& f) {
+  return FormatNumber(f.id) + (f.occurrence > 1 ? " (occurrence " + std::to_string(f.occurrence) + ")" : "");
+}
+
 std::string Fmt(double v, const char* f = "%.4g") {
   if (!std::isfinite(v)) return "–";
   char buf[64];
@@ -258,7 +267,7 @@ void HtmlEstimates(const std::vector<SubjectFit>& fits, std::ostringstream& html
   }
   html << "<th>-2LL</th><th>AIC</th><th>time (ms)</th></tr>\n";
   for (const SubjectFit& f : fits) {
-    html << "<tr><td class=\"l\"><a href=\"#id" << FormatNumber(f.id) << "\">" << FormatNumber(f.id) << "</a></td><td>"
+    html << "<tr><td class=\"l\"><a href=\"#id" << Key(f) << "\">" << Label(f) << "</a></td><td>"
          << f.dv.size() << "</td><td>" << (f.ok ? Fmt(f.summary.objective, "%.6g") : "–") << "</td><td class=\"l"
          << (f.ok && f.summary.converged() && f.summary.identifiable ? "" : " bad") << "\">" << FitStatus(f) << "</td>";
     if (f.ok) {
@@ -348,7 +357,7 @@ void HtmlDerived(const TransferFunctionReading& r, std::ostringstream& html) {
 void HtmlSubjects(const std::vector<SubjectFit>& fits, bool log_plots, std::ostringstream& html) {
   html << "<h2>Subjects</h2>\n";
   for (const SubjectFit& f : fits) {
-    html << "<h3 id=\"id" << FormatNumber(f.id) << "\">ID " << FormatNumber(f.id) << "</h3>\n";
+    html << "<h3 id=\"id" << Key(f) << "\">ID " << Label(f) << "</h3>\n";
     if (!f.ok) {
       html << "<p class=\"bad\">" << Escape(f.error) << "</p>\n";
       continue;
@@ -373,6 +382,7 @@ void CreateDirectory(const std::string& dir) {
 
 void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits, const ReportContext& context) {
   CreateDirectory(dir);
+  RemoveStaleTemporaries(dir);
   // The report: a run header, the summary and estimates tables, and one section per subject.
   std::ostringstream html;
   HtmlHeader(fits, context, html);
@@ -393,9 +403,9 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     WriteFileAtomically(dir + "/population_omega.csv", PopulationOmegaCsv(*context.population));
   }
   for (const SubjectFit& f : fits) {
-    WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + ".svg", SubjectSvg(f, context.log_plots));
+    WriteFileAtomically(dir + "/fit_ID" + Key(f) + ".svg", SubjectSvg(f, context.log_plots));
     for (int k = 2; k <= NumPlots(f); ++k) {
-      WriteFileAtomically(dir + "/fit_ID" + FormatNumber(f.id) + "_" + f.output_names[k - 1] + ".svg",
+      WriteFileAtomically(dir + "/fit_ID" + Key(f) + "_" + f.output_names[k - 1] + ".svg",
                           SubjectSvg(f, context.log_plots, k));
     }
   }

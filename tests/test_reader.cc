@@ -3,7 +3,10 @@
 #include <clocale>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
+
+#include <unistd.h>
 
 #include <catch2/catch.hpp>
 
@@ -473,4 +476,33 @@ TEST_CASE("numbers are read and written the same under a comma-decimal locale", 
   CHECK(d.subjects[0].records[0].amt == 320.5);
   CHECK(d.subjects[0].records[1].dv == 2.84);
   if (comma != nullptr) std::setlocale(LC_ALL, "C");
+}
+
+TEST_CASE("an ID that comes back after other IDs is another subject, numbered as an occurrence", "[reader][trust]") {
+  const pk::Dataset d =
+      pk::ParseDataset("ID,TIME,AMT,DV\n1,0,100,.\n1,1,0,5\n2,0,100,.\n1,0,100,.\n1,2,0,4\n", "rep.csv");
+  REQUIRE(d.subjects.size() == 3);
+  CHECK(d.subjects[0].occurrence == 1);
+  CHECK(d.subjects[1].occurrence == 1);
+  CHECK(d.subjects[2].occurrence == 2);
+  REQUIRE(d.repeated_ids.size() == 1);
+  CHECK(d.repeated_ids[0] == std::make_pair(1.0, 5));
+}
+
+TEST_CASE("temporaries of a killed writer are removed, others kept", "[output][trust]") {
+  const std::string dir = std::string(PK_BINARY_DIR) + "/stale_tmp";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  // pid 999999999 cannot be running (Linux pids stay below 2^22); ours is.
+  for (const std::string& name : std::vector<std::string>{"estimates.csv.tmp.999999999",
+                                                          "estimates.csv.tmp." + std::to_string(::getpid()),
+                                                          "notes.tmp.txt", "estimates.csv"}) {
+    std::ofstream(dir + "/" + name) << "x";
+  }
+  pk::RemoveStaleTemporaries(dir);
+  CHECK_FALSE(std::filesystem::exists(dir + "/estimates.csv.tmp.999999999"));
+  CHECK(std::filesystem::exists(dir + "/estimates.csv.tmp." + std::to_string(::getpid())));
+  CHECK(std::filesystem::exists(dir + "/notes.tmp.txt"));
+  CHECK(std::filesystem::exists(dir + "/estimates.csv"));
+  std::filesystem::remove_all(dir);
 }

@@ -278,4 +278,12 @@ printf 'ID,TIME,AMT,DV,EVID,CMT,CL\n1,0,100,.,1,1,-3\n1,1,0,5,0,2,-3\n1,4,0,3,0,
 grep -q "ID 1: .*negcl.csv:2:7: CL of 1cmt_oral must be positive, not -3" "$work/negcl.err" ||
   fail "CL=-3 in the data: message: $(cat "$work/negcl.err")"
 
+expect2 "starts must be from 1 to 1000" --starts 100000
+# An ID that comes back is another subject: a note, and its plot is not overwritten.
+printf 'ID,TIME,AMT,DV,EVID,CMT\n1,0,100,.,1,1\n1,1,0,5,0,2\n1,4,0,3,0,2\n1,8,0,1.5,0,2\n2,0,100,.,1,1\n2,1,0,4,0,2\n2,4,0,3,0,2\n2,8,0,1.8,0,2\n1,0,100,.,1,1\n1,1,0,6,0,2\n1,4,0,3.5,0,2\n1,8,0,1.2,0,2\n' >"$work/rep.csv"
+"$pkfit" --model 1cmt_oral --data "$work/rep.csv" -o "$work/rep" -q --population none 2>"$work/rep.err"
+grep -q "note: ID 1 comes back at .*rep.csv:10 after other IDs" "$work/rep.err" || fail "no note for a repeated ID"
+for f in fit_ID1.svg fit_ID1_occ2.svg fit_ID2.svg; do [ -s "$work/rep/$f" ] || fail "repeated ID: missing $f"; done
+grep -q 'id="id1_occ2">ID 1 (occurrence 2)' "$work/rep/report.html" || fail "repeated ID: report section"
+
 if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi

@@ -31,6 +31,7 @@
 #define PK_DATASET_H_
 
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace pk {
@@ -62,11 +63,16 @@ struct Record {
 
 struct Subject {
   double id = 1;
+  /// 1, or 2, 3, ... when the ID comes back after other IDs: NONMEM counts each run of records as
+  /// a subject of its own, and so does libpk; outputs name such a subject by ID and occurrence.
+  int occurrence = 1;
   std::vector<Record> records;
 };
 
 struct Dataset {
   std::string source;                      ///< file name, for error messages
+  /// IDs that came back after other IDs, with the line where each came back (Subject::occurrence).
+  std::vector<std::pair<double, int>> repeated_ids;
   std::vector<std::string> columns;        ///< upper-cased header, in file order
   std::vector<std::string> extra_columns;  ///< upper-cased names of the non-PREDPP columns
   std::vector<Subject> subjects;

@@ -34,6 +34,9 @@
 
 namespace pk {
 
+/// More starts than this find nothing that fewer would not; a larger count is a typing error.
+inline constexpr int kMaxStarts = 1000;
+
 struct FitOptions {
   std::string optimizer = "lm";    ///< "lm", "bfgs", "newton" or "nlopt:NAME" (see above)
   int max_iterations = 1000;       ///< iterations (LM, Newton) or evaluations (NLopt)

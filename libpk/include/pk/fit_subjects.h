@@ -20,6 +20,7 @@ namespace pk {
 
 struct SubjectFit {
   double id = 0;
+  int occurrence = 1;          ///< Subject::occurrence: 2, 3, ... for an ID that came back
   int subject = 0;             ///< index into Dataset::subjects
   bool ok = false;             ///< the fit ran (it may still not have converged)
   std::string error;           ///< why the subject could not be fitted, when !ok

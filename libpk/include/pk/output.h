@@ -11,6 +11,10 @@ namespace pk {
 /// naming the path on failure.
 void WriteFileAtomically(const std::string& path, const std::string& contents);
 
+/// Removes the "<name>.tmp.<pid>" files that WriteFileAtomically left in `directory` when its
+/// process was killed between writing and renaming (the process is gone).
+void RemoveStaleTemporaries(const std::string& directory);
+
 /// Shortest decimal text that reads back as the same double ("%.17g" trimmed), in the
 /// same form whatever the C locale.
 std::string FormatNumber(double value);

@@ -26,7 +26,7 @@ bool FitOptions::IsValid(std::string* error) const {
   if (!(function_tolerance >= 0) || !(parameter_tolerance >= 0) || !(gradient_tolerance >= 0)) {
     return fail("tolerances must not be negative");
   }
-  if (starts < 1) return fail("starts must be at least 1");
+  if (starts < 1 || starts > kMaxStarts) return fail("starts must be from 1 to " + std::to_string(kMaxStarts));
   if (!(start_spread >= 0)) return fail("start_spread must not be negative");
   std::string why;
   if (!internal::MakeMinimizer(optimizer, &why)) return fail(why);

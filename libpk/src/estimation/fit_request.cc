@@ -146,8 +146,13 @@ std::vector<int> SelectedSubjects(const FitSubjectsRequest& request) {
 std::vector<std::string> CheckSubjects(const FitSubjectsRequest& request) {
   const std::vector<int> all = SelectedSubjects(request);
   for (int i : all) Objective(request.model, request.data, i, request.objective, request.priors);
-  // A nonlinear model's observations measure the output their DVID names, whatever their CMT.
   std::vector<std::string> notes;
+  for (const auto& repeated : request.data->repeated_ids) {
+    notes.push_back("ID " + FormatNumber(repeated.first) + " comes back at " + request.data->source + ":" +
+                    std::to_string(repeated.second) + " after other IDs: as in NONMEM it is another subject, " +
+                    "whose results are marked as a further occurrence of the ID");
+  }
+  // A nonlinear model's observations measure the output their DVID names, whatever their CMT.
   if (dynamic_cast<const OdeModel*>(request.model.get()) != nullptr) return notes;
   const Model& model = *request.model;
   std::map<int, int> elsewhere;

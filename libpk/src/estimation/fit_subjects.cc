@@ -129,6 +129,7 @@ void Curves(const FitSubjectsRequest& req, const Objective& objective, int subje
 void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
   out->subject = subject;
   out->id = req.data->subjects[subject].id;
+  out->occurrence = req.data->subjects[subject].occurrence;
   try {
     const Objective objective(req.model, req.data, subject, req.objective, req.priors);
     out->times = objective.sample_times();

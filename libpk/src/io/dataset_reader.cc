@@ -331,8 +331,12 @@ class Parser {
       r.time = 24.0 * static_cast<double>(day - origin_.first) + (r.time - origin_.second);
     }
     if (new_subject) {
+      int occurrence = 1;
+      for (const Subject& earlier : data->subjects) occurrence += earlier.id == r.id ? 1 : 0;
       data->subjects.push_back(Subject());
       data->subjects.back().id = r.id;
+      data->subjects.back().occurrence = occurrence;
+      if (occurrence > 1) data->repeated_ids.push_back({r.id, line});
     } else {
       const Record& prev = data->subjects.back().records.back();
       const bool reset = r.evid == Evid::kReset || r.evid == Evid::kResetDose;
