@@ -4,6 +4,7 @@ set -euo pipefail
 
 packages=(
   g++ cmake make                    # toolchain
+  clang                             # libFuzzer for the dataset reader's fuzz target (scripts/fuzz.sh)
   libeigen3-dev                     # linear algebra, matrix exponential, AutoDiff
   libsundials-dev                   # CVODES (ODE propagator)
   libnlopt-cxx-dev                  # NLopt optimisers

@@ -16,3 +16,6 @@ cmake -S . -B build-asan -DPK_SANITIZE=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPK
 cmake --build build-asan -j "$jobs"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir build-asan --output-on-failure -j "$jobs"
+
+# The dataset reader and its filters under libFuzzer for a short budget (scripts/fuzz.sh N for longer).
+scripts/fuzz.sh 30
