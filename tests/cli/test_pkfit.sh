@@ -279,6 +279,11 @@ grep -q "ID 1: .*negcl.csv:2:7: CL of 1cmt_oral must be positive, not -3" "$work
   fail "CL=-3 in the data: message: $(cat "$work/negcl.err")"
 
 expect2 "starts must be from 1 to 1000" --starts 100000
+# A dose that needs a modifier nobody gives is the same input error in pkfit as in pksim (exit 2).
+printf 'ID,TIME,AMT,RATE,EVID,CMT,DV\n1,0,100,-1,1,1,.\n1,1,0,0,0,1,5\n1,2,0,0,0,1,4\n' >"$work/r1.csv"
+"$pkfit" --model 1cmt_iv --data "$work/r1.csv" -o "$work/r1" -q 2>"$work/r1.err"; rc=$?
+[ $rc -eq 2 ] || fail "RATE=-1 without R1 should exit 2 in pkfit, got $rc"
+grep -q "r1.csv:2:4: a dose with RATE=-1 needs R1 > 0" "$work/r1.err" || fail "RATE=-1 without R1: message"
 # An ID that comes back is another subject: a note, and its plot is not overwritten.
 printf 'ID,TIME,AMT,DV,EVID,CMT\n1,0,100,.,1,1\n1,1,0,5,0,2\n1,4,0,3,0,2\n1,8,0,1.5,0,2\n2,0,100,.,1,1\n2,1,0,4,0,2\n2,4,0,3,0,2\n2,8,0,1.8,0,2\n1,0,100,.,1,1\n1,1,0,6,0,2\n1,4,0,3.5,0,2\n1,8,0,1.2,0,2\n' >"$work/rep.csv"
 "$pkfit" --model 1cmt_oral --data "$work/rep.csv" -o "$work/rep" -q --population none 2>"$work/rep.err"

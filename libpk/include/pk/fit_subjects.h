@@ -102,7 +102,8 @@ std::vector<int> SubjectIndices(const Dataset& data, const std::vector<double>& 
 std::vector<int> SelectedSubjects(const FitSubjectsRequest& request);
 
 /// Binds every selected subject to the model and options before anything runs, so that data the
-/// model cannot take is a pk::InputError naming file, line and column. Returns notes for the user:
+/// model cannot take, or a dose that needs a modifier no value or column supplies (R1 for RATE=-1,
+/// say), is a pk::InputError naming file, line and column. Returns notes for the user:
 /// observations of a linear model outside its central compartment (legitimate in NONMEM's meaning
 /// of CMT, but most often a dataset written for another model).
 std::vector<std::string> CheckSubjects(const FitSubjectsRequest& request);

@@ -5,6 +5,7 @@
 #include <map>
 
 #include "estimation/minimizer.h"
+#include "events.h"
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/fit_subjects.h"
@@ -145,7 +146,21 @@ std::vector<int> SelectedSubjects(const FitSubjectsRequest& request) {
 
 std::vector<std::string> CheckSubjects(const FitSubjectsRequest& request) {
   const std::vector<int> all = SelectedSubjects(request);
-  for (int i : all) Objective(request.model, request.data, i, request.objective, request.priors);
+  for (int i : all) {
+    const Objective objective(request.model, request.data, i, request.objective, request.priors);
+    // The doses must find the modifiers they need (R1 for RATE=-1, ...) at the starting values, as pksim
+    // requires of its values: missing ones are the request's error, not one subject's.
+    Eigen::VectorXd values = objective.DefaultValues();
+    for (const ParameterSpec& s : request.parameters) {
+      const int k = objective.ParameterIndex(s.name);
+      if (k >= 0 && !std::isnan(s.initial)) values(k) = s.initial;
+    }
+    try {
+      objective.CheckValues(values);
+    } catch (const internal::ParameterValueError&) {
+      // An impossible value in this subject's own data: it fails alone when it is fitted.
+    }
+  }
   std::vector<std::string> notes;
   for (const auto& repeated : request.data->repeated_ids) {
     notes.push_back("ID " + FormatNumber(repeated.first) + " comes back at " + request.data->source + ":" +
