@@ -392,25 +392,32 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   HtmlSubjects(fits, context.log_plots, html);
   html << "</body></html>\n";
 
-  WriteFileAtomically(dir + "/estimates.csv", EstimatesCsv(fits));
-  WriteFileAtomically(dir + "/summary.csv", SummaryCsv(fits));
-  WriteFileAtomically(dir + "/predictions.csv", PredictionsCsv(fits));
-  WriteFileAtomically(dir + "/fit_details.csv", FitDetailsCsv(fits));
+  // The set is complete when its manifest is written, last; until then it has none.
+  BeginOutputSet(dir);
+  std::vector<std::string> written;
+  const auto write = [&](const std::string& name, const std::string& contents) {
+    WriteFileAtomically(dir + "/" + name, contents);
+    written.push_back(name);
+  };
+  write("estimates.csv", EstimatesCsv(fits));
+  write("summary.csv", SummaryCsv(fits));
+  write("predictions.csv", PredictionsCsv(fits));
+  write("fit_details.csv", FitDetailsCsv(fits));
   const std::string derived = DerivedCsv(fits);
-  if (!derived.empty()) WriteFileAtomically(dir + "/derived.csv", derived);
+  if (!derived.empty()) write("derived.csv", derived);
   if (context.population) {
-    WriteFileAtomically(dir + "/population.csv", PopulationCsv(*context.population));
-    WriteFileAtomically(dir + "/population_omega.csv", PopulationOmegaCsv(*context.population));
+    write("population.csv", PopulationCsv(*context.population));
+    write("population_omega.csv", PopulationOmegaCsv(*context.population));
   }
   for (const SubjectFit& f : fits) {
-    WriteFileAtomically(dir + "/fit_ID" + Key(f) + ".svg", SubjectSvg(f, context.log_plots));
+    write("fit_ID" + Key(f) + ".svg", SubjectSvg(f, context.log_plots));
     for (int k = 2; k <= NumPlots(f); ++k) {
-      WriteFileAtomically(dir + "/fit_ID" + Key(f) + "_" + f.output_names[k - 1] + ".svg",
-                          SubjectSvg(f, context.log_plots, k));
+      write("fit_ID" + Key(f) + "_" + f.output_names[k - 1] + ".svg", SubjectSvg(f, context.log_plots, k));
     }
   }
-  for (const auto& file : gof_files) WriteFileAtomically(dir + "/" + file.first, file.second);
-  WriteFileAtomically(dir + "/report.html", html.str());
+  for (const auto& file : gof_files) write(file.first, file.second);
+  write("report.html", html.str());
+  CompleteOutputSet(dir, written, "pkfit");
 }
 
 }  // namespace cli

@@ -141,7 +141,11 @@ void CompleteRequest(const po::variables_map& vm, const Lists& a, pk::FitSubject
   for (const std::string& text : a.subject_ids) ids.push_back(pk::cli::ParseAssignments({"id=" + text}, "--subject").at("id"));
   req->subjects = pk::cli::Parsed("--subject", [&] { return pk::SubjectIndices(*req->data, ids); });
   req->initial_from_data = vm.count("catalogue-init") == 0;
-  if (vm.count("init-from")) req->initial_by_subject = pk::ReadEstimates(vm["init-from"].as<std::string>(), *req->model);
+  if (vm.count("init-from")) {
+    const std::string path = vm["init-from"].as<std::string>();
+    pk::CheckOutputSet(path, "pkfit", "fit_details.csv");  // not half of an interrupted run
+    req->initial_by_subject = pk::ReadEstimates(path, *req->model);
+  }
   pk::ParameterSettings settings;
   std::vector<std::string> init;
   for (const std::string& item : a.init) {

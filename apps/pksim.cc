@@ -2,6 +2,9 @@
 #include <algorithm>
 #include <cstdio>
 #include <iostream>
+#include <memory>
+#include <optional>
+#include <stdexcept>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -38,47 +41,49 @@ const char* const kUsage =
     "  pksim --model 1cmt_oral --estimates pkfit_out/estimates.csv --dose 320 --ii 12 --doses 10 \\\n"
     "        --times 0:1:120 --summary    (each fitted subject on a new regimen)\n";
 
-std::string FormatTable(const std::vector<pk::Exposure>& exposures, const std::vector<pk::SubjectSimulation>& sims) {
-  std::ostringstream out;
+// The --summary text of one subject.
+std::string SummaryText(const pk::Exposure& e, const pk::SubjectSimulation& sim) {
+  if (!sim.ok) return "ID " + pk::FormatNumber(e.id) + ": simulation failed: " + sim.message + "\n\n";
+  std::string out;
   char line[256];
-  for (size_t i = 0; i < exposures.size(); ++i) {
-    const pk::Exposure& e = exposures[i];
-    if (!sims[i].ok) {
-      out << "ID " << pk::FormatNumber(e.id) << ": simulation failed: " << sims[i].message << "\n\n";
-      continue;
+  std::snprintf(line, sizeof line, "ID %s: Cmax %.4g at t=%.4g, Cmin %.4g, AUC %.5g\n", pk::FormatNumber(e.id).c_str(),
+                e.cmax, e.tmax, e.cmin, e.auc);
+  out += line;
+  if (!e.intervals.empty()) {
+    std::snprintf(line, sizeof line, "  %8s %10s %10s %11s %10s %11s %11s %12s\n", "interval", "start", "end", "Cmax",
+                  "Tmax", "Cmin", "Ctrough", "AUC");
+    out += line;
+    for (const pk::IntervalExposure& iv : e.intervals) {
+      std::snprintf(line, sizeof line, "  %8d %10.4g %10.4g %11.5g %10.4g %11.5g %11.5g %12.6g\n", iv.index, iv.start,
+                    iv.end, iv.cmax, iv.tmax, iv.cmin, iv.ctrough, iv.auc);
+      out += line;
     }
-    std::snprintf(line, sizeof line, "ID %s: Cmax %.4g at t=%.4g, Cmin %.4g, AUC %.5g\n", pk::FormatNumber(e.id).c_str(),
-                  e.cmax, e.tmax, e.cmin, e.auc);
-    out << line;
-    if (!e.intervals.empty()) {
-      std::snprintf(line, sizeof line, "  %8s %10s %10s %11s %10s %11s %11s %12s\n", "interval", "start", "end", "Cmax",
-                    "Tmax", "Cmin", "Ctrough", "AUC");
-      out << line;
-      for (const pk::IntervalExposure& iv : e.intervals) {
-        std::snprintf(line, sizeof line, "  %8d %10.4g %10.4g %11.5g %10.4g %11.5g %11.5g %12.6g\n", iv.index, iv.start,
-                      iv.end, iv.cmax, iv.tmax, iv.cmin, iv.ctrough, iv.auc);
-        out << line;
-      }
-    }
-    out << "\n";
   }
-  return out.str();
+  return out + "\n";
 }
 
-std::string SummaryCsv(const std::vector<pk::Exposure>& exposures) {
-  std::ostringstream out;
-  out << "ID,INTERVAL,START,END,CMAX,TMAX,CMIN,CTROUGH,AUC\n";
-  using pk::FormatNumber;
-  for (const pk::Exposure& e : exposures) {
-    for (const pk::IntervalExposure& iv : e.intervals) {
-      out << FormatNumber(e.id) << "," << iv.index << "," << FormatNumber(iv.start) << "," << FormatNumber(iv.end)
-          << "," << FormatNumber(iv.cmax) << "," << FormatNumber(iv.tmax) << "," << FormatNumber(iv.cmin) << ","
-          << FormatNumber(iv.ctrough) << "," << FormatNumber(iv.auc) << "\n";
-    }
-    out << FormatNumber(e.id) << ",ALL,,," << FormatNumber(e.cmax) << "," << FormatNumber(e.tmax) << ","
-        << FormatNumber(e.cmin) << ",," << FormatNumber(e.auc) << "\n";
+const char* const kSummaryCsvHeader = "ID,INTERVAL,START,END,CMAX,TMAX,CMIN,CTROUGH,AUC\n";
+
+// The --summary-csv rows of one subject.
+std::string SummaryCsvRows(const pk::Exposure& e) {
+  std::string out;
+  const auto field = [&out](double v) {
+    out += ',';
+    pk::AppendNumber(&out, v);
+  };
+  for (const pk::IntervalExposure& iv : e.intervals) {
+    pk::AppendNumber(&out, e.id);
+    out += ',' + std::to_string(iv.index);
+    for (double v : {iv.start, iv.end, iv.cmax, iv.tmax, iv.cmin, iv.ctrough, iv.auc}) field(v);
+    out += '\n';
   }
-  return out.str();
+  pk::AppendNumber(&out, e.id);
+  out += ",ALL,,";
+  for (double v : {e.cmax, e.tmax, e.cmin}) field(v);
+  out += ",";
+  field(e.auc);
+  out += '\n';
+  return out;
 }
 
 // The repeatable options, as given.
@@ -113,7 +118,8 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "exact (Φ/Γ, linear models), ode (CVODES, every model) or auto")(
       "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
       "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
-      "log", "logarithmic concentration axis for --plot");
+      "log", "logarithmic concentration axis for --plot")(
+      "jobs,j", po::value<int>()->default_value(0), "worker threads (0 = all cores); the output does not depend on it");
   pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
 }
 
@@ -152,45 +158,79 @@ pk::Dataset RegimenFromFlags(const po::variables_map& vm, const std::vector<doub
   return data;
 }
 
-// One row per simulated record: ID, TIME, EVID, CP, the model's further outputs, the amounts.
-std::string SimulationCsv(const pk::Model& model, const std::vector<pk::SubjectSimulation>& sims) {
+// The simulation CSV: ID, TIME, EVID, CP, the model's further outputs, the amounts.
+std::string SimulationCsvHeader(const pk::Model& model) {
   const auto* ode_model = dynamic_cast<const pk::OdeModel*>(&model);
-  const int extra_outputs = ode_model ? ode_model->num_outputs() - 1 : 0;
-  std::ostringstream csv;
-  csv << "ID,TIME,EVID,CP";
-  for (int k = 1; k <= extra_outputs; ++k) csv << "," << ode_model->output_names()[k];
-  for (int c = 1; c <= model.num_compartments(); ++c) csv << ",A" << c;
-  csv << "\n";
-  for (const pk::SubjectSimulation& s : sims) {
-    if (!s.ok) continue;
-    for (const pk::SimulatedRecord& r : s.rows) {
-      csv << pk::FormatNumber(s.id) << "," << pk::FormatNumber(r.time) << "," << static_cast<int>(r.evid) << ","
-          << pk::FormatNumber(r.cp);
-      for (int k = 1; k <= extra_outputs; ++k) csv << "," << pk::FormatNumber(r.outputs(k));
-      for (int c = 0; c < r.amounts.size(); ++c) csv << "," << pk::FormatNumber(r.amounts(c));
-      csv << "\n";
-    }
-  }
-  return csv.str();
+  std::string csv = "ID,TIME,EVID,CP";
+  for (int k = 1; ode_model && k < ode_model->num_outputs(); ++k) csv += "," + ode_model->output_names()[k];
+  for (int c = 1; c <= model.num_compartments(); ++c) csv += ",A" + std::to_string(c);
+  return csv + "\n";
 }
 
-std::string PlotSvg(const pk::Model& model, const std::vector<pk::SubjectSimulation>& sims, bool log) {
-  std::vector<pk::PlotSeries> series;
-  for (const pk::SubjectSimulation& s : sims) {
-    if (!s.ok) continue;
-    pk::PlotSeries line;
-    line.label = "ID " + pk::FormatNumber(s.id);
-    for (const pk::SimulatedRecord& r : s.rows) {
-      line.x.push_back(r.time);
-      line.y.push_back(r.cp);
+// One subject's rows of the simulation CSV.
+std::string SimulationCsvRows(const pk::SubjectSimulation& s) {
+  std::string csv;
+  if (!s.ok) return csv;
+  std::string id;
+  pk::AppendNumber(&id, s.id);
+  for (const pk::SimulatedRecord& r : s.rows) {
+    csv += id;
+    csv += ',';
+    pk::AppendNumber(&csv, r.time);
+    csv += r.evid == pk::Evid::kObservation ? ",0," : ",2,";
+    pk::AppendNumber(&csv, r.cp);
+    for (int k = 1; k < r.outputs.size(); ++k) {
+      csv += ',';
+      pk::AppendNumber(&csv, r.outputs(k));
     }
-    series.push_back(std::move(line));
+    for (int c = 0; c < r.amounts.size(); ++c) {
+      csv += ',';
+      pk::AppendNumber(&csv, r.amounts(c));
+    }
+    csv += '\n';
   }
+  return csv;
+}
+
+// Concentration against time of one subject, for --plot.
+pk::PlotSeries PlotLine(const pk::SubjectSimulation& s) {
+  pk::PlotSeries line;
+  line.label = "ID " + pk::FormatNumber(s.id);
+  for (const pk::SimulatedRecord& r : s.rows) {
+    line.x.push_back(r.time);
+    line.y.push_back(r.cp);
+  }
+  return line;
+}
+
+std::string PlotSvg(const pk::Model& model, const std::vector<pk::PlotSeries>& series, bool log) {
   pk::PlotOptions options;
   options.title = "pksim: " + model.name();
   options.log_y = log;
   return pk::RenderSvg(series, options);
 }
+
+// Where the rows go as subjects finish: a file written whole or not at all, or standard output.
+class Output {
+ public:
+  explicit Output(const std::string& path) {
+    if (!path.empty()) file_ = std::make_unique<pk::AtomicFile>(path);
+  }
+  void Write(const std::string& text) {
+    if (file_) {
+      file_->Write(text);
+    } else if (std::fwrite(text.data(), 1, text.size(), stdout) != text.size()) {
+      throw std::runtime_error("standard output: write failed");
+    }
+  }
+  void Commit() {
+    if (file_) file_->Commit();
+    if (!file_ && std::fflush(stdout) != 0) throw std::runtime_error("standard output: write failed");
+  }
+
+ private:
+  std::unique_ptr<pk::AtomicFile> file_;
+};
 
 int Main(int argc, char** argv) {
   po::options_description desc("Options");
@@ -209,8 +249,7 @@ int Main(int argc, char** argv) {
   pk::Dataset data;
   if (vm.count("data")) {
     if (vm.count("dose")) throw pk::InputError("give either --data or --dose, not both");
-    data = pk::AddOutputTimes(
-        pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(lists.ignore, lists.accept)), grid);
+    data = pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(lists.ignore, lists.accept));
   } else {
     if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
     data = RegimenFromFlags(vm, grid);
@@ -219,31 +258,46 @@ int Main(int argc, char** argv) {
   sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
   sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
   sim_options.ode.absolute_tolerance = vm["atol"].as<double>();
-  std::vector<pk::SubjectSimulation> sims;
+  sim_options.jobs = vm["jobs"].as<int>();
+  if (vm.count("data")) sim_options.output_times = grid;  // a regimen has them already
+  std::string why;
+  if (!sim_options.IsValid(&why)) throw pk::InputError(why);
+
+  // Rows are written as subjects finish, in the dataset's order: memory holds a few subjects.
+  const bool rows_wanted = vm.count("out") || !vm.count("summary");
+  std::optional<Output> rows, summary_csv;
+  if (rows_wanted) rows.emplace(vm.count("out") ? vm["out"].as<std::string>() : std::string());
+  if (vm.count("summary-csv")) summary_csv.emplace(vm["summary-csv"].as<std::string>());
+  if (rows) rows->Write(SimulationCsvHeader(*model));
+  if (summary_csv) summary_csv->Write(kSummaryCsvHeader);
+  std::vector<pk::PlotSeries> plot;
+  int failed = 0;
+  pk::SimulationSink sink;
+  if (rows) sink.render = SimulationCsvRows;
+  sink.consume = [&](pk::SubjectSimulation&& s, std::string&& text) {
+    if (!s.ok) {
+      ++failed;
+      std::cerr << "pksim: ID " << pk::FormatNumber(s.id) << ": simulation failed: " << s.message << "\n";
+    }
+    if (rows) rows->Write(text);
+    const pk::Exposure e = pk::ComputeExposure(s);
+    if (vm.count("summary")) std::cout << SummaryText(e, s);
+    if (summary_csv) summary_csv->Write(SummaryCsvRows(e));
+    if (vm.count("plot") && s.ok) plot.push_back(PlotLine(s));
+  };
   if (vm.count("estimates")) {
     const std::string path = vm["estimates"].as<std::string>();
+    pk::CheckOutputSet(path, "pkfit", "fit_details.csv");  // not half of an interrupted run
     const auto estimates = pk::ReadEstimates(path, *model);
-    if (!vm.count("data")) data = pk::RepeatForEach(data, estimates);  // the regimen for every ID of the table
-    sims = pk::SimulateWithEstimates(*model, data, estimates, values, sim_options, path);
+    // With a regimen, every ID of the table gets it.
+    const auto match = vm.count("data") ? pk::EstimatesMatch::kById : pk::EstimatesMatch::kEveryId;
+    pk::SimulateEachWithEstimates(*model, data, estimates, values, match, sim_options, path, sink);
   } else {
-    sims = pk::Simulate(*model, data, values, sim_options);
+    pk::SimulateEach(*model, data, values, sim_options, sink);
   }
-  int failed = 0;
-  for (const pk::SubjectSimulation& s : sims) {
-    if (s.ok) continue;
-    ++failed;
-    std::cerr << "pksim: ID " << pk::FormatNumber(s.id) << ": simulation failed: " << s.message << "\n";
-  }
-  std::vector<pk::Exposure> exposures;
-  for (const pk::SubjectSimulation& s : sims) exposures.push_back(pk::ComputeExposure(s));
-  if (vm.count("out")) {
-    pk::WriteFileAtomically(vm["out"].as<std::string>(), SimulationCsv(*model, sims));
-  } else if (!vm.count("summary")) {
-    std::cout << SimulationCsv(*model, sims);
-  }
-  if (vm.count("summary")) std::cout << FormatTable(exposures, sims);
-  if (vm.count("summary-csv")) pk::WriteFileAtomically(vm["summary-csv"].as<std::string>(), SummaryCsv(exposures));
-  if (vm.count("plot")) pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, sims, vm.count("log") > 0));
+  if (rows) rows->Commit();
+  if (summary_csv) summary_csv->Commit();
+  if (vm.count("plot")) pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, plot, vm.count("log") > 0));
   return failed > 0 ? 1 : 0;
 }
 

@@ -1,5 +1,6 @@
 #include "pk/output.h"
 
+#include <algorithm>
 #include <cctype>
 #include <cerrno>
 #include <charconv>
@@ -7,10 +8,12 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <stdexcept>
 
 #include <fcntl.h>
 #include <signal.h>
+#include <sys/stat.h>
 #include <sys/types.h>
 #include <unistd.h>
 
@@ -30,35 +33,71 @@ bool SyncPath(const std::string& path, bool directory) {
 
 }  // namespace
 
-void WriteFileAtomically(const std::string& path, const std::string& contents) {
-  const std::string tmp = path + ".tmp." + std::to_string(::getpid());
-  {
-    errno = 0;
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) {
-      // errno says why (a missing directory, permissions) on the systems libpk builds on.
-      const std::string why = errno != 0 ? std::string(": ") + std::strerror(errno) : std::string();
-      throw std::runtime_error(path + ": cannot write (could not create " + tmp + why + ")");
-    }
-    out << contents;
-    out.flush();
-    if (!out) {
-      std::remove(tmp.c_str());
-      throw std::runtime_error(path + ": write failed");
-    }
+AtomicFile::AtomicFile(std::string path) : path_(std::move(path)) {
+  struct stat st;
+  if (::stat(path_.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode)) {
+    // A device or a pipe (/dev/null, /dev/stdout, a FIFO) is written in place: renaming a file over
+    // it would replace the device with a file.
+    fd_ = ::open(path_.c_str(), O_WRONLY | O_CLOEXEC);
+    if (fd_ < 0) throw std::runtime_error(path_ + ": cannot write (" + std::strerror(errno) + ")");
+    return;
+  }
+  temporary_ = path_ + ".tmp." + std::to_string(::getpid());
+  fd_ = ::open(temporary_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+  if (fd_ < 0) {
+    throw std::runtime_error(path_ + ": cannot write (could not create " + temporary_ + ": " + std::strerror(errno) +
+                             ")");
+  }
+}
+
+AtomicFile::~AtomicFile() {
+  if (fd_ < 0) return;
+  ::close(fd_);
+  if (!temporary_.empty()) ::unlink(temporary_.c_str());
+}
+
+void AtomicFile::Write(const char* data, size_t size) {
+  if (fd_ < 0) throw std::logic_error(path_ + ": written after Commit()");
+  while (size > 0) {
+    const ssize_t n = ::write(fd_, data, size);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) throw std::runtime_error(path_ + ": write failed (" + std::strerror(errno) + ")");
+    data += n;
+    size -= static_cast<size_t>(n);
+  }
+}
+
+void AtomicFile::Commit() {
+  if (fd_ < 0) throw std::logic_error(path_ + ": committed twice");
+  if (temporary_.empty()) {  // a device or a pipe, written in place
+    const bool closed = ::close(fd_) == 0;
+    fd_ = -1;
+    if (!closed) throw std::runtime_error(path_ + ": write failed (" + std::strerror(errno) + ")");
+    return;
   }
   // The contents reach the disk before the name does, and the new name before we return: a crash
   // leaves the old file or the new one, never an empty or partial one under the final name.
-  if (!SyncPath(tmp, false)) {
-    std::remove(tmp.c_str());
-    throw std::runtime_error(path + ": write failed (fsync: " + std::strerror(errno) + ")");
+  const bool synced = ::fsync(fd_) == 0;
+  const int sync_error = errno;
+  const bool closed = ::close(fd_) == 0;
+  fd_ = -1;
+  if (!synced || !closed) {
+    ::unlink(temporary_.c_str());
+    throw std::runtime_error(path_ + ": write failed (" + std::strerror(synced ? errno : sync_error) + ")");
   }
-  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw std::runtime_error(path + ": cannot replace the file");
+  if (std::rename(temporary_.c_str(), path_.c_str()) != 0) {
+    const std::string why = std::strerror(errno);
+    ::unlink(temporary_.c_str());
+    throw std::runtime_error(path_ + ": cannot replace the file (" + why + ")");
   }
-  const size_t slash = path.find_last_of('/');
-  SyncPath(slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash)), true);
+  const size_t slash = path_.find_last_of('/');
+  SyncPath(slash == std::string::npos ? "." : (slash == 0 ? "/" : path_.substr(0, slash)), true);
+}
+
+void WriteFileAtomically(const std::string& path, const std::string& contents) {
+  AtomicFile file(path);
+  file.Write(contents);
+  file.Commit();
 }
 
 void RemoveStaleTemporaries(const std::string& directory) {
@@ -75,17 +114,68 @@ void RemoveStaleTemporaries(const std::string& directory) {
   }
 }
 
+namespace {
+
 // printf's %.Ng and strtod follow the C locale (a program that embeds libpk and sets a German one
 // would write and read 0,25); std::to_chars and std::from_chars do not.
-std::string FormatNumber(double value) {
-  char buf[40];
-  for (int precision = 6; precision <= 17; ++precision) {
-    const auto end = std::to_chars(buf, buf + sizeof buf, value, std::chars_format::general, precision).ptr;
-    double back = 0;
-    const auto parsed = std::from_chars(buf, end, back);
-    if ((parsed.ec == std::errc() && back == value) || precision == 17) return std::string(buf, end);
+//
+// The text is printf's %.Pg with the least P >= 6 that reads back. That P is the digit count d of
+// the shortest round-trip form when d > 6, and 6 otherwise; and the digits are the shortest form's,
+// since a double's rounding interval (about 1e-16 wide) holds at most one decimal of d <= 17
+// digits that is nearest, for normal numbers (see FormatNumber's test against that definition). So one shortest
+// to_chars in scientific form gives the digits and the exponent, and %g's layout follows.
+char* WriteNumber(double value, char* out) {
+  if (!std::isfinite(value)) return std::to_chars(out, out + 40, value).ptr;
+  if (value != 0 && std::fabs(value) < std::numeric_limits<double>::min()) {
+    // A subnormal's rounding interval is wide: several 6-digit decimals may read back, and %.6g
+    // takes the nearest, not the shortest. The definition itself, then.
+    for (int precision = 6;; ++precision) {
+      char* const end = std::to_chars(out, out + 40, value, std::chars_format::general, precision).ptr;
+      double back = 0;
+      std::from_chars(out, end, back);
+      if (back == value || precision == 17) return end;
+    }
   }
-  return "";
+  char sci[40];
+  const char* const sci_end = std::to_chars(sci, sci + sizeof sci, value, std::chars_format::scientific).ptr;
+  const char* p = sci;
+  const bool negative = *p == '-';
+  if (negative) ++p;
+  char digits[20];
+  int d = 0;
+  for (; p < sci_end && *p != 'e'; ++p) {
+    if (*p != '.') digits[d++] = *p;
+  }
+  int exponent = 0;
+  std::from_chars(p + 1 + (p[1] == '+'), sci_end, exponent);
+  const int precision = std::max(6, d);
+  if (exponent < -4 || exponent >= precision) return std::copy(static_cast<const char*>(sci), sci_end, out);  // %g's scientific form
+  char* o = out;
+  if (negative) *o++ = '-';
+  if (exponent < 0) {
+    *o++ = '0';
+    *o++ = '.';
+    for (int k = 0; k < -exponent - 1; ++k) *o++ = '0';
+    return std::copy(digits, digits + d, o);
+  }
+  for (int k = 0; k <= exponent; ++k) *o++ = k < d ? digits[k] : '0';
+  if (d > exponent + 1) {
+    *o++ = '.';
+    o = std::copy(digits + exponent + 1, digits + d, o);
+  }
+  return o;
+}
+
+}  // namespace
+
+std::string FormatNumber(double value) {
+  char buf[48];
+  return std::string(buf, WriteNumber(value, buf));
+}
+
+void AppendNumber(std::string* out, double value) {
+  char buf[48];
+  out->append(buf, WriteNumber(value, buf));
 }
 
 bool ParseNumber(const std::string& text, double* value) {

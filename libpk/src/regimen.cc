@@ -91,4 +91,30 @@ Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times) {
   return out;
 }
 
+Dataset SubjectWithOutputTimes(const Dataset& data, int subject, const std::vector<double>& times,
+                               const std::vector<std::string>& columns) {
+  Dataset one;
+  one.source = data.source;
+  one.columns = data.columns;
+  one.relative_times = data.relative_times;
+  // Only the columns asked for: an added record copies its neighbour's, and a dataset may have
+  // thousands of columns that no simulation reads.
+  std::vector<int> kept;
+  for (const std::string& name : columns) {
+    const int c = data.ExtraColumn(name);
+    if (c < 0 || std::find(kept.begin(), kept.end(), c) != kept.end()) continue;
+    kept.push_back(c);
+    one.extra_columns.push_back(data.extra_columns[static_cast<size_t>(c)]);
+  }
+  Subject s = data.subjects[static_cast<size_t>(subject)];
+  for (Record& r : s.records) {
+    std::vector<double> extra;
+    extra.reserve(kept.size());
+    for (int c : kept) extra.push_back(r.extra[static_cast<size_t>(c)]);
+    r.extra = std::move(extra);
+  }
+  one.subjects = {std::move(s)};
+  return AddOutputTimes(one, times);
+}
+
 }  // namespace pk

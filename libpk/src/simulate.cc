@@ -1,13 +1,17 @@
 #include "pk/simulate.h"
 
 #include <algorithm>
+#include <thread>
+#include <unordered_map>
 
 #include "events.h"
 #include "exact/exact_propagator.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
+#include "pk/regimen.h"
 #include "pk/residual_error.h"
 #include "ode/ode_propagator.h"
+#include "ordered_parallel.h"
 
 namespace pk {
 namespace {
@@ -23,10 +27,14 @@ class Recorder {
       : sys_(sys),
         s_(s),
         ode_(dynamic_cast<const OdeModel*>(&sys.model())),
+        linear_(dynamic_cast<const LinearModel*>(&sys.model())),
         prop_(*prop),
         out_(out),
         dvid_(s.data->ExtraColumn("DVID")) {
     if (!s.records().empty()) prop_.set_time(s.records()[0].time);
+    out->rows.reserve(static_cast<size_t>(std::count_if(s.records().begin(), s.records().end(), [](const Record& r) {
+      return r.evid == Evid::kObservation || r.evid == Evid::kOther;
+    })));
   }
 
   void Advance(double h, const Eigen::VectorXd& u, int set) { prop_.Advance(h, u, set); }
@@ -35,33 +43,57 @@ class Recorder {
   void SteadyState(const internal::SteadyStateCycle<double>& c, int set, bool add) { prop_.SteadyState(c, set, add); }
   void SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) { prop_.SteadyInfusion(u, set, add); }
   void DoseEntered(double time, int set) {
-    out_->doses.push_back({time, sys_.Observe(sys_.central_key(), Amounts(), Theta(set)), prop_.auc()});
+    const Eigen::VectorXd x = Amounts();
+    out_->doses.push_back({time, Output(sys_.central_key(), x, set, &central_), prop_.auc()});
   }
 
   void RecordDone(int r, int set) {
     const Record& rec = s_.records()[r];
     prop_.set_time(rec.time);
     if (rec.evid != Evid::kObservation && rec.evid != Evid::kOther) return;
-    const Eigen::VectorXd theta = Theta(set);
     SimulatedRecord row;
     row.record = r;
     row.time = rec.time;
     row.evid = rec.evid;
     row.amounts = Amounts();
-    row.cp = sys_.Observe(sys_.central_key(), row.amounts, theta);
-    row.pred = sys_.Observe(Key(r), row.amounts, theta);
+    row.cp = Output(sys_.central_key(), row.amounts, set, &central_);
+    row.pred = Output(Key(r), row.amounts, set, &record_);
     row.auc = prop_.auc();
     if (ode_) {
       row.outputs.resize(ode_->num_outputs());
-      for (int k = 0; k < ode_->num_outputs(); ++k) row.outputs(k) = ode_->OutputValue(k + 1, row.amounts, theta);
+      for (int k = 0; k < ode_->num_outputs(); ++k) {
+        row.outputs(k) = ode_->OutputValue(k + 1, row.amounts, Theta(set));
+      }
     }
     out_->rows.push_back(std::move(row));
   }
 
  private:
+  // A linear model's output row c(θ) for the last (key, set) asked: y = c·x costs n multiplications
+  // when neither changed since the row before, as along a grid of output times.
+  struct CachedRow {
+    int key = -1, set = -1;
+    Eigen::RowVectorXd c;
+  };
+
+  double Output(int key, const Eigen::VectorXd& x, int set, CachedRow* cache) {
+    if (!linear_) return sys_.Observe(key, x, Theta(set));
+    if (cache->key != key || cache->set != set) {
+      cache->c = linear_->OutputRow<double>(key, Theta(set));
+      cache->key = key;
+      cache->set = set;
+    }
+    return cache->c.dot(x);
+  }
+
   // The exact propagator's state carries the AUC after the amounts.
   Eigen::VectorXd Amounts() const { return prop_.state().head(sys_.n()); }
-  Eigen::VectorXd Theta(int set) const { return s_.sets[set].head(sys_.num_theta()); }
+  const Eigen::VectorXd& Theta(int set) {
+    if (theta_.size() != s_.sets.size()) theta_.resize(s_.sets.size());
+    Eigen::VectorXd& t = theta_[static_cast<size_t>(set)];
+    if (t.size() == 0) t = s_.sets[static_cast<size_t>(set)].head(sys_.num_theta());
+    return t;
+  }
   // Nonlinear models: the DVID's output; linear models: the record's compartment.
   int Key(int r) const {
     if (!ode_) return s_.cmt[r] + 1;
@@ -71,10 +103,20 @@ class Recorder {
   const internal::OdeSystem& sys_;
   const internal::PreparedSubject& s_;
   const OdeModel* ode_;
+  const LinearModel* linear_;
   Propagator& prop_;
   SubjectSimulation* out_;
   int dvid_ = -1;
+  std::vector<Eigen::VectorXd> theta_;  // per parameter set, made when first needed
+  CachedRow central_, record_;
 };
+
+// The non-PREDPP columns a simulation reads: parameters and dose modifiers by name, and DVID.
+std::vector<std::string> ColumnsRead(const ParameterLayout& layout) {
+  std::vector<std::string> names{"DVID"};
+  for (int i = 0; i < layout.size(); ++i) names.push_back(layout.name(i));
+  return names;
+}
 
 template <typename Propagator>
 void Run(const internal::OdeSystem& sys, const ParameterLayout& layout, const internal::PreparedSubject& s,
@@ -86,7 +128,13 @@ void Run(const internal::OdeSystem& sys, const ParameterLayout& layout, const in
 
 }  // namespace
 
-bool SimulationOptions::IsValid(std::string* error) const { return ode.IsValid(error); }
+bool SimulationOptions::IsValid(std::string* error) const {
+  if (jobs < 0) {
+    *error = "jobs must be 0 (all cores) or positive";
+    return false;
+  }
+  return ode.IsValid(error);
+}
 
 SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int subject,
                                   const ParameterValues& values, const SimulationOptions& options) {
@@ -97,6 +145,11 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
   const ParameterLayout layout(model);
   SubjectSimulation out;
   out.id = data.subjects[subject].id;
+  if (!options.output_times.empty()) {
+    SimulationOptions without = options;
+    without.output_times.clear();
+    return SimulateSubject(model, SubjectWithOutputTimes(data, subject, options.output_times, ColumnsRead(layout)), 0, values, without);
+  }
   internal::PreparedSubject s;
   try {
     s = internal::PrepareSubject(model, layout, data, subject, layout.Resolve(values), true, options.check_values);
@@ -123,52 +176,84 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
   return out;
 }
 
+namespace {
+
+int Jobs(const SimulationOptions& options, int subjects) {
+  const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  return std::max(1, std::min(options.jobs > 0 ? options.jobs : cores, subjects));
+}
+
+// Hands simulate(i) for i = 0..n-1 to `sink` in order, rendered on the workers.
+void Stream(int n, const SimulationOptions& options, const std::function<SubjectSimulation(int)>& simulate,
+            const SimulationSink& sink) {
+  using Done = std::pair<SubjectSimulation, std::string>;
+  const int jobs = Jobs(options, n);
+  internal::OrderedParallel<Done>(
+      n, jobs, 4 * jobs,
+      [&](int i) {
+        Done done{simulate(i), std::string()};
+        if (sink.render) done.second = sink.render(done.first);
+        return done;
+      },
+      [&](int, Done&& done) { sink.consume(std::move(done.first), std::move(done.second)); });
+}
+
+// The estimates of a subject, without the residual-error σ, under `overrides`.
+ParameterValues Merged(const ParameterValues& estimates, const ParameterValues& overrides) {
+  ParameterValues merged;
+  for (const auto& kv : estimates) {
+    if (!IsResidualErrorName(kv.first)) merged[kv.first] = kv.second;  // names as the model spells them
+  }
+  for (const auto& kv : overrides) merged[kv.first] = kv.second;
+  return merged;
+}
+
+}  // namespace
+
+void SimulateEach(const Model& model, const Dataset& data, const ParameterValues& values,
+                  const SimulationOptions& options, const SimulationSink& sink) {
+  Stream(static_cast<int>(data.subjects.size()), options,
+         [&](int i) { return SimulateSubject(model, data, i, values, options); }, sink);
+}
+
 std::vector<SubjectSimulation> Simulate(const Model& model, const Dataset& data, const ParameterValues& values,
                                         const SimulationOptions& options) {
   std::vector<SubjectSimulation> out;
-  for (int i = 0; i < static_cast<int>(data.subjects.size()); ++i) {
-    out.push_back(SimulateSubject(model, data, i, values, options));
-  }
+  SimulationSink sink;
+  sink.consume = [&](SubjectSimulation&& s, std::string&&) { out.push_back(std::move(s)); };
+  SimulateEach(model, data, values, options, sink);
   return out;
 }
 
-std::vector<SubjectSimulation> SimulateWithEstimates(const Model& model, const Dataset& data,
-                                                     const std::vector<SubjectEstimates>& estimates,
-                                                     const ParameterValues& overrides,
-                                                     const SimulationOptions& options, const std::string& source) {
-  std::vector<SubjectSimulation> sims;
-  for (int i = 0; i < static_cast<int>(data.subjects.size()); ++i) {
-    const double id = data.subjects[i].id;
-    const auto it = std::find_if(estimates.begin(), estimates.end(), [&](const auto& e) { return e.first == id; });
-    if (it == estimates.end()) {
-      SubjectSimulation missing;
-      missing.id = id;
-      missing.ok = false;
-      missing.message = "no estimates for this ID in " + source;
-      sims.push_back(std::move(missing));
-      continue;
+void SimulateEachWithEstimates(const Model& model, const Dataset& data, const std::vector<SubjectEstimates>& estimates,
+                               const ParameterValues& overrides, EstimatesMatch match,
+                               const SimulationOptions& options, const std::string& source,
+                               const SimulationSink& sink) {
+  if (match == EstimatesMatch::kEveryId) {
+    if (data.subjects.size() != 1) {
+      throw InputError(data.source + ": a regimen to repeat has one subject, not " +
+                       std::to_string(data.subjects.size()));
     }
-    ParameterValues merged;
-    for (const auto& kv : it->second) {
-      if (!IsResidualErrorName(kv.first)) merged[kv.first] = kv.second;  // names as the model spells them
+    Stream(static_cast<int>(estimates.size()), options, [&](int k) {
+      SubjectSimulation sim = SimulateSubject(model, data, 0, Merged(estimates[k].second, overrides), options);
+      sim.id = estimates[k].first;
+      return sim;
+    }, sink);
+    return;
+  }
+  std::unordered_map<double, int> by_id;
+  for (int k = 0; k < static_cast<int>(estimates.size()); ++k) by_id.emplace(estimates[k].first, k);
+  Stream(static_cast<int>(data.subjects.size()), options, [&](int i) {
+    const auto it = by_id.find(data.subjects[i].id);
+    if (it != by_id.end()) {
+      return SimulateSubject(model, data, i, Merged(estimates[it->second].second, overrides), options);
     }
-    for (const auto& kv : overrides) merged[kv.first] = kv.second;
-    sims.push_back(SimulateSubject(model, data, i, merged, options));
-  }
-  return sims;
-}
-
-Dataset RepeatForEach(const Dataset& one, const std::vector<SubjectEstimates>& estimates) {
-  if (one.subjects.size() != 1) {
-    throw InputError(one.source + ": a regimen to repeat has one subject, not " + std::to_string(one.subjects.size()));
-  }
-  Dataset out = one;
-  out.subjects.clear();
-  for (const auto& e : estimates) {
-    out.subjects.push_back(one.subjects.front());
-    out.subjects.back().id = e.first;
-  }
-  return out;
+    SubjectSimulation missing;
+    missing.id = data.subjects[i].id;
+    missing.ok = false;
+    missing.message = "no estimates for this ID in " + source;
+    return missing;
+  }, sink);
 }
 
 }  // namespace pk

@@ -1,23 +1,76 @@
-// libpk: writing results whole or not at all.
+// libpk: writing results whole or not at all, and numbers as text.
 #ifndef PK_OUTPUT_H_
 #define PK_OUTPUT_H_
 
 #include <string>
+#include <vector>
 
 namespace pk {
 
-/// Writes `contents` to a temporary file beside `path`, then renames it over
-/// `path`, so a reader never sees a partial file. Throws std::runtime_error
-/// naming the path on failure.
+/// A file written whole or not at all, in pieces: the text goes to a temporary file
+/// "<path>.tmp.<pid>" as it is written (so memory does not grow with the file), and Commit()
+/// syncs it to disk, renames it over `path` and syncs the directory. Destroyed without Commit()
+/// (an error, an exception), it removes the temporary and leaves any earlier file at `path`
+/// untouched. A `path` that is a device or a pipe (/dev/null, /dev/stdout) is written in place.
+/// Failures throw std::runtime_error naming `path`.
+class AtomicFile {
+ public:
+  explicit AtomicFile(std::string path);
+  ~AtomicFile();
+  AtomicFile(const AtomicFile&) = delete;
+  AtomicFile& operator=(const AtomicFile&) = delete;
+
+  void Write(const char* data, size_t size);
+  void Write(const std::string& text) { Write(text.data(), text.size()); }
+  void Commit();
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_, temporary_;
+  int fd_ = -1;
+};
+
+/// Writes `contents` to `path` through an AtomicFile, so a reader never sees a partial file.
 void WriteFileAtomically(const std::string& path, const std::string& contents);
 
-/// Removes the "<name>.tmp.<pid>" files that WriteFileAtomically left in `directory` when its
+/// Removes the "<name>.tmp.<pid>" files that an AtomicFile left in `directory` when its
 /// process was killed between writing and renaming (the process is gone).
 void RemoveStaleTemporaries(const std::string& directory);
 
-/// Shortest decimal text that reads back as the same double ("%.17g" trimmed), in the
-/// same form whatever the C locale.
+// ---- Output sets.
+//
+// A program that writes several files that belong together (pkfit's estimates, details,
+// predictions and report) marks the set complete with a manifest, written last: MANIFEST in
+// the directory lists each file of the run with its size and CRC-32. The program removes the
+// old manifest before it writes the first file, so a run killed half-way leaves a directory
+// without one, and readers of the set refuse it instead of mixing two runs.
+
+/// The manifest's file name, "MANIFEST".
+extern const char* const kManifestName;
+
+/// Removes `directory`'s manifest (the set is about to change).
+void BeginOutputSet(const std::string& directory);
+
+/// Writes `directory`'s manifest for `files` (names within the directory, already written),
+/// with a line naming `program`.
+void CompleteOutputSet(const std::string& directory, const std::vector<std::string>& files,
+                       const std::string& program);
+
+/// Checks that `path` belongs to a complete output set: when its directory has a manifest, the
+/// file must be listed with the size and CRC-32 it has now; when it has none, the directory
+/// must not look like an output set of `program` (a `marker` file, such as pkfit's
+/// fit_details.csv, beside it). Throws pk::InputError naming the file and what is wrong; a
+/// table written by hand in a directory of its own passes.
+void CheckOutputSet(const std::string& path, const std::string& program, const std::string& marker);
+
+// ---- Numbers as text.
+
+/// Shortest decimal text that reads back as the same double ("%.17g" trimmed: %.Pg with the
+/// least P ≥ 6 that reads back), in the same form whatever the C locale.
 std::string FormatNumber(double value);
+
+/// Appends FormatNumber(value) to `out` without a temporary string.
+void AppendNumber(std::string* out, double value);
 
 /// A finite decimal number (surrounding spaces and one leading '+' allowed), read the same
 /// whatever the C locale; false for anything else, hexadecimal, infinities and NaN included.

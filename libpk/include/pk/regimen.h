@@ -46,6 +46,12 @@ Dataset RegimenToDataset(const Regimen& regimen);
 /// or after its first record again.
 Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times);
 
+/// Subject `subject` of `data` alone, with output records at `times` as AddOutputTimes adds
+/// them, keeping of the non-PREDPP columns only those named in `columns` (those present; for a
+/// simulation, the model's parameter and modifier names and DVID).
+Dataset SubjectWithOutputTimes(const Dataset& data, int subject, const std::vector<double>& times,
+                               const std::vector<std::string>& columns);
+
 }  // namespace pk
 
 #endif  // PK_REGIMEN_H_

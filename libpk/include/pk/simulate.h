@@ -16,6 +16,7 @@
 #ifndef PK_SIMULATE_H_
 #define PK_SIMULATE_H_
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -38,6 +39,11 @@ struct SimulationOptions {
   /// (Model::must_be_positive). Data columns are always checked. Off for values a fit produced,
   /// which may sit at the edge of their range.
   bool check_values = true;
+  /// Output records (EVID 2) added to every subject at these times, as AddOutputTimes adds them,
+  /// one subject at a time: memory does not grow with subjects × times.
+  std::vector<double> output_times;
+  /// Worker threads for Simulate and SimulateEach (0: all cores). Results do not depend on it.
+  int jobs = 1;
 
   bool IsValid(std::string* error) const;
 };
@@ -79,21 +85,40 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
                                   const ParameterValues& values,
                                   const SimulationOptions& options = SimulationOptions());
 
-/// Simulates every subject.
+/// What SimulateEach does with each subject's simulation, as it is done. Memory holds a few
+/// subjects at a time (about four per thread), however many the dataset has.
+struct SimulationSink {
+  /// Optional. Runs on a worker thread right after the subject is simulated: work that may run in
+  /// parallel, such as formatting the subject's rows as text. Its result reaches `consume`.
+  std::function<std::string(const SubjectSimulation&)> render;
+  /// Runs on the calling thread once per subject, in the dataset's order.
+  std::function<void(SubjectSimulation&&, std::string&& rendered)> consume;
+};
+
+/// Simulates every subject of `data` at `values`, handing each to `sink` in order.
+/// An input error (pk::InputError) of a subject is thrown after every earlier subject was handed over.
+void SimulateEach(const Model& model, const Dataset& data, const ParameterValues& values,
+                  const SimulationOptions& options, const SimulationSink& sink);
+
+/// Simulates every subject, kept in memory (SimulateEach for datasets of any size).
 std::vector<SubjectSimulation> Simulate(const Model& model, const Dataset& data,
                                         const ParameterValues& values,
                                         const SimulationOptions& options = SimulationOptions());
 
-/// Simulates every subject of `data` with its own parameters from `estimates` (per-subject
-/// tables such as pkfit's estimates.csv; residual-error σ are left out), `overrides` taking
-/// precedence. A subject without an entry is a failed simulation whose message names `source`.
-std::vector<SubjectSimulation> SimulateWithEstimates(const Model& model, const Dataset& data,
-                                                     const std::vector<SubjectEstimates>& estimates,
-                                                     const ParameterValues& overrides,
-                                                     const SimulationOptions& options, const std::string& source);
+/// How SimulateEachWithEstimates pairs subjects with the rows of an estimates table.
+enum class EstimatesMatch {
+  kById,     ///< each subject of the dataset takes the estimates of its ID
+  kEveryId,  ///< the dataset is one regimen, simulated once under each ID of the table, in its order
+};
 
-/// A one-subject dataset (a regimen) repeated once under each ID of `estimates`.
-Dataset RepeatForEach(const Dataset& one, const std::vector<SubjectEstimates>& estimates);
+/// Simulates with per-subject parameters from `estimates` (per-subject tables such as pkfit's
+/// estimates.csv; residual-error σ are left out), `overrides` taking precedence, handing each
+/// subject to `sink` in order. With kById, a subject without an entry is a failed simulation whose
+/// message names `source`. With kEveryId the regimen's records are shared, not copied per ID.
+void SimulateEachWithEstimates(const Model& model, const Dataset& data, const std::vector<SubjectEstimates>& estimates,
+                               const ParameterValues& overrides, EstimatesMatch match,
+                               const SimulationOptions& options, const std::string& source,
+                               const SimulationSink& sink);
 
 }  // namespace pk
 

@@ -6,6 +6,7 @@
 #include <libfccp/csv.h>
 #pragma GCC diagnostic pop
 
+#include <cctype>
 #include <filesystem>
 #include <fstream>
 #include <utility>
@@ -102,31 +103,56 @@ NumberedLines ReadLines(const std::string& path) {
   return lines;
 }
 
-std::vector<std::string> SplitCsvLine(const std::string& line) {
-  std::vector<std::string> fields;
-  std::string field;
+namespace {
+
+void TrimInPlace(std::string* s) {
+  size_t b = 0, e = s->size();
+  while (b < e && std::isspace(static_cast<unsigned char>((*s)[b]))) ++b;
+  while (e > b && std::isspace(static_cast<unsigned char>((*s)[e - 1]))) --e;
+  s->erase(e);
+  s->erase(0, b);
+}
+
+}  // namespace
+
+void SplitCsvLine(const std::string& line, std::vector<std::string>* fields) {
+  size_t n = 0;
+  // The next field, reusing the string (and its capacity) of the line before.
+  const auto next = [&]() -> std::string* {
+    if (n == fields->size()) fields->emplace_back();
+    std::string* f = &(*fields)[n++];
+    f->clear();
+    return f;
+  };
+  std::string* field = next();
   bool quoted = false;
   for (size_t i = 0; i < line.size(); ++i) {
     const char c = line[i];
     if (quoted) {
       if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
-        field += '"';
+        *field += '"';
         ++i;
       } else if (c == '"') {
         quoted = false;
       } else {
-        field += c;
+        *field += c;
       }
     } else if (c == '"') {
       quoted = true;
     } else if (c == ',') {
-      fields.push_back(Trim(field));
-      field.clear();
+      TrimInPlace(field);
+      field = next();
     } else {
-      field += c;
+      *field += c;
     }
   }
-  fields.push_back(Trim(field));
+  TrimInPlace(field);
+  fields->resize(n);
+}
+
+std::vector<std::string> SplitCsvLine(const std::string& line) {
+  std::vector<std::string> fields;
+  SplitCsvLine(line, &fields);
   return fields;
 }
 

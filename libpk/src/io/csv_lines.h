@@ -20,6 +20,8 @@ NumberedLines TextLines(const std::string& text, const std::string& source = "te
 /// Splits one CSV line into trimmed fields. Fields may be wrapped in double
 /// quotes ("" inside is a quote).
 std::vector<std::string> SplitCsvLine(const std::string& line);
+/// The same into `fields`, reusing its strings: no allocation per field once they are long enough.
+void SplitCsvLine(const std::string& line, std::vector<std::string>* fields);
 
 /// A blank line, or a comment (first non-blank character '#').
 bool IsSkippedLine(const std::string& line);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <unordered_map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -163,21 +164,25 @@ class Parser {
     if (first == lines.size()) Fail(0, 0, "the file has no header line");
     ReadHeader(lines[first].first, lines[first].second, &data);
     const internal::RecordFilter filter(filter_, data.columns, source_);
-    std::vector<std::pair<int, std::vector<std::string>>> records;
-    for (size_t i = first + 1; i < lines.size(); ++i) {
-      if (IsSkippedLine(lines[i].second) || filter.DropsLine(lines[i].second)) continue;
-      std::vector<std::string> fields = SplitCsvLine(lines[i].second);
-      if (filter.DropsRecord(fields)) continue;
-      records.emplace_back(lines[i].first, std::move(fields));
-    }
+    // Records are read one line at a time into reused fields: memory holds the lines and the dataset.
+    std::vector<std::string> fields;
+    const auto kept = [&](size_t i) {
+      if (IsSkippedLine(lines[i].second) || filter.DropsLine(lines[i].second)) return false;
+      SplitCsvLine(lines[i].second, &fields);
+      return !filter.DropsRecord(fields);
+    };
     // NM-TRAN's day-time translation: with a date column, or when any TIME is
     // a clock time, every TIME becomes hours since its subject's first record.
     const size_t tc = static_cast<size_t>(item_column_[kTime]);
-    clock_ = std::any_of(records.begin(), records.end(), [tc](const auto& r) {
-      return r.second.size() > tc && r.second[tc].find(':') != std::string::npos;
-    });
+    clock_ = false;
+    for (size_t i = first + 1; i < lines.size() && !clock_; ++i) {
+      if (lines[i].second.find(':') == std::string::npos || !kept(i)) continue;
+      clock_ = fields.size() > tc && fields[tc].find(':') != std::string::npos;
+    }
     data.relative_times = clock_ || date_column_ >= 0;
-    for (const auto& r : records) ReadRecord(r.first, r.second, &data);
+    for (size_t i = first + 1; i < lines.size(); ++i) {
+      if (kept(i)) ReadRecord(lines[i].first, fields, &data);
+    }
     if (data.subjects.empty()) Fail(lines[first].first, 0, "the file has no data records");
     return data;
   }
@@ -193,7 +198,7 @@ class Parser {
     header_ = SplitCsvLine(line);
     for (int k = 0; k < kNumItems; ++k) item_column_[k] = -1;
     date_column_ = -1;
-    std::map<std::string, int> seen;
+    std::unordered_map<std::string, int> seen;
     for (size_t c = 0; c < header_.size(); ++c) {
       const std::string name = ToUpper(header_[c]);
       const int column = static_cast<int>(c) + 1;

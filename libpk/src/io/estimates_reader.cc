@@ -1,6 +1,7 @@
 // Reading per-subject parameter tables (see pk/estimates.h).
 #include <algorithm>
 #include <map>
+#include <unordered_map>
 #include <string>
 #include <vector>
 
@@ -42,6 +43,7 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
   }
   std::vector<SubjectEstimates> out;
   std::map<std::pair<double, std::string>, int> seen;  // (ID, canonical parameter name) -> line
+  std::unordered_map<double, size_t> entry_of;  // ID -> its entry in out
   for (size_t i = first + 1; i < lines.size(); ++i) {
     const int line = lines[i].first;
     if (IsSkippedLine(lines[i].second)) continue;
@@ -70,12 +72,9 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
       fail(line, name + 1, parameter + " is given twice for ID " + FormatNumber(subject) + " (also line " +
                                std::to_string(again.first->second) + ")");
     }
-    auto it = std::find_if(out.begin(), out.end(), [&](const SubjectEstimates& e) { return e.first == subject; });
-    if (it == out.end()) {
-      out.emplace_back(subject, ParameterValues());
-      it = out.end() - 1;
-    }
-    it->second[key] = estimate;
+    const auto slot = entry_of.emplace(subject, out.size());  // the table's order of IDs, found in O(1)
+    if (slot.second) out.emplace_back(subject, ParameterValues());
+    out[slot.first->second].second[key] = estimate;
   }
   if (out.empty()) fail(header_line, 0, "the estimates table has no rows");
   return out;

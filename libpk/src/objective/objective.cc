@@ -351,12 +351,9 @@ std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const st
                                          int output) const {
   const internal::ObjectiveState& d = *impl_;
   // This subject alone (not a copy of the whole dataset), with output records at `times`.
-  Dataset one;
-  one.source = d.data->source;
-  one.columns = d.data->columns;
-  one.extra_columns = d.data->extra_columns;
-  one.subjects = {d.data->subjects[d.subject]};
-  one = AddOutputTimes(one, times);
+  std::vector<std::string> read = d.names;  // the columns a simulation reads (as in SimulateSubject)
+  read.push_back("DVID");
+  const Dataset one = SubjectWithOutputTimes(*d.data, d.subject, times, read);
   ParameterValues named;
   for (int i = 0; i < d.L(); ++i) {
     if (std::isfinite(values(i))) named[d.names[i]] = values(i);

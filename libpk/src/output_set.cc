@@ -1,0 +1,128 @@
+// Output sets: a manifest written last marks the files of one run as complete (pk/output.h).
+#include <boost/crc.hpp>
+
+#include <cerrno>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <unistd.h>
+
+#include "pk/error.h"
+#include "pk/output.h"
+
+namespace pk {
+
+const char* const kManifestName = "MANIFEST";
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Fingerprint {
+  unsigned long long bytes = 0;
+  unsigned crc32 = 0;
+};
+
+// Size and CRC-32 of the file at `path`; false when it cannot be read.
+bool Fingerprinted(const std::string& path, Fingerprint* out) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return false;
+  boost::crc_32_type crc;
+  char buf[1 << 16];
+  Fingerprint f;
+  while (in) {
+    in.read(buf, sizeof buf);
+    const auto n = static_cast<size_t>(in.gcount());
+    crc.process_bytes(buf, n);
+    f.bytes += n;
+  }
+  f.crc32 = crc.checksum();
+  *out = f;
+  return true;
+}
+
+std::string Hex(unsigned v) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "%08x", v);
+  return buf;
+}
+
+std::vector<std::string> Fields(const std::string& line) {
+  std::vector<std::string> out(1);
+  for (char c : line) {
+    if (c == ',') {
+      out.emplace_back();
+    } else {
+      out.back() += c;
+    }
+  }
+  return out;
+}
+
+std::string DirectoryOf(const std::string& path) {
+  const fs::path parent = fs::path(path).parent_path();
+  return parent.empty() ? "." : parent.string();
+}
+
+}  // namespace
+
+void BeginOutputSet(const std::string& directory) {
+  const std::string manifest = directory + "/" + kManifestName;
+  if (std::remove(manifest.c_str()) != 0 && errno != ENOENT) {
+    throw std::runtime_error(manifest + ": cannot remove the previous run's manifest");
+  }
+}
+
+void CompleteOutputSet(const std::string& directory, const std::vector<std::string>& files,
+                       const std::string& program) {
+  std::ostringstream text;
+  const std::time_t now = std::time(nullptr);
+  char when[32];
+  std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&now));
+  text << "# The files of one " << program << " run (" << when << ", process " << ::getpid()
+       << "), complete: a reader refuses a file of this directory that is not listed here as it is now.\n";
+  text << "FILE,BYTES,CRC32\n";
+  for (const std::string& name : files) {
+    Fingerprint f;
+    if (!Fingerprinted(directory + "/" + name, &f)) throw std::runtime_error(directory + "/" + name + ": cannot read back");
+    text << name << "," << f.bytes << "," << Hex(f.crc32) << "\n";
+  }
+  WriteFileAtomically(directory + "/" + kManifestName, text.str());
+}
+
+void CheckOutputSet(const std::string& path, const std::string& program, const std::string& marker) {
+  const std::string dir = DirectoryOf(path);
+  const std::string name = fs::path(path).filename().string();
+  const std::string manifest = dir + "/" + kManifestName;
+  std::ifstream in(manifest);
+  if (!in) {
+    std::error_code error;
+    if (fs::exists(dir + "/" + marker, error)) {
+      throw InputError(path, 0, 0, "the " + program + " output set in " + dir + " has no " + kManifestName +
+                                       ": the run that wrote it did not finish, so its files may come from two "
+                                       "runs; run " + program + " again");
+    }
+    return;  // a table of the user's own
+  }
+  std::string line;
+  int number = 0;
+  while (std::getline(in, line)) {
+    ++number;
+    const auto fields = Fields(line);
+    if (fields.size() != 3 || fields[0] != name) continue;
+    Fingerprint now;
+    if (!Fingerprinted(path, &now)) throw InputError(path, 0, 0, "cannot open the file");
+    if (std::to_string(now.bytes) != fields[1] || Hex(now.crc32) != fields[2]) {
+      throw InputError(path, 0, 0, "differs from the file " + program + " wrote (" + manifest + " line " +
+                                       std::to_string(number) + " lists " + fields[1] + " bytes, CRC-32 " +
+                                       fields[2] + "): it was changed, or comes from another run");
+    }
+    return;
+  }
+  throw InputError(path, 0, 0, "is not one of the files of the " + program + " run listed in " + manifest);
+}
+
+}  // namespace pk

@@ -1,0 +1,214 @@
+// Output: numbers as text, files written whole or not at all, output sets, streamed simulation.
+#include <catch2/catch.hpp>
+
+#include <charconv>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "pk/catalogue.h"
+#include "pk/dataset.h"
+#include "pk/error.h"
+#include "pk/output.h"
+#include "pk/regimen.h"
+#include "pk/simulate.h"
+
+namespace {
+
+// FormatNumber's definition, computed the slow way: %.Pg (to_chars) with the least P >= 6 that
+// reads back, up to 17.
+std::string ReferenceFormat(double value) {
+  char buf[64];
+  for (int precision = 6; precision <= 17; ++precision) {
+    const auto end = std::to_chars(buf, buf + sizeof buf, value, std::chars_format::general, precision).ptr;
+    double back = 0;
+    const auto parsed = std::from_chars(buf, end, back);
+    if ((parsed.ec == std::errc() && back == value) || precision == 17) return std::string(buf, end);
+  }
+  return "";
+}
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+std::string TempDir(const std::string& name) {
+  const std::string dir = std::string(PK_BINARY_DIR) + "/output_test_" + name + "_" + std::to_string(::getpid());
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+}  // namespace
+
+TEST_CASE("FormatNumber is %.Pg with the least P >= 6 that reads back, for every kind of double", "[output]") {
+  std::vector<double> values = {0.0, -0.0, 1.0, -1.0, 0.1, 0.48, 4.800000000000001, 1e-5, 1e-4, 9.99999e-5,
+                                123456, 1234567, 999999.5, 1e15, 1e16, 1e17, 1e21, 1e300, 5e-324, 2.2250738585072014e-308,
+                                1.7976931348623157e308, 100000, 12345678901234567.0, 0.000123456789, 3.14159265358979};
+  std::mt19937_64 rng(42);
+  for (int i = 0; i < 200000; ++i) {  // random bit patterns: every exponent and mantissa
+    const std::uint64_t bits = rng();
+    double v;
+    std::memcpy(&v, &bits, sizeof v);
+    if (std::isfinite(v)) values.push_back(v);
+  }
+  std::uniform_int_distribution<int> digits(1, 17), exponent(-12, 22);
+  for (int i = 0; i < 200000; ++i) {  // short decimals, as data hold them, around %g's switch points
+    const double mantissa = std::floor(std::ldexp(static_cast<double>(rng() >> 11), -53) * std::pow(10.0, digits(rng)));
+    values.push_back(mantissa * std::pow(10.0, exponent(rng) - 10));
+  }
+  int differ = 0;
+  for (double v : values) {
+    const std::string fast = pk::FormatNumber(v), slow = ReferenceFormat(v);
+    if (fast != slow && ++differ <= 5) FAIL_CHECK(fast << " != " << slow);
+    double back = 0;
+    if (!pk::ParseNumber(fast, &back) || back != v) FAIL_CHECK(fast << " does not read back");
+  }
+  CHECK(differ == 0);
+  std::string appended = "x";
+  pk::AppendNumber(&appended, 0.25);
+  CHECK(appended == "x0.25");
+  CHECK(pk::FormatNumber(std::numeric_limits<double>::infinity()) == "inf");
+}
+
+TEST_CASE("an AtomicFile replaces its path whole, or leaves the old file when not committed", "[output]") {
+  const std::string dir = TempDir("atomic");
+  const std::string path = dir + "/out.csv";
+  pk::WriteFileAtomically(path, "old\n");
+  {
+    pk::AtomicFile file(path);
+    file.Write("new, ");
+    CHECK(ReadAll(path) == "old\n");  // nothing under the name until Commit
+    // destroyed without Commit: an error half-way
+  }
+  CHECK(ReadAll(path) == "old\n");
+  CHECK(std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()) == 1);
+  {
+    pk::AtomicFile file(path);
+    file.Write("new, ");
+    file.Write(std::string("in pieces\n"));
+    file.Commit();
+  }
+  CHECK(ReadAll(path) == "new, in pieces\n");
+  CHECK_THROWS_WITH(pk::AtomicFile(dir + "/no/such/dir/x.csv"), Catch::Contains("cannot write"));
+  std::filesystem::remove_all(dir);
+}
+
+TEST_CASE("an AtomicFile writes a device in place instead of renaming a file over it", "[output]") {
+  pk::WriteFileAtomically("/dev/null", "discarded\n");
+  struct stat st;
+  REQUIRE(::stat("/dev/null", &st) == 0);
+  CHECK(S_ISCHR(st.st_mode));
+}
+
+TEST_CASE("an output set is complete with its manifest, and readers refuse it otherwise", "[output]") {
+  const std::string dir = TempDir("set");
+  pk::BeginOutputSet(dir);
+  pk::WriteFileAtomically(dir + "/estimates.csv", "ID,PARAMETER,ESTIMATE\n1,CL,2\n");
+  pk::WriteFileAtomically(dir + "/fit_details.csv", "ID\n1\n");
+  // Killed here: no manifest, and fit_details.csv marks the directory as a pkfit set.
+  CHECK_THROWS_WITH(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"),
+                    Catch::Contains("has no MANIFEST") && Catch::Contains("did not finish"));
+  pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv"}, "pkfit");
+  CHECK_NOTHROW(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"));
+  // The next run begins: the old manifest goes first.
+  pk::BeginOutputSet(dir);
+  CHECK_THROWS(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"));
+  pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv"}, "pkfit");
+  // A file changed after the run, or one the run did not write.
+  pk::WriteFileAtomically(dir + "/estimates.csv", "ID,PARAMETER,ESTIMATE\n1,CL,3\n");
+  CHECK_THROWS_WITH(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"),
+                    Catch::Contains("differs from the file pkfit wrote"));
+  pk::WriteFileAtomically(dir + "/derived.csv", "x\n");
+  CHECK_THROWS_WITH(pk::CheckOutputSet(dir + "/derived.csv", "pkfit", "fit_details.csv"),
+                    Catch::Contains("is not one of the files"));
+  // A table of the user's own, in a directory without pkfit's files, is accepted.
+  const std::string own = TempDir("own");
+  pk::WriteFileAtomically(own + "/mine.csv", "ID,PARAMETER,ESTIMATE\n1,CL,2\n");
+  CHECK_NOTHROW(pk::CheckOutputSet(own + "/mine.csv", "pkfit", "fit_details.csv"));
+  std::filesystem::remove_all(dir);
+  std::filesystem::remove_all(own);
+}
+
+TEST_CASE("SimulateEach hands subjects over in order, the same with any number of threads", "[output][simulate]") {
+  std::string text = "ID,TIME,AMT,CL\n";
+  for (int id = 1; id <= 40; ++id) text += std::to_string(id) + ",0,100," + std::to_string(1 + 0.1 * id) + "\n";
+  const pk::Dataset data = pk::ParseDataset(text, "many.csv");
+  const auto model = pk::MakeModel("1cmt_iv");
+  pk::SimulationOptions options;
+  options.output_times = {0.5, 1, 2, 4, 8};
+  const auto serial = pk::Simulate(*model, data, {{"V", 10}}, options);
+  // The grid as an option equals the grid added to the dataset.
+  const auto added = pk::Simulate(*model, pk::AddOutputTimes(data, options.output_times), {{"V", 10}});
+  REQUIRE(serial.size() == 40);
+  for (size_t i = 0; i < serial.size(); ++i) {
+    REQUIRE(serial[i].rows.size() == added[i].rows.size());
+    for (size_t k = 0; k < serial[i].rows.size(); ++k) CHECK(serial[i].rows[k].cp == added[i].rows[k].cp);
+  }
+  for (int jobs : {2, 3, 0}) {
+    options.jobs = jobs;
+    std::vector<double> ids;
+    std::vector<std::string> texts;
+    pk::SimulationSink sink;
+    sink.render = [](const pk::SubjectSimulation& s) { return pk::FormatNumber(s.rows.back().cp); };
+    sink.consume = [&](pk::SubjectSimulation&& s, std::string&& t) {
+      ids.push_back(s.id);
+      texts.push_back(t);
+    };
+    pk::SimulateEach(*model, data, {{"V", 10}}, options, sink);
+    REQUIRE(ids.size() == 40);
+    for (size_t i = 0; i < ids.size(); ++i) {
+      CHECK(ids[i] == serial[i].id);
+      CHECK(texts[i] == pk::FormatNumber(serial[i].rows.back().cp));
+    }
+  }
+}
+
+TEST_CASE("an input error of one subject is thrown after the subjects before it were handed over", "[output][simulate]") {
+  std::string text = "ID,TIME,AMT,CMT\n";
+  for (int id = 1; id <= 12; ++id) text += std::to_string(id) + ",0,100," + (id == 9 ? "7" : "1") + "\n";
+  const pk::Dataset data = pk::ParseDataset(text, "bad.csv");
+  const auto model = pk::MakeModel("1cmt_iv");
+  for (int jobs : {1, 2}) {
+    pk::SimulationOptions options;
+    options.jobs = jobs;
+    options.output_times = {1};
+    std::vector<double> ids;
+    pk::SimulationSink sink;
+    sink.consume = [&](pk::SubjectSimulation&& s, std::string&&) { ids.push_back(s.id); };
+    CHECK_THROWS_AS(pk::SimulateEach(*model, data, {{"CL", 1}, {"V", 10}}, options, sink), pk::InputError);
+    CHECK(ids == std::vector<double>{1, 2, 3, 4, 5, 6, 7, 8});
+  }
+}
+
+TEST_CASE("a regimen simulated under every ID of an estimates table takes each ID's values", "[output][simulate]") {
+  pk::Regimen regimen;
+  pk::Dose dose;
+  dose.amount = 100;
+  regimen.doses.push_back(dose);
+  regimen.times = {1, 2};
+  const pk::Dataset one = pk::RegimenToDataset(regimen);
+  const std::vector<pk::SubjectEstimates> table = {{7, {{"CL", 1}, {"V", 10}}}, {3, {{"CL", 2}, {"V", 10}}}};
+  std::vector<pk::SubjectSimulation> out;
+  pk::SimulationSink sink;
+  sink.consume = [&](pk::SubjectSimulation&& s, std::string&&) { out.push_back(std::move(s)); };
+  pk::SimulationOptions options;
+  options.jobs = 2;
+  pk::SimulateEachWithEstimates(*pk::MakeModel("1cmt_iv"), one, table, {}, pk::EstimatesMatch::kEveryId, options,
+                                "t.csv", sink);
+  REQUIRE(out.size() == 2);
+  CHECK(out[0].id == 7);
+  CHECK(out[1].id == 3);
+  CHECK(out[0].rows[0].cp == Approx(10 * std::exp(-0.1)).epsilon(1e-14));
+  CHECK(out[1].rows[0].cp == Approx(10 * std::exp(-0.2)).epsilon(1e-14));
+}
