@@ -17,6 +17,7 @@
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/output.h"
+#include "pk/plot.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
 
@@ -211,4 +212,16 @@ TEST_CASE("a regimen simulated under every ID of an estimates table takes each I
   CHECK(out[1].id == 3);
   CHECK(out[0].rows[0].cp == Approx(10 * std::exp(-0.1)).epsilon(1e-14));
   CHECK(out[1].rows[0].cp == Approx(10 * std::exp(-0.2)).epsilon(1e-14));
+}
+
+TEST_CASE("a plot of values equal to the last digits has an axis (it looped until memory ran out)", "[output][plot]") {
+  for (double level : {5.0, 0.0, 1e-300, -2e12}) {
+    pk::PlotSeries s;
+    s.label = "flat";
+    s.x = {1, 2, 4, 8};
+    s.y = {level, std::nextafter(level, 1e308), level, std::nextafter(level, -1e308)};
+    const std::string svg = pk::RenderSvg({s}, pk::PlotOptions());
+    CHECK(svg.find("<svg") != std::string::npos);
+    CHECK(svg.size() < 100000);
+  }
 }

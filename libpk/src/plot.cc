@@ -37,6 +37,9 @@ std::string Num(double v) {
 // "Nice" linear tick positions covering [lo, hi].
 std::vector<double> LinearTicks(double lo, double hi) {
   const double span = hi - lo;
+  // A range that is one value to the last digits (predictions of a fit to constant data) gets one
+  // tick: steps of its width would not advance t, and the loop below would never end.
+  if (!(span > 1e-9 * std::max(std::fabs(lo), std::fabs(hi))) || !std::isfinite(span)) return {lo};
   const double raw = span / 6;
   const double mag = std::pow(10.0, std::floor(std::log10(raw)));
   double step = mag;

@@ -33,6 +33,22 @@ if [ -n "$pksim" ]; then
     if ($1 != $4 || $2 != $5) bad = 1; d = $3 - $6; if (d < 0) d = -d; if (d > 1e-10 * (1 + ($6 < 0 ? -$6 : $6))) bad = 1
   } END { exit bad }' || fail "pksim at the estimates does not reproduce pkfit's predictions"
 fi
+# The output set: MANIFEST lists every file of the run; a set without it (a run killed half-way) or with a
+# changed file is refused by pksim --estimates and pkfit --init-from.
+[ "$(tail -n +3 "$work/theo/MANIFEST" | cut -d, -f1 | sort | tr '\n' ' ')" = "$(cd "$work/theo" && ls | grep -v MANIFEST | sort | tr '\n' ' ')" ] ||
+  fail "MANIFEST should list every file of the run"
+if [ -n "$pksim" ]; then
+  cp -r "$work/theo" "$work/theo_killed" && rm "$work/theo_killed/MANIFEST"
+  "$pksim" --model 1cmt_oral --estimates "$work/theo_killed/estimates.csv" --dose 320 --times 1 >/dev/null 2>"$work/killed.err"
+  [ $? -eq 2 ] && grep -q "has no MANIFEST" "$work/killed.err" || fail "pksim should refuse a set without MANIFEST (exit 2)"
+  "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --init-from "$work/theo_killed/estimates.csv" \
+    -o "$work/theo_init" -q 2>"$work/killed2.err"
+  [ $? -eq 2 ] && grep -q "did not finish" "$work/killed2.err" || fail "pkfit --init-from should refuse a set without MANIFEST"
+  cp -r "$work/theo" "$work/theo_edited" && sed -i 's/^1,KA,/1,KA,9/' "$work/theo_edited/estimates.csv"
+  "$pksim" --model 1cmt_oral --estimates "$work/theo_edited/estimates.csv" --dose 320 --times 1 >/dev/null 2>"$work/edited.err"
+  [ $? -eq 2 ] && grep -q "differs from the file pkfit wrote" "$work/edited.err" || fail "pksim should refuse an edited set"
+fi
+
 # Two-stage population estimates over the subjects: one row per structural parameter, in the report and on stdout.
 head -1 "$work/theo/population.csv" | grep -qx "PARAMETER,N,MEAN,SD,CV_PCT,GEOMEAN,GEOCV_PCT,MEDIAN,MIN,MAX,GTS_N,TYPICAL,TYPICAL_SE,TYPICAL_RSE_PCT,OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT" ||
   fail "population header"
