@@ -23,6 +23,7 @@
 #include "pk/plot.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
+#include "pk/simulation_csv.h"
 
 namespace po = boost::program_options;
 
@@ -158,40 +159,6 @@ pk::Dataset RegimenFromFlags(const po::variables_map& vm, const std::vector<doub
   return data;
 }
 
-// The simulation CSV: ID, TIME, EVID, CP, the model's further outputs, the amounts.
-std::string SimulationCsvHeader(const pk::Model& model) {
-  const auto* ode_model = dynamic_cast<const pk::OdeModel*>(&model);
-  std::string csv = "ID,TIME,EVID,CP";
-  for (int k = 1; ode_model && k < ode_model->num_outputs(); ++k) csv += "," + ode_model->output_names()[k];
-  for (int c = 1; c <= model.num_compartments(); ++c) csv += ",A" + std::to_string(c);
-  return csv + "\n";
-}
-
-// One subject's rows of the simulation CSV.
-std::string SimulationCsvRows(const pk::SubjectSimulation& s) {
-  std::string csv;
-  if (!s.ok) return csv;
-  std::string id;
-  pk::AppendNumber(&id, s.id);
-  for (const pk::SimulatedRecord& r : s.rows) {
-    csv += id;
-    csv += ',';
-    pk::AppendNumber(&csv, r.time);
-    csv += r.evid == pk::Evid::kObservation ? ",0," : ",2,";
-    pk::AppendNumber(&csv, r.cp);
-    for (int k = 1; k < r.outputs.size(); ++k) {
-      csv += ',';
-      pk::AppendNumber(&csv, r.outputs(k));
-    }
-    for (int c = 0; c < r.amounts.size(); ++c) {
-      csv += ',';
-      pk::AppendNumber(&csv, r.amounts(c));
-    }
-    csv += '\n';
-  }
-  return csv;
-}
-
 // Concentration against time of one subject, for --plot.
 pk::PlotSeries PlotLine(const pk::SubjectSimulation& s) {
   pk::PlotSeries line;
@@ -268,12 +235,18 @@ int Main(int argc, char** argv) {
   std::optional<Output> rows, summary_csv;
   if (rows_wanted) rows.emplace(vm.count("out") ? vm["out"].as<std::string>() : std::string());
   if (vm.count("summary-csv")) summary_csv.emplace(vm["summary-csv"].as<std::string>());
-  if (rows) rows->Write(SimulationCsvHeader(*model));
+  if (rows) rows->Write(pk::SimulationCsvHeader(*model));
   if (summary_csv) summary_csv->Write(kSummaryCsvHeader);
   std::vector<pk::PlotSeries> plot;
   int failed = 0;
   pk::SimulationSink sink;
-  if (rows) sink.render = SimulationCsvRows;
+  if (rows) {
+    sink.render = [](const pk::SubjectSimulation& s) {
+      std::string text;
+      pk::AppendSimulationCsv(s, &text);
+      return text;
+    };
+  }
   sink.consume = [&](pk::SubjectSimulation&& s, std::string&& text) {
     if (!s.ok) {
       ++failed;

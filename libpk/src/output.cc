@@ -146,8 +146,9 @@ char* WriteNumber(double value, char* out) {
   for (; p < sci_end && *p != 'e'; ++p) {
     if (*p != '.') digits[d++] = *p;
   }
-  int exponent = 0;
-  std::from_chars(p + 1 + (p[1] == '+'), sci_end, exponent);
+  int exponent = 0;  // after 'e': a sign and two or three digits
+  for (const char* e = p + 2; e < sci_end; ++e) exponent = 10 * exponent + (*e - '0');
+  if (p[1] == '-') exponent = -exponent;
   const int precision = std::max(6, d);
   if (exponent < -4 || exponent >= precision) return std::copy(static_cast<const char*>(sci), sci_end, out);  // %g's scientific form
   char* o = out;

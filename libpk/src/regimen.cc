@@ -52,6 +52,7 @@ Dataset AddOutputTimes(const Dataset& data, const std::vector<double>& times) {
   for (Subject& subject : out.subjects) {
     std::vector<Record> merged;
     const std::vector<Record>& old = subject.records;
+    merged.reserve(old.size() + sorted.size());
     size_t k = 0;
     auto make = [&](double t, const Record* next) {
       Record r;
