@@ -10,6 +10,7 @@
 
 #include <unistd.h>
 
+#include "io/csv_lines.h"
 #include "pk/error.h"
 #include "pk/output.h"
 
@@ -48,18 +49,6 @@ std::string Hex(unsigned v) {
   char buf[16];
   std::snprintf(buf, sizeof buf, "%08x", v);
   return buf;
-}
-
-std::vector<std::string> Fields(const std::string& line) {
-  std::vector<std::string> out(1);
-  for (char c : line) {
-    if (c == ',') {
-      out.emplace_back();
-    } else {
-      out.back() += c;
-    }
-  }
-  return out;
 }
 
 std::string DirectoryOf(const std::string& path) {
@@ -111,7 +100,7 @@ void CheckOutputSet(const std::string& path, const std::string& program, const s
   int number = 0;
   while (std::getline(in, line)) {
     ++number;
-    const auto fields = Fields(line);
+    const auto fields = internal::SplitCsvLine(line);
     if (fields.size() != 3 || fields[0] != name) continue;
     Fingerprint now;
     if (!Fingerprinted(path, &now)) throw InputError(path, 0, 0, "cannot open the file");

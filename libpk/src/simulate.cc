@@ -32,6 +32,7 @@ class Recorder {
         out_(out),
         dvid_(s.data->ExtraColumn("DVID")) {
     if (!s.records().empty()) prop_.set_time(s.records()[0].time);
+    for (const Eigen::VectorXd& set : s.sets) theta_.push_back(set.head(sys.num_theta()));
     out->rows.reserve(static_cast<size_t>(std::count_if(s.records().begin(), s.records().end(), [](const Record& r) {
       return r.evid == Evid::kObservation || r.evid == Evid::kOther;
     })));
@@ -88,12 +89,7 @@ class Recorder {
 
   // The exact propagator's state carries the AUC after the amounts.
   Eigen::VectorXd Amounts() const { return prop_.state().head(sys_.n()); }
-  const Eigen::VectorXd& Theta(int set) {
-    if (theta_.size() != s_.sets.size()) theta_.resize(s_.sets.size());
-    Eigen::VectorXd& t = theta_[static_cast<size_t>(set)];
-    if (t.size() == 0) t = s_.sets[static_cast<size_t>(set)].head(sys_.num_theta());
-    return t;
-  }
+  const Eigen::VectorXd& Theta(int set) const { return theta_[static_cast<size_t>(set)]; }
   // Nonlinear models: the DVID's output; linear models: the record's compartment.
   int Key(int r) const {
     if (!ode_) return s_.cmt[r] + 1;
@@ -107,7 +103,7 @@ class Recorder {
   Propagator& prop_;
   SubjectSimulation* out_;
   int dvid_ = -1;
-  std::vector<Eigen::VectorXd> theta_;  // per parameter set, made when first needed
+  std::vector<Eigen::VectorXd> theta_;  // the model's θ of each parameter set
   CachedRow central_, record_;
 };
 
@@ -145,14 +141,17 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
   const ParameterLayout layout(model);
   SubjectSimulation out;
   out.id = data.subjects[subject].id;
+  // With an output grid: this subject alone, with the grid's records added.
+  Dataset with_times;
+  const Dataset* source = &data;
   if (!options.output_times.empty()) {
-    SimulationOptions without = options;
-    without.output_times.clear();
-    return SimulateSubject(model, SubjectWithOutputTimes(data, subject, options.output_times, ColumnsRead(layout)), 0, values, without);
+    with_times = SubjectWithOutputTimes(data, subject, options.output_times, ColumnsRead(layout));
+    source = &with_times;
+    subject = 0;
   }
   internal::PreparedSubject s;
   try {
-    s = internal::PrepareSubject(model, layout, data, subject, layout.Resolve(values), true, options.check_values);
+    s = internal::PrepareSubject(model, layout, *source, subject, layout.Resolve(values), true, options.check_values);
   } catch (const internal::ParameterValueError& e) {
     out.ok = false;
     out.message = e.what();
