@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <filesystem>
 #include <iostream>
 #include <sstream>
 
@@ -9,6 +10,7 @@
 
 #include "pk/error.h"
 #include "pk/output.h"
+#include "pk/version.h"
 
 namespace pk {
 namespace cli {
@@ -59,9 +61,35 @@ std::vector<double> ParseTimes(const std::vector<std::string>& specs) {
   return times;
 }
 
+namespace {
+
+// An unknown option's message with the closest known option: "... (did you mean --data?)".
+[[noreturn]] void RethrowUnknown(const boost::program_options::unknown_option& e,
+                                 const boost::program_options::options_description& desc) {
+  std::string given = e.get_option_name();
+  given = given.substr(std::min(given.find_first_not_of('-'), given.size()));
+  given = given.substr(0, given.find('='));
+  std::vector<std::string> names;
+  for (const auto& option : desc.options()) names.push_back(option->long_name());
+  const std::string closest = ClosestName(given, names);
+  throw InputError(std::string(e.what()) + (closest.empty() ? "" : " (did you mean --" + closest + "?)") +
+                   " (see --help)");
+}
+
+}  // namespace
+
 bool ParseCommandLine(int argc, char** argv, const boost::program_options::options_description& desc,
                       const char* usage, boost::program_options::variables_map* vm) {
-  boost::program_options::store(boost::program_options::parse_command_line(argc, argv, desc), *vm);
+  try {
+    boost::program_options::store(boost::program_options::parse_command_line(argc, argv, desc), *vm);
+  } catch (const boost::program_options::unknown_option& e) {
+    RethrowUnknown(e, desc);
+  }
+  if (vm->count("version")) {
+    const std::string program = std::filesystem::path(argv[0]).filename().string();
+    std::cout << program << " (libpk) " << Version() << "\n";
+    return false;
+  }
   boost::program_options::notify(*vm);
   if (vm->count("help")) {
     std::cout << usage << "\n" << desc << "\n";

@@ -32,8 +32,9 @@ DatasetFilter ParseFilter(const std::vector<std::string>& ignore, const std::vec
 /// "auto", "exact" or "ode"; throws pk::InputError otherwise.
 Propagator ParsePropagator(const std::string& text);
 
-/// Parses the command line into `vm`; prints `usage` and the options and
-/// returns false when --help was given.
+/// Parses the command line into `vm`; prints `usage` and the options and returns false when
+/// --help was given, prints the version and returns false for --version (`desc` holds both). An
+/// unknown option is a pk::InputError that names the closest known one.
 bool ParseCommandLine(int argc, char** argv, const boost::program_options::options_description& desc,
                       const char* usage, boost::program_options::variables_map* vm);
 

@@ -93,7 +93,7 @@ struct Lists {
 };
 
 void DeclareOptions(po::options_description* desc, Lists* a) {
-  desc->add_options()("help,h", "show this help")("list-models", "print the model catalogue and exit")(
+  desc->add_options()("help,h", "show this help")("version", "print the version of libpk and exit")("list-models", "print the model catalogue and exit")(
       "model,m", po::value<std::string>(), "catalogue model, e.g. 2cmt_oral")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "param,p", po::value<std::vector<std::string>>(&a->params)->composing(),
@@ -177,6 +177,27 @@ std::string PlotSvg(const pk::Model& model, const std::vector<pk::PlotSeries>& s
   return pk::RenderSvg(series, options);
 }
 
+// Says on stderr which of the model's parameters neither --param nor a data column gives: those
+// take the catalogue's defaults, which a user should not mistake for their own values.
+void NoteDefaults(const pk::Model& model, const pk::Dataset& data, const pk::ParameterValues& values) {
+  const pk::ParameterLayout layout(model);
+  std::vector<bool> given(static_cast<size_t>(model.num_parameters()), false);
+  for (const auto& kv : values) {
+    const int i = layout.Index(kv.first);
+    if (i >= 0 && i < model.num_parameters()) given[static_cast<size_t>(i)] = true;
+  }
+  std::string defaults;
+  for (int i = 0; i < model.num_parameters(); ++i) {
+    if (given[static_cast<size_t>(i)] || data.ExtraColumn(model.parameter_names()[i]) >= 0) continue;
+    defaults += (defaults.empty() ? "" : ", ") + model.parameter_names()[i] + "=" +
+                pk::FormatNumber(model.default_parameters()(i));
+  }
+  if (!defaults.empty()) {
+    std::cerr << "pksim: note: the catalogue's defaults for what --param and the data do not give: " << defaults
+              << "\n";
+  }
+}
+
 // Where the rows go as subjects finish: a file written whole or not at all, or standard output.
 class Output {
  public:
@@ -212,6 +233,7 @@ int Main(int argc, char** argv) {
   if (!vm.count("model")) throw pk::InputError("--model is required (see --list-models)");
   const auto model = pk::MakeModel(vm["model"].as<std::string>());
   const pk::ParameterValues values = pk::cli::ParseAssignments(lists.params, "--param");
+  pk::ParameterLayout(*model).Resolve(values);  // an unknown name is an error before anything runs
   const std::vector<double> grid = pk::cli::ParseTimes(lists.times);
   pk::Dataset data;
   if (vm.count("data")) {
@@ -235,8 +257,14 @@ int Main(int argc, char** argv) {
   std::optional<Output> rows, summary_csv;
   if (rows_wanted) rows.emplace(vm.count("out") ? vm["out"].as<std::string>() : std::string());
   if (vm.count("summary-csv")) summary_csv.emplace(vm["summary-csv"].as<std::string>());
-  if (rows) rows->Write(pk::SimulationCsvHeader(*model));
-  if (summary_csv) summary_csv->Write(kSummaryCsvHeader);
+  // The headers go out with the first subject, so that a run the library refuses writes nothing.
+  bool started = false;
+  const auto start = [&] {
+    if (started) return;
+    started = true;
+    if (rows) rows->Write(pk::SimulationCsvHeader(*model));
+    if (summary_csv) summary_csv->Write(kSummaryCsvHeader);
+  };
   std::vector<pk::PlotSeries> plot;
   int failed = 0;
   pk::SimulationSink sink;
@@ -248,6 +276,7 @@ int Main(int argc, char** argv) {
     };
   }
   sink.consume = [&](pk::SubjectSimulation&& s, std::string&& text) {
+    start();
     if (!s.ok) {
       ++failed;
       std::cerr << "pksim: ID " << pk::FormatNumber(s.id) << ": simulation failed: " << s.message << "\n";
@@ -258,6 +287,7 @@ int Main(int argc, char** argv) {
     if (summary_csv) summary_csv->Write(SummaryCsvRows(e));
     if (vm.count("plot") && s.ok) plot.push_back(PlotLine(s));
   };
+  if (!vm.count("estimates")) NoteDefaults(*model, data, values);
   if (vm.count("estimates")) {
     const std::string path = vm["estimates"].as<std::string>();
     pk::CheckOutputSet(path, "pkfit", "fit_details.csv");  // not half of an interrupted run
@@ -268,6 +298,7 @@ int Main(int argc, char** argv) {
   } else {
     pk::SimulateEach(*model, data, values, sim_options, sink);
   }
+  start();
   if (rows) rows->Commit();
   if (summary_csv) summary_csv->Commit();
   if (vm.count("plot")) pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, plot, vm.count("log") > 0));

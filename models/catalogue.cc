@@ -56,8 +56,9 @@ std::shared_ptr<const Model> MakeModel(const std::string& spec) {
   for (const auto& entry : Registry()) {
     if (internal::ToUpper(entry.first) == internal::ToUpper(name)) return entry.second();
   }
-  throw InputError("unknown model '" + name + "'; the catalogue has " +
-                                 internal::Join(CatalogueModelNames(), ", "));
+  const std::string closest = ClosestName(name, CatalogueModelNames());
+  throw InputError("unknown model '" + name + "'" + (closest.empty() ? "" : " (did you mean " + closest + "?)") +
+                   "; the catalogue has " + internal::Join(CatalogueModelNames(), ", "));
 }
 
 }  // namespace pk

@@ -37,7 +37,7 @@ ID,TIME,AMT,II,ADDL,EVID,CMT
 1,0,1000,0,0,1,1
 1,12,500,12,12,1,1
 CSV
-build/apps/pksim --model 2cmt_oral --data out/regimen.csv --param KA=1.2 --param CL=4 --param V1=25 \
-  --param Q=6 --param V2=60 --times 0:0.25:168 --out out/regimen_sim.csv --summary \
+build/apps/pksim --model 2cmt_oral --data out/regimen.csv --param KA=1.2 --param CL=4 --param V2=25 \
+  --param Q=6 --param V3=60 --times 0:0.25:168 --out out/regimen_sim.csv --summary \
   --summary-csv out/regimen_summary.csv --plot out/regimen.svg | head -8
 echo "   ... (full table in out/regimen_summary.csv; plot in out/regimen.svg)"

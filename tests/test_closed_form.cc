@@ -72,8 +72,8 @@ TEST_CASE("1cmt zero-order infusion during and after the infusion", "[closed-for
 }
 
 TEST_CASE("repeated doses are the superposition of single doses", "[closed-form]") {
-  const double ka = 0.9, cl = 5, v1 = 20, q = 3, v2 = 50;
-  const pk::ParameterValues p{{"KA", ka}, {"CL", cl}, {"V1", v1}, {"Q", q}, {"V2", v2}};
+  const double ka = 0.9, cl = 5, v2 = 20, q = 3, v3 = 50;
+  const pk::ParameterValues p{{"KA", ka}, {"CL", cl}, {"V2", v2}, {"Q", q}, {"V3", v3}};
   const auto multi = SimulateText("2cmt_oral",
                                   "ID,TIME,AMT,II,ADDL,EVID\n1,0,100,8,4,1\n1,3,0,0,0,2\n1,17.5,0,0,0,2\n1,40,0,0,0,2\n"
                                   "1,55,0,0,0,2\n",

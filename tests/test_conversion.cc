@@ -31,7 +31,11 @@ void CheckTwoExponentials(const pk::Model& model, const Eigen::VectorXd& theta, 
   const auto r = pk::ModelExponents(model, theta, cov);
   REQUIRE(r.ok);
   REQUIRE(r.parameters.size() == 6);
-  const char* names[] = {"LAMBDA1", "LAMBDA2", "THALF1", "THALF2", "AMP1", "AMP2"};
+  // Behind a depot the absorption rate (here the faster one) is labelled _ABS.
+  const bool oral = model.initial_structure().depot;
+  const char* names[] = {oral ? "LAMBDA_ABS" : "LAMBDA1", oral ? "LAMBDA1" : "LAMBDA2",
+                         oral ? "THALF_ABS" : "THALF1",   oral ? "THALF1" : "THALF2",
+                         oral ? "AMP_ABS" : "AMP1",       oral ? "AMP1" : "AMP2"};
   for (int i = 0; i < 6; ++i) {
     INFO(names[i]);
     CHECK(r.parameters[i].name == names[i]);
@@ -130,10 +134,14 @@ TEST_CASE("compartmental -> exponentials -> tf -> compartmental round trips, mic
     const auto& r = Reading(readings, c.reading);
     REQUIRE(r.ok);
     for (size_t i = 0; i < c.theta.size(); ++i) CHECK(r.parameters[i].value == Approx(c.theta[i]).epsilon(1e-8));
-    // Micro-constants follow the clearances and volumes: K10 = CL/V1, K12 = Q/V1, K21 = Q/V2.
+    // The reading names its values as the model does (NONMEM's TRANS4: V2, V3 behind a depot).
+    const auto model = pk::MakeModel(c.model);
+    for (size_t i = 0; i < c.theta.size(); ++i) CHECK(r.parameters[i].name == model->parameter_names()[i]);
+    // Micro-constants follow the clearances and volumes: K10 = CL/V1, K12 = Q/V1, K21 = Q/V2 (behind a
+    // depot K20, K23, K32 of CL/V2, Q/V2, Q/V3).
     const size_t off = c.reading == "oral" ? 1 : 0;
     const double cl = c.theta[off], v1 = c.theta[off + 1], q = c.theta[off + 2], v2 = c.theta[off + 3];
-    CHECK(r.parameters[c.theta.size()].name == "K10");
+    CHECK(r.parameters[c.theta.size()].name == (off ? "K20" : "K10"));
     CHECK(r.parameters[c.theta.size()].value == Approx(cl / v1));
     CHECK(r.parameters[c.theta.size() + 1].value == Approx(q / v1));
     CHECK(r.parameters[c.theta.size() + 2].value == Approx(q / v2));
@@ -237,9 +245,17 @@ TEST_CASE("exponents and half-lives of a fitted compartment model, with delta-me
     theta << 0.1 * (1 + 1e-5), 3, 30;  // KA, CL, V
     const auto r = pk::ModelExponents(*model, theta, Eigen::MatrixXd());
     REQUIRE(r.ok);
-    CHECK_THAT(r.message, Catch::StartsWith("LAMBDA1 and LAMBDA2 nearly coincide (1.0e-05 apart, relative)"));
+    CHECK_THAT(r.message, Catch::StartsWith("LAMBDA_ABS and LAMBDA1 nearly coincide (1.0e-05 apart, relative)"));
     theta(0) = 0.1 * 1.01;
     CHECK(pk::ModelExponents(*model, theta, Eigen::MatrixXd()).message.empty());
+    // Flip-flop: absorption slower than elimination keeps its label, in second place (fastest first).
+    theta(0) = 0.02;
+    const auto flip = pk::ModelExponents(*model, theta, Eigen::MatrixXd());
+    REQUIRE(flip.ok);
+    CHECK(flip.parameters[0].name == "LAMBDA1");
+    CHECK(flip.parameters[0].value == Approx(0.1));
+    CHECK(flip.parameters[1].name == "LAMBDA_ABS");
+    CHECK(flip.parameters[1].value == Approx(0.02));
   }
   {  // Coincident rates (KA = CL/V) have no exponential form: said, not thrown.
     const auto model = pk::MakeModel("1cmt_oral");

@@ -15,7 +15,7 @@ using pk_test::SimulateText;
 
 namespace {
 
-const pk::ParameterValues k2cmtOral{{"KA", 1.1}, {"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}};
+const pk::ParameterValues k2cmtOral{{"KA", 1.1}, {"CL", 4}, {"V2", 25}, {"Q", 6}, {"V3", 60}};
 
 // CSV with a long transient regimen of `n` doses (interval ii) and EVID 2
 // records over the last interval, at offsets `offsets` after the last dose time.

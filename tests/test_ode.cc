@@ -758,7 +758,7 @@ TEST_CASE("pksim through CVODES: AUC and amounts equal the exact propagator's", 
   const auto model = pk::MakeModel("2cmt_oral");
   auto data = Parse("ID,TIME,AMT,RATE,II,ADDL,SS,EVID\n1,0,100,0,12,3,0,1\n1,5,0,0,0,0,0,2\n1,20,0,0,0,0,0,2\n"
                     "1,30,50,25,0,0,0,1\n1,40,0,0,0,0,0,2\n1,60,0,0,0,0,0,2\n");
-  const pk::ParameterValues p = {{"KA", 1.3}, {"CL", 4}, {"V1", 25}, {"Q", 6}, {"V2", 60}};
+  const pk::ParameterValues p = {{"KA", 1.3}, {"CL", 4}, {"V2", 25}, {"Q", 6}, {"V3", 60}};
   pk::SimulationOptions exact;
   exact.propagator = pk::Propagator::kExact;
   const auto a = pk::SimulateSubject(*model, *data, 0, p, exact);

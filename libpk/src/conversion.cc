@@ -81,9 +81,9 @@ void NoteCoincidence(int n, TransferFunctionReading* r) {
     if (gap <= 1e-3) {
       char buf[200];
       std::snprintf(buf, sizeof buf,
-                    "LAMBDA%d and LAMBDA%d nearly coincide (%.1e apart, relative): their amplitudes cancel, and the "
+                    "%s and %s nearly coincide (%.1e apart, relative): their amplitudes cancel, and the "
                     "response there is close to t·e^{-λt}",
-                    i + 1, i + 2, gap);
+                    r->parameters[i].name.c_str(), r->parameters[i + 1].name.c_str(), gap);
       r->message = buf;
       return;
     }
@@ -168,6 +168,36 @@ bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Expon
   return true;
 }
 
+namespace {
+
+// The exponents' names: LAMBDA1, LAMBDA2, ... fastest first; behind a depot, the absorption rate (the
+// exponent closest to KA) is LAMBDA_ABS and the disposition rates are numbered without it.
+std::vector<std::string> ExponentNames(const Model& model, const Eigen::VectorXd& theta, const Exponentials& e) {
+  const int n = static_cast<int>(e.rate.size());
+  int absorption = -1;
+  const InitialStructure& s = model.initial_structure();
+  const int ka = s.depot && !s.names.empty() ? model.ParameterIndex(s.names[0]) : -1;
+  if (ka >= 0) {
+    double best = INFINITY;
+    for (int i = 0; i < n; ++i) {
+      const double gap = std::fabs(e.rate[i] - theta(ka));
+      if (gap < best) {
+        best = gap;
+        absorption = i;
+      }
+    }
+  }
+  std::vector<std::string> names;
+  for (const char* prefix : {"LAMBDA", "THALF", "AMP"}) {
+    for (int i = 0, k = 1; i < n; ++i) {
+      names.push_back(std::string(prefix) + (i == absorption ? "_ABS" : std::to_string(k++)));
+    }
+  }
+  return names;
+}
+
+}  // namespace
+
 TransferFunctionReading ModelExponents(const Model& model, const Eigen::VectorXd& theta,
                                        const Eigen::MatrixXd& covariance) {
   TransferFunctionReading out;
@@ -175,10 +205,6 @@ TransferFunctionReading ModelExponents(const Model& model, const Eigen::VectorXd
   Exponentials e;
   if (!ModelToExponentials(model, theta, &e, &out.message)) return out;
   const int n = static_cast<int>(e.rate.size());
-  std::vector<std::string> names;
-  for (const char* prefix : {"LAMBDA", "THALF", "AMP"}) {
-    for (int i = 1; i <= n; ++i) names.push_back(prefix + std::to_string(i));
-  }
   Propagate(
       [&model](const Eigen::VectorXd& t, std::vector<double>* v, std::string* why) {
         Exponentials x;
@@ -188,7 +214,7 @@ TransferFunctionReading ModelExponents(const Model& model, const Eigen::VectorXd
         v->insert(v->end(), x.amplitude.begin(), x.amplitude.end());
         return true;
       },
-      names, theta, covariance, &out);
+      ExponentNames(model, theta, e), theta, covariance, &out);
   NoteCoincidence(n, &out);
   return out;
 }
@@ -222,6 +248,11 @@ std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::Vector
       {"CL", "V", "K10"},
       {"CL", "V1", "Q", "V2", "K10", "K12", "K21"},
       {"CL", "V1", "Q2", "V2", "Q3", "V3", "K10", "K12", "K21", "K13", "K31"}};
+  // Behind a depot (compartment 1) NONMEM's TRANS4 numbers the disposition compartments from 2.
+  static const std::vector<std::vector<std::string>> kOralMammillary = {
+      {"KA", "CL", "V", "K20"},
+      {"KA", "CL", "V2", "Q", "V3", "K20", "K23", "K32"},
+      {"KA", "CL", "V2", "Q3", "V3", "Q4", "V4", "K20", "K23", "K32", "K24", "K42"}};
   if (n >= 1 && n <= 3) {
     Propagate(
         [](const Eigen::VectorXd& c, std::vector<double>* v, std::string* why) {
@@ -235,8 +266,7 @@ std::vector<TransferFunctionReading> ConvertTransferFunction(const Eigen::Vector
     out[1].message = "the IV reading covers 1 to 3 compartments";
   }
   if (n >= 2 && n <= 4) {
-    std::vector<std::string> oral_names{"KA"};
-    for (const std::string& s : kMammillary[n - 2]) oral_names.push_back(s);
+    const std::vector<std::string>& oral_names = kOralMammillary[n - 2];
     Propagate(
         [](const Eigen::VectorXd& c, std::vector<double>* v, std::string* why) {
           Exponentials e;

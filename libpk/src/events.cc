@@ -72,6 +72,20 @@ void CheckPositive(const Model& model, const ParameterLayout& layout, const Prep
 
 }  // namespace
 
+void CheckColumns(const Model& model, const Dataset& data, bool fitting) {
+  for (const std::string& column : data.extra_columns) {
+    if (!model.IsFormerName(column)) continue;
+    throw InputError(data.source, data.header_line, data.ColumnNumber(column),
+                     "column " + column + ": " + model.UnknownParameter(column, model.parameter_names()) +
+                         "; rename the column");
+  }
+  if (fitting && data.ColumnNumber("DV") == 0) {
+    throw InputError(data.source, data.header_line, 0,
+                     "missing column DV: a fit needs the observations (the header has " + Join(data.columns, ",") +
+                         ")");
+  }
+}
+
 PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
                                int subject, const Eigen::VectorXd& base, bool check_modifiers, bool check_given) {
   PreparedSubject s;

@@ -94,6 +94,11 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
                                int subject, const Eigen::VectorXd& base, bool check_modifiers = true,
                                bool check_given = true);
 
+/// Refuses, once for the whole dataset, a column named as one of the model's former parameter names
+/// (Model::IsFormerName: its values would silently be ignored), and, when `fitting`, a dataset
+/// without DV. Throws pk::InputError naming the file, the header line and the column.
+void CheckColumns(const Model& model, const Dataset& data, bool fitting);
+
 /// A parameter value the model cannot take (zero or below where it must be positive), on one
 /// subject: that subject fails with this message, and the others go on.
 class ParameterValueError : public InputError {

@@ -108,6 +108,7 @@ std::shared_ptr<const LinearModel> LinearModelBuilder::Build() const {
                                                      central_ + 1, default_dose_ + 1, std::move(a_terms),
                                                      std::move(c_terms), 0));
   model->set_initial_structure(initial_structure_);
+  model->set_former_names(former_names_, former_names_note_);
   return model;
 }
 

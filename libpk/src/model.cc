@@ -4,6 +4,7 @@
 #include <utility>
 
 #include "internal_text.h"
+#include "pk/error.h"
 
 namespace pk {
 
@@ -32,6 +33,30 @@ void Model::set_signed_parameters(const std::vector<std::string>& names) {
     if (i < 0) throw std::logic_error("model " + name_ + ": no parameter " + name + " to declare signed");
     signed_[static_cast<size_t>(i)] = true;
   }
+}
+
+void Model::set_former_names(std::vector<std::string> names, std::string note) {
+  for (std::string& name : names) {
+    name = internal::ToUpper(name);
+    if (ParameterIndex(name) >= 0) throw std::logic_error("model " + name_ + ": former name " + name + " is in use");
+  }
+  former_names_ = std::move(names);
+  former_names_note_ = std::move(note);
+}
+
+bool Model::IsFormerName(const std::string& name) const {
+  const std::string upper = internal::ToUpper(name);
+  for (const std::string& former : former_names_) {
+    if (former == upper) return true;
+  }
+  return false;
+}
+
+std::string Model::UnknownParameter(const std::string& name, const std::vector<std::string>& names) const {
+  if (IsFormerName(name)) return "'" + name + "' is no longer a parameter of " + name_ + ": " + former_names_note_;
+  const std::string closest = ClosestName(name, names);
+  return "unknown parameter '" + name + "'" + (closest.empty() ? "" : " (did you mean " + closest + "?)") +
+         "; " + name_ + " has " + internal::Join(names, ", ");
 }
 
 int Model::ParameterIndex(const std::string& name) const {

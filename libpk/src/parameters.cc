@@ -8,7 +8,7 @@
 namespace pk {
 
 ParameterLayout::ParameterLayout(const Model& model)
-    : num_model_(model.num_parameters()), n_(model.num_compartments()), names_(model.parameter_names()) {
+    : model_(&model), num_model_(model.num_parameters()), n_(model.num_compartments()), names_(model.parameter_names()) {
   const char* prefixes[] = {"F", "ALAG", "R", "D", "X0_"};
   for (const char* prefix : prefixes) {
     for (int c = 1; c <= n_; ++c) names_.push_back(prefix + std::to_string(c));
@@ -40,8 +40,7 @@ Eigen::VectorXd ParameterLayout::Resolve(const ParameterValues& values) const {
   for (const auto& kv : values) {
     const int i = Index(kv.first);
     if (i < 0) {
-      throw InputError("unknown parameter '" + kv.first + "'; this model has " +
-                                     internal::Join(names_, ", "));
+      throw InputError(model_->UnknownParameter(kv.first, names_));
     }
     p(i) = kv.second;
   }

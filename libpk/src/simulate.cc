@@ -220,6 +220,7 @@ ParameterValues Merged(const ParameterValues& estimates, const ParameterValues& 
 
 void SimulateEach(const Model& model, const Dataset& data, const ParameterValues& values,
                   const SimulationOptions& options, const SimulationSink& sink) {
+  internal::CheckColumns(model, data, false);
   Stream(static_cast<int>(data.subjects.size()), options,
          [&](int i) { return SimulateSubject(model, data, i, values, options); }, sink);
 }
@@ -237,6 +238,7 @@ void SimulateEachWithEstimates(const Model& model, const Dataset& data, const st
                                const ParameterValues& overrides, EstimatesMatch match,
                                const SimulationOptions& options, const std::string& source,
                                const SimulationSink& sink) {
+  internal::CheckColumns(model, data, false);
   if (match == EstimatesMatch::kEveryId) {
     if (data.subjects.size() != 1) {
       throw InputError(data.source + ": a regimen to repeat has one subject, not " +

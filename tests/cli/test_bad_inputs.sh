@@ -26,6 +26,8 @@ printf 'ID,TIME,AMT,DV\n1,0,-100,.\n1,1,0,3\n' >negative_amt.csv
 printf 'ID,TIME,AMT,DV\n' >no_records.csv
 printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CL,2\n1,V,30\n1,KA,2\n' >estimates_twice.csv
 printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CLEARANCE,2\n' >estimates_unknown.csv
+printf 'ID,TIME,AMT,DV,V1\n1,0,100,.,20\n1,1,0,3,20\n' >former_name_column.csv
+printf 'ID,TIME,AMT\n1,0,100\n1,1,0\n' >no_dv.csv
 mkdir -p killed && printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n' >killed/estimates.csv && printf 'ID\n1\n' >killed/fit_details.csv
 
 # exit | program | message fragment | arguments (one string, split on spaces)
@@ -55,6 +57,12 @@ cases=$(cat <<CASES
 2|pkfit|the catalogue has|--model no_such_model --data $theo
 1|pkfit|CL of 1cmt_iv must be positive, not -3|--model 1cmt_iv --data negative_cl_column.csv
 1|pkfit|not identifiable|--model 1cmt_iv --data constant_dv.csv
+2|pkfit|former_name_column.csv:1:5: column V1: 'V1' is no longer a parameter of 2cmt_oral|--model 2cmt_oral --data former_name_column.csv
+2|pkfit|'Q2' is no longer a parameter of 3cmt_oral|--model 3cmt_oral --data $theo --init Q2=3
+2|pkfit|no_dv.csv:1: missing column DV|--model 1cmt_oral --data no_dv.csv
+2|pkfit|unknown model '1cmt_orla' (did you mean 1cmt_oral?)|--model 1cmt_orla --data $theo
+2|pkfit|unrecognised option '--dta' (did you mean --data?)|--model 1cmt_oral --dta $theo
+2|pkfit|unknown parameter 'CLL' (did you mean CL?)|--model 1cmt_oral --data $theo --fix CLL=3
 3|pkfit|cannot create the output directory|--model 1cmt_oral --data $theo -o /proc/no/such/dir
 2|pksim|a dose with RATE=-1 needs R1 > 0|--model 1cmt_oral --data rate_without_r1.csv --param KA=1 --param CL=1 --param V=10
 2|pksim|CL of 1cmt_oral must be positive, not -1|--model 1cmt_oral --dose 100 --times 1 --param CL=-1
@@ -64,6 +72,7 @@ cases=$(cat <<CASES
 2|pksim|give --rate or --duration, not both|--model 1cmt_iv --dose 100 --rate 10 --duration 2 --times 1
 2|pksim|a NUL byte|--model 1cmt_oral --data nul.csv --times 1
 1|pksim|CL of 1cmt_iv must be positive, not -3|--model 1cmt_iv --data negative_cl_column.csv --param V=10
+2|pksim|'V1' is no longer a parameter of 2cmt_oral: its volumes have NONMEM's ADVAN4 TRANS4 names|--model 2cmt_oral --dose 100 --times 1 --param V1=25
 3|pksim|cannot write|--model 1cmt_oral --dose 100 --times 1 --out /proc/no/such/dir/sim.csv
 CASES
 )

@@ -3,8 +3,11 @@
 // Catalogue names and parameter names are part of the interface:
 //
 //   1cmt_iv    (CL, V)                    1cmt_oral  (KA, CL, V)
-//   2cmt_iv    (CL, V1, Q, V2)            2cmt_oral  (KA, CL, V1, Q, V2)
-//   3cmt_iv    (CL, V1, Q2, V2, Q3, V3)   3cmt_oral  (KA, CL, V1, Q2, V2, Q3, V3)
+//   2cmt_iv    (CL, V1, Q, V2)            2cmt_oral  (KA, CL, V2, Q, V3)
+//   3cmt_iv    (CL, V1, Q2, V2, Q3, V3)   3cmt_oral  (KA, CL, V2, Q3, V3, Q4, V4)
+//
+// The names are NONMEM's (ADVAN1-4/11/12 with TRANS2/TRANS4): behind a depot the central
+// compartment is 2, so its volume is V2 (docs/models.md).
 //   tf1 … tf4  (A1..An, B1..Bn)           y = B(s)/A(s)·u in companion form
 //   1cmt_oral_transit (MTT, KA, CL, V)    NTR transit compartments (option
 //                                         "1cmt_oral_transit:NTR=5", default 3)

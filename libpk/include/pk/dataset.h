@@ -73,6 +73,7 @@ struct Dataset {
   std::string source;                      ///< file name, for error messages
   /// IDs that came back after other IDs, with the line where each came back (Subject::occurrence).
   std::vector<std::pair<double, int>> repeated_ids;
+  int header_line = 0;                     ///< line of the header in the source (1-based)
   std::vector<std::string> columns;        ///< upper-cased header, in file order
   std::vector<std::string> extra_columns;  ///< upper-cased names of the non-PREDPP columns
   std::vector<Subject> subjects;

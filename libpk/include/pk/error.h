@@ -12,6 +12,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace pk {
 
@@ -35,6 +36,10 @@ class InputError : public std::runtime_error {
   int column_;
   std::string message_;
 };
+
+/// The candidate closest to a mistyped `name` (case-insensitive edit distance at most 2, or a
+/// third of the name's length), or "" when none is close: for "did you mean …?" in messages.
+std::string ClosestName(const std::string& name, const std::vector<std::string>& candidates);
 
 }  // namespace pk
 

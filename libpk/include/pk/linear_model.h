@@ -146,6 +146,12 @@ class LinearModelBuilder {
   void SetDefaultDose(int compartment);
   /// Declares the structure data-driven starting values may assume (pk/model.h).
   void SetInitialStructure(InitialStructure structure) { initial_structure_ = std::move(structure); }
+  /// Names the parameters had in earlier versions and no parameter has now, with the note that
+  /// says what they are called today (Model::UnknownParameter quotes it).
+  void SetFormerNames(std::vector<std::string> names, std::string note) {
+    former_names_ = std::move(names);
+    former_names_note_ = std::move(note);
+  }
   /// Validates the graph and builds the model; throws std::logic_error on a malformed graph.
   std::shared_ptr<const LinearModel> Build() const;
 
@@ -160,6 +166,8 @@ class LinearModelBuilder {
   int central_ = -1;
   int default_dose_ = -1;
   InitialStructure initial_structure_;
+  std::vector<std::string> former_names_;
+  std::string former_names_note_;
 };
 
 }  // namespace pk

@@ -62,6 +62,15 @@ class Model {
   /// or may take any sign (a transfer function's coefficients; a baseline or an Emax).
   bool must_be_positive(int i) const { return signed_.empty() || !signed_[static_cast<size_t>(i)]; }
 
+  /// Text for an error about a parameter name this model does not have, given the names it
+  /// accepts (its parameters, with F1, ALAG1, ... or an error model's σ where they apply):
+  /// "'V1' is no longer a parameter of 2cmt_oral: …" when `name` is one of the model's former
+  /// names (see set_former_names), else the closest accepted name and the whole list.
+  std::string UnknownParameter(const std::string& name, const std::vector<std::string>& names) const;
+  /// Whether `name` is a name this model's parameters had in earlier versions of libpk and no
+  /// parameter has now (UnknownParameter explains it).
+  bool IsFormerName(const std::string& name) const;
+
   /// True when dx/dt = A(θ)x + u; such a model can use the exact propagator.
   virtual bool is_linear() const = 0;
 
@@ -77,6 +86,9 @@ class Model {
   void set_initial_structure(InitialStructure s);
   /// Declares parameters that may be zero or negative (by name; the others must be positive).
   void set_signed_parameters(const std::vector<std::string>& names);
+  /// Declares names the model's parameters had before and no parameter has now, with a note
+  /// saying what they are called today (for example NONMEM's TRANS4 names of 2cmt_oral).
+  void set_former_names(std::vector<std::string> names, std::string note);
 
  private:
   std::string name_;
@@ -88,6 +100,8 @@ class Model {
   int default_dose_;
   InitialStructure initial_structure_;
   std::vector<bool> signed_;  // per parameter; empty: none
+  std::vector<std::string> former_names_;
+  std::string former_names_note_;
 };
 
 }  // namespace pk

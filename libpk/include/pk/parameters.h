@@ -32,6 +32,7 @@ using ParameterValues = std::map<std::string, double>;
 
 class ParameterLayout {
  public:
+  /// The layout of `model`, which must outlive it.
   explicit ParameterLayout(const Model& model);
 
   int size() const { return static_cast<int>(names_.size()); }
@@ -56,6 +57,7 @@ class ParameterLayout {
   Eigen::VectorXd Resolve(const ParameterValues& values) const;
 
  private:
+  const Model* model_;
   int num_model_;
   int n_;
   std::vector<std::string> names_;

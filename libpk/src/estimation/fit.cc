@@ -72,8 +72,7 @@ Problem SetUp(const Objective& objective, const std::vector<ParameterSpec>& para
   for (const ParameterSpec& p : params) {
     const int i = objective.ParameterIndex(p.name);
     if (i < 0) {
-      throw InputError("unknown parameter '" + p.name + "'; this model has " +
-                       internal::Join(objective.parameter_names(), ", "));
+      throw InputError(objective.model().UnknownParameter(p.name, objective.parameter_names()));
     }
     if (!std::isnan(p.initial)) base(i) = p.initial;  // NaN: the objective's default
     ParameterEstimate est;

@@ -20,8 +20,7 @@ void CheckNames(const Objective& probe, const ParameterSettings& settings) {
   for (const ParameterValues* group : {&settings.initial, &settings.fixed, &settings.lower, &settings.upper}) {
     for (const auto& kv : *group) {
       if (probe.ParameterIndex(kv.first) < 0) {
-        throw InputError("unknown parameter '" + kv.first + "'; this model has " +
-                         internal::Join(probe.parameter_names(), ", "));
+        throw InputError(probe.model().UnknownParameter(kv.first, probe.parameter_names()));
       }
     }
   }
@@ -67,6 +66,7 @@ bool HasContinuousRecords(const Dataset& data) {
 }  // namespace
 
 std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request, const ParameterSettings& settings) {
+  internal::CheckColumns(*request.model, *request.data, true);
   const Objective probe(request.model, request.data, request.subjects.empty() ? 0 : request.subjects[0],
                         request.objective, request.priors);
   CheckNames(probe, settings);
@@ -186,6 +186,7 @@ std::vector<std::string> CheckSubjects(const FitSubjectsRequest& request) {
 }
 
 std::vector<SubjectEvaluation> EvaluateSubjects(const FitSubjectsRequest& request) {
+  internal::CheckColumns(*request.model, *request.data, true);
   std::vector<SubjectEvaluation> out;
   for (int i : SelectedSubjects(request)) {
     const Objective objective(request.model, request.data, i, request.objective, request.priors);
@@ -196,8 +197,7 @@ std::vector<SubjectEvaluation> EvaluateSubjects(const FitSubjectsRequest& reques
     for (const ParameterSpec& s : request.parameters) {
       const int k = objective.ParameterIndex(s.name);
       if (k < 0) {
-        throw InputError("unknown parameter '" + s.name + "'; this model has " +
-                         internal::Join(objective.parameter_names(), ", "));
+        throw InputError(objective.model().UnknownParameter(s.name, objective.parameter_names()));
       }
       if (!std::isnan(s.initial)) values(k) = s.initial;
       free.push_back(k);

@@ -1,5 +1,7 @@
 #include "pk/fit_subjects.h"
 
+#include "events.h"
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -7,6 +9,7 @@
 #include <thread>
 
 #include "censoring.h"
+#include "events.h"
 #include "pk/conversion.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
@@ -162,6 +165,7 @@ std::vector<SubjectFit> FitSubjects(const FitSubjectsRequest& request, const std
       !IsCompatible(request.fit, request.objective, &why)) {
     throw InputError(why);
   }
+  internal::CheckColumns(*request.model, *request.data, true);
   std::vector<int> subjects = request.subjects;
   if (subjects.empty()) {
     for (int i = 0; i < static_cast<int>(request.data->subjects.size()); ++i) subjects.push_back(i);

@@ -195,6 +195,7 @@ class Parser {
   std::string Label(Item item) const { return kItemNames[item]; }
 
   void ReadHeader(int line_number, const std::string& line, Dataset* data) {
+    data->header_line = line_number;
     header_ = SplitCsvLine(line);
     for (int k = 0; k < kNumItems; ++k) item_column_[k] = -1;
     date_column_ = -1;

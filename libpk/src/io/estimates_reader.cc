@@ -64,7 +64,8 @@ std::vector<SubjectEstimates> Parse(const internal::NumberedLines& lines, const 
     const int index = layout.Index(parameter);
     const std::string key = index >= 0 ? layout.name(index) : upper;
     if (index < 0 && !IsResidualErrorName(upper)) {
-      fail(line, name + 1, "'" + parameter + "' is not a parameter of model " + model.name());
+      fail(line, name + 1, model.IsFormerName(parameter) ? model.UnknownParameter(parameter, layout.names())
+                                                         : "'" + parameter + "' is not a parameter of model " + model.name());
     }
     const double estimate = number(value, "ESTIMATE");
     const auto again = seen.emplace(std::make_pair(subject, key), line);

@@ -97,7 +97,7 @@ void BindPriors(ObjectiveState* d, const std::vector<LogNormalPrior>& priors) {
   for (const LogNormalPrior& p : priors) {
     const std::string upper = ToUpper(p.parameter);
     const auto it = std::find(d->names.begin(), d->names.end(), upper);
-    if (it == d->names.end()) throw InputError("prior on unknown parameter '" + p.parameter + "'");
+    if (it == d->names.end()) throw InputError("prior: " + d->model->UnknownParameter(p.parameter, d->names));
     if (!(p.median > 0) || !(p.sd_log > 0)) {
       throw InputError("prior on " + p.parameter + " needs median > 0 and sd > 0");
     }
