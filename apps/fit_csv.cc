@@ -20,7 +20,9 @@ std::string Quote(const std::string& s) {
 std::string FitStatus(const SubjectFit& f) {
   if (!f.ok) return "failed";
   switch (f.summary.termination) {
-    case TerminationType::kConvergence: return f.summary.identifiable ? "converged" : "not identifiable";
+    case TerminationType::kConvergence:
+      if (!f.summary.identifiable) return "not identifiable";
+      return "converged";
     case TerminationType::kNoConvergence: return "not converged";
     case TerminationType::kFailure: return "failed";
     case TerminationType::kUnbounded: return "unbounded";
@@ -43,28 +45,46 @@ std::string EstimatesCsv(const std::vector<SubjectFit>& fits) {
 
 std::string SummaryCsv(const std::vector<SubjectFit>& fits) {
   std::ostringstream sum;
-  sum << "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS\n";
+  // OBJECTIVE is the minimised V (½·RSS, or −log L); OFV (maximum likelihood) and RSS (least squares)
+  // are what a NONMEM user compares.
+  sum << "ID,NOBS,OBJECTIVE,OFV,RSS,AIC,BIC,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS\n";
   for (const SubjectFit& f : fits) {
     const FitSummary& s = f.summary;
-    sum << FormatNumber(f.id) << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << "," << s.iterations
-        << "," << (f.ok && s.converged() ? 1 : 0) << "," << s.gradient << "," << s.optimizer << "," << Csv(s.seconds)
-        << "," << s.propagator << "," << f.censoring.cwiseAbs().sum() << "\n";
+    sum << FormatNumber(f.id) << "," << f.dv.size() << "," << (f.ok ? Csv(s.objective) : "") << ","
+        << (f.ok ? Csv(s.ofv) : "") << "," << (f.ok ? Csv(s.rss) : "") << "," << (f.ok ? Csv(s.aic) : "") << ","
+        << (f.ok ? Csv(s.bic) : "") << "," << s.iterations << "," << (f.ok && s.converged() ? 1 : 0) << ","
+        << s.gradient << "," << s.optimizer << "," << Csv(s.seconds) << "," << s.propagator << ","
+        << f.censoring.cwiseAbs().sum() << "\n";
   }
   return sum.str();
 }
 
-std::string PredictionsCsv(const std::vector<SubjectFit>& fits) {
+std::string PredictionsCsv(const std::vector<SubjectFit>& fits, const Dataset& data) {
+  // The dataset's other columns follow, as NONMEM's $TABLE carries covariates (CENS is one of ours).
+  std::vector<int> carried;
   std::ostringstream pred;
-  pred << "ID,TIME,DV,PRED,RES,WRES,CENS\n";
+  pred << "ID,TIME,DV,IPRED,IRES,IWRES,CENS";
+  for (size_t c = 0; c < data.extra_columns.size(); ++c) {
+    if (data.extra_columns[c] == "CENS") continue;
+    carried.push_back(static_cast<int>(c));
+    pred << "," << data.extra_columns[c];
+  }
+  pred << "\n";
   for (const SubjectFit& f : fits) {
     if (!f.ok) continue;
     const std::string id = FormatNumber(f.id);
-    for (int k = 0; k < f.pred.size(); ++k) {
+    const std::vector<Record>& records = data.subjects[static_cast<size_t>(f.subject)].records;
+    for (int k = 0; k < f.ipred.size(); ++k) {
       // A censored sample's DV is its limit: it has no residual.
       const int cens = k < f.censoring.size() ? f.censoring(k) : 0;
-      pred << id << "," << Csv(f.times[k]) << "," << Csv(f.dv(k)) << "," << Csv(f.pred(k)) << ","
-           << (cens != 0 ? "" : Csv(f.dv(k) - f.pred(k))) << "," << (k < f.wres.size() ? Csv(f.wres(k)) : "") << ","
-           << cens << "\n";
+      pred << id << "," << Csv(f.times[k]) << "," << Csv(f.dv(k)) << "," << Csv(f.ipred(k)) << ","
+           << (cens != 0 ? "" : Csv(f.dv(k) - f.ipred(k))) << "," << (k < f.iwres.size() ? Csv(f.iwres(k)) : "") << ","
+           << cens;
+      const Record* record = k < static_cast<int>(f.sample_records.size())
+                                 ? &records[static_cast<size_t>(f.sample_records[static_cast<size_t>(k)])]
+                                 : nullptr;
+      for (int c : carried) pred << "," << (record ? Csv(record->extra[static_cast<size_t>(c)]) : "");
+      pred << "\n";
     }
   }
   return pred.str();

@@ -20,7 +20,7 @@ std::string FitStatus(const SubjectFit& f);
 
 std::string EstimatesCsv(const std::vector<SubjectFit>& fits);     ///< estimates.csv
 std::string SummaryCsv(const std::vector<SubjectFit>& fits);       ///< summary.csv
-std::string PredictionsCsv(const std::vector<SubjectFit>& fits);   ///< predictions.csv
+std::string PredictionsCsv(const std::vector<SubjectFit>& fits, const Dataset& data);   ///< predictions.csv
 std::string FitDetailsCsv(const std::vector<SubjectFit>& fits);    ///< fit_details.csv
 /// derived.csv, or "" when no fit has derived parameters.
 std::string DerivedCsv(const std::vector<SubjectFit>& fits);

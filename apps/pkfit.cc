@@ -12,6 +12,7 @@
 #include <boost/program_options.hpp>
 
 #include "cli.h"
+#include "fit_csv.h"
 #include "fit_report.h"
 #include "pk/catalogue.h"
 #include "pk/dataset.h"
@@ -20,6 +21,7 @@
 #include "pk/fit_subjects.h"
 #include "pk/output.h"
 #include "pk/two_stage.h"
+#include "pk/units.h"
 
 namespace po = boost::program_options;
 
@@ -94,7 +96,11 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "max-iterations", po::value<int>()->default_value(1000), "iteration / evaluation limit")(
       "linear-scale", "estimate on the natural scale instead of the log scale")(
       "output-dir,o", po::value<std::string>()->default_value("pkfit_out"), "where the results go")(
-      "log", "logarithmic concentration axis in the plots")(
+      "axis", po::value<std::string>()->default_value("auto"),
+      "concentration axis of the per-subject plots: auto (log for multi-exponential models), linear, log or both")(
+      "log", "same as --axis log")(
+      "units", po::value<std::string>(),
+      "units of the data, e.g. time=h,amt=mg,conc=mg/L (labels only; a units row in the dataset also gives them)")(
       "population", po::value<std::string>()->default_value("lognormal"),
       "two-stage population estimates over the subjects (STS statistics and GTS): lognormal, normal or none")(
       "omega", po::value<std::string>()->default_value("diagonal"),
@@ -215,6 +221,34 @@ int ReportProblems(const std::vector<pk::SubjectFit>& fits) {
   return bad;
 }
 
+// --axis: auto, linear, log or both (--log is log).
+pk::cli::Axis ParseAxis(const po::variables_map& vm) {
+  const std::string axis = vm.count("log") ? "log" : vm["axis"].as<std::string>();
+  if (axis == "auto") return pk::cli::Axis::kAuto;
+  if (axis == "linear") return pk::cli::Axis::kLinear;
+  if (axis == "log") return pk::cli::Axis::kLog;
+  if (axis == "both") return pk::cli::Axis::kBoth;
+  throw pk::InputError("--axis: expected auto, linear, log or both, got '" + axis + "'");
+}
+
+// What the report says of the run besides the fits.
+void FillContext(const po::variables_map& vm, const pk::FitSubjectsRequest& req, pk::cli::ReportContext* c) {
+  c->model = req.model->name();
+  c->model_description = req.model->description();
+  c->data = req.data.get();
+  const pk::Units given = vm.count("units") ? pk::cli::Parsed("--units", [&] { return pk::ParseUnits(vm["units"].as<std::string>()); })
+                                            : pk::Units();
+  c->units = pk::MergeUnits(given, pk::DatasetUnits(*req.data));
+  c->axis = ParseAxis(vm);
+  c->multi_exponential = req.model->is_linear() && req.model->num_compartments() > 1;
+  const pk::ResidualErrorModel& error = *req.objective.error_model;
+  c->method = (error.is_likelihood() ? "maximum likelihood, " + std::string(error.name()) + " error"
+                                     : "least squares, " + vm["weighting"].as<std::string>() + " weights") +
+              "; optimizer " + req.fit.optimizer + ", " + std::to_string(req.fit.starts) + " start" +
+              (req.fit.starts > 1 ? "s" : "") + "; parameters on the " + (req.fit.log_scale ? "log" : "natural") +
+              " scale";
+}
+
 int Main(int argc, char** argv) {
   po::options_description desc("Options");
   Lists lists;
@@ -242,10 +276,8 @@ int Main(int argc, char** argv) {
   const bool quiet = vm.count("quiet") > 0;
   const std::vector<pk::SubjectFit> fits = FitAll(req, quiet);
   pk::cli::ReportContext context;
-  context.model = req.model->name();
-  context.data = req.data->source;
   for (int a = 0; a < argc; ++a) context.command_line += (a ? " " : "") + std::string(argv[a]);
-  context.log_plots = vm.count("log") > 0;
+  FillContext(vm, req, &context);
   pk::TwoStageSummary population;  // stage two over the subjects, when there are several
   if (population_model != "none" && fits.size() >= 2) {
     population = pk::EstimateTwoStage(fits, two_stage);
@@ -257,7 +289,7 @@ int Main(int argc, char** argv) {
   const bool show_initial = std::find(lists.init.begin(), lists.init.end(), "auto") != lists.init.end();
   if (show_initial) std::cout << pk::cli::InitialTable(fits) << "\n";
   if (!quiet) {
-    std::cout << pk::cli::EstimatesTable(fits) << pk::cli::DerivedTable(fits);
+    std::cout << pk::cli::EstimatesTable(fits, context.units) << pk::cli::DerivedTable(fits);
     if (context.population) std::cout << pk::cli::PopulationTable(population);
     const std::string route = fits.empty() ? "" : fits.front().summary.gradient;
     std::cout << "\npropagator " << fits.front().summary.propagator << ", gradient " << route << ", optimizer "

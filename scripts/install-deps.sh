@@ -13,6 +13,10 @@ packages=(
   libfccp-dev                       # CSV line reading
   catch2                            # unit tests (Catch2 v2)
   libbenchmark-dev                  # benchmarks
+  libkainjow-mustache-dev           # pkfit's HTML report is rendered from a template
+  nlohmann-json3-dev                # pkfit's machine-readable run summary (summary.json)
+  chromium                          # the report's screenshot test (tests/cli/test_report.sh)
+  fonts-dejavu-core                 # a font for Chromium to render the report with
   locales                           # localedef's sources: the tests read and write numbers under a comma-decimal locale
 )
 

@@ -211,7 +211,7 @@ TEST_CASE("weighted residuals of FitSubjects: sqrt(W)(DV - PRED)/sigma and (DV -
     const int n = static_cast<int>(f.dv.size());
     const double sigma = std::sqrt(2 * f.summary.objective / (n - 3));
     for (int k = 0; k < n; ++k) {
-      CHECK(f.wres(k) == Approx((f.dv(k) - f.pred(k)) / f.dv(k) / sigma).epsilon(1e-9));
+      CHECK(f.iwres(k) == Approx((f.dv(k) - f.ipred(k)) / f.dv(k) / sigma).epsilon(1e-9));
     }
   }
   SECTION("maximum likelihood, proportional error") {
@@ -222,7 +222,7 @@ TEST_CASE("weighted residuals of FitSubjects: sqrt(W)(DV - PRED)/sigma and (DV -
     REQUIRE(f.ok);
     const double b = f.summary.values(f.summary.values.size() - 1);
     for (int k = 0; k < f.dv.size(); ++k) {
-      CHECK(f.wres(k) == Approx((f.dv(k) - f.pred(k)) / (b * f.pred(k))).epsilon(1e-9));
+      CHECK(f.iwres(k) == Approx((f.dv(k) - f.ipred(k)) / (b * f.ipred(k))).epsilon(1e-9));
     }
   }
 }

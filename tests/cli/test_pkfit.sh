@@ -12,12 +12,20 @@ for f in estimates.csv summary.csv predictions.csv fit_details.csv report.html f
   [ -s "$work/theo/$f" ] || fail "missing output $f"
 done
 head -1 "$work/theo/estimates.csv" | grep -qx "ID,PARAMETER,ESTIMATE,SE,RSE_PCT" || fail "estimates header"
-head -1 "$work/theo/summary.csv" | grep -qx "ID,NOBS,OBJECTIVE,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS" ||
+head -1 "$work/theo/summary.csv" |
+  grep -qx "ID,NOBS,OBJECTIVE,OFV,RSS,AIC,BIC,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS" ||
   fail "summary header"
-head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,PRED,RES,WRES,CENS" || fail "predictions header"
+# NONMEM's names for individual quantities, then the dataset's other columns as $TABLE carries covariates.
+head -1 "$work/theo/predictions.csv" | grep -qx "ID,TIME,DV,IPRED,IRES,IWRES,CENS,WT,DOSE" || fail "predictions header"
+awk -F, 'NR == FNR { if (FNR > 1) wt[$1] = $11; next } FNR > 1 && $8 != wt[$1] { bad = 1 } END { exit bad }' \
+  "$root/datasets/theophylline.csv" "$work/theo/predictions.csv" || fail "predictions: WT is not the subject's"
+# Least squares shows the RSS (twice the minimised V), with AIC and BIC.
+awk -F, 'NR > 1 { d = $5 - 2 * $3; if (d < 0) d = -d; if (d > 1e-9 * $5 || $4 != "") bad = 1 } END { exit bad }' \
+  "$work/theo/summary.csv" || fail "summary: RSS should be 2 x OBJECTIVE and OFV empty for least squares"
+grep -q "^ID .* RSS .* AIC .* BIC .*KA (RSE%)" "$work/theo.txt" || fail "console table: RSS, AIC, BIC columns"
 [ "$(tail -n +2 "$work/theo/estimates.csv" | wc -l)" -eq 36 ] || fail "expected 12 x 3 estimates"
 [ "$(tail -n +2 "$work/theo/predictions.csv" | wc -l)" -eq 132 ] || fail "expected 132 predictions"
-[ "$(awk -F, 'NR>1 && $5==1' "$work/theo/summary.csv" | wc -l)" -eq 12 ] || fail "all 12 fits should converge"
+[ "$(awk -F, 'NR>1 && $9==1' "$work/theo/summary.csv" | wc -l)" -eq 12 ] || fail "all 12 fits should converge"
 # RES = DV - PRED on every row.
 awk -F, 'NR>1 { d = $3 - $4 - $5; if (d < 0) d = -d; if (d > 1e-9) bad = 1 } END { exit bad }' \
   "$work/theo/predictions.csv" || fail "RES is not DV - PRED"
@@ -84,7 +92,7 @@ grep -q "omega: expected diagonal or full, got 'block'" "$work/bad_omega.err" ||
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --init-from "$work/theo/estimates.csv" \
   -o "$work/theo_again" -q || fail "--init-from refit failed"
 paste -d, "$work/theo/summary.csv" "$work/theo_again/summary.csv" | awk -F, 'NR > 1 {
-  d = $3 - $13; if (d < 0) d = -d; if (d > 1e-9 * $3 || $14 >= $4) bad = 1 } END { exit bad }' ||
+  d = $3 - $17; if (d < 0) d = -d; if (d > 1e-9 * $3 || $22 >= $8) bad = 1 } END { exit bad }' ||
   fail "--init-from: refits should take fewer iterations to the same objective"
 grep -q "the values given for this subject" "$work/theo_again/fit_details.csv" || fail "--init-from: source not recorded"
 printf 'ID,PARAMETER,ESTIMATE\n1,KA,x\n' >"$work/bad_init.csv"
@@ -97,11 +105,17 @@ grep -q "^exponents and half-lives" "$work/theo.txt" || fail "no half-lives on s
 [ "$(grep -cE "^[0-9]*,exponents,THALF(_ABS|1)," "$work/theo/derived.csv")" -eq 24 ] ||
   fail "derived.csv should hold two half-lives per subject"
 # Goodness of fit over all subjects: one point per prediction row in each plot, and the plots in the report.
-for f in gof_dv_pred.svg gof_wres_time.svg gof_wres_pred.svg; do
+for f in gof_dv_ipred.svg gof_iwres_time.svg gof_iwres_ipred.svg; do
   [ "$(grep -c "<circle" "$work/theo/$f")" -eq 132 ] || fail "$f should hold the 132 samples"
+  grep -q 'stroke="#d62728"' "$work/theo/$f" || fail "$f should have a LOWESS smoother"
+  grep -q 'stroke-dasharray' "$work/theo/$f" || fail "$f should have its identity or zero line"
 done
+# Log-log: the samples with DV > 0 (IPRED > 0 at every sample after the dose).
+[ "$(grep -c "<circle" "$work/theo/gof_dv_ipred_log.svg")" -eq "$(awk -F, 'NR>1 && $3>0 && $4>0' "$work/theo/predictions.csv" | wc -l)" ] ||
+  fail "gof_dv_ipred_log.svg should hold the positive samples"
 grep -q "<h2>Goodness of fit</h2>" "$work/theo/report.html" || fail "report lacks the goodness-of-fit section"
-[ "$(grep -c "<svg" "$work/theo/report.html")" -eq 15 ] || fail "theophylline report should hold 3 + 12 plots"
+[ "$(grep -c "<svg" "$work/theo/report.html")" -eq 16 ] || fail "theophylline report should hold 4 + 12 plots"
+[ "$(grep -c "<figure id=\"id" "$work/theo/report.html")" -eq 12 ] || fail "theophylline report: a panel per subject"
 
 # Censored samples (CENS=1, below 2 mg/L): maximum likelihood counts each by its probability (M3);
 # they have no residuals and are drawn hollow. Least squares refuses them, naming line and column.
@@ -110,12 +124,16 @@ grep -q "<h2>Goodness of fit</h2>" "$work/theo/report.html" || fail "report lack
 [ "$(awk -F, 'NR>1 && $7==1' "$work/blq/predictions.csv" | wc -l)" -eq 27 ] || fail "BLQ: expected 27 censored rows"
 awk -F, 'NR>1 && $7==1 && ($5 != "" || $6 != "") { bad = 1 } END { exit bad }' "$work/blq/predictions.csv" ||
   fail "BLQ: censored rows should have no RES or WRES"
-[ "$(awk -F, 'NR>1 { s += $10 } END { print s }' "$work/blq/summary.csv")" -eq 27 ] || fail "BLQ: NCENS should sum to 27"
-[ "$(awk -F, 'NR>1 && $5==1' "$work/blq/summary.csv" | wc -l)" -eq 12 ] || fail "BLQ: all 12 fits should converge"
+[ "$(awk -F, 'NR>1 { s += $14 } END { print s }' "$work/blq/summary.csv")" -eq 27 ] || fail "BLQ: NCENS should sum to 27"
+[ "$(awk -F, 'NR>1 && $9==1' "$work/blq/summary.csv" | wc -l)" -eq 12 ] || fail "BLQ: all 12 fits should converge"
+# Maximum likelihood shows NONMEM's OFV: -2LL without N log(2 pi) of the uncensored samples.
+awk -F, 'NR == FNR { if (FNR > 1) m2ll[$1] = $7; next } FNR > 1 { n = $2 - $14; d = m2ll[$1] - n * log(2 * 3.141592653589793) - $4
+  if (d < 0) d = -d; if (d > 1e-6) bad = 1 } END { exit bad }' "$work/blq/fit_details.csv" "$work/blq/summary.csv" ||
+  fail "BLQ: OFV should be -2LL - N log(2 pi) over the uncensored samples"
 grep -q "censored samples (CENS, Beal's M3) per ID: 1: 1, 2: 3" "$work/blq.txt" || fail "BLQ: no censoring note"
 [ "$(grep -c '<circle[^>]*fill="white"' "$work/blq/fit_ID2.svg")" -eq 3 ] || fail "BLQ: ID 2 should show 3 hollow samples"
-[ "$(grep -c '<circle[^>]*fill="white"' "$work/blq/gof_dv_pred.svg")" -eq 27 ] || fail "BLQ: dv_pred should show 27 hollow"
-[ "$(grep -c '<circle' "$work/blq/gof_wres_time.svg")" -eq 105 ] || fail "BLQ: residual plots hold the 105 values only"
+[ "$(grep -c '<circle[^>]*fill="white"' "$work/blq/gof_dv_ipred.svg")" -eq 27 ] || fail "BLQ: dv_ipred should show 27 hollow"
+[ "$(grep -c '<circle' "$work/blq/gof_iwres_time.svg")" -eq 105 ] || fail "BLQ: residual plots hold the 105 values only"
 # The exponential error (log DV against log PRED): SIGMA_LOG estimated, WRES on log scale for the values.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --error exponential -o "$work/blq_exp" -q ||
   fail "BLQ fit with the exponential error failed"
@@ -201,7 +219,7 @@ grep -q "^1,ALAG1," "$work/ml/estimates.csv" || fail "--init ALAG1 was not estim
 [ $rc -eq 1 ] || fail "an unbounded likelihood should exit 1, got $rc"
 grep -q "ID 2: the likelihood has no maximum: the sample at TIME 0" "$work/ml2.err" || fail "ml2: $(cat "$work/ml2.err")"
 grep -q "unbounded" "$work/ml2.out" || fail "the estimates table does not say unbounded"
-grep -q "^2,11,[^,]*,[0-9]*,0," "$work/ml2/summary.csv" || fail "summary.csv does not say CONVERGED 0"
+grep -q "^2,11,[^,]*,[^,]*,[^,]*,[^,]*,[^,]*,[0-9]*,0," "$work/ml2/summary.csv" || fail "summary.csv does not say CONVERGED 0"
 
 # Observations outside the central compartment are fitted as such (NONMEM's CMT), with a note saying so.
 "$pkfit" --model 1cmt_oral_transit --data "$root/datasets/theophylline.csv" --subject 1 -o "$work/transit" -q \
@@ -242,7 +260,7 @@ grep -q "nonlinear" "$work/exact.err" || fail "no clear message for --propagator
 # The ODE propagator: a nonlinear model, reported as such, all subjects converge.
 "$pkfit" --model 1cmt_iv_mm --data "$root/datasets/mm_synthetic.csv" -o "$work/mm" >"$work/mm.txt" ||
   fail "1cmt_iv_mm fit exited non-zero"
-[ "$(awk -F, 'NR>1 && $5==1 && $9=="ode"' "$work/mm/summary.csv" | wc -l)" -eq 6 ] ||
+[ "$(awk -F, 'NR>1 && $9==1 && $13=="ode"' "$work/mm/summary.csv" | wc -l)" -eq 6 ] ||
   fail "all 6 MM fits should converge with the ode propagator"
 grep -q "propagator ode, gradient forward" "$work/mm.txt" || fail "pkfit does not report the ODE propagator and route"
 # BFGS on the adjoint: the summary names that route, and the forward one that the SEs needed.
@@ -268,10 +286,12 @@ paste -d, "$work/mm_eval_forward.csv" "$work/mm_eval_adjoint.csv" | awk -F, 'NR>
 "$pkfit" --model 1cmt_iv_emax --data "$root/datasets/emax_synthetic.csv" --weighting column:W -o "$work/emax" -q ||
   fail "1cmt_iv_emax fit failed"
 for f in fit_ID1.svg fit_ID1_EFFECT.svg report.html; do [ -s "$work/emax/$f" ] || fail "emax: missing $f"; done
-[ "$(grep -c "<svg" "$work/emax/report.html")" -eq 14 ] ||
-  fail "emax report should hold 2 plots per subject and 3 goodness-of-fit plots per output"
-for f in gof_dv_pred.svg gof_dv_pred_2.svg gof_wres_time_2.svg; do [ -s "$work/emax/$f" ] || fail "emax: missing $f"; done
-grep -q "observed against predicted (EFFECT, DVID 2)" "$work/emax/gof_dv_pred_2.svg" || fail "emax: DVID 2 plot title"
+[ "$(grep -c "<figure id=\"id" "$work/emax/report.html")" -eq "$(tail -n +2 "$work/emax/summary.csv" | wc -l)" ] ||
+  fail "emax report: one anchored panel per subject"
+[ "$(grep -c "<svg" "$work/emax/report.html")" -eq $((2 * $(tail -n +2 "$work/emax/summary.csv" | wc -l) + 8)) ] ||
+  fail "emax report should hold 2 plots per subject and 4 goodness-of-fit plots per output"
+for f in gof_dv_ipred.svg gof_dv_ipred_2.svg gof_iwres_time_2.svg; do [ -s "$work/emax/$f" ] || fail "emax: missing $f"; done
+grep -q "DV against IPRED (EFFECT, DVID 2)" "$work/emax/gof_dv_ipred_2.svg" || fail "emax: DVID 2 plot title"
 
 # Settings that cannot make a fit are option errors, before any fitting (exit 2, one line).
 theo="$root/datasets/theophylline.csv"
@@ -305,6 +325,6 @@ printf 'ID,TIME,AMT,DV,EVID,CMT\n1,0,100,.,1,1\n1,1,0,5,0,2\n1,4,0,3,0,2\n1,8,0,
 "$pkfit" --model 1cmt_oral --data "$work/rep.csv" -o "$work/rep" -q --population none 2>"$work/rep.err"
 grep -q "note: ID 1 comes back at .*rep.csv:10 after other IDs" "$work/rep.err" || fail "no note for a repeated ID"
 for f in fit_ID1.svg fit_ID1_occ2.svg fit_ID2.svg; do [ -s "$work/rep/$f" ] || fail "repeated ID: missing $f"; done
-grep -q 'id="id1_occ2">ID 1 (occurrence 2)' "$work/rep/report.html" || fail "repeated ID: report section"
+grep -q 'id="id1_occ2" class=""><figcaption>ID 1 (occurrence 2)' "$work/rep/report.html" || fail "repeated ID: report panel"
 
 if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi

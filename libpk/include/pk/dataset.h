@@ -30,6 +30,7 @@
 #ifndef PK_DATASET_H_
 #define PK_DATASET_H_
 
+#include <map>
 #include <string>
 #include <utility>
 #include <vector>
@@ -75,6 +76,9 @@ struct Dataset {
   std::vector<std::pair<double, int>> repeated_ids;
   int header_line = 0;                     ///< line of the header in the source (1-based)
   std::vector<std::string> columns;        ///< upper-cased header, in file order
+  /// Units by column (upper-cased name) from a units row: '#' and a field per column right after
+  /// the header (pk/units.h). Empty without one.
+  std::map<std::string, std::string> column_units;
   std::vector<std::string> extra_columns;  ///< upper-cased names of the non-PREDPP columns
   std::vector<Subject> subjects;
   /// TIME was translated to hours since each subject's first record (a date

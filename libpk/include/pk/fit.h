@@ -66,6 +66,9 @@ struct ParameterEstimate {
   double se = std::numeric_limits<double>::quiet_NaN();       ///< standard error
   double rse_pct = std::numeric_limits<double>::quiet_NaN();  ///< 100·SE/|estimate|
   bool fixed = false;
+  /// A σ that went to 0, the edge of its range (one part of a combined error): its estimate is
+  /// 0 to the optimiser's precision and it has no SE. Reports print it as "0 (bound)".
+  bool at_bound = false;
 };
 
 enum class TerminationType {
@@ -113,6 +116,12 @@ struct FitSummary {
   /// −2 log-likelihood: exact for ML; for least squares, the Gaussian
   /// likelihood with the residual variance profiled out (weights known up to scale).
   double minus2ll = std::numeric_limits<double>::quiet_NaN();
+  /// Maximum likelihood: NONMEM's objective function value, −2 log L without the constant
+  /// N·log 2π of the N uncensored samples ("OBJECTIVE FUNCTION VALUE WITHOUT CONSTANT"); NaN for
+  /// least squares.
+  double ofv = std::numeric_limits<double>::quiet_NaN();
+  /// Least squares: the (weighted) residual sum of squares, 2V; NaN for maximum likelihood.
+  double rss = std::numeric_limits<double>::quiet_NaN();
   double aic = std::numeric_limits<double>::quiet_NaN();
   double bic = std::numeric_limits<double>::quiet_NaN();
 

@@ -26,13 +26,14 @@ struct SubjectFit {
   std::string error;           ///< why the subject could not be fitted, when !ok
   FitSummary summary;
   std::vector<double> times;   ///< sample times
+  std::vector<int> sample_records;  ///< per sample, its record in the subject's Subject::records
   Eigen::VectorXd dv;          ///< observations (a censored sample's limit)
   Eigen::VectorXi censoring;   ///< per sample: 0, or 1 / -1 for a value below / above DV (CENS)
-  Eigen::VectorXd pred;        ///< predictions at the estimate
-  /// Weighted residuals: least squares √W(DV − PRED)/σ̂ with σ̂² = 2V/(N − p);
+  Eigen::VectorXd ipred;       ///< individual predictions at the estimate (NONMEM's IPRED)
+  /// Individual weighted residuals (NONMEM's IWRES): least squares √W(DV − PRED)/σ̂ with σ̂² = 2V/(N − p);
   /// maximum likelihood (DV − PRED)/σ_k, or (log DV − log PRED)/SIGMA_LOG for
   /// the exponential error. NaN for a censored sample.
-  Eigen::VectorXd wres;
+  Eigen::VectorXd iwres;
   /// Where the starting values came from: "data (...)" or "catalogue defaults (...)".
   std::string initial_method;
   ParameterValues initial;     ///< the starting values of the estimated parameters

@@ -172,6 +172,8 @@ class Objective {
   const Eigen::VectorXi& censoring() const;
   int num_censored() const;
   std::vector<double> sample_times() const;
+  /// Per sample: the index of its record in the subject's Subject::records (its covariates).
+  std::vector<int> sample_records() const;
   /// The output each sample measures: its DVID for a nonlinear model, else 1.
   std::vector<int> sample_outputs() const;
   double subject_id() const;

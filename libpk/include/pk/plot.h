@@ -1,31 +1,56 @@
-// libpk: plain SVG plots of concentration against time.
+// libpk report library (target pk::report): SVG plots of concentration against time and the
+// goodness-of-fit plots, and the LOWESS smoother they draw. Presentation only: the core library
+// (pk::pk) does not depend on it.
 #ifndef PK_PLOT_H_
 #define PK_PLOT_H_
 
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace pk {
 
 struct PlotSeries {
+  PlotSeries() = default;
+  PlotSeries(std::string label_, std::vector<double> x_, std::vector<double> y_, bool markers_ = false)
+      : label(std::move(label_)), x(std::move(x_)), y(std::move(y_)), markers(markers_) {}
+
   std::string label;
   std::vector<double> x;
   std::vector<double> y;
   bool markers = false;  ///< draw points (observations) instead of a line
   bool hollow = false;   ///< with markers: open circles (e.g. censored samples, drawn at their limit)
+  /// A reference line (identity, zero) or a smoother: grey and dashed, or the colour below.
+  bool reference = false;
+  /// An explicit colour ("#rrggbb"); empty: the series' place in the palette.
+  std::string colour;
 };
 
 struct PlotOptions {
   std::string title;
   std::string x_label = "time";
   std::string y_label = "concentration";
+  bool log_x = false;  ///< logarithmic x axis; non-positive values are left out
   bool log_y = false;  ///< logarithmic y axis; non-positive values are left out
+  bool legend = true;  ///< a legend at the right (panels in a grid leave it out)
   int width = 820;
   int height = 520;
 };
 
-/// An SVG document with one line or point series per entry.
+/// An SVG document with one line or point series per entry. Axes are padded so that no marker
+/// is cut at the frame; logarithmic axes have ticks at 1, 2 and 5 times powers of ten (decades
+/// only beyond three decades).
 std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& options);
+
+/// The colour of palette entry k: 20 distinct colours, then they repeat.
+const char* PaletteColour(int k);
+
+/// Cleveland's LOWESS smoother (R's lowess(x, y, f, iter)): a local linear fit with tricube
+/// weights over the fraction `f` of the points nearest each x, then `iterations` robustness
+/// passes with bisquare weights. Returns the points sorted by x with the smoothed y; non-finite
+/// points are left out.
+PlotSeries Lowess(const std::vector<double>& x, const std::vector<double>& y, double f = 2.0 / 3.0,
+                  int iterations = 3);
 
 }  // namespace pk
 

@@ -132,6 +132,7 @@ void Covariance(Problem* pb, const Objective::Evaluation& ev, const Eigen::Vecto
   for (int j = 0; j < n; ++j) {
     if (ml && SigmaAtZero(objective, summary->values, pb->free()[j])) {
       at_zero.push_back(objective.parameter_names()[pb->free()[j]]);
+      for (ParameterEstimate& est : summary->estimates) est.at_bound = est.at_bound || est.name == at_zero.back();
     } else {
       keep.push_back(j);
     }
@@ -194,8 +195,11 @@ void InformationCriteria(const Objective& objective, const Objective::Evaluation
   int k = n;
   if (objective.error_model().is_likelihood()) {
     m2ll = 2 * value;
+    // Censored samples enter by a probability (Beal's M3), without the Gaussian constant.
+    summary->ofv = m2ll - (nobs - objective.num_censored()) * std::log(2 * M_PI);
   } else {
     const double rss = ev.residuals.head(nobs).squaredNorm();
+    summary->rss = rss;
     double sum_log_w = 0;
     for (int j = 0; j < nobs; ++j) {
       if (objective.weights()(j) > 0) sum_log_w += std::log(objective.weights()(j));

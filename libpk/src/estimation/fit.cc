@@ -250,10 +250,13 @@ std::string FitSummary::FullReport() const {
   std::snprintf(line, sizeof line, "  %-12s %14s %14s %9s\n", "parameter", "estimate", "SE", "RSE%");
   out << line;
   for (const ParameterEstimate& e : estimates) {
+    // Estimates to 4 significant digits, SE and RSE% to 3, as in every libpk table.
     if (e.fixed) {
-      std::snprintf(line, sizeof line, "  %-12s %14.6g %14s %9s\n", e.name.c_str(), e.estimate, "(fixed)", "");
+      std::snprintf(line, sizeof line, "  %-12s %14.4g %14s %9s\n", e.name.c_str(), e.estimate, "(fixed)", "");
+    } else if (e.at_bound) {
+      std::snprintf(line, sizeof line, "  %-12s %14s %14s %9s\n", e.name.c_str(), "0 (bound)", "–", "–");
     } else {
-      std::snprintf(line, sizeof line, "  %-12s %14.6g %s %s\n", e.name.c_str(), e.estimate, Cell(e.se, "%.4g", 14).c_str(),
+      std::snprintf(line, sizeof line, "  %-12s %14.4g %s %s\n", e.name.c_str(), e.estimate, Cell(e.se, "%.3g", 14).c_str(),
                     Cell(e.rse_pct, "%.3g", 9).c_str());
     }
     out << line;
@@ -263,7 +266,8 @@ std::string FitSummary::FullReport() const {
     out << "\n  correlation\n" << internal::LowerTriangle(estimated, correlation, 12);
   }
   out << "\n  samples " << num_samples << ", evaluations " << evaluations << ", best start " << best_start
-      << "\n  -2LL " << Num(minus2ll) << ", AIC " << Num(aic) << ", BIC " << Num(bic) << "\n";
+      << "\n  " << (std::isnan(ofv) ? "RSS " + Num(rss) : "OFV " + Num(ofv) + " (−2LL without N·log 2π)") << ", −2LL "
+      << Num(minus2ll) << ", AIC " << Num(aic) << ", BIC " << Num(bic) << "\n";
   return out.str();
 }
 

@@ -98,15 +98,15 @@ void Derived(const FitSubjectsRequest& req, const Objective& objective, SubjectF
 void Residuals(const Objective& objective, SubjectFit* out) {
   const Objective::Evaluation ev = objective.Evaluate(out->summary.values, {}, Objective::Need::kValue);
   if (!ev.ok) return;
-  out->pred = ev.predictions;
-  out->wres = objective.ScaledResiduals(out->summary.values, out->pred);
+  out->ipred = ev.predictions;
+  out->iwres = objective.ScaledResiduals(out->summary.values, out->ipred);
   if (!objective.error_model().is_likelihood()) {
     // Least squares leaves σ to the residuals: σ̂² = 2V/(N − p).
-    const Eigen::VectorXd r = out->dv - out->pred;
+    const Eigen::VectorXd r = out->dv - out->ipred;
     const int n = objective.num_samples();
     const int p = static_cast<int>(out->summary.estimated.size());
     const double v = 0.5 * (objective.weights().array() * r.array().square()).sum();
-    out->wres /= n > p ? std::sqrt(2 * v / (n - p)) : NAN;
+    out->iwres /= n > p ? std::sqrt(2 * v / (n - p)) : NAN;
   }
 }
 
@@ -136,6 +136,7 @@ void FitOne(const FitSubjectsRequest& req, int subject, SubjectFit* out) {
   try {
     const Objective objective(req.model, req.data, subject, req.objective, req.priors);
     out->times = objective.sample_times();
+    out->sample_records = objective.sample_records();
     out->dv = objective.observations();
     out->censoring = objective.censoring();
     if (objective.num_samples() == 0) {

@@ -163,6 +163,7 @@ class Parser {
     while (first < lines.size() && IsSkippedLine(lines[first].second)) ++first;
     if (first == lines.size()) Fail(0, 0, "the file has no header line");
     ReadHeader(lines[first].first, lines[first].second, &data);
+    if (first + 1 < lines.size()) ReadUnitsRow(lines[first + 1].second, &data);
     const internal::RecordFilter filter(filter_, data.columns, source_);
     // Records are read one line at a time into reused fields: memory holds the lines and the dataset.
     std::vector<std::string> fields;
@@ -193,6 +194,21 @@ class Parser {
   }
   int Col(Item item) const { return item_column_[item] + 1; }
   std::string Label(Item item) const { return kItemNames[item]; }
+
+  // A units row: the comment right after the header, '#' then one field per column ("#,h,mg,mg/L"
+  // under "ID,TIME,AMT,DV"). A comment of another shape is an ordinary comment.
+  void ReadUnitsRow(const std::string& line, Dataset* data) const {
+    const size_t hash = line.find_first_not_of(" \t");
+    if (hash == std::string::npos || line[hash] != '#') return;
+    std::vector<std::string> units = SplitCsvLine(line.substr(hash + 1));
+    if (units.size() != data->columns.size()) return;
+    for (size_t c = 0; c < units.size(); ++c) {
+      const std::string unit = internal::Trim(units[c]);
+      double number = 0;
+      if (internal::ParseDouble(unit, &number)) return;  // a commented-out record, not units
+      if (!unit.empty()) data->column_units[data->columns[c]] = unit;
+    }
+  }
 
   void ReadHeader(int line_number, const std::string& line, Dataset* data) {
     data->header_line = line_number;

@@ -128,6 +128,13 @@ const Eigen::VectorXd& Objective::weights() const { return impl_->w; }
 const Eigen::VectorXi& Objective::censoring() const { return impl_->cens; }
 int Objective::num_censored() const { return static_cast<int>(impl_->cens.cwiseAbs().sum()); }
 std::vector<double> Objective::sample_times() const { return impl_->times; }
+std::vector<int> Objective::sample_records() const {
+  std::vector<int> out;
+  for (size_t r = 0; r < impl_->ode.sample_of_record.size(); ++r) {
+    if (impl_->ode.sample_of_record[r] >= 0) out.push_back(static_cast<int>(r));
+  }
+  return out;
+}
 std::vector<int> Objective::sample_outputs() const {
   std::vector<int> out;
   const bool ode_model = dynamic_cast<const OdeModel*>(impl_->model.get()) != nullptr;

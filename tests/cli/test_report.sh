@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# pkfit's report as a person sees it: rendered by headless Chromium, screenshotted, and its DOM read
+# back. Fails on a blank or broken page: a template that did not render, missing plots, an empty
+# screenshot. The screenshot stays in the work directory (report.png) to look at.
+set -uo pipefail
+pkfit=$1; root=$2; work=$3; chromium=$4
+rm -rf "$work"; mkdir -p "$work"
+failures=0
+fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+browse() {  # browse WHAT ARGS... : headless Chromium with a profile of its own (it runs as root in CI)
+  timeout 120 "$chromium" --headless --no-sandbox --disable-gpu --hide-scrollbars --no-first-run \
+    --user-data-dir="$work/profile" "$@" 2>>"$work/chromium.log"
+}
+
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --units time=h,amt=mg,conc=mg/L -o "$work/theo" -q ||
+  fail "pkfit on theophylline"
+browse --dump-dom "file://$work/theo/report.html" >"$work/dom.html"
+grep -q "pkfit report: 1cmt_oral on theophylline.csv" "$work/dom.html" || fail "the rendered page has no title"
+grep -q "{{" "$work/dom.html" && fail "a mustache tag was left unrendered"
+[ "$(grep -o "<svg" "$work/dom.html" | wc -l)" -eq 16 ] || fail "the page should show 4 goodness-of-fit plots and 12 panels"
+[ "$(grep -o "<figure id=\"id" "$work/dom.html" | wc -l)" -eq 12 ] || fail "a panel per subject"
+grep -q "CL (L/h) (RSE%)" "$work/dom.html" || fail "the estimates table should carry units"
+grep -q "libpk $("$pkfit" --version | sed 's/.* //')" "$work/dom.html" || fail "the header should name libpk's version"
+
+# A screenshot of a page with plots is far larger than one of a blank page of the same size; the
+# blank page is rendered too, so that the threshold is known to tell them apart.
+browse --window-size=1400,2400 --screenshot="$work/report.png" "file://$work/theo/report.html" >/dev/null
+printf '<!DOCTYPE html><html><body></body></html>\n' >"$work/blank.html"
+browse --window-size=1400,2400 --screenshot="$work/blank.png" "file://$work/blank.html" >/dev/null
+report_bytes=$(stat -c %s "$work/report.png" 2>/dev/null || echo 0)
+blank_bytes=$(stat -c %s "$work/blank.png" 2>/dev/null || echo 0)
+[ "$blank_bytes" -gt 0 ] || fail "Chromium made no screenshot (see $work/chromium.log)"
+[ "$report_bytes" -gt $((blank_bytes * 10)) ] && [ "$report_bytes" -gt 100000 ] ||
+  fail "the report's screenshot ($report_bytes bytes) looks blank next to a blank page's ($blank_bytes bytes)"
+
+if [ $failures -eq 0 ]; then echo "cli_report: all checks passed ($report_bytes-byte screenshot)"; else exit 1; fi
