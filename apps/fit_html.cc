@@ -244,8 +244,8 @@ data Population(const TwoStageSummary& pop) {
     if (pop.gts_ok) {
       const PopulationParameter& q = pop.population[j];
       t.push_back(Sig(q.typical, 4) + " (" + Sig(q.typical_rse_pct, 3) + ")");
-      t.push_back(Sig(q.omega2, 4) + " (" + Sig(q.omega2_rse_pct, 3) + ")");
-      t.push_back(Sig(q.bsv_cv_pct, 3));
+      t.push_back(q.omega2_at_bound ? "0 (bound)" : Sig(q.omega2, 4) + " (" + Sig(q.omega2_rse_pct, 3) + ")");
+      t.push_back(q.omega2_at_bound ? "0" : Sig(q.bsv_cv_pct, 3));
     }
     rows.push_back(object{{"cells", Cells(t, head_class)}});
   }
@@ -289,24 +289,24 @@ void Panels(const std::vector<SubjectFit>& fits, const ReportContext& c, data* p
                                               : "Linear concentration axis (--axis log for a log one).");
 }
 
-data DerivedSection(const TransferFunctionReading& r) {
+data DerivedSection(const TransferFunctionReading& r, const Units& units) {
   const char* title = r.reading == "exponents" ? "Exponents and half-lives (_ABS: absorption)"
                       : r.reading == "iv"      ? "As an IV compartment model"
                                                : "As an oral compartment model (fastest rate = KA)";
   list rows;
   for (const DerivedParameter& d : r.parameters) {
-    rows.push_back(object{{"name", d.name}, {"value", Sig(d.value, 4)}, {"se", Sig(d.se, 3)}, {"rse", Sig(d.rse_pct, 3)}});
+    rows.push_back(object{{"name", WithUnit(d.name, ParameterUnit(d.name, units))}, {"value", Sig(d.value, 4)}, {"se", Sig(d.se, 3)}, {"rse", Sig(d.rse_pct, 3)}});
   }
   return object{{"title", Text(title)}, {"message", Maybe(r.message)}, {"has_rows", data(r.ok && !r.parameters.empty())}, {"rows", rows}};
 }
 
-void Details(const std::vector<SubjectFit>& fits, data* page) {
+void Details(const std::vector<SubjectFit>& fits, const Units& units, data* page) {
   list details;
   for (const SubjectFit& f : fits) {
     std::string initial;
     for (const auto& kv : f.initial) initial += (initial.empty() ? "" : ", ") + kv.first + " = " + Sig(kv.second, 4);
     list derived;
-    for (const TransferFunctionReading& r : f.derived) derived.push_back(DerivedSection(r));
+    for (const TransferFunctionReading& r : f.derived) derived.push_back(DerivedSection(r, units));
     const std::string status = FitStatus(f);
     details.push_back(object{{"label", SubjectLabel(f)},
                              {"status", status},
@@ -397,7 +397,7 @@ std::string HtmlReport(const std::vector<SubjectFit>& fits, const ReportContext&
   page["gof"] = gof;
   Panels(fits, context, &page, files);
   files->insert(files->end(), gof_files.begin(), gof_files.end());
-  Details(fits, &page);
+  Details(fits, context.units, &page);
   kainjow::mustache::mustache tmpl(ReportTemplate());
   if (!tmpl.is_valid()) throw std::logic_error("report template: " + tmpl.error_message());
   const std::string html = tmpl.render(page);

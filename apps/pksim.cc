@@ -21,6 +21,7 @@
 #include "pk/objective.h"
 #include "pk/output.h"
 #include "pk/plot.h"
+#include "pk/units.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
 #include "pk/simulation_csv.h"
@@ -120,6 +121,8 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
       "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
       "log", "logarithmic concentration axis for --plot")(
+      "units", po::value<std::string>(),
+      "units for --plot's axes, e.g. time=h,amt=mg,conc=mg/L (a units row in --data also gives them)")(
       "jobs,j", po::value<int>()->default_value(0), "worker threads (0 = all cores); the output does not depend on it");
   pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
 }
@@ -170,10 +173,13 @@ pk::PlotSeries PlotLine(const pk::SubjectSimulation& s) {
   return line;
 }
 
-std::string PlotSvg(const pk::Model& model, const std::vector<pk::PlotSeries>& series, bool log) {
+std::string PlotSvg(const pk::Model& model, const std::vector<pk::PlotSeries>& series, bool log,
+                    const pk::Units& units) {
   pk::PlotOptions options;
   options.title = "pksim: " + model.name();
   options.log_y = log;
+  options.x_label = pk::WithUnit("time", units.time);
+  options.y_label = pk::WithUnit("concentration", units.concentration);
   return pk::RenderSvg(series, options);
 }
 
@@ -243,6 +249,10 @@ int Main(int argc, char** argv) {
     if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
     data = RegimenFromFlags(vm, grid);
   }
+  const pk::Units units = pk::MergeUnits(
+      vm.count("units") ? pk::cli::Parsed("--units", [&] { return pk::ParseUnits(vm["units"].as<std::string>()); })
+                        : pk::Units(),
+      pk::DatasetUnits(data));
   pk::SimulationOptions sim_options;
   sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
   sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
@@ -301,7 +311,7 @@ int Main(int argc, char** argv) {
   start();
   if (rows) rows->Commit();
   if (summary_csv) summary_csv->Commit();
-  if (vm.count("plot")) pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, plot, vm.count("log") > 0));
+  if (vm.count("plot")) pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, plot, vm.count("log") > 0, units));
   return failed > 0 ? 1 : 0;
 }
 

@@ -497,8 +497,14 @@ TEST_CASE("a combined error's sigma at 0 gets no SE, and the others' SEs are tho
       CHECK_THAT(a.covariance_message, Catch::StartsWith(std::string(c.at_zero) + " went to 0"));
       CHECK(b.covariance_message.empty());
       for (const pk::ParameterEstimate& e : a.estimates) {
+        CHECK(e.at_bound == (e.name == c.at_zero));
         if (e.name == c.at_zero) {
           CHECK(std::isnan(e.se));
+          // Reports print the σ as 0 at its bound, not as 1e-22.
+          const std::string report = a.FullReport();
+          const size_t row = report.find("  " + e.name + " ");
+          REQUIRE(row != std::string::npos);
+          CHECK(report.substr(row, report.find('\n', row) - row).find("0 (bound)") != std::string::npos);
           continue;
         }
         const auto same = std::find_if(b.estimates.begin(), b.estimates.end(),

@@ -83,7 +83,7 @@ TEST_CASE("reader errors name file, line and column", "[reader]") {
   ExpectError("ID,TIME,AMT\n1,0,-5\n", 2, 3, "AMT must not be negative");
   ExpectError("ID,TIME,AMT,EVID\n1,5,0,0\n1,3,0,0\n", 3, 2, "TIME decreases within ID 1 (3 after 5)");
   ExpectError("ID;TIME;AMT\n1;0;100\n", 1, 0, "this header seems to use ';'");
-  ExpectError("ID\tTIME\tAMT\n1\t0\t100\n", 1, 0, "this header seems to use '\\t'");
+  ExpectError("ID|TIME|AMT\n1|0|100\n", 1, 0, "this header seems to use '|'");
   ExpectError("ID,TIME,AMT,II,ADDL\n1,0,10,0,3\n", 2, 4, "ADDL>0 needs II>0");
   ExpectError("ID,TIME,AMT\n1,0\n", 2, 3, "expected 3 fields");
   ExpectError("ID,TIME,AMT\n1,0,1,2\n", 2, 4, "expected 3 fields");
@@ -505,4 +505,30 @@ TEST_CASE("temporaries of a killed writer are removed, others kept", "[output][t
   CHECK(std::filesystem::exists(dir + "/notes.tmp.txt"));
   CHECK(std::filesystem::exists(dir + "/estimates.csv"));
   std::filesystem::remove_all(dir);
+}
+
+TEST_CASE("a file separated by blanks (spaces or tabs), as NONMEM accepts, reads as its CSV twin", "[reader]") {
+  const pk::Dataset csv = pk::ParseDataset("ID,TIME,AMT,DV,WT\n1,0,100,.,70\n1,1.5,0,3.2,70\n2,0,50,.,60\n2,2,0,1e-1,60\n",
+                                           "a.csv");
+  const pk::Dataset blanks =
+      pk::ParseDataset("ID  TIME\tAMT DV WT\n# . h mg mg/L kg\n1 0 100 . 70\n 1\t1.5  0 3.2 70 \n2 0 50 . 60\n2 2 0 1e-1 60\n",
+                       "a.txt");
+  CHECK(blanks.columns == csv.columns);
+  CHECK(blanks.column_units.at("AMT") == "mg");
+  REQUIRE(blanks.subjects.size() == csv.subjects.size());
+  for (size_t s = 0; s < csv.subjects.size(); ++s) {
+    REQUIRE(blanks.subjects[s].records.size() == csv.subjects[s].records.size());
+    for (size_t r = 0; r < csv.subjects[s].records.size(); ++r) {
+      const pk::Record& a = csv.subjects[s].records[r];
+      const pk::Record& b = blanks.subjects[s].records[r];
+      CHECK(a.time == b.time);
+      CHECK(a.amt == b.amt);
+      CHECK(a.dv_missing == b.dv_missing);
+      if (!a.dv_missing) CHECK(a.dv == b.dv);
+      CHECK(a.extra == b.extra);
+    }
+  }
+  // A record with a field too many names its line, as in a CSV file.
+  CHECK_THROWS_WITH(pk::ParseDataset("ID TIME AMT\n1 0 100 7\n", "b.txt"),
+                    Catch::Contains("b.txt:2:4: expected 3 fields as in the header, found 4"));
 }

@@ -329,6 +329,15 @@ TEST_CASE("GTS takes an Omega variance to its bound of 0 when the estimates vary
     CHECK(s.gts_message.find("between-subject variance of CL is at its bound of 0") != std::string::npos);
     CHECK(std::isnan(s.population[1].omega2_rse_pct));
     CHECK(std::isfinite(s.population[0].omega2_rse_pct));
+    CHECK(s.population[1].omega2_at_bound);
+    CHECK(!s.population[0].omega2_at_bound);
+    // Printed as 0 at its bound, not as 1e-22.
+    const std::string report = s.FullReport();
+    const size_t row = report.rfind("\n  CL ") + 1;  // the GTS table comes last
+    REQUIRE(row > 0);
+    CHECK(report.substr(row, report.find('\n', row) - row).find("0 (bound)") != std::string::npos);
+  } else {
+    CHECK(!s.population[1].omega2_at_bound);
   }
   // Whether it reached 0 or stopped above: the profile likelihood in Ω_CL,CL falls from there.
   const double l = LogLikelihood(s.mu, s.omega, in.phi, in.c);

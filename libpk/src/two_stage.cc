@@ -333,6 +333,7 @@ void RunGts(const std::vector<Eigen::VectorXd>& phi, const std::vector<Eigen::Ma
     if (q.omega2 < 1e-6 * scale(j) * scale(j)) {  // at its bound: a relative SE means nothing
       at_zero.push_back(q.name);
       q.omega2_rse_pct = kNaN;
+      q.omega2_at_bound = true;
     }
     out->population.push_back(q);
   }
@@ -528,20 +529,26 @@ std::string TwoStageSummary::FullReport() const {
   out << line;
   for (const DescriptiveStatistics& d : descriptive) {
     std::snprintf(line, sizeof line, "  %-10s %4d %s %s %s %s %s %s %s %s\n", d.name.c_str(), d.n,
-                  Cell(d.mean, "%.5g", 11).c_str(), Cell(d.sd, "%.4g", 11).c_str(), Cell(d.cv_pct, "%.3g", 7).c_str(),
-                  Cell(d.geometric_mean, "%.5g", 11).c_str(), Cell(d.geometric_cv_pct, "%.3g", 8).c_str(),
-                  Cell(d.median, "%.5g", 11).c_str(), Cell(d.min, "%.5g", 11).c_str(), Cell(d.max, "%.5g", 11).c_str());
+                  Cell(d.mean, "%.4g", 11).c_str(), Cell(d.sd, "%.3g", 11).c_str(), Cell(d.cv_pct, "%.3g", 7).c_str(),
+                  Cell(d.geometric_mean, "%.4g", 11).c_str(), Cell(d.geometric_cv_pct, "%.3g", 8).c_str(),
+                  Cell(d.median, "%.4g", 11).c_str(), Cell(d.min, "%.4g", 11).c_str(), Cell(d.max, "%.4g", 11).c_str());
     out << line;
   }
   if (gts_ok) {
     std::snprintf(line, sizeof line, "\n  %-10s %11s %11s %7s %11s %11s %7s %8s\n", "GTS", "typical", "SE", "RSE%",
                   "omega^2", "SE", "RSE%", "BSV CV%");
     out << line;
+    // Estimates to 4 significant digits, SE and RSE% to 3; a variance at its bound is 0 (bound).
     for (const PopulationParameter& q : population) {
-      std::snprintf(line, sizeof line, "  %-10s %s %s %s %s %s %s %s\n", q.name.c_str(), Cell(q.typical, "%.5g", 11).c_str(),
-                    Cell(q.typical_se, "%.4g", 11).c_str(), Cell(q.typical_rse_pct, "%.3g", 7).c_str(),
-                    Cell(q.omega2, "%.4g", 11).c_str(), Cell(q.omega2_se, "%.4g", 11).c_str(),
-                    Cell(q.omega2_rse_pct, "%.3g", 7).c_str(), Cell(q.bsv_cv_pct, "%.3g", 8).c_str());
+      char omega2[16] = "  0 (bound)", se[16] = "          –", cv[16] = "       0";
+      if (!q.omega2_at_bound) {
+        std::snprintf(omega2, sizeof omega2, "%s", Cell(q.omega2, "%.4g", 11).c_str());
+        std::snprintf(se, sizeof se, "%s", Cell(q.omega2_se, "%.3g", 11).c_str());
+        std::snprintf(cv, sizeof cv, "%s", Cell(q.bsv_cv_pct, "%.3g", 8).c_str());
+      }
+      std::snprintf(line, sizeof line, "  %-10s %s %s %s %s %s %s %s\n", q.name.c_str(), Cell(q.typical, "%.4g", 11).c_str(),
+                    Cell(q.typical_se, "%.3g", 11).c_str(), Cell(q.typical_rse_pct, "%.3g", 7).c_str(), omega2, se,
+                    Cell(q.omega2_rse_pct, "%.3g", 7).c_str(), cv);
       out << line;
     }
     if (!diagonal_omega && parameters.size() > 1) {

@@ -26,6 +26,13 @@ grep -q "^ID .* RSS .* AIC .* BIC .*KA (RSE%)" "$work/theo.txt" || fail "console
 [ "$(tail -n +2 "$work/theo/estimates.csv" | wc -l)" -eq 36 ] || fail "expected 12 x 3 estimates"
 [ "$(tail -n +2 "$work/theo/predictions.csv" | wc -l)" -eq 132 ] || fail "expected 132 predictions"
 [ "$(awk -F, 'NR>1 && $9==1' "$work/theo/summary.csv" | wc -l)" -eq 12 ] || fail "all 12 fits should converge"
+# summary.json: the run for R and Python, each subject with its estimates; RSS as in summary.csv.
+grep -q '"num_subjects": 12' "$work/theo/summary.json" || fail "summary.json: num_subjects"
+[ "$(grep -c '"status": "converged"' "$work/theo/summary.json")" -eq 12 ] || fail "summary.json: 12 converged subjects"
+[ "$(grep -c '"name": "CL"' "$work/theo/summary.json")" -eq 13 ] || fail "summary.json: a CL per subject and in the population"
+grep -q "\"libpk_version\": \"$("$pkfit" --version | sed 's/.* //')\"" "$work/theo/summary.json" || fail "summary.json: version"
+rss1=$(awk -F, '$1 == 1 { print $5 }' "$work/theo/summary.csv")
+grep -q "\"rss\": ${rss1%%e*}" "$work/theo/summary.json" || fail "summary.json: ID 1's RSS $rss1"
 # RES = DV - PRED on every row.
 awk -F, 'NR>1 { d = $3 - $4 - $5; if (d < 0) d = -d; if (d > 1e-9) bad = 1 } END { exit bad }' \
   "$work/theo/predictions.csv" || fail "RES is not DV - PRED"

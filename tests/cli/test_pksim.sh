@@ -34,6 +34,14 @@ awk -F, 'NR>1 { e = 100/30*exp(-0.1*$2); d = $4 - e; if (d < 0) d = -d; if (d > 
 # An infusion given by duration, and a repeated oral regimen with a summary.
 "$pksim" --model 1cmt_iv --dose 100 --duration 2 --times 0:0.5:12 >"$work/inf.csv" || fail "infusion run failed"
 [ "$(tail -n +2 "$work/inf.csv" | wc -l)" -eq 25 ] || fail "infusion: expected 25 rows"
+# --units label the plot's axes.
+"$pksim" --model 1cmt_oral --dose 100 --times 0:1:24 --param KA=1 --param CL=2 --param V=20 --units time=h,conc=mg/L \
+  --plot "$work/units.svg" --summary >/dev/null || fail "--units run"
+grep -q ">time (h)<" "$work/units.svg" && grep -q ">concentration (mg/L)" "$work/units.svg" || fail "--units: axis labels"
+# Parameters neither --param nor the data give take the catalogue's defaults, and pksim says so.
+"$pksim" --model 1cmt_oral --dose 100 --times 1 --param CL=2 2>"$work/defaults.err" >/dev/null
+grep -q "note: the catalogue's defaults for what --param and the data do not give: KA=1.5, V=30" "$work/defaults.err" ||
+  fail "no note on the catalogue's defaults"
 "$pksim" --model 2cmt_oral --dose 500 --ii 12 --doses 14 --times 0:0.5:168 --summary --summary-csv "$work/sum.csv" \
   --plot "$work/plot.svg" --log >"$work/summary.txt" || fail "summary run failed"
 grep -q "Cmax" "$work/summary.txt" || fail "summary lacks Cmax"

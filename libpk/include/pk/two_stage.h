@@ -109,6 +109,9 @@ struct PopulationParameter {
   double omega2_rse_pct = std::numeric_limits<double>::quiet_NaN();
   /// Between-subject CV%: 100·√(exp(Ω_jj) − 1) (log-normal) or 100·√Ω_jj/|μ|.
   double bsv_cv_pct = std::numeric_limits<double>::quiet_NaN();
+  /// Ω_jj went to its bound of 0 (the estimates vary no more than their SEs explain): reports
+  /// print it as "0 (bound)", with no SE and a BSV of 0.
+  bool omega2_at_bound = false;
 };
 
 struct TwoStageSummary {

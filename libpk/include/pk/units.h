@@ -3,7 +3,8 @@
 //
 // Units are labels: libpk never converts values. They come from --units or from a units row
 // of the dataset: a comment line right after the header, '#' followed by one field per column
-// ("ID,TIME,AMT,DV" then "#,h,mg,mg/L"); NONMEM skips it as a comment (IGNORE=#).
+// ("ID,TIME,AMT,DV" then "#,h,mg,mg/L"; in a blank-separated file "# . h mg mg/L", '.' for no
+// unit); NONMEM skips it as a comment (IGNORE=#).
 #ifndef PK_UNITS_H_
 #define PK_UNITS_H_
 

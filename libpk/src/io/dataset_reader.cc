@@ -162,6 +162,11 @@ class Parser {
     size_t first = 0;
     while (first < lines.size() && IsSkippedLine(lines[first].second)) ++first;
     if (first == lines.size()) Fail(0, 0, "the file has no header line");
+    // NONMEM separates data items by commas or blanks: a header without a comma whose names are
+    // separated by spaces or tabs makes the whole file blank-separated.
+    blank_separated_ = lines[first].second.find(',') == std::string::npos &&
+                       lines[first].second.find('"') == std::string::npos &&
+                       SplitBlanks(lines[first].second).size() > 1;
     ReadHeader(lines[first].first, lines[first].second, &data);
     if (first + 1 < lines.size()) ReadUnitsRow(lines[first + 1].second, &data);
     const internal::RecordFilter filter(filter_, data.columns, source_);
@@ -169,7 +174,7 @@ class Parser {
     std::vector<std::string> fields;
     const auto kept = [&](size_t i) {
       if (IsSkippedLine(lines[i].second) || filter.DropsLine(lines[i].second)) return false;
-      SplitCsvLine(lines[i].second, &fields);
+      Split(lines[i].second, &fields);
       return !filter.DropsRecord(fields);
     };
     // NM-TRAN's day-time translation: with a date column, or when any TIME is
@@ -189,6 +194,26 @@ class Parser {
   }
 
  private:
+  static std::vector<std::string> SplitBlanks(const std::string& line) {
+    std::vector<std::string> fields;
+    size_t i = 0;
+    while (true) {
+      i = line.find_first_not_of(" \t", i);
+      if (i == std::string::npos) break;
+      const size_t end = line.find_first_of(" \t", i);
+      fields.push_back(line.substr(i, end == std::string::npos ? std::string::npos : end - i));
+      i = end;
+    }
+    return fields;
+  }
+  void Split(const std::string& line, std::vector<std::string>* fields) const {
+    if (blank_separated_) {
+      *fields = SplitBlanks(line);
+    } else {
+      SplitCsvLine(line, fields);
+    }
+  }
+
   [[noreturn]] void Fail(int line, int column, const std::string& message) const {
     throw InputError(source_, line, column, message);
   }
@@ -196,23 +221,25 @@ class Parser {
   std::string Label(Item item) const { return kItemNames[item]; }
 
   // A units row: the comment right after the header, '#' then one field per column ("#,h,mg,mg/L"
-  // under "ID,TIME,AMT,DV"). A comment of another shape is an ordinary comment.
+  // under "ID,TIME,AMT,DV"; "# . h mg mg/L" in a blank-separated file, '.' for no unit). A comment
+  // of another shape is an ordinary comment.
   void ReadUnitsRow(const std::string& line, Dataset* data) const {
     const size_t hash = line.find_first_not_of(" \t");
     if (hash == std::string::npos || line[hash] != '#') return;
-    std::vector<std::string> units = SplitCsvLine(line.substr(hash + 1));
+    std::vector<std::string> units;
+    Split(line.substr(hash + 1), &units);
     if (units.size() != data->columns.size()) return;
     for (size_t c = 0; c < units.size(); ++c) {
       const std::string unit = internal::Trim(units[c]);
       double number = 0;
       if (internal::ParseDouble(unit, &number)) return;  // a commented-out record, not units
-      if (!unit.empty()) data->column_units[data->columns[c]] = unit;
+      if (!unit.empty() && unit != ".") data->column_units[data->columns[c]] = unit;  // '.': no unit
     }
   }
 
   void ReadHeader(int line_number, const std::string& line, Dataset* data) {
     data->header_line = line_number;
-    header_ = SplitCsvLine(line);
+    Split(line, &header_);
     for (int k = 0; k < kNumItems; ++k) item_column_[k] = -1;
     date_column_ = -1;
     std::unordered_map<std::string, int> seen;
@@ -412,6 +439,7 @@ class Parser {
   int date_column_ = -1;   // DATE, DAT1, DAT2 or DAT3, when present
   int date_format_ = 0;    // index into kDateLabels
   bool clock_ = false;     // some TIME is a clock time
+  bool blank_separated_ = false;  // items separated by spaces or tabs (NONMEM accepts them), not commas
   std::pair<long, double> origin_;  // day and hours of the current subject's first record
 };
 
