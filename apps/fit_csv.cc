@@ -30,14 +30,14 @@ std::string FitStatus(const SubjectFit& f) {
   return "?";
 }
 
-std::string EstimatesCsv(const std::vector<SubjectFit>& fits) {
+std::string EstimatesCsv(const std::vector<SubjectFit>& fits, const Units& units) {
   std::ostringstream est;
-  est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT\n";
+  est << "ID,PARAMETER,ESTIMATE,SE,RSE_PCT,UNIT\n";
   for (const SubjectFit& f : fits) {
     if (!f.ok) continue;
     for (const ParameterEstimate& e : f.summary.estimates) {
       est << FormatNumber(f.id) << "," << e.name << "," << Csv(e.estimate) << "," << (e.fixed ? "" : Csv(e.se)) << ","
-          << (e.fixed ? "" : Csv(e.rse_pct)) << "\n";
+          << (e.fixed ? "" : Csv(e.rse_pct)) << "," << Quote(ParameterUnit(e.name, units)) << "\n";
     }
   }
   return est.str();
@@ -103,29 +103,29 @@ std::string FitDetailsCsv(const std::vector<SubjectFit>& fits) {
   return det.str();
 }
 
-std::string DerivedCsv(const std::vector<SubjectFit>& fits) {
+std::string DerivedCsv(const std::vector<SubjectFit>& fits, const Units& units) {
   std::ostringstream derived;
   bool any = false;
-  derived << "ID,READING,PARAMETER,VALUE,SE,RSE_PCT,NOTE\n";
+  derived << "ID,READING,PARAMETER,VALUE,SE,RSE_PCT,NOTE,UNIT\n";
   for (const SubjectFit& f : fits) {
     if (!f.ok) continue;
     const std::string id = FormatNumber(f.id);
     for (const TransferFunctionReading& r : f.derived) {
       any = true;
-      if (!r.ok) derived << id << "," << r.reading << ",,,,," << Quote(r.message) << "\n";
+      if (!r.ok) derived << id << "," << r.reading << ",,,,," << Quote(r.message) << ",\n";
       for (const DerivedParameter& d : r.parameters) {
         derived << id << "," << r.reading << "," << d.name << "," << Csv(d.value) << "," << Csv(d.se) << ","
-                << Csv(d.rse_pct) << "," << Quote(r.message) << "\n";
+                << Csv(d.rse_pct) << "," << Quote(r.message) << "," << Quote(ParameterUnit(d.name, units)) << "\n";
       }
     }
   }
   return any ? derived.str() : "";
 }
 
-std::string PopulationCsv(const TwoStageSummary& pop) {
+std::string PopulationCsv(const TwoStageSummary& pop, const Units& units) {
   std::ostringstream population;
   population << "PARAMETER,N,MEAN,SD,CV_PCT,GEOMEAN,GEOCV_PCT,MEDIAN,MIN,MAX,GTS_N,TYPICAL,TYPICAL_SE,TYPICAL_RSE_PCT,"
-                "OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT\n";
+                "OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT,UNIT\n";
   for (size_t j = 0; j < pop.descriptive.size(); ++j) {
     const DescriptiveStatistics& d = pop.descriptive[j];
     population << d.name << "," << d.n << "," << Csv(d.mean) << "," << Csv(d.sd) << "," << Csv(d.cv_pct) << ","
@@ -135,9 +135,9 @@ std::string PopulationCsv(const TwoStageSummary& pop) {
       const PopulationParameter& q = pop.population[j];
       population << "," << pop.gts_ids.size() << "," << Csv(q.typical) << "," << Csv(q.typical_se) << ","
                  << Csv(q.typical_rse_pct) << "," << Csv(q.omega2) << "," << Csv(q.omega2_se) << ","
-                 << Csv(q.omega2_rse_pct) << "," << Csv(q.bsv_cv_pct) << "\n";
+                 << Csv(q.omega2_rse_pct) << "," << Csv(q.bsv_cv_pct) << "," << Quote(ParameterUnit(d.name, units)) << "\n";
     } else {
-      population << ",0,,,,,,,\n";
+      population << ",0,,,,,,,," << Quote(ParameterUnit(d.name, units)) << "\n";
     }
   }
   return population.str();

@@ -7,6 +7,7 @@
 
 #include "pk/fit_subjects.h"
 #include "pk/two_stage.h"
+#include "pk/units.h"
 
 namespace pk {
 namespace cli {
@@ -18,13 +19,13 @@ std::string Quote(const std::string& s);
 /// "converged", "not converged", "failed" or "unbounded".
 std::string FitStatus(const SubjectFit& f);
 
-std::string EstimatesCsv(const std::vector<SubjectFit>& fits);     ///< estimates.csv
+std::string EstimatesCsv(const std::vector<SubjectFit>& fits, const Units& units);     ///< estimates.csv
 std::string SummaryCsv(const std::vector<SubjectFit>& fits);       ///< summary.csv
 std::string PredictionsCsv(const std::vector<SubjectFit>& fits, const Dataset& data);   ///< predictions.csv
 std::string FitDetailsCsv(const std::vector<SubjectFit>& fits);    ///< fit_details.csv
 /// derived.csv, or "" when no fit has derived parameters.
-std::string DerivedCsv(const std::vector<SubjectFit>& fits);
-std::string PopulationCsv(const TwoStageSummary& pop);             ///< population.csv
+std::string DerivedCsv(const std::vector<SubjectFit>& fits, const Units& units);
+std::string PopulationCsv(const TwoStageSummary& pop, const Units& units);             ///< population.csv
 std::string PopulationOmegaCsv(const TwoStageSummary& pop);        ///< population_omega.csv
 
 }  // namespace cli

@@ -178,14 +178,14 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
     WriteFileAtomically(dir + "/" + name, contents);
     written.push_back(name);
   };
-  write("estimates.csv", EstimatesCsv(fits));
+  write("estimates.csv", EstimatesCsv(fits, context.units));
   write("summary.csv", SummaryCsv(fits));
   write("predictions.csv", PredictionsCsv(fits, *context.data));
   write("fit_details.csv", FitDetailsCsv(fits));
-  const std::string derived = DerivedCsv(fits);
+  const std::string derived = DerivedCsv(fits, context.units);
   if (!derived.empty()) write("derived.csv", derived);
   if (context.population) {
-    write("population.csv", PopulationCsv(*context.population));
+    write("population.csv", PopulationCsv(*context.population, context.units));
     write("population_omega.csv", PopulationOmegaCsv(*context.population));
   }
   for (const auto& file : svgs) write(file.first, file.second);

@@ -57,6 +57,7 @@ cases=$(cat <<CASES
 2|pkfit|the catalogue has|--model no_such_model --data $theo
 1|pkfit|CL of 1cmt_iv must be positive, not -3|--model 1cmt_iv --data negative_cl_column.csv
 1|pkfit|not identifiable|--model 1cmt_iv --data constant_dv.csv
+1|pkfit|CL and V do not affect the predictions|--model 1cmt_oral --data $root/datasets/indomethacin.csv
 2|pkfit|former_name_column.csv:1:5: column V1: 'V1' is no longer a parameter of 2cmt_oral|--model 2cmt_oral --data former_name_column.csv
 2|pkfit|'Q2' is no longer a parameter of 3cmt_oral|--model 3cmt_oral --data $theo --init Q2=3
 2|pkfit|no_dv.csv:1: missing column DV|--model 1cmt_oral --data no_dv.csv

@@ -11,7 +11,7 @@ fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 for f in estimates.csv summary.csv predictions.csv fit_details.csv report.html fit_ID1.svg fit_ID12.svg; do
   [ -s "$work/theo/$f" ] || fail "missing output $f"
 done
-head -1 "$work/theo/estimates.csv" | grep -qx "ID,PARAMETER,ESTIMATE,SE,RSE_PCT" || fail "estimates header"
+head -1 "$work/theo/estimates.csv" | grep -qx "ID,PARAMETER,ESTIMATE,SE,RSE_PCT,UNIT" || fail "estimates header"
 head -1 "$work/theo/summary.csv" |
   grep -qx "ID,NOBS,OBJECTIVE,OFV,RSS,AIC,BIC,ITERATIONS,CONVERGED,GRADIENT,OPTIMIZER,SECONDS,PROPAGATOR,NCENS" ||
   fail "summary header"
@@ -65,7 +65,7 @@ if [ -n "$pksim" ]; then
 fi
 
 # Two-stage population estimates over the subjects: one row per structural parameter, in the report and on stdout.
-head -1 "$work/theo/population.csv" | grep -qx "PARAMETER,N,MEAN,SD,CV_PCT,GEOMEAN,GEOCV_PCT,MEDIAN,MIN,MAX,GTS_N,TYPICAL,TYPICAL_SE,TYPICAL_RSE_PCT,OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT" ||
+head -1 "$work/theo/population.csv" | grep -qx "PARAMETER,N,MEAN,SD,CV_PCT,GEOMEAN,GEOCV_PCT,MEDIAN,MIN,MAX,GTS_N,TYPICAL,TYPICAL_SE,TYPICAL_RSE_PCT,OMEGA2,OMEGA2_SE,OMEGA2_RSE_PCT,BSV_CV_PCT,UNIT" ||
   fail "population header"
 [ "$(awk -F, 'NR > 1 && $2 == 12 && $11 == 12' "$work/theo/population.csv" | cut -d, -f1 | tr '\n' ' ')" = "KA CL V " ] ||
   fail "population.csv should summarise KA, CL and V over 12 subjects"
@@ -82,11 +82,11 @@ grep -q "^population: two-stage" "$work/theo.txt" || fail "no population table o
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --population none --subject 1 --subject 2 \
   -o "$work/theo_nopop" -q || fail "--population none failed"
 [ ! -e "$work/theo_nopop/population.csv" ] || fail "--population none wrote population.csv"
-# Every row has all 18 fields, also when no fit converged and neither STS nor GTS could run.
-awk -F, '{ if (NF != 18) bad = 1 } END { exit bad }' "$work/theo/population.csv" || fail "population.csv row widths"
+# Every row has all 19 fields, also when no fit converged and neither STS nor GTS could run.
+awk -F, '{ if (NF != 19) bad = 1 } END { exit bad }' "$work/theo/population.csv" || fail "population.csv row widths"
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --subject 2 --max-iterations 1 \
   -o "$work/theo_unconverged" -q 2>/dev/null
-[ "$(awk -F, 'NR > 1 && NF == 18 && $2 == 0 && $3 == "" && $11 == 0 && $12 == ""' "$work/theo_unconverged/population.csv" |
+[ "$(awk -F, 'NR > 1 && NF == 19 && $2 == 0 && $3 == "" && $11 == 0 && $12 == ""' "$work/theo_unconverged/population.csv" |
   cut -d, -f1 | tr '\n' ' ')" = "KA CL V " ] || fail "population.csv without converged fits: N = 0 rows"
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --omega block -o "$work/bad_omega" 2>"$work/bad_omega.err"
 [ $? -eq 2 ] || fail "--omega block should exit 2"

@@ -20,6 +20,9 @@ grep -q "{{" "$work/dom.html" && fail "a mustache tag was left unrendered"
 [ "$(grep -o "<svg" "$work/dom.html" | wc -l)" -eq 16 ] || fail "the page should show 4 goodness-of-fit plots and 12 panels"
 [ "$(grep -o "<figure id=\"id" "$work/dom.html" | wc -l)" -eq 12 ] || fail "a panel per subject"
 grep -q "CL (L/h) (RSE%)" "$work/dom.html" || fail "the estimates table should carry units"
+[ "$(grep -c ',CL,.*,L/h$' "$work/theo/estimates.csv")" -eq 12 ] || fail "estimates.csv: CL's unit per subject"
+grep -q '^CL,.*,L/h$' "$work/theo/population.csv" || fail "population.csv: CL's unit"
+grep -q ',exponents,THALF1,.*,h$' "$work/theo/derived.csv" || fail "derived.csv: a half-life's unit"
 grep -q "libpk $("$pkfit" --version | sed 's/.* //')" "$work/dom.html" || fail "the header should name libpk's version"
 
 # A screenshot of a page with plots is far larger than one of a blank page of the same size; the
