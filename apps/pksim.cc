@@ -44,14 +44,30 @@ const char* const kUsage =
     "        --times 0:1:120 --summary    (each fitted subject on a new regimen)\n";
 
 // The --summary text of one subject.
-std::string SummaryText(const pk::Exposure& e, const pk::SubjectSimulation& sim) {
+// " mg/L" when the unit is known, "" otherwise.
+std::string UnitSuffix(const std::string& unit) { return unit.empty() ? "" : " " + unit; }
+
+// The unit of an AUC: concentration × time ("mg/L·h"), empty unless both are known.
+std::string AucUnit(const pk::Units& u) {
+  return u.concentration.empty() || u.time.empty() ? "" : u.concentration + "·" + u.time;
+}
+
+std::string SummaryText(const pk::Exposure& e, const pk::SubjectSimulation& sim, const pk::Units& units) {
   if (!sim.ok) return "ID " + pk::FormatNumber(e.id) + ": simulation failed: " + sim.message + "\n\n";
   std::string out;
-  char line[256];
-  std::snprintf(line, sizeof line, "ID %s: Cmax %.4g at t=%.4g, Cmin %.4g, AUC %.5g\n", pk::FormatNumber(e.id).c_str(),
-                e.cmax, e.tmax, e.cmin, e.auc);
+  char line[320];
+  const std::string c = UnitSuffix(units.concentration), t = UnitSuffix(units.time), auc = UnitSuffix(AucUnit(units));
+  std::snprintf(line, sizeof line, "ID %s: Cmax %.4g%s at t=%.4g%s, Cmin %.4g%s, AUC %.5g%s\n",
+                pk::FormatNumber(e.id).c_str(), e.cmax, c.c_str(), e.tmax, t.c_str(), e.cmin, c.c_str(), e.auc,
+                auc.c_str());
   out += line;
   if (!e.intervals.empty()) {
+    if (!units.time.empty() || !units.concentration.empty()) {
+      out += "  (" + (units.time.empty() ? "" : "times in " + units.time) +
+             (units.time.empty() || units.concentration.empty() ? "" : ", ") +
+             (units.concentration.empty() ? "" : "concentrations in " + units.concentration) +
+             (AucUnit(units).empty() ? "" : ", AUC in " + AucUnit(units)) + ")\n";
+    }
     std::snprintf(line, sizeof line, "  %8s %10s %10s %11s %10s %11s %11s %12s\n", "interval", "start", "end", "Cmax",
                   "Tmax", "Cmin", "Ctrough", "AUC");
     out += line;
@@ -293,7 +309,7 @@ int Main(int argc, char** argv) {
     }
     if (rows) rows->Write(text);
     const pk::Exposure e = pk::ComputeExposure(s);
-    if (vm.count("summary")) std::cout << SummaryText(e, s);
+    if (vm.count("summary")) std::cout << SummaryText(e, s, units);
     if (summary_csv) summary_csv->Write(SummaryCsvRows(e));
     if (vm.count("plot") && s.ok) plot.push_back(PlotLine(s));
   };

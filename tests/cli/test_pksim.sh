@@ -36,7 +36,8 @@ awk -F, 'NR>1 { e = 100/30*exp(-0.1*$2); d = $4 - e; if (d < 0) d = -d; if (d > 
 [ "$(tail -n +2 "$work/inf.csv" | wc -l)" -eq 25 ] || fail "infusion: expected 25 rows"
 # --units label the plot's axes.
 "$pksim" --model 1cmt_oral --dose 100 --times 0:1:24 --param KA=1 --param CL=2 --param V=20 --units time=h,conc=mg/L \
-  --plot "$work/units.svg" --summary >/dev/null || fail "--units run"
+  --plot "$work/units.svg" --summary >"$work/units.txt" || fail "--units run"
+grep -q "^ID 1: Cmax [0-9.]* mg/L at t=[0-9.]* h, .* AUC [0-9.]* mg/L·h$" "$work/units.txt" || fail "--units: the summary's units"
 grep -q ">time (h)<" "$work/units.svg" && grep -q ">concentration (mg/L)" "$work/units.svg" || fail "--units: axis labels"
 # Parameters neither --param nor the data give take the catalogue's defaults, and pksim says so.
 "$pksim" --model 1cmt_oral --dose 100 --times 1 --param CL=2 2>"$work/defaults.err" >/dev/null
