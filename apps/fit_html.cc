@@ -107,6 +107,28 @@ GofPoints CollectGof(const std::vector<SubjectFit>& fits, int output) {
   return g;
 }
 
+// For the log-log plot: the samples whose IPRED is 0 to rounding (below 1e-9 of the largest, as an
+// oral dose's prediction at its own time, ±1e-15) are left out with the zeros, or the axis would
+// reach down to them.
+GofPoints WithoutRoundingZeros(const GofPoints& g) {
+  double top = 0;
+  for (double v : g.ipred) top = std::max(top, std::fabs(v));
+  for (double v : g.cens_ipred) top = std::max(top, std::fabs(v));
+  GofPoints out;
+  out.name = g.name;
+  for (size_t i = 0; i < g.ipred.size(); ++i) {
+    if (!(g.ipred[i] > 1e-9 * top)) continue;
+    out.ipred.push_back(g.ipred[i]);
+    out.dv.push_back(g.dv[i]);
+  }
+  for (size_t i = 0; i < g.cens_ipred.size(); ++i) {
+    if (!(g.cens_ipred[i] > 1e-9 * top)) continue;
+    out.cens_ipred.push_back(g.cens_ipred[i]);
+    out.cens_dv.push_back(g.cens_dv[i]);
+  }
+  return out;
+}
+
 std::pair<double, double> Range(const std::vector<double>& a, const std::vector<double>& b, bool positive) {
   double lo = INFINITY, hi = -INFINITY;
   for (const auto* v : {&a, &b}) {
@@ -164,7 +186,8 @@ void GoodnessOfFit(const std::vector<SubjectFit>& fits, const ReportContext& c, 
   };
   const std::string conc = output > 1 ? g.name : ConcentrationLabel(c.units);
   for (bool log : {false, true}) {
-    const auto r = Range(g.ipred, g.dv, log);
+    const GofPoints shown = log ? WithoutRoundingZeros(g) : g;
+    const auto r = Range(shown.ipred, shown.dv, log);
     if (!std::isfinite(r.first)) continue;
     PlotSeries identity{"identity", {r.first, r.second}, {r.first, r.second}, false};
     identity.reference = true;
@@ -172,7 +195,7 @@ void GoodnessOfFit(const std::vector<SubjectFit>& fits, const ReportContext& c, 
     o.x_label = "individual prediction IPRED, " + conc;
     o.y_label = "observed DV";
     o.log_x = o.log_y = log;
-    add(log ? "dv_ipred_log" : "dv_ipred", GofSvg(g.ipred, g.dv, identity, o, &g));
+    add(log ? "dv_ipred_log" : "dv_ipred", GofSvg(shown.ipred, shown.dv, identity, o, &shown));
   }
   o.log_x = o.log_y = false;
   o.y_label = "IWRES";
@@ -270,7 +293,7 @@ void Panels(const std::vector<SubjectFit>& fits, const ReportContext& c, data* p
       for (bool log : axes) {
         const std::string caption = "ID " + SubjectLabel(f) + (NumOutputs(f) > 1 ? " " + f.output_names[static_cast<size_t>(k - 1)] : "") +
                                     (axes.size() > 1 ? (log ? " (log)" : " (linear)") : "") + (f.ok ? "" : ": fit failed");
-        panels.push_back(object{{"anchor", first ? "id" + SubjectKey(f) : ""},
+        panels.push_back(object{{"anchor", Maybe(first ? "id" + SubjectKey(f) : "")},
                                 {"class", Text(Trusted(f) ? "" : "bad")},
                                 {"caption", caption},
                                 {"svg", SubjectSvg(f, c, log, k, true)}});
@@ -334,6 +357,32 @@ std::string UnitsText(const Units& u) {
   return "time " + or_dash(u.time) + ", amount " + or_dash(u.amount) + ", concentration " + or_dash(u.concentration);
 }
 
+// The notes under the estimates: each distinct note on the standard errors once, with the IDs it
+// concerns, then the censored samples per ID in one line.
+list Notes(const std::vector<SubjectFit>& fits) {
+  std::vector<std::pair<std::string, std::string>> by_note;  // note, IDs (in the subjects' order)
+  std::string censored;
+  for (const SubjectFit& f : fits) {
+    if (f.ok && !f.summary.covariance_message.empty()) {
+      const std::string note = f.summary.CovarianceNote();
+      auto it = std::find_if(by_note.begin(), by_note.end(), [&](const auto& n) { return n.first == note; });
+      if (it == by_note.end()) it = by_note.insert(by_note.end(), {note, ""});
+      it->second += (it->second.empty() ? "" : ", ") + SubjectLabel(f);
+    }
+    const int c = f.censoring.cwiseAbs().sum();
+    if (c > 0) censored += (censored.empty() ? "" : ", ") + SubjectLabel(f) + ": " + std::to_string(c);
+  }
+  list notes;
+  for (const auto& n : by_note) notes.push_back(Text((n.second.find(',') == std::string::npos ? "ID " : "IDs ") +
+                                                     n.second + ": " + n.first));
+  if (!censored.empty()) {
+    notes.push_back(Text("Censored samples (CENS) per ID, " + censored +
+                         ", enter by their probability of lying beyond their limit (Beal's M3); the plots show them "
+                         "hollow, at their limit."));
+  }
+  return notes;
+}
+
 // The header, the summary cards and the notes.
 void Header(const std::vector<SubjectFit>& fits, const ReportContext& c, data* page) {
   int ok = 0, samples = 0;
@@ -354,7 +403,7 @@ void Header(const std::vector<SubjectFit>& fits, const ReportContext& c, data* p
   (*page)["method"] = c.method;
   (*page)["units"] = UnitsText(c.units);
   (*page)["date"] = Today();
-  (*page)["version"] = Version();
+  (*page)["version"] = Text(Version());
   (*page)["command"] = c.command_line;
   (*page)["num_subjects"] = std::to_string(fits.size());
   (*page)["num_samples"] = std::to_string(samples);
@@ -365,19 +414,8 @@ void Header(const std::vector<SubjectFit>& fits, const ReportContext& c, data* p
   (*page)["aic_total"] = Sig(aic, 6);
   (*page)["bic_total"] = Sig(bic, 6);
   (*page)["objective_note"] = ObjectiveNote(fits);
-  list notes;
-  for (const SubjectFit& f : fits) {
-    if (f.ok && !f.summary.covariance_message.empty()) {
-      notes.push_back(data("ID " + SubjectLabel(f) + ": " + f.summary.CovarianceNote()));
-    }
-    const int censored = f.censoring.cwiseAbs().sum();
-    if (censored > 0) {
-      notes.push_back(data("ID " + SubjectLabel(f) + ": " + std::to_string(censored) +
-                           " censored samples (CENS) enter by their probability of lying beyond their limit (Beal's M3)"));
-    }
-  }
-  (*page)["has_notes"] = data(!notes.empty());
-  (*page)["notes"] = notes;
+  (*page)["notes"] = Notes(fits);
+  (*page)["has_notes"] = data(!(*page)["notes"].is_empty_list());
 }
 
 }  // namespace

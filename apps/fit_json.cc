@@ -34,7 +34,7 @@ nlohmann::json Subject(const SubjectFit& f, const Units& units) {
   nlohmann::json estimates = nlohmann::json::array();
   for (const ParameterEstimate& e : s.estimates) {
     estimates.push_back({{"name", e.name},
-                         {"estimate", e.at_bound ? nlohmann::json(0.0) : Number(e.estimate)},
+                         {"estimate", Number(e.estimate)},
                          {"se", Number(e.se)},
                          {"rse_pct", Number(e.rse_pct)},
                          {"fixed", e.fixed},
@@ -56,6 +56,7 @@ nlohmann::json Population(const TwoStageSummary& pop) {
       p["typical"] = Number(q.typical);
       p["typical_rse_pct"] = Number(q.typical_rse_pct);
       p["omega2"] = Number(q.omega2);
+      p["omega2_at_bound"] = q.omega2_at_bound;
       p["omega2_rse_pct"] = Number(q.omega2_rse_pct);
       p["bsv_cv_pct"] = Number(q.bsv_cv_pct);
     }
@@ -87,7 +88,9 @@ std::string JsonSummary(const std::vector<SubjectFit>& fits, const ReportContext
   run["num_trusted"] = trusted;
   run["subjects"] = subjects;
   if (context.population) run["population"] = Population(*context.population);
-  return run.dump(2) + "\n";
+  // Text from the data (a units row, a path, a message quoting a field) may not be UTF-8: such bytes
+  // become U+FFFD rather than an exception after the fits.
+  return run.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
 }
 
 }  // namespace cli

@@ -223,6 +223,7 @@ int ReportProblems(const std::vector<pk::SubjectFit>& fits) {
 
 // --axis: auto, linear, log or both (--log is log).
 pk::cli::Axis ParseAxis(const po::variables_map& vm) {
+  if (vm.count("log") && !vm["axis"].defaulted()) throw pk::InputError("give --axis or --log, not both");
   const std::string axis = vm.count("log") ? "log" : vm["axis"].as<std::string>();
   if (axis == "auto") return pk::cli::Axis::kAuto;
   if (axis == "linear") return pk::cli::Axis::kLinear;
@@ -273,11 +274,11 @@ int Main(int argc, char** argv) {
   CompleteRequest(vm, lists, &req);
   if (vm.count("evaluate")) return Evaluate(req);
 
-  const bool quiet = vm.count("quiet") > 0;
-  const std::vector<pk::SubjectFit> fits = FitAll(req, quiet);
-  pk::cli::ReportContext context;
+  pk::cli::ReportContext context;  // --axis and --units are checked here, before any fitting
   for (int a = 0; a < argc; ++a) context.command_line += (a ? " " : "") + std::string(argv[a]);
   FillContext(vm, req, &context);
+  const bool quiet = vm.count("quiet") > 0;
+  const std::vector<pk::SubjectFit> fits = FitAll(req, quiet);
   pk::TwoStageSummary population;  // stage two over the subjects, when there are several
   if (population_model != "none" && fits.size() >= 2) {
     population = pk::EstimateTwoStage(fits, two_stage);

@@ -83,11 +83,37 @@ TEST_CASE("LOWESS equals R's lowess() (tests/reference/make_lowess_reference.R)"
                   -0.095259174833779492, -1.1488908162574429, -1.1730460490634009},
                  {0, 1, 49, 100, 149, 198, 199});
   }
+  SECTION("n = 10: the neighbourhood of f·n = 6.67 points is truncated to 6") {
+    std::vector<double> x;
+    for (int i = 1; i <= 10; ++i) x.push_back(i);
+    CheckEqualsR(pk::Lowess(x, {2, 4.1, 5.8, 8.3, 9.9, 12.4, 13.7, 16.2, 18.1, 19.6}),
+                 {2.0016349430639848, 4.0157894301034132, 6.0360182453750095, 8.0568938472115281, 10.097785791034271,
+                  12.063443206752371, 14.074296790403828, 16.016195929029784, 17.898287492413054,
+                  19.774418598133728});
+  }
+  SECTION("ties at the window's edge with a half-width of 0 all count") {
+    CheckEqualsR(pk::Lowess({1, 1, 1, 1, 1, 1, 1, 2, 3}, {1, 2, 3, 4, 5, 6, 7, 8, 9}),
+                 {4, 4, 4, 4, 4, 4, 4, 8, 9.0000000000000036});
+  }
+  SECTION("x far from 0: the spread of x is taken about its mean") {
+    std::vector<double> x, y;
+    for (int i = 0; i < 30; ++i) {
+      x.push_back(1e7 + i / 10.0);
+      y.push_back(std::sin(i / 3.0));
+    }
+    // Uncentred sums were 7% off here. The x themselves are known to an ulp of 1e7 (1.9e-9), 2e-8 of
+    // their spacing of 0.1, so R's order of summation and ours agree to that, not to 1e-12.
+    const pk::PlotSeries s = pk::Lowess(x, y);
+    const std::vector<double> r{0.8940058732393017, 0.055958141175387818, 0.018416266990092255, 0.68829534905674117};
+    const size_t at[] = {0, 9, 19, 29};
+    for (size_t k = 0; k < 4; ++k) CHECK(s.y[at[k]] == Approx(r[k]).epsilon(0).margin(2e-8));  // y is of order 1
+  }
   SECTION("a straight line is its own smooth; too few points give none") {
     const pk::PlotSeries s = pk::Lowess({3, 1, 2, 5, 4}, {7, 3, 5, 11, 9});  // unsorted: y = 2x + 1
     REQUIRE(s.x == std::vector<double>{1, 2, 3, 4, 5});
     for (size_t i = 0; i < s.x.size(); ++i) CHECK(s.y[i] == Approx(2 * s.x[i] + 1).epsilon(1e-12));
     CHECK(pk::Lowess({1, 2}, {1, 2}).y.empty());
+    CHECK(pk::Lowess({1, 2}, {1, 2}).x.empty());
   }
 }
 

@@ -64,6 +64,8 @@ cases=$(cat <<CASES
 2|pkfit|unknown model '1cmt_orla' (did you mean 1cmt_oral?)|--model 1cmt_orla --data $theo
 2|pkfit|unrecognised option '--dta' (did you mean --data?)|--model 1cmt_oral --dta $theo
 2|pkfit|unknown parameter 'CLL' (did you mean CL?)|--model 1cmt_oral --data $theo --fix CLL=3
+2|pkfit|give --axis or --log, not both|--model 1cmt_oral --data $theo --axis both --log
+2|pkfit|--units: unknown key 'volume' (time, amt or conc)|--model 1cmt_oral --data $theo --units volume=L
 3|pkfit|cannot create the output directory|--model 1cmt_oral --data $theo -o /proc/no/such/dir
 2|pksim|a dose with RATE=-1 needs R1 > 0|--model 1cmt_oral --data rate_without_r1.csv --param KA=1 --param CL=1 --param V=10
 2|pksim|CL of 1cmt_oral must be positive, not -1|--model 1cmt_oral --dose 100 --times 1 --param CL=-1

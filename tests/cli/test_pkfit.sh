@@ -31,6 +31,13 @@ grep -q '"num_subjects": 12' "$work/theo/summary.json" || fail "summary.json: nu
 [ "$(grep -c '"status": "converged"' "$work/theo/summary.json")" -eq 12 ] || fail "summary.json: 12 converged subjects"
 [ "$(grep -c '"name": "CL"' "$work/theo/summary.json")" -eq 13 ] || fail "summary.json: a CL per subject and in the population"
 grep -q "\"libpk_version\": \"$("$pkfit" --version | sed 's/.* //')\"" "$work/theo/summary.json" || fail "summary.json: version"
+# A units row in Latin-1 (not UTF-8): the report and summary.json are still written, the bytes replaced.
+{ head -1 "$root/datasets/theophylline.csv"; printf '#,h,\xb5g,,,,\xb5g/mL,,,,kg,\n'; tail -n +2 "$root/datasets/theophylline.csv"; } \
+  >"$work/latin1.csv"
+"$pkfit" --model 1cmt_oral --data "$work/latin1.csv" --subject 1 -o "$work/latin1" -q --population none ||
+  fail "a Latin-1 units row should not stop pkfit"
+[ -s "$work/latin1/MANIFEST" ] && grep -q '"concentration": "' "$work/latin1/summary.json" ||
+  fail "Latin-1 units: summary.json and MANIFEST should be written"
 rss1=$(awk -F, '$1 == 1 { print $5 }' "$work/theo/summary.csv")
 grep -q "\"rss\": ${rss1%%e*}" "$work/theo/summary.json" || fail "summary.json: ID 1's RSS $rss1"
 # RES = DV - PRED on every row.

@@ -19,3 +19,16 @@ x4 <- (0:199)^2 / 199^2
 cat("\n200 points, delta skipping, f = 2/3:\n")
 cat(sprintf("%.17g", lowess(x4, cos(3 * x4) + 0.1 * sin(37 * x4))$y[c(1, 2, 50, 101, 150, 199, 200)]), sep = ", ")
 cat("\n")
+# n = 10: f·n = 6.67 points, truncated to 6 by R.
+x5 <- 1:10
+y5 <- c(2, 4.1, 5.8, 8.3, 9.9, 12.4, 13.7, 16.2, 18.1, 19.6)
+cat("n = 10:\n")
+cat(sprintf("%.17g", lowess(x5, y5)$y), sep = ", ")
+# Ties at the window's edge with a half-width of 0: the ties beyond the window count.
+cat("\nties at the edge, h = 0:\n")
+cat(sprintf("%.17g", lowess(c(rep(1, 7), 2, 3), 1:9)$y), sep = ", ")
+# x far from 0: the spread of x is taken about its mean.
+x6 <- 1e7 + (0:29) / 10
+cat("\nx far from 0:\n")
+cat(sprintf("%.17g", lowess(x6, sin(0:29 / 3))$y[c(1, 10, 20, 30)]), sep = ", ")
+cat("\n")

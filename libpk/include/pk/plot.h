@@ -48,7 +48,7 @@ const char* PaletteColour(int k);
 /// Cleveland's LOWESS smoother (R's lowess(x, y, f, iter)): a local linear fit with tricube
 /// weights over the fraction `f` of the points nearest each x, then `iterations` robustness
 /// passes with bisquare weights. Returns the points sorted by x with the smoothed y; non-finite
-/// points are left out.
+/// points are left out. Empty (x and y) for fewer than 3 points or a single x.
 PlotSeries Lowess(const std::vector<double>& x, const std::vector<double>& y, double f = 2.0 / 3.0,
                   int iterations = 3);
 

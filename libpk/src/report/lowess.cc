@@ -10,34 +10,46 @@
 namespace pk {
 namespace {
 
-// The weighted local linear fit at xs[i] over the window [lo, lo + ns) of the sorted points, as R's
-// lowest(): tricube weights of the distance over the window's half-width h, 1 within 0.001·h, 0
-// beyond 0.999·h; the slope only when the weighted spread of x exceeds 0.001 of its range.
+// The weighted local linear fit at xs[i] over the window from `lo` of the sorted points, as R's
+// lowest(): tricube weights of the distance over the window's half-width h (from its ns points), 1
+// within 0.001·h, 0 beyond 0.999·h; points right of the window still within 0.999·h (ties of its last
+// point when h = 0) count too. The slope only when the weighted spread of x, taken about its mean,
+// exceeds 0.001 of the range of x.
 double LocalFit(const std::vector<double>& xs, const std::vector<double>& ys, const std::vector<double>& robust,
-                size_t i, size_t lo, size_t ns) {
+                size_t i, size_t lo, size_t ns, std::vector<double>* w) {
   const double x = xs[i];
   const double h = std::max(x - xs[lo], xs[lo + ns - 1] - x);
-  double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
-  for (size_t j = lo; j < lo + ns; ++j) {
-    const double r = std::fabs(xs[j] - x);
-    double w = 1;
-    if (r > 0.999 * h) continue;
+  w->clear();
+  double sw = 0;
+  size_t end = lo;
+  for (; end < xs.size(); ++end) {
+    const double r = std::fabs(xs[end] - x);
+    if (r > 0.999 * h) {
+      if (xs[end] > x) break;
+      w->push_back(0);
+      continue;
+    }
+    double wj = 1;
     if (r > 0.001 * h) {
       const double t = 1 - (r / h) * (r / h) * (r / h);
-      w = t * t * t;
+      wj = t * t * t;
     }
-    w *= robust[j];
-    sw += w;
-    sx += w * xs[j];
-    sy += w * ys[j];
-    sxx += w * xs[j] * xs[j];
-    sxy += w * xs[j] * ys[j];
+    w->push_back(wj * robust[end]);
+    sw += w->back();
   }
   if (!(sw > 0)) return ys[i];
-  const double mx = sx / sw, my = sy / sw, var = sxx / sw - mx * mx;
+  double a = 0;
+  for (size_t j = lo; j < end; ++j) a += (*w)[j - lo] / sw * xs[j];
   const double range = xs.back() - xs.front();
-  if (!(h > 0) || !(std::sqrt(std::max(var, 0.0)) > 0.001 * range)) return my;
-  return my + (sxy / sw - mx * my) / var * (x - mx);
+  double c = 0;
+  for (size_t j = lo; j < end; ++j) c += (*w)[j - lo] / sw * (xs[j] - a) * (xs[j] - a);
+  const bool slope = h > 0 && std::sqrt(c) > 0.001 * range;
+  double fit = 0;
+  for (size_t j = lo; j < end; ++j) {
+    const double wj = (*w)[j - lo] / sw;
+    fit += (slope ? wj * ((x - a) * (xs[j] - a) / c + 1) : wj) * ys[j];
+  }
+  return fit;
 }
 
 // One pass: fitted values at every point. As R does, after a fit at x_last the next fit is at the
@@ -49,9 +61,10 @@ std::vector<double> Pass(const std::vector<double>& xs, const std::vector<double
   std::vector<double> fit(n);
   size_t lo = 0, last = 0;
   bool first = true;
+  std::vector<double> weights;
   for (size_t i = 0;;) {
     while (lo + ns < n && xs[i] - xs[lo] > xs[lo + ns] - xs[i]) ++lo;
-    fit[i] = LocalFit(xs, ys, robust, i, lo, ns);
+    fit[i] = LocalFit(xs, ys, robust, i, lo, ns, &weights);
     if (!first && i > last + 1) {  // the points skipped since the last fit, interpolated
       for (size_t j = last + 1; j < i; ++j) {
         const double a = (xs[j] - xs[last]) / (xs[i] - xs[last]);
@@ -107,11 +120,12 @@ PlotSeries Lowess(const std::vector<double>& x, const std::vector<double>& y, do
   PlotSeries out;
   out.label = "LOWESS";
   const size_t n = points.size();
+  if (n < 3 || points.front().first == points.back().first) return out;  // no smoother: both empty
   for (const auto& p : points) out.x.push_back(p.first);
-  if (n < 3 || out.x.front() == out.x.back()) return out;  // no smoother through fewer points
   std::vector<double> ys(n);
   for (size_t i = 0; i < n; ++i) ys[i] = points[i].second;
-  const size_t ns = std::min(n, std::max<size_t>(2, static_cast<size_t>(std::lround(f * static_cast<double>(n)))));
+  // The neighbourhood: f·n points, truncated as R does.
+  const size_t ns = std::min(n, std::max<size_t>(2, static_cast<size_t>(f * static_cast<double>(n) + 1e-7)));
   std::vector<double> robust(n, 1.0), fit;
   for (int pass = 0; pass <= iterations; ++pass) {
     fit = Pass(out.x, ys, robust, ns);
