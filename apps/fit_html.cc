@@ -114,18 +114,18 @@ GofPoints WithoutRoundingZeros(const GofPoints& g) {
   double top = 0;
   for (double v : g.ipred) top = std::max(top, std::fabs(v));
   for (double v : g.cens_ipred) top = std::max(top, std::fabs(v));
+  const auto keep = [top](const std::vector<double>& ipred, const std::vector<double>& dv, std::vector<double>* to_ipred,
+                         std::vector<double>* to_dv) {
+    for (size_t i = 0; i < ipred.size(); ++i) {
+      if (!(ipred[i] > 1e-9 * top)) continue;
+      to_ipred->push_back(ipred[i]);
+      to_dv->push_back(dv[i]);
+    }
+  };
   GofPoints out;
   out.name = g.name;
-  for (size_t i = 0; i < g.ipred.size(); ++i) {
-    if (!(g.ipred[i] > 1e-9 * top)) continue;
-    out.ipred.push_back(g.ipred[i]);
-    out.dv.push_back(g.dv[i]);
-  }
-  for (size_t i = 0; i < g.cens_ipred.size(); ++i) {
-    if (!(g.cens_ipred[i] > 1e-9 * top)) continue;
-    out.cens_ipred.push_back(g.cens_ipred[i]);
-    out.cens_dv.push_back(g.cens_dv[i]);
-  }
+  keep(g.ipred, g.dv, &out.ipred, &out.dv);
+  keep(g.cens_ipred, g.cens_dv, &out.cens_ipred, &out.cens_dv);
   return out;
 }
 

@@ -47,16 +47,12 @@ const char* const kUsage =
 // " mg/L" when the unit is known, "" otherwise.
 std::string UnitSuffix(const std::string& unit) { return unit.empty() ? "" : " " + unit; }
 
-// The unit of an AUC: concentration × time ("mg/L·h"), empty unless both are known.
-std::string AucUnit(const pk::Units& u) {
-  return u.concentration.empty() || u.time.empty() ? "" : u.concentration + "·" + u.time;
-}
-
 std::string SummaryText(const pk::Exposure& e, const pk::SubjectSimulation& sim, const pk::Units& units) {
   if (!sim.ok) return "ID " + pk::FormatNumber(e.id) + ": simulation failed: " + sim.message + "\n\n";
   std::string out;
   char line[320];
-  const std::string c = UnitSuffix(units.concentration), t = UnitSuffix(units.time), auc = UnitSuffix(AucUnit(units));
+  const std::string c = UnitSuffix(units.concentration), t = UnitSuffix(units.time), auc_unit = pk::ParameterUnit("AUC", units);
+  const std::string auc = UnitSuffix(auc_unit);
   std::snprintf(line, sizeof line, "ID %s: Cmax %.4g%s at t=%.4g%s, Cmin %.4g%s, AUC %.5g%s\n",
                 pk::FormatNumber(e.id).c_str(), e.cmax, c.c_str(), e.tmax, t.c_str(), e.cmin, c.c_str(), e.auc,
                 auc.c_str());
@@ -66,7 +62,7 @@ std::string SummaryText(const pk::Exposure& e, const pk::SubjectSimulation& sim,
       out += "  (" + (units.time.empty() ? "" : "times in " + units.time) +
              (units.time.empty() || units.concentration.empty() ? "" : ", ") +
              (units.concentration.empty() ? "" : "concentrations in " + units.concentration) +
-             (AucUnit(units).empty() ? "" : ", AUC in " + AucUnit(units)) + ")\n";
+             (auc_unit.empty() ? "" : ", AUC in " + auc_unit) + ")\n";
     }
     std::snprintf(line, sizeof line, "  %8s %10s %10s %11s %10s %11s %11s %12s\n", "interval", "start", "end", "Cmax",
                   "Tmax", "Cmin", "Ctrough", "AUC");

@@ -167,6 +167,9 @@ TEST_CASE("units: the parameters' units follow from time, amount and concentrati
   CHECK(pk::ParameterUnit("KM", u) == "mg/L");
   CHECK(pk::ParameterUnit("SIGMA_ADD", u) == "mg/L");
   CHECK(pk::ParameterUnit("F1", u) == "1");
+  CHECK(pk::ParameterUnit("AUC", u) == "mg/L·h");
+  CHECK(pk::ParameterUnit("CMAX", u) == "mg/L");
+  CHECK(pk::ParameterUnit("TMAX", u) == "h");
   CHECK(pk::ParameterUnit("A1", u).empty());  // a tf coefficient: no unit is claimed
   CHECK(pk::ParameterUnit("EMAX", u).empty());
   CHECK(pk::WithUnit("CL", "L/h") == "CL (L/h)");

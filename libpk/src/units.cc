@@ -84,6 +84,10 @@ std::string ParameterUnit(const std::string& raw, const Units& units) {
   const std::string name = ToUpper(raw);
   const std::string volume = VolumeUnit(units), per_time = units.time.empty() ? "" : "1/" + units.time;
   if (name == "VMAX") return Per(units.amount, units.time);
+  // Exposure: AUC is concentration × time; CMAX, CMIN and CTROUGH a concentration, TMAX a time.
+  if (name == "AUC") return units.concentration.empty() || units.time.empty() ? "" : units.concentration + "·" + units.time;
+  if (name == "CMAX" || name == "CMIN" || name == "CTROUGH") return units.concentration;
+  if (name == "TMAX") return units.time;
   if (name == "KM" || name == "EC50" || name == "SIGMA_ADD") return units.concentration;
   if (name == "SIGMA_PROP" || name == "SIGMA_LOG" || name == "HILL" || Numbered(name, "F")) return "1";
   if (Numbered(name, "V")) return volume;

@@ -37,7 +37,8 @@ std::string VolumeUnit(const Units& units);
 
 /// The unit of a parameter by its NONMEM name: volumes (V, V1…), clearances (CL, Q, Q2…), rate
 /// constants (KA, K, K10, KE0, LAMBDA…), times (ALAG, D, MTT, THALF…), VMAX, KM, EC50, R and an
-/// additive σ. Empty when the name says nothing (tf coefficients, E0, EMAX) or a unit is missing;
+/// additive σ, and the exposure metrics (AUC concentration·time, CMAX/CMIN/CTROUGH, TMAX). Empty
+/// when the name says nothing (tf coefficients, E0, EMAX) or a unit is missing;
 /// "1" for the dimensionless ones (F, HILL, a proportional σ).
 std::string ParameterUnit(const std::string& name, const Units& units);
 
