@@ -127,6 +127,8 @@ pk::FitSubjectsRequest BaseRequest(const po::variables_map& vm, const Lists& a) 
   if (vm.count("error")) {
     req.objective.error_model =
         pk::cli::Parsed("--error", [&] { return pk::MakeResidualError(vm["error"].as<std::string>()); });
+  } else if (!req.model->declarations().error_model.empty()) {  // the model file's $ERROR
+    req.objective.error_model = pk::MakeResidualError(req.model->declarations().error_model);
   }
   req.priors = ParsePriors(a.priors);
   req.fit.starts = vm["starts"].as<int>();
@@ -239,7 +241,7 @@ void FillContext(const po::variables_map& vm, const pk::FitSubjectsRequest& req,
   c->data = req.data.get();
   const pk::Units given = vm.count("units") ? pk::cli::Parsed("--units", [&] { return pk::ParseUnits(vm["units"].as<std::string>()); })
                                             : pk::Units();
-  c->units = pk::MergeUnits(given, pk::DatasetUnits(*req.data));
+  c->units = pk::ModelUnits(pk::MergeUnits(given, pk::DatasetUnits(*req.data)), *req.model);
   c->axis = ParseAxis(vm);
   c->multi_exponential = req.model->is_linear() && req.model->num_compartments() > 1;
   const pk::ResidualErrorModel& error = *req.objective.error_model;

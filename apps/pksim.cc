@@ -261,10 +261,12 @@ int Main(int argc, char** argv) {
     if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
     data = RegimenFromFlags(vm, grid);
   }
-  const pk::Units units = pk::MergeUnits(
-      vm.count("units") ? pk::cli::Parsed("--units", [&] { return pk::ParseUnits(vm["units"].as<std::string>()); })
-                        : pk::Units(),
-      pk::DatasetUnits(data));
+  const pk::Units units = pk::ModelUnits(
+      pk::MergeUnits(
+          vm.count("units") ? pk::cli::Parsed("--units", [&] { return pk::ParseUnits(vm["units"].as<std::string>()); })
+                            : pk::Units(),
+          pk::DatasetUnits(data)),
+      *model);
   pk::SimulationOptions sim_options;
   sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
   sim_options.ode.relative_tolerance = vm["rtol"].as<double>();

@@ -7,6 +7,7 @@
 
 #include "catalogue_models.h"
 #include "pk/error.h"
+#include "pk/model_file.h"
 #include "internal_text.h"
 
 namespace pk {
@@ -37,6 +38,10 @@ std::vector<std::string> CatalogueModelNames() {
 }
 
 std::shared_ptr<const Model> MakeModel(const std::string& spec) {
+  // A model file: a name ending in .pkm, or a path.
+  const bool file = (spec.size() > 4 && internal::ToLower(spec.substr(spec.size() - 4)) == ".pkm") ||
+                    spec.find('/') != std::string::npos;
+  if (file) return LoadModelFile(spec);
   // Model options follow the name: "1cmt_oral_transit:NTR=5".
   const size_t colon = spec.find(':');
   const std::string name = spec.substr(0, colon);
@@ -58,7 +63,8 @@ std::shared_ptr<const Model> MakeModel(const std::string& spec) {
   }
   const std::string closest = ClosestName(name, CatalogueModelNames());
   throw InputError("unknown model '" + name + "'" + (closest.empty() ? "" : " (did you mean " + closest + "?)") +
-                   "; the catalogue has " + internal::Join(CatalogueModelNames(), ", "));
+                   "; give a model file (NAME.pkm) or a model of the catalogue, which has " +
+                   internal::Join(CatalogueModelNames(), ", "));
 }
 
 }  // namespace pk

@@ -177,7 +177,7 @@ TEST_CASE("units: the parameters' units follow from time, amount and concentrati
   // Mass units that differ: the volume unit says so rather than converting.
   u.concentration = "ng/mL";
   CHECK(pk::VolumeUnit(u) == "mg/(ng/mL)");
-  CHECK(pk::ParameterUnit("V", pk::Units{"h", "", ""}).empty());
+  CHECK(pk::ParameterUnit("V", pk::Units{"h", "", "", {}}).empty());
   CHECK_THROWS_WITH(pk::ParseUnits("volume=L"), Catch::Contains("unknown key 'volume'"));
   CHECK_THROWS_WITH(pk::ParseUnits("h"), Catch::Contains("expected KEY=UNIT"));
 }

@@ -177,10 +177,21 @@ std::vector<std::string> ExponentNames(const Model& model, const Eigen::VectorXd
   int absorption = -1;
   const InitialStructure& s = model.initial_structure();
   const int ka = s.depot && !s.names.empty() ? model.ParameterIndex(s.names[0]) : -1;
-  if (ka >= 0) {
+  double rate = ka >= 0 ? theta(ka) : NAN;
+  // A model that declares no structure (a model file) has a depot when its dose compartment is not
+  // the central one and nothing flows into it: its exit rate is −A(d, d).
+  const auto* linear = dynamic_cast<const LinearModel*>(&model);
+  const int d = model.default_dose_compartment() - 1;
+  if (ka < 0 && linear != nullptr && d != model.central_compartment() - 1) {
+    const Eigen::MatrixXd a = linear->SystemMatrix<double>(theta.head(model.num_parameters()));
+    bool inflow = false;
+    for (int j = 0; j < a.cols(); ++j) inflow = inflow || (j != d && a(d, j) != 0);
+    if (!inflow && a(d, d) < 0) rate = -a(d, d);
+  }
+  if (!std::isnan(rate)) {
     double best = INFINITY;
     for (int i = 0; i < n; ++i) {
-      const double gap = std::fabs(e.rate[i] - theta(ka));
+      const double gap = std::fabs(e.rate[i] - rate);
       if (gap < best) {
         best = gap;
         absorption = i;

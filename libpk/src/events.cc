@@ -58,6 +58,12 @@ void CheckPositive(const Model& model, const ParameterLayout& layout, const Prep
   const Record& rec = s.records()[r];
   const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
   for (int i = 0; i < model.num_parameters(); ++i) {
+    if (model.is_covariate(i) && std::isnan(p(i))) {
+      const int col = s.column_of_parameter[i];
+      throw ParameterValueError(s.data->source, rec.line, col >= 0 ? s.data->ColumnNumber(layout.name(i)) : 0,
+                                "the covariate " + layout.name(i) + " has no value on this record ('.' or empty) "
+                                "and the model gives no reference value");
+    }
     if (!model.must_be_positive(i) || !(p(i) <= 0)) continue;  // NaN: not given, reported where it is used
     const int col = s.column_of_parameter[i];
     const bool from_data = col >= 0 && !std::isnan(rec.extra[col]);
@@ -73,6 +79,17 @@ void CheckPositive(const Model& model, const ParameterLayout& layout, const Prep
 }  // namespace
 
 void CheckColumns(const Model& model, const Dataset& data, bool fitting) {
+  // A covariate with neither a column nor a reference value has no value anywhere.
+  for (int i = 0; i < model.num_parameters(); ++i) {
+    if (!model.is_covariate(i) || data.ExtraColumn(model.parameter_names()[i]) >= 0 ||
+        !std::isnan(model.default_parameters()(i))) {
+      continue;
+    }
+    throw InputError(data.source, data.header_line, 0,
+                     "model " + model.name() + " reads the covariate " + model.parameter_names()[i] +
+                         ", but the dataset has no column " + model.parameter_names()[i] + " (the header has " +
+                         Join(data.columns, ",") + ")");
+  }
   for (const std::string& column : data.extra_columns) {
     if (!model.IsFormerName(column)) continue;
     throw InputError(data.source, data.header_line, data.ColumnNumber(column),

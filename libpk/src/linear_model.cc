@@ -24,7 +24,9 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
                                                           std::vector<LinearTerm> system_terms,
                                                           std::vector<std::vector<LinearTerm>> output_terms,
                                                           int transfer_function_order,
-                                                          InitialStructure initial_structure) {
+                                                          InitialStructure initial_structure,
+                                                          ModelDeclarations declarations,
+                                                          std::vector<std::string> signed_parameters) {
   const int n = static_cast<int>(compartments.size()), m = static_cast<int>(parameters.size());
   auto bad = [&](const std::string& what) { throw std::logic_error("model " + name + ": " + what); };
   if (static_cast<int>(output_terms.size()) != n) bad("one output row per compartment is needed");
@@ -46,6 +48,8 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
   model->set_initial_structure(std::move(initial_structure));
   // A transfer function's coefficients take either sign; a compartment model's parameters are positive.
   if (transfer_function_order > 0) model->set_signed_parameters(model->parameter_names());
+  if (!signed_parameters.empty()) model->set_signed_parameters(signed_parameters);
+  model->set_declarations(std::move(declarations));
   return model;
 }
 

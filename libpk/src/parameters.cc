@@ -23,6 +23,8 @@ ParameterLayout::ParameterLayout(const Model& model)
     defaults_(Duration(c)) = nan;
     defaults_(InitialState(c)) = 0.0;
   }
+  // Modifiers a model file declares start from its values.
+  for (const DeclaredParameter& m : model.declarations().modifiers) defaults_(Index(m.name)) = m.initial;
 }
 
 int ParameterLayout::Index(const std::string& name) const {

@@ -82,6 +82,8 @@ std::string VolumeUnit(const Units& units) {
 
 std::string ParameterUnit(const std::string& raw, const Units& units) {
   const std::string name = ToUpper(raw);
+  const auto declared = units.parameters.find(name);
+  if (declared != units.parameters.end()) return declared->second;
   const std::string volume = VolumeUnit(units), per_time = units.time.empty() ? "" : "1/" + units.time;
   if (name == "VMAX") return Per(units.amount, units.time);
   // Exposure: AUC is concentration × time; CMAX, CMIN and CTROUGH a concentration, TMAX a time.
@@ -96,6 +98,17 @@ std::string ParameterUnit(const std::string& raw, const Units& units) {
   if (Numbered(name, "ALAG") || Numbered(name, "D") || name == "MTT" || StartsWith(name, "THALF")) return units.time;
   if (Numbered(name, "R")) return Per(units.amount, units.time);
   return "";
+}
+
+Units ModelUnits(const Units& units, const Model& model) {
+  Units out = units;
+  const ModelDeclarations& d = model.declarations();
+  for (const auto* list : {&d.parameters, &d.modifiers}) {
+    for (const DeclaredParameter& p : *list) {
+      if (!p.unit.empty()) out.parameters[ToUpper(p.name)] = p.unit;
+    }
+  }
+  return out;
 }
 
 std::string WithUnit(const std::string& name, const std::string& unit) {

@@ -54,7 +54,7 @@ cases=$(cat <<CASES
 2|pkfit|starts must be from 1 to 1000|--model 1cmt_oral --data $theo --starts 100000
 2|pkfit|a dose with RATE=-1 needs R1 > 0|--model 1cmt_oral --data rate_without_r1.csv
 2|pkfit|has no MANIFEST|--model 1cmt_oral --data $theo --init-from killed/estimates.csv
-2|pkfit|the catalogue has|--model no_such_model --data $theo
+2|pkfit|a model of the catalogue, which has|--model no_such_model --data $theo
 1|pkfit|CL of 1cmt_iv must be positive, not -3|--model 1cmt_iv --data negative_cl_column.csv
 1|pkfit|not identifiable|--model 1cmt_iv --data constant_dv.csv
 1|pkfit|CL and V do not affect the predictions|--model 1cmt_oral --data $root/datasets/indomethacin.csv

@@ -9,7 +9,7 @@ failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 
 # The catalogue, as pkfit lists it for an unknown model.
-models=$("$pkfit" --model no_such_model --data "$root/datasets/theophylline.csv" 2>&1 | sed -n 's/.*the catalogue has //p' |
+models=$("$pkfit" --model no_such_model --data "$root/datasets/theophylline.csv" 2>&1 | sed -n 's/.*which has //p' |
          tr -d ',')
 [ -n "$models" ] || { echo "FAIL: pkfit did not list the catalogue"; exit 1; }
 runs=0

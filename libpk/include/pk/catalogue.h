@@ -39,7 +39,8 @@ namespace pk {
 std::vector<std::string> CatalogueModelNames();
 
 /// The catalogue model with this name (case-insensitive), optionally followed by
-/// a model option (":NTR=5"). Throws
+/// a model option (":NTR=5"), or the model in a file when `name` ends in .pkm or holds a '/'
+/// (pk/model_file.h). Throws
 /// pk::InputError listing the catalogue when there is none.
 std::shared_ptr<const Model> MakeModel(const std::string& name);
 

@@ -64,7 +64,9 @@ class LinearModel final : public Model {
                                                       std::vector<LinearTerm> system_terms,
                                                       std::vector<std::vector<LinearTerm>> output_terms,
                                                       int transfer_function_order = 0,
-                                                      InitialStructure initial_structure = {});
+                                                      InitialStructure initial_structure = {},
+                                                      ModelDeclarations declarations = {},
+                                                      std::vector<std::string> signed_parameters = {});
 
   const std::vector<LinearTerm>& system_terms() const { return a_terms_; }
   /// The terms of the output row C_c(θ) of compartment `cmt` (1-based).

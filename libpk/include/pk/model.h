@@ -7,6 +7,7 @@
 #ifndef PK_MODEL_H_
 #define PK_MODEL_H_
 
+#include <cmath>
 #include <string>
 #include <utility>
 #include <vector>
@@ -36,6 +37,29 @@ struct InitialStructure {
   std::string vmax, km;
 };
 
+/// A parameter as a model file declares it: a starting value, bounds and a unit.
+struct DeclaredParameter {
+  std::string name;
+  double initial = 0;
+  double lower = -HUGE_VAL, upper = HUGE_VAL;
+  std::string unit;  ///< "" when not given
+};
+
+/// What a model file (pk/model_file.h) declares beyond names and defaults. Catalogue models
+/// declare nothing: every vector is empty.
+struct ModelDeclarations {
+  std::string source;  ///< the model file
+  /// Per model parameter, in order: its bounds and unit (the initial value is the default).
+  std::vector<DeclaredParameter> parameters;
+  /// Per model parameter: a covariate, read from the dataset column of its name and never estimated.
+  std::vector<bool> covariate;
+  /// Dose modifiers the file estimates (F1, ALAG2, …: names of pk/parameters.h), with their starts.
+  std::vector<DeclaredParameter> modifiers;
+  /// The residual-error model the file gives its outputs ("" when none), and initial σ values.
+  std::string error_model;
+  std::vector<double> sigma;
+};
+
 class Model {
  public:
   virtual ~Model() = default;
@@ -61,6 +85,14 @@ class Model {
   /// Whether parameter i must be positive (a clearance, volume, rate constant, ...: the default),
   /// or may take any sign (a transfer function's coefficients; a baseline or an Emax).
   bool must_be_positive(int i) const { return signed_.empty() || !signed_[static_cast<size_t>(i)]; }
+
+  /// What a model file declares (bounds, units, covariates, estimated modifiers, the error
+  /// model); empty for the catalogue.
+  const ModelDeclarations& declarations() const { return declarations_; }
+  /// Whether parameter i is a covariate: a dataset column, never estimated.
+  bool is_covariate(int i) const {
+    return !declarations_.covariate.empty() && declarations_.covariate[static_cast<size_t>(i)];
+  }
 
   /// Text for an error about a parameter name this model does not have, given the names it
   /// accepts (its parameters, with F1, ALAG1, ... or an error model's σ where they apply):
@@ -89,6 +121,8 @@ class Model {
   /// Declares names the model's parameters had before and no parameter has now, with a note
   /// saying what they are called today (for example NONMEM's TRANS4 names of 2cmt_oral).
   void set_former_names(std::vector<std::string> names, std::string note);
+  /// Sets what a model file declares (see declarations()).
+  void set_declarations(ModelDeclarations d) { declarations_ = std::move(d); }
 
  private:
   std::string name_;
@@ -102,6 +136,7 @@ class Model {
   std::vector<bool> signed_;  // per parameter; empty: none
   std::vector<std::string> former_names_;
   std::string former_names_note_;
+  ModelDeclarations declarations_;
 };
 
 }  // namespace pk

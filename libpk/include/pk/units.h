@@ -8,9 +8,11 @@
 #ifndef PK_UNITS_H_
 #define PK_UNITS_H_
 
+#include <map>
 #include <string>
 
 #include "pk/dataset.h"
+#include "pk/model.h"
 
 namespace pk {
 
@@ -18,8 +20,14 @@ struct Units {
   std::string time;           ///< e.g. "h"
   std::string amount;         ///< of AMT, e.g. "mg"
   std::string concentration;  ///< of DV, e.g. "mg/L" (or "ng/mL")
+  /// Units a model file gives its parameters by name (upper case), which ParameterUnit returns
+  /// before deriving one (see ModelUnits).
+  std::map<std::string, std::string> parameters;
   bool empty() const { return time.empty() && amount.empty() && concentration.empty(); }
 };
+
+/// `units` with the units a model file declares for its parameters and modifiers.
+Units ModelUnits(const Units& units, const Model& model);
 
 /// "time=h,amt=mg,conc=mg/L" (any subset; keys time, amt or amount, conc or dv). Throws
 /// pk::InputError for another key or a missing '='.
@@ -39,7 +47,7 @@ std::string VolumeUnit(const Units& units);
 /// constants (KA, K, K10, KE0, LAMBDA…), times (ALAG, D, MTT, THALF…), VMAX, KM, EC50, R and an
 /// additive σ, and the exposure metrics (AUC concentration·time, CMAX/CMIN/CTROUGH, TMAX). Empty
 /// when the name says nothing (tf coefficients, E0, EMAX) or a unit is missing;
-/// "1" for the dimensionless ones (F, HILL, a proportional σ).
+/// "1" for the dimensionless ones (F, HILL, a proportional σ). A unit in `units.parameters` wins.
 std::string ParameterUnit(const std::string& name, const Units& units);
 
 /// "NAME (unit)", or the name alone when the unit is empty or "1".

@@ -82,11 +82,31 @@ std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request,
     }
     return &specs[name];
   };
-  for (int i = 0; i < request.model->num_parameters(); ++i) {
+  const Model& model = *request.model;
+  const ModelDeclarations& declared = model.declarations();
+  for (int i = 0; i < model.num_parameters(); ++i) {
     const std::string& name = probe.parameter_names()[i];
-    if (request.data->ExtraColumn(name) < 0) add(name);  // else the data supply it
+    if (request.data->ExtraColumn(name) >= 0 || model.is_covariate(i)) continue;  // the data supply it
+    ParameterSpec* s = add(name);
+    if (!declared.parameters.empty()) {  // a model file's bounds
+      s->lower = declared.parameters[static_cast<size_t>(i)].lower;
+      s->upper = declared.parameters[static_cast<size_t>(i)].upper;
+    }
   }
-  for (int i : probe.sigma_indices()) add(probe.parameter_names()[i]);
+  for (const DeclaredParameter& m : declared.modifiers) {
+    ParameterSpec* s = add(m.name);
+    s->initial = m.initial;
+    s->lower = m.lower;
+    s->upper = m.upper;
+  }
+  const std::vector<int> sigmas = probe.sigma_indices();
+  for (size_t j = 0; j < sigmas.size(); ++j) {
+    ParameterSpec* s = add(probe.parameter_names()[sigmas[j]]);
+    // A model file's initial σ, when its error model is the one in use.
+    if (declared.sigma.size() == sigmas.size() && declared.error_model == request.objective.error_model->name()) {
+      s->initial = declared.sigma[j];
+    }
+  }
   for (const auto& kv : settings.initial) add(internal::ToUpper(kv.first))->initial = kv.second;
   for (const auto& kv : settings.fixed) {
     ParameterSpec* s = add(internal::ToUpper(kv.first));

@@ -1,0 +1,610 @@
+// Name binding, the checks of a model file, and the detection of linear structure.
+#include "language/analysis.h"
+
+#include <algorithm>
+#include <cctype>
+#include <map>
+#include <utility>
+
+#include "internal_text.h"
+#include "pk/error.h"
+#include "pk/output.h"
+#include "pk/residual_error.h"
+
+namespace pk {
+namespace internal {
+namespace lang {
+namespace {
+
+enum class SymbolKind { kState, kParameter, kCovariate, kEta, kDefinition, kModifier, kOutput };
+
+struct Symbol {
+  SymbolKind kind;
+  int index;  // state, model parameter, eta or definition index
+  Place at;
+};
+
+const char* KindName(SymbolKind k) {
+  switch (k) {
+    case SymbolKind::kState: return "a compartment";
+    case SymbolKind::kParameter: return "a parameter";
+    case SymbolKind::kCovariate: return "a covariate";
+    case SymbolKind::kEta: return "a random effect";
+    case SymbolKind::kDefinition: return "a definition";
+    case SymbolKind::kModifier: return "a dose modifier";
+    case SymbolKind::kOutput: return "an output";
+  }
+  return "";
+}
+
+// "F1" → ("F", 1); "X0_2" → ("X0_", 2); else ("", 0).
+std::pair<std::string, int> ModifierName(const std::string& name) {
+  for (const char* prefix : {"ALAG", "X0_", "F", "R", "D"}) {
+    const std::string p(prefix);
+    if (name.size() <= p.size() || name.compare(0, p.size(), p) != 0) continue;
+    const std::string digits = name.substr(p.size());
+    if (!std::all_of(digits.begin(), digits.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); }) ||
+        digits[0] == '0' || digits.size() > 3) {
+      continue;
+    }
+    return {p, std::stoi(digits)};
+  }
+  return {"", 0};
+}
+
+// A monomial c · x_state · Π θ_k^power (state -1: none), for the linear-structure test.
+struct Monomial {
+  double c = 1;
+  int state = -1;
+  std::map<int, int> powers;
+};
+using Polynomial = std::vector<Monomial>;
+
+class Analyser {
+ public:
+  explicit Analyser(ModelText text) { out_.text = std::move(text); }
+
+  CompiledModel Run() {
+    const ModelText& t = out_.text;
+    if (t.name.empty()) Fail(Place{1, 1}, "the model file has no $PROBLEM line with the model's name");
+    if (t.compartments.empty()) Fail(Place{1, 1}, "the model declares no compartments ($CMT)");
+    if (t.outputs.empty()) Fail(Place{1, 1}, "the model declares no outputs ($OUTPUT, for example CP = CENTRAL / V)");
+    DeclareSymbols();
+    BindDerivatives();
+    BindOutputs();
+    CheckDefinitions();
+    CheckUnused();
+    ChooseCompartments();
+    BindErrors();
+    DetectLinear();
+    out_.graph = std::move(g_);
+    return std::move(out_);
+  }
+
+ private:
+  [[noreturn]] void Fail(const Place& at, const std::string& message) const {
+    throw InputError(out_.text.source, at.line, at.column, message);
+  }
+  [[noreturn]] void Fail(const Node& n, const std::string& message) const { Fail(Place{n.line, n.column}, message); }
+
+  // --- declarations -------------------------------------------------------------------------
+  void Declare(const std::string& name, SymbolKind kind, int index, const Place& at) {
+    if (name == "TIME" || name == "T") {
+      Fail(at, name + " is reserved: a model's right-hand side must not depend on time (doses and records carry it)");
+    }
+    if (IsResidualErrorName(name)) Fail(at, name + " is the name of a residual-error σ; choose another name");
+    const auto it = symbols_.find(name);
+    if (it != symbols_.end()) {
+      Fail(at, name + " is declared twice: as " + KindName(kind) + " here and as " + KindName(it->second.kind) +
+                   " on line " + std::to_string(it->second.at.line));
+    }
+    symbols_[name] = {kind, index, at};
+  }
+
+  void DeclareSymbols() {
+    const ModelText& t = out_.text;
+    const int n = static_cast<int>(t.compartments.size());
+    for (int i = 0; i < n; ++i) {
+      Declare(t.compartments[i].name, SymbolKind::kState, i, t.compartments[i].at);
+      out_.compartments.push_back(t.compartments[i].name);
+    }
+    for (const ParameterDecl& p : t.parameters) DeclareParameter(p, n);
+    for (const CovariateDecl& c : t.covariates) {
+      Declare(c.name, SymbolKind::kCovariate, static_cast<int>(out_.parameters.size()), c.at);
+      out_.parameters.push_back(c.name);
+      defaults_.push_back(c.reference);
+      out_.signed_parameters.push_back(c.name);
+      DeclaredParameter d;
+      d.name = c.name;
+      d.initial = c.reference;
+      d.unit = c.unit;
+      out_.declarations.parameters.push_back(d);
+      out_.declarations.covariate.push_back(true);
+    }
+    for (size_t i = 0; i < t.etas.size(); ++i) {
+      const EtaDecl& e = t.etas[i];
+      if (!(e.variance > 0) || !std::isfinite(e.variance)) {
+        Fail(e.at, "the variance ω² of " + e.name + " must be positive, not " + FormatNumber(e.variance));
+      }
+      Declare(e.name, SymbolKind::kEta, static_cast<int>(i), e.at);
+    }
+    for (size_t i = 0; i < t.definitions.size(); ++i) {
+      const Definition& d = t.definitions[i];
+      if (!ModifierName(d.name).first.empty()) {
+        Fail(d.at, d.name + " is a dose modifier: declare it in $PARAM (estimated, or given by --param or a column); "
+                            "an expression for it is not supported");
+      }
+      Declare(d.name, SymbolKind::kDefinition, static_cast<int>(i), d.at);
+    }
+    for (size_t i = 0; i < t.outputs.size(); ++i) {
+      Declare(t.outputs[i].name, SymbolKind::kOutput, static_cast<int>(i), t.outputs[i].at);
+    }
+    out_.defaults = Eigen::Map<Eigen::VectorXd>(defaults_.data(), static_cast<Eigen::Index>(defaults_.size()));
+    resolved_def_.assign(t.definitions.size(), -1);
+    def_state_.assign(t.definitions.size(), 0);
+    used_.assign(out_.parameters.size(), false);
+    eta_used_.assign(t.etas.size(), false);
+  }
+
+  void DeclareParameter(const ParameterDecl& p, int n) {
+    if (p.has_bounds && !(p.lower < p.upper)) {
+      Fail(p.at, p.name + ": the lower bound " + FormatNumber(p.lower) + " is not below the upper bound " +
+                     FormatNumber(p.upper));
+    }
+    if (!std::isfinite(p.initial)) Fail(p.at, p.name + ": the initial value must be finite");
+    if (p.has_bounds && !(p.initial > p.lower && p.initial < p.upper)) {
+      Fail(p.at, p.name + ": the initial value " + FormatNumber(p.initial) + " must lie strictly within its bounds (" +
+                     FormatNumber(p.lower) + ", " + FormatNumber(p.upper) + ")");
+    }
+    const bool is_signed = p.has_bounds && p.lower < 0;
+    if (!is_signed && !(p.initial > 0)) {
+      Fail(p.at, p.name + " must be positive (give bounds with a negative lower bound, such as (-inf, inf), for a "
+                          "parameter of either sign), not " + FormatNumber(p.initial));
+    }
+    DeclaredParameter d;
+    d.name = p.name;
+    d.initial = p.initial;
+    d.lower = p.has_bounds ? p.lower : -HUGE_VAL;
+    d.upper = p.has_bounds ? p.upper : HUGE_VAL;
+    d.unit = p.unit;
+    const auto mod = ModifierName(p.name);
+    if (!mod.first.empty()) {
+      if (mod.second > n) {
+        Fail(p.at, p.name + " modifies compartment " + std::to_string(mod.second) + ", but the model has " +
+                       std::to_string(n) + " compartment" + (n > 1 ? "s" : ""));
+      }
+      Declare(p.name, SymbolKind::kModifier, -1, p.at);
+      out_.declarations.modifiers.push_back(d);
+      return;
+    }
+    Declare(p.name, SymbolKind::kParameter, static_cast<int>(out_.parameters.size()), p.at);
+    out_.parameters.push_back(p.name);
+    defaults_.push_back(p.initial);
+    if (is_signed) out_.signed_parameters.push_back(p.name);
+    out_.declarations.parameters.push_back(d);
+    out_.declarations.covariate.push_back(false);
+  }
+
+  // --- resolution ---------------------------------------------------------------------------
+  int NewNode(Node n) {
+    g_.push_back(std::move(n));
+    return static_cast<int>(g_.size()) - 1;
+  }
+  int Constant(double v, const Node& at) {
+    Node n;
+    n.op = Op::kConstant;
+    n.value = v;
+    n.line = at.line;
+    n.column = at.column;
+    return NewNode(n);
+  }
+  int Input(int input, const Node& at) {
+    const auto it = input_node_.find(input);
+    if (it != input_node_.end()) return it->second;
+    Node n;
+    n.op = Op::kInput;
+    n.input = input;
+    n.line = at.line;
+    n.column = at.column;
+    return input_node_[input] = NewNode(n);
+  }
+  int n() const { return static_cast<int>(out_.compartments.size()); }
+
+  // The resolved node of parsed node `i`; `context` names what is being bound, for messages.
+  int Resolve(int i, const std::string& context) {
+    const Node& src = out_.text.graph[static_cast<size_t>(i)];
+    if (src.op == Op::kSymbol) return ResolveSymbol(src, context);
+    if (src.op == Op::kConstant) return Constant(src.value, src);
+    Node r = src;
+    r.a = src.a >= 0 ? Resolve(src.a, context) : -1;
+    r.b = src.b >= 0 ? Resolve(src.b, context) : -1;
+    r.c = src.c >= 0 ? Resolve(src.c, context) : -1;
+    return Fold(r);
+  }
+
+  int ResolveSymbol(const Node& src, const std::string& context) {
+    const auto it = symbols_.find(src.name);
+    if (it == symbols_.end()) {
+      std::vector<std::string> names;
+      for (const auto& kv : symbols_) names.push_back(kv.first);
+      const std::string closest = ClosestName(src.name, names);
+      Fail(src, context + " reads " + src.name + ", which is not defined" +
+                    (closest.empty() ? "" : " (did you mean " + closest + "?)") +
+                    "; declare it in $PARAM or $COVARIATE, or define it in $PK");
+    }
+    const Symbol& s = it->second;
+    switch (s.kind) {
+      case SymbolKind::kState: return Input(s.index, src);
+      case SymbolKind::kParameter:
+      case SymbolKind::kCovariate:
+        return Input(n() + s.index, src);
+      case SymbolKind::kEta:
+        eta_used_[static_cast<size_t>(s.index)] = true;
+        return Constant(0.0, src);  // an individual model: η = 0
+      case SymbolKind::kDefinition: return ResolveDefinition(s.index, src);
+      case SymbolKind::kModifier:
+        Fail(src, src.name + " is a dose modifier, which the event engine applies to doses; an expression cannot "
+                             "read it");
+      case SymbolKind::kOutput:
+        Fail(src, context + " reads the output " + src.name + "; outputs are not names: define the shared part in "
+                                                            "$PK or $ODE");
+    }
+    return -1;
+  }
+
+  int ResolveDefinition(int d, const Node& at) {
+    if (def_state_[static_cast<size_t>(d)] == 2) return resolved_def_[static_cast<size_t>(d)];
+    const Definition& def = out_.text.definitions[static_cast<size_t>(d)];
+    if (def_state_[static_cast<size_t>(d)] == 1) {
+      std::string path;
+      for (size_t k = std::find(stack_.begin(), stack_.end(), d) - stack_.begin(); k < stack_.size(); ++k) {
+        path += out_.text.definitions[static_cast<size_t>(stack_[k])].name + " → ";
+      }
+      Fail(at, "cyclic definition: " + path + def.name);
+    }
+    def_state_[static_cast<size_t>(d)] = 1;
+    stack_.push_back(d);
+    const int r = Resolve(def.node, def.name);
+    stack_.pop_back();
+    def_state_[static_cast<size_t>(d)] = 2;
+    return resolved_def_[static_cast<size_t>(d)] = r;
+  }
+
+  // Folds an operation on constants into a constant; refuses operations that always fail.
+  int Fold(const Node& r) {
+    const auto constant = [&](int k, double* v) {
+      if (k < 0 || g_[static_cast<size_t>(k)].op != Op::kConstant) return false;
+      *v = g_[static_cast<size_t>(k)].value;
+      return true;
+    };
+    double b = 0, a = 0;
+    if (r.op == Op::kDiv && constant(r.b, &b) && b == 0) Fail(r, "division by zero: the denominator is always 0");
+    if ((r.op == Op::kLog || r.op == Op::kLog10) && constant(r.a, &a) && !(a > 0)) {
+      Fail(r, "log of " + FormatNumber(a) + ": the argument is never positive");
+    }
+    if (r.op == Op::kSqrt && constant(r.a, &a) && a < 0) Fail(r, "sqrt of " + FormatNumber(a) + ", a negative constant");
+    const int arity = Arity(r.op);
+    double v[3] = {0, 0, 0};
+    bool all = true;
+    const int ops[3] = {r.a, r.b, r.c};
+    for (int k = 0; k < arity; ++k) all = all && constant(ops[k], &v[k]);
+    if (!all) {
+      Node copy = r;
+      // A constant exponent: pow(x, c) differentiates without log x (x may be 0).
+      if (copy.op == Op::kPow && constant(copy.b, &b)) {
+        copy.value = b;
+        copy.b = -1;
+      }
+      return NewNode(copy);
+    }
+    if (r.op == Op::kSelect) return Constant(v[0] != 0 ? v[1] : v[2], r);
+    std::vector<Node> tiny(static_cast<size_t>(arity) + 1);
+    for (int k = 0; k < arity; ++k) {
+      tiny[static_cast<size_t>(k)].op = Op::kConstant;
+      tiny[static_cast<size_t>(k)].value = v[k];
+    }
+    Node op = r;
+    op.a = 0;
+    op.b = arity > 1 ? 1 : -1;
+    op.c = arity > 2 ? 2 : -1;
+    tiny[static_cast<size_t>(arity)] = op;
+    const Program p(tiny, {arity}, 0);
+    double value = 0;
+    std::vector<double> slots;
+    p.Run<double>(nullptr, nullptr, &value, &slots);
+    if (!std::isfinite(value)) Fail(r, "this expression of constants is not finite (" + FormatNumber(value) + ")");
+    return Constant(value, r);
+  }
+
+  bool DependsOnState(int k) {
+    const Node& node = g_[static_cast<size_t>(k)];
+    if (node.op == Op::kInput) return node.input < n();
+    for (int o : {node.a, node.b, node.c}) {
+      if (o >= 0 && DependsOnState(o)) return true;
+    }
+    return false;
+  }
+  // A state the node reads, or -1.
+  int StateRead(int k) {
+    const Node& node = g_[static_cast<size_t>(k)];
+    if (node.op == Op::kInput) return node.input < n() ? node.input : -1;
+    for (int o : {node.a, node.b, node.c}) {
+      const int s = o >= 0 ? StateRead(o) : -1;
+      if (s >= 0) return s;
+    }
+    return -1;
+  }
+
+  // --- the model's parts --------------------------------------------------------------------
+  void BindDerivatives() {
+    const ModelText& t = out_.text;
+    out_.rhs.assign(static_cast<size_t>(n()), -1);
+    std::vector<const Derivative*> seen(static_cast<size_t>(n()), nullptr);
+    for (const Derivative& d : t.derivatives) {
+      const auto it = symbols_.find(d.compartment);
+      if (it == symbols_.end() || it->second.kind != SymbolKind::kState) {
+        const std::string closest = ClosestName(d.compartment, out_.compartments);
+        Fail(d.at, "d/dt(" + d.compartment + "): " + d.compartment + " is not a compartment" +
+                       (closest.empty() ? "" : " (did you mean " + closest + "?)") + "; the compartments are " +
+                       Join(out_.compartments, ", "));
+      }
+      const int c = it->second.index;
+      if (seen[static_cast<size_t>(c)] != nullptr) {
+        Fail(d.at, "d/dt(" + d.compartment + ") is given twice (first on line " +
+                       std::to_string(seen[static_cast<size_t>(c)]->at.line) + ")");
+      }
+      seen[static_cast<size_t>(c)] = &d;
+      out_.rhs[static_cast<size_t>(c)] = Resolve(d.node, "d/dt(" + d.compartment + ")");
+    }
+    for (int c = 0; c < n(); ++c) {
+      if (out_.rhs[static_cast<size_t>(c)] < 0) {
+        Fail(t.compartments[static_cast<size_t>(c)].at,
+             "compartment " + out_.compartments[static_cast<size_t>(c)] +
+                 " has no equation: add d/dt(" + out_.compartments[static_cast<size_t>(c)] +
+                 ") = … in $ODE, or remove the compartment");
+      }
+    }
+  }
+
+  void BindOutputs() {
+    for (const OutputDecl& o : out_.text.outputs) {
+      out_.output_names.push_back(o.name);
+      out_.outputs.push_back(Resolve(o.node, "output " + o.name));
+    }
+  }
+
+  // Every definition is bound, used or not (a typo in one is still an error); $PK computes
+  // individual parameters before any state exists.
+  void CheckDefinitions() {
+    const ModelText& t = out_.text;
+    for (size_t d = 0; d < t.definitions.size(); ++d) {
+      Node at;
+      at.line = t.definitions[d].at.line;
+      at.column = t.definitions[d].at.column;
+      const int r = ResolveDefinition(static_cast<int>(d), at);
+      const int s = t.definitions[d].in_pk ? StateRead(r) : -1;
+      if (s >= 0) {
+        Fail(t.definitions[d].at, t.definitions[d].name + " in $PK reads the amount in " +
+                                      out_.compartments[static_cast<size_t>(s)] +
+                                      ": $PK computes individual parameters, which cannot depend on the state; "
+                                      "define it in $ODE");
+      }
+    }
+  }
+
+  // The model parameters the equations and outputs read.
+  void MarkUsed(int k, std::vector<char>* seen) {
+    if ((*seen)[static_cast<size_t>(k)]) return;
+    (*seen)[static_cast<size_t>(k)] = 1;
+    const Node& node = g_[static_cast<size_t>(k)];
+    if (node.op == Op::kInput && node.input >= n()) used_[static_cast<size_t>(node.input - n())] = true;
+    for (int o : {node.a, node.b, node.c}) {
+      if (o >= 0) MarkUsed(o, seen);
+    }
+  }
+
+  void CheckUnused() {
+    const ModelText& t = out_.text;
+    std::vector<char> seen(g_.size(), 0);
+    for (int r : out_.rhs) MarkUsed(r, &seen);
+    for (int r : out_.outputs) MarkUsed(r, &seen);
+    for (const ParameterDecl& p : t.parameters) {
+      const Symbol& s = symbols_.at(p.name);
+      if (s.kind == SymbolKind::kParameter && !used_[static_cast<size_t>(s.index)]) {
+        Fail(p.at, "parameter " + p.name + " is never used: no equation or output reads it, so no data can "
+                                           "estimate it or change a prediction");
+      }
+    }
+    for (const CovariateDecl& c : t.covariates) {
+      if (!used_[static_cast<size_t>(symbols_.at(c.name).index)]) {
+        Fail(c.at, "covariate " + c.name + " is never used");
+      }
+    }
+    for (size_t i = 0; i < t.etas.size(); ++i) {
+      if (!eta_used_[i]) Fail(t.etas[i].at, "random effect " + t.etas[i].name + " is never used");
+    }
+  }
+
+  void ChooseCompartments() {
+    const ModelText& t = out_.text;
+    int dose = -1, central = -1;
+    for (int c = 0; c < n(); ++c) {
+      const CompartmentDecl& d = t.compartments[static_cast<size_t>(c)];
+      for (auto attr : {std::make_pair(d.dose, &dose), std::make_pair(d.central, &central)}) {
+        if (!attr.first) continue;
+        if (*attr.second >= 0) {
+          Fail(d.at, std::string("only one compartment can be the ") + (attr.second == &dose ? "dose" : "central") +
+                         " compartment (" + out_.compartments[static_cast<size_t>(*attr.second)] + " is already)");
+        }
+        *attr.second = c;
+      }
+    }
+    // The central compartment defaults to the one output 1 reads; doses default to the first compartment.
+    if (central < 0) central = std::max(0, StateRead(out_.outputs[0]));
+    out_.central = central + 1;
+    out_.default_dose = (dose < 0 ? 0 : dose) + 1;
+  }
+
+  void BindErrors() {
+    const ModelText& t = out_.text;
+    std::map<std::string, const ErrorDecl*> seen;
+    for (const ErrorDecl& e : t.errors) {
+      const auto it = symbols_.find(e.output);
+      if (it == symbols_.end() || it->second.kind != SymbolKind::kOutput) {
+        Fail(e.at, "$ERROR: " + e.output + " is not an output; the outputs are " + Join(out_.output_names, ", "));
+      }
+      if (seen.count(e.output)) {
+        Fail(e.at, "$ERROR: " + e.output + " has two error models (first on line " +
+                       std::to_string(seen[e.output]->at.line) + ")");
+      }
+      seen[e.output] = &e;
+      std::shared_ptr<const ResidualErrorModel> model;
+      try {
+        model = MakeResidualError(e.model);
+      } catch (const InputError& err) {
+        Fail(e.at, "$ERROR: " + err.message());
+      }
+      if (!model->is_likelihood()) Fail(e.at, "$ERROR: least squares is not an error model; omit the line");
+      if (!e.sigma.empty() && e.sigma.size() != model->sigma_names().size()) {
+        Fail(e.at, "$ERROR: " + e.model + " takes " + std::to_string(model->sigma_names().size()) + " σ (" +
+                       Join(model->sigma_names(), ", ") + "), not " + std::to_string(e.sigma.size()));
+      }
+      for (double s : e.sigma) {
+        if (!(s > 0)) Fail(e.at, "$ERROR: an initial σ must be positive, not " + FormatNumber(s));
+      }
+      if (!out_.declarations.error_model.empty() && out_.declarations.error_model != model->name()) {
+        Fail(e.at, "$ERROR: every output must have the same error model for now (" + out_.declarations.error_model +
+                       " above, " + e.model + " here)");
+      }
+      out_.declarations.error_model = model->name();
+      if (!e.sigma.empty()) out_.declarations.sigma = e.sigma;
+    }
+  }
+
+  // --- linear structure ---------------------------------------------------------------------
+  // False when node k is not a sum of monomials with at most one state each.
+  bool Expand(int k, Polynomial* p) {
+    const Node& node = g_[static_cast<size_t>(k)];
+    Polynomial a, b;
+    switch (node.op) {
+      case Op::kConstant: *p = {Monomial{node.value, -1, {}}}; return true;
+      case Op::kInput:
+        if (node.input < n()) {
+          *p = {Monomial{1, node.input, {}}};
+        } else {
+          *p = {Monomial{1, -1, {{node.input - n(), 1}}}};
+        }
+        return true;
+      case Op::kNeg:
+        if (!Expand(node.a, p)) return false;
+        for (Monomial& m : *p) m.c = -m.c;
+        return true;
+      case Op::kAdd:
+      case Op::kSub:
+        if (!Expand(node.a, &a) || !Expand(node.b, &b)) return false;
+        if (node.op == Op::kSub) {
+          for (Monomial& m : b) m.c = -m.c;
+        }
+        *p = a;
+        p->insert(p->end(), b.begin(), b.end());
+        return p->size() <= 256;
+      case Op::kMul:
+        if (!Expand(node.a, &a) || !Expand(node.b, &b)) return false;
+        p->clear();
+        for (const Monomial& x : a) {
+          for (const Monomial& y : b) {
+            if (x.state >= 0 && y.state >= 0) return false;  // a product of states
+            Monomial m{x.c * y.c, std::max(x.state, y.state), x.powers};
+            for (const auto& kv : y.powers) m.powers[kv.first] += kv.second;
+            p->push_back(std::move(m));
+          }
+        }
+        return p->size() <= 256;
+      case Op::kDiv:
+        if (!Expand(node.a, &a) || !Expand(node.b, &b)) return false;
+        if (b.size() != 1 || b[0].state >= 0) return false;
+        *p = a;
+        for (Monomial& m : *p) {
+          m.c /= b[0].c;
+          for (const auto& kv : b[0].powers) m.powers[kv.first] -= kv.second;
+        }
+        return true;
+      case Op::kPow:
+        if (node.b >= 0 || node.value != std::round(node.value) || std::abs(node.value) > 4) return false;
+        if (!Expand(node.a, &a) || a.size() != 1 || a[0].state >= 0) return false;
+        *p = a;
+        (*p)[0].c = std::pow(a[0].c, node.value);
+        for (auto& kv : (*p)[0].powers) kv.second *= static_cast<int>(node.value);
+        return true;
+      default: return false;
+    }
+  }
+
+  // The terms of `k` (a row of A or C) as LinearTerms, or false with the reason.
+  bool Terms(int k, int row, const std::string& what, std::vector<LinearTerm>* terms) {
+    Polynomial p;
+    if (!Expand(k, &p)) {
+      out_.why_not_linear = what + " is not linear in the amounts with coefficients c·θa/θb";
+      return false;
+    }
+    for (Monomial& m : p) {
+      if (m.c == 0) continue;
+      if (m.state < 0) {
+        out_.why_not_linear = what + " has a term without an amount (a zero-order input)";
+        return false;
+      }
+      LinearTerm t;
+      t.row = row;
+      t.col = m.state;
+      t.sign = m.c;
+      for (const auto& kv : m.powers) {
+        if (kv.second == 0) continue;
+        int* slot = kv.second == 1 ? &t.numerator : kv.second == -1 ? &t.denominator : nullptr;
+        if (slot == nullptr || *slot >= 0) {
+          out_.why_not_linear = what + " has a coefficient that is not c·θa/θb";
+          return false;
+        }
+        *slot = kv.first;
+      }
+      terms->push_back(t);
+    }
+    return true;
+  }
+
+  void DetectLinear() {
+    out_.linear = false;
+    if (out_.outputs.size() != 1) {
+      out_.why_not_linear = "it has more than one output";
+      return;
+    }
+    for (int c = 0; c < n(); ++c) {
+      if (!Terms(out_.rhs[static_cast<size_t>(c)], c, "d/dt(" + out_.compartments[static_cast<size_t>(c)] + ")",
+                 &out_.a_terms)) {
+        out_.a_terms.clear();
+        return;
+      }
+    }
+    if (!Terms(out_.outputs[0], 0, "output " + out_.output_names[0], &out_.c_terms)) {
+      out_.a_terms.clear();
+      out_.c_terms.clear();
+      return;
+    }
+    out_.linear = true;
+  }
+
+  CompiledModel out_;
+  std::vector<Node> g_;
+  std::map<std::string, Symbol> symbols_;
+  std::vector<double> defaults_;
+  std::map<int, int> input_node_;
+  std::vector<int> resolved_def_, def_state_, stack_;
+  std::vector<bool> used_, eta_used_;
+};
+
+}  // namespace
+
+CompiledModel Analyse(ModelText text) { return Analyser(std::move(text)).Run(); }
+
+}  // namespace lang
+}  // namespace internal
+}  // namespace pk

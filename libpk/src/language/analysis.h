@@ -1,0 +1,51 @@
+// Checks a parsed model file and binds its names (not installed).
+#ifndef PK_SRC_LANGUAGE_ANALYSIS_H_
+#define PK_SRC_LANGUAGE_ANALYSIS_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "language/expression.h"
+#include "language/model_text.h"
+#include "pk/linear_model.h"
+#include "pk/model.h"
+
+namespace pk {
+namespace internal {
+namespace lang {
+
+/// A model file, checked and bound: every name is a state, a model parameter (the declared
+/// parameters, then the covariates) or a definition inlined into the graph. Random effects are 0
+/// here (an individual model); the population model binds them itself.
+struct CompiledModel {
+  ModelText text;
+  std::vector<Node> graph;  // resolved (no kSymbol) and constant-folded
+  std::vector<std::string> compartments;
+  int central = 1, default_dose = 1;  // 1-based
+  std::vector<std::string> parameters;
+  Eigen::VectorXd defaults;
+  std::vector<std::string> signed_parameters;
+  ModelDeclarations declarations;
+  std::vector<int> rhs;      // root of d/dt of each compartment
+  std::vector<std::string> output_names;
+  std::vector<int> outputs;  // root of each output (DVID 1, 2, …)
+  /// When dx/dt = A(θ)x with every entry of A a sum of c·θ_a/θ_b, and one output y = C(θ)x of the
+  /// same form: the terms for LinearModel::FromTerms. Otherwise `linear` is false and
+  /// `why_not_linear` says why (the model runs on the ODE propagator).
+  bool linear = false;
+  std::vector<LinearTerm> a_terms;
+  std::vector<LinearTerm> c_terms;
+  std::string why_not_linear;
+};
+
+/// Checks `text` and binds its names. Throws pk::InputError (file, line, column) naming what is
+/// wrong and what was expected.
+CompiledModel Analyse(ModelText text);
+
+}  // namespace lang
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_LANGUAGE_ANALYSIS_H_

@@ -1,0 +1,527 @@
+// The recursive-descent parser of model files (grammar: docs/model_language.md).
+#include <algorithm>
+#include <map>
+#include <utility>
+
+#include "internal_text.h"
+#include "language/lexer.h"
+#include "language/model_text.h"
+#include "pk/error.h"
+
+namespace pk {
+namespace internal {
+namespace lang {
+namespace {
+
+using Kind = Token::Kind;
+
+// The functions of the language: name, operation, number of arguments (-1: two or more).
+struct Function {
+  const char* name;
+  Op op;
+  int args;
+};
+const Function kFunctions[] = {
+    {"EXP", Op::kExp, 1},         {"LOG", Op::kLog, 1},        {"LN", Op::kLog, 1},
+    {"LOG10", Op::kLog10, 1},     {"SQRT", Op::kSqrt, 1},      {"ABS", Op::kAbs, 1},
+    {"LOGISTIC", Op::kLogistic, 1}, {"EXPIT", Op::kLogistic, 1}, {"INV_LOGIT", Op::kLogistic, 1},
+    {"LOGIT", Op::kLogit, 1},     {"POW", Op::kPow, 2},        {"MIN", Op::kMin, -1},
+    {"MAX", Op::kMax, -1},        {"IFELSE", Op::kSelect, 3},
+};
+
+std::vector<std::string> FunctionNames() {
+  std::vector<std::string> names;
+  for (const Function& f : kFunctions) names.push_back(ToLower(f.name));
+  return names;
+}
+
+class Parser {
+ public:
+  Parser(std::vector<Token> tokens, const std::string& text, ModelText* out)
+      : tok_(std::move(tokens)), text_(text), m_(out) {}
+
+  void Run() {
+    SkipNewlines();
+    while (Peek().kind != Kind::kEnd) {
+      if (Peek().kind != Kind::kBlock) Fail(Peek(), "expected a block heading such as $PARAM, $CMT or $ODE");
+      const Token block = Next();
+      Block(block);
+      SkipNewlines();
+    }
+  }
+
+ private:
+  // --- tokens -----------------------------------------------------------------------------
+  const Token& Peek(int ahead = 0) const { return tok_[std::min(pos_ + ahead, tok_.size() - 1)]; }
+  Token Next() { return tok_[std::min(pos_++, tok_.size() - 1)]; }
+  bool IsPunct(const char* p, int ahead = 0) const {
+    return Peek(ahead).kind == Kind::kPunct && Peek(ahead).text == p;
+  }
+  bool Accept(const char* p) {
+    if (!IsPunct(p)) return false;
+    ++pos_;
+    return true;
+  }
+  [[noreturn]] void Fail(const Token& t, const std::string& message) const {
+    throw InputError(m_->source, t.line, t.column, message);
+  }
+  static std::string Describe(const Token& t) {
+    switch (t.kind) {
+      case Kind::kNewline: return "the end of the line";
+      case Kind::kEnd: return "the end of the file";
+      case Kind::kBlock: return "$" + t.text;
+      default: return "'" + Printable(t.text) + "'";
+    }
+  }
+  void Expect(const char* p, const char* what) {
+    if (!Accept(p)) Fail(Peek(), std::string("expected ") + what + ", found " + Describe(Peek()));
+  }
+  std::string Name(const char* what) {
+    if (Peek().kind != Kind::kIdentifier) Fail(Peek(), std::string("expected ") + what + ", found " + Describe(Peek()));
+    return ToUpper(Next().text);
+  }
+  void EndOfStatement() {
+    if (Peek().kind == Kind::kNewline) {
+      ++pos_;
+      return;
+    }
+    if (Peek().kind == Kind::kEnd || Peek().kind == Kind::kBlock) return;
+    Fail(Peek(), "expected the end of the line, found " + Describe(Peek()));
+  }
+  void SkipNewlines() {
+    while (Peek().kind == Kind::kNewline) ++pos_;
+  }
+  bool AtBlockEnd() const { return Peek().kind == Kind::kBlock || Peek().kind == Kind::kEnd; }
+  // The source text of the tokens from `first` up to the end of the line (a unit: "mg/L").
+  std::string RestOfLine() {
+    if (Peek().kind == Kind::kNewline || AtBlockEnd()) return "";
+    const Token first = Peek();
+    Token last = first;
+    while (Peek().kind != Kind::kNewline && !AtBlockEnd()) last = Next();
+    return text_.substr(first.offset, last.offset + last.length - first.offset);
+  }
+  double SignedNumber(const char* what) {
+    const bool negative = Accept("-");
+    if (!negative) Accept("+");
+    if (Peek().kind == Kind::kIdentifier && ToUpper(Peek().text) == "INF") {
+      ++pos_;
+      return negative ? -INFINITY : INFINITY;
+    }
+    if (Peek().kind != Kind::kNumber) Fail(Peek(), std::string("expected ") + what + ", found " + Describe(Peek()));
+    const double v = Next().number;
+    return negative ? -v : v;
+  }
+
+  // --- blocks -----------------------------------------------------------------------------
+  void Block(const Token& block) {
+    const std::string& b = block.text;
+    if (b == "PROBLEM" || b == "PROB") return Problem(block);
+    // Statements start on the next line.
+    EndOfStatement();
+    SkipNewlines();
+    if (b == "PARAM" || b == "PARAMETERS" || b == "THETA") return Lines(&Parser::ParameterLine);
+    if (b == "COVARIATE" || b == "COVARIATES" || b == "COV") return Lines(&Parser::CovariateLine);
+    if (b == "OMEGA" || b == "ETA") return Lines(&Parser::EtaLine);
+    if (b == "CMT" || b == "COMPARTMENTS") return Lines(&Parser::CompartmentLine);
+    if (b == "PK" || b == "MAIN" || b == "INDIVIDUAL") return Statements(true);
+    if (b == "ODE" || b == "DES") return Statements(false);
+    if (b == "OUTPUT" || b == "OUT") return Lines(&Parser::OutputLine);
+    if (b == "ERROR" || b == "SIGMA") return Lines(&Parser::ErrorLine);
+    Fail(block, "unknown block $" + b +
+                    " (the blocks are $PROBLEM, $PARAM, $COVARIATE, $OMEGA, $CMT, $PK, $ODE, $OUTPUT, $ERROR)");
+  }
+
+  void Problem(const Token& block) {
+    const Token text = Peek().kind == Kind::kText ? Next() : block;
+    const std::string line = text.kind == Kind::kText ? text.text : "";
+    if (line.empty()) Fail(block, "$PROBLEM needs the model's name (and, after it, a description)");
+    const size_t space = line.find_first_of(" \t");
+    m_->name = line.substr(0, space);
+    m_->name_at = {text.line, text.column};
+    std::string rest = space == std::string::npos ? "" : Trim(line.substr(space));
+    if (rest.size() >= 2 && rest.front() == '"' && rest.back() == '"') rest = rest.substr(1, rest.size() - 2);
+    m_->description = rest;
+    EndOfStatement();
+  }
+
+  void Lines(void (Parser::*line)()) {
+    while (!AtBlockEnd()) {
+      (this->*line)();
+      EndOfStatement();
+      SkipNewlines();
+    }
+  }
+
+  // NAME = initial [(lower, upper)] [unit]
+  void ParameterLine() {
+    ParameterDecl p;
+    p.at = {Peek().line, Peek().column};
+    p.name = Name("a parameter name");
+    Expect("=", "'=' and the initial value");
+    p.initial = SignedNumber("the initial value");
+    if (Accept("(")) {
+      p.has_bounds = true;
+      p.lower = IsPunct(",") ? -INFINITY : SignedNumber("a lower bound");
+      Expect(",", "',' between the bounds");
+      p.upper = IsPunct(")") ? INFINITY : SignedNumber("an upper bound");
+      Expect(")", "')' after the bounds");
+    }
+    p.unit = RestOfLine();
+    m_->parameters.push_back(std::move(p));
+  }
+
+  // NAME [= reference] [unit]
+  void CovariateLine() {
+    CovariateDecl c;
+    c.at = {Peek().line, Peek().column};
+    c.name = Name("a covariate (a dataset column)");
+    if (Accept("=")) c.reference = SignedNumber("a reference value");
+    c.unit = RestOfLine();
+    m_->covariates.push_back(std::move(c));
+  }
+
+  // NAME ~ variance
+  void EtaLine() {
+    EtaDecl e;
+    e.at = {Peek().line, Peek().column};
+    e.name = Name("a random effect's name");
+    Expect("~", "'~' and its variance ω²");
+    e.variance = SignedNumber("the variance ω²");
+    m_->etas.push_back(std::move(e));
+  }
+
+  // NAME [dose] [central]
+  void CompartmentLine() {
+    CompartmentDecl c;
+    c.at = {Peek().line, Peek().column};
+    c.name = Name("a compartment name");
+    while (Peek().kind == Kind::kIdentifier) {
+      const Token a = Next();
+      const std::string attr = ToLower(a.text);
+      if (attr == "dose" || attr == "depot") {
+        c.dose = true;
+      } else if (attr == "central" || attr == "obs") {
+        c.central = true;
+      } else {
+        Fail(a, "unknown compartment attribute '" + a.text + "' (the attributes are dose and central)");
+      }
+    }
+    m_->compartments.push_back(std::move(c));
+  }
+
+  // NAME = expression
+  void OutputLine() {
+    OutputDecl o;
+    o.at = {Peek().line, Peek().column};
+    o.name = Name("an output name");
+    Expect("=", "'=' and the output's expression");
+    o.node = Expression();
+    m_->outputs.push_back(std::move(o));
+  }
+
+  // OUTPUT ~ model[(σ, ...)]
+  void ErrorLine() {
+    ErrorDecl e;
+    e.at = {Peek().line, Peek().column};
+    e.output = Name("an output name");
+    Expect("~", "'~' and an error model");
+    e.model = ToLower(Name("an error model (additive, proportional, combined or exponential)"));
+    if (Accept("(")) {
+      do {
+        e.sigma.push_back(SignedNumber("an initial σ"));
+      } while (Accept(","));
+      Expect(")", "')' after the σ values");
+    }
+    m_->errors.push_back(std::move(e));
+  }
+
+  // --- statements ($PK, $ODE) ---------------------------------------------------------------
+  using Assignments = std::vector<std::pair<Definition, bool>>;  // bool: a d/dt
+
+  void Statements(bool pk) {
+    while (!AtBlockEnd()) {
+      Assignments list;
+      Statement(pk, &list);
+      for (auto& a : list) Store(std::move(a.first), a.second);
+      SkipNewlines();
+    }
+  }
+
+  void Store(Definition d, bool derivative) {
+    if (derivative) {
+      m_->derivatives.push_back({d.name, d.node, d.at});
+    } else {
+      m_->definitions.push_back(std::move(d));
+    }
+  }
+
+  // One statement: an assignment, a derivative, or an if/else whose branches assign.
+  void Statement(bool pk, Assignments* out) {
+    const Token first = Peek();
+    if (first.kind == Kind::kIdentifier && ToUpper(first.text) == "IF") return IfStatement(pk, out);
+    Definition d;
+    d.at = {first.line, first.column};
+    d.in_pk = pk;
+    bool derivative = false;
+    if (first.kind == Kind::kIdentifier && ToUpper(first.text) == "D" && IsPunct("/", 1) &&
+        Peek(2).kind == Kind::kIdentifier && ToUpper(Peek(2).text) == "DT") {
+      pos_ += 3;
+      derivative = true;
+    } else if (first.kind == Kind::kIdentifier && ToUpper(first.text) == "DADT" && IsPunct("(", 1)) {
+      pos_ += 1;
+      derivative = true;
+    }
+    if (derivative) {
+      if (pk) Fail(first, "a derivative belongs in $ODE, not in $PK");
+      Expect("(", "'(' and a compartment name");
+      d.name = Name("a compartment name");
+      Expect(")", "')'");
+    } else {
+      d.name = Name("a name to define, d/dt(COMPARTMENT) or if");
+    }
+    Expect("=", "'='");
+    d.node = Expression();
+    EndOfStatement();
+    out->push_back({std::move(d), derivative});
+  }
+
+  // if (c) { … } [else if (c) { … }]… [else { … }]: each name assigned in one branch must be
+  // assigned in every branch, and becomes ifelse(c, then, else).
+  void IfStatement(bool pk, Assignments* out) {
+    const Token head = Next();
+    Expect("(", "'(' and a condition after if");
+    const int cond = Expression();
+    Expect(")", "')' after the condition");
+    Assignments then_list = Braced(pk);
+    Assignments else_list;
+    bool has_else = false;
+    const size_t save = pos_;
+    SkipNewlines();
+    if (Peek().kind == Kind::kIdentifier && ToUpper(Peek().text) == "ELSE") {
+      ++pos_;
+      has_else = true;
+      if (Peek().kind == Kind::kIdentifier && ToUpper(Peek().text) == "IF") {
+        IfStatement(pk, &else_list);
+      } else {
+        else_list = Braced(pk);
+      }
+    } else {
+      pos_ = save;
+      EndOfStatement();
+    }
+    Merge(head, cond, then_list, else_list, has_else, out);
+  }
+
+  Assignments Braced(bool pk) {
+    SkipNewlines();
+    Expect("{", "'{'");
+    Assignments list;
+    SkipNewlines();
+    while (!Accept("}")) {
+      if (AtBlockEnd()) Fail(Peek(), "expected '}' to close the branch, found " + Describe(Peek()));
+      Statement(pk, &list);
+      SkipNewlines();
+    }
+    return list;
+  }
+
+  void Merge(const Token& head, int cond, const Assignments& a, const Assignments& b, bool has_else,
+             Assignments* out) {
+    std::map<std::string, const std::pair<Definition, bool>*> in_a, in_b;
+    for (const auto& x : a) in_a[(x.second ? "d/dt " : "") + x.first.name] = &x;
+    for (const auto& x : b) in_b[(x.second ? "d/dt " : "") + x.first.name] = &x;
+    for (const auto* list : {&a, &b}) {
+      for (const auto& x : *list) {
+        const std::string key = (x.second ? "d/dt " : "") + x.first.name;
+        const bool both = in_a.count(key) && in_b.count(key);
+        if (!both) {
+          Fail(head, "if: " + (x.second ? "d/dt(" + x.first.name + ")" : x.first.name) + " is assigned " +
+                         (in_a.count(key) ? "when the condition holds" : "in the else branch") + " but not " +
+                         (in_a.count(key) ? (has_else ? "in the else branch" : "otherwise (add an else)")
+                                          : "when it holds") +
+                         "; every branch must assign the same names");
+        }
+      }
+    }
+    for (const auto& x : a) {
+      const auto* y = in_b[(x.second ? "d/dt " : "") + x.first.name];
+      Definition d = x.first;
+      d.node = Add(Op::kSelect, cond, x.first.node, y->first.node, head);
+      out->push_back({std::move(d), x.second});
+    }
+  }
+
+  // --- expressions --------------------------------------------------------------------------
+  int Add(Op op, int a, int b, int c, const Token& at) {
+    Node n;
+    n.op = op;
+    n.a = a;
+    n.b = b;
+    n.c = c;
+    n.line = at.line;
+    n.column = at.column;
+    m_->graph.push_back(std::move(n));
+    return static_cast<int>(m_->graph.size()) - 1;
+  }
+
+  int Expression() { return Or(); }
+  int Or() {
+    int left = And();
+    while (IsPunct("||")) {
+      const Token op = Next();
+      left = Add(Op::kOr, left, And(), -1, op);
+    }
+    return left;
+  }
+  int And() {
+    int left = Comparison();
+    while (IsPunct("&&")) {
+      const Token op = Next();
+      left = Add(Op::kAnd, left, Comparison(), -1, op);
+    }
+    return left;
+  }
+  int Comparison() {
+    const int left = Sum();
+    static const std::pair<const char*, Op> kOps[] = {{"<", Op::kLess}, {"<=", Op::kLessEqual},
+                                                      {">", Op::kGreater}, {">=", Op::kGreaterEqual},
+                                                      {"==", Op::kEqual}, {"!=", Op::kNotEqual}};
+    for (const auto& op : kOps) {
+      if (IsPunct(op.first)) {
+        const Token t = Next();
+        const int right = Sum();
+        return Add(op.second, left, right, -1, t);
+      }
+    }
+    if (IsPunct("=")) Fail(Peek(), "'=' in an expression: write '==' to compare");
+    return left;
+  }
+  int Sum() {
+    int left = Product();
+    while (IsPunct("+") || IsPunct("-")) {
+      const Token op = Next();
+      const int right = Product();
+      left = Add(op.text == "+" ? Op::kAdd : Op::kSub, left, right, -1, op);
+    }
+    return left;
+  }
+  int Product() {
+    int left = Unary();
+    while (IsPunct("*") || IsPunct("/")) {
+      const Token op = Next();
+      const int right = Unary();
+      left = Add(op.text == "*" ? Op::kMul : Op::kDiv, left, right, -1, op);
+    }
+    return left;
+  }
+  int Unary() {
+    if (IsPunct("-")) {
+      const Token op = Next();
+      return Add(Op::kNeg, Unary(), -1, -1, op);
+    }
+    if (IsPunct("!")) {
+      const Token op = Next();
+      return Add(Op::kNot, Unary(), -1, -1, op);
+    }
+    if (Accept("+")) return Unary();
+    return Power();
+  }
+  int Power() {
+    const int base = Primary();
+    if (IsPunct("^") || IsPunct("**")) {
+      const Token op = Next();
+      return Add(Op::kPow, base, Unary(), -1, op);  // right-associative: 2^3^2 = 2^(3^2)
+    }
+    return base;
+  }
+  int Primary() {
+    const Token t = Peek();
+    if (t.kind == Kind::kNumber) {
+      ++pos_;
+      const int n = Add(Op::kConstant, -1, -1, -1, t);
+      m_->graph[n].value = t.number;
+      return n;
+    }
+    if (Accept("(")) {
+      const int e = Expression();
+      Expect(")", "')'");
+      return e;
+    }
+    if (t.kind != Kind::kIdentifier) Fail(t, "expected a number, a name or '(', found " + Describe(t));
+    ++pos_;
+    if (IsPunct("(")) return Call(t);
+    const int n = Add(Op::kSymbol, -1, -1, -1, t);
+    m_->graph[n].name = ToUpper(t.text);
+    return n;
+  }
+  int Call(const Token& name) {
+    const std::string upper = ToUpper(name.text);
+    const Function* f = nullptr;
+    for (const Function& g : kFunctions) {
+      if (upper == g.name) f = &g;
+    }
+    if (f == nullptr) {
+      const std::string closest = ClosestName(ToLower(name.text), FunctionNames());
+      Fail(name, "unknown function '" + name.text + "'" + (closest.empty() ? "" : " (did you mean " + closest + "?)") +
+                     "; the functions are " + Join(FunctionNames(), ", "));
+    }
+    Expect("(", "'('");
+    std::vector<int> args;
+    if (!IsPunct(")")) {
+      do {
+        args.push_back(Expression());
+      } while (Accept(","));
+    }
+    Expect(")", "')' after the arguments");
+    const int n = static_cast<int>(args.size());
+    if ((f->args > 0 && n != f->args) || (f->args < 0 && n < 2)) {
+      Fail(name, ToLower(f->name) + "() takes " +
+                     (f->args < 0 ? std::string("two or more arguments") : std::to_string(f->args) + " argument" +
+                                                                              (f->args > 1 ? "s" : "")) +
+                     ", not " + std::to_string(n));
+    }
+    if (f->args < 0) {  // min(a, b, c) = min(min(a, b), c)
+      int acc = args[0];
+      for (int i = 1; i < n; ++i) acc = Add(f->op, acc, args[static_cast<size_t>(i)], -1, name);
+      return acc;
+    }
+    return Add(f->op, args[0], n > 1 ? args[1] : -1, n > 2 ? args[2] : -1, name);
+  }
+
+  std::vector<Token> tok_;
+  size_t pos_ = 0;
+  const std::string& text_;
+  ModelText* m_;
+};
+
+}  // namespace
+
+int Arity(Op op) {
+  switch (op) {
+    case Op::kConstant:
+    case Op::kInput:
+    case Op::kSymbol: return 0;
+    case Op::kNeg:
+    case Op::kExp:
+    case Op::kLog:
+    case Op::kLog10:
+    case Op::kSqrt:
+    case Op::kAbs:
+    case Op::kLogistic:
+    case Op::kLogit:
+    case Op::kNot: return 1;
+    case Op::kSelect: return 3;
+    default: return 2;
+  }
+}
+
+ModelText Parse(const std::string& text, const std::string& source) {
+  ModelText m;
+  m.source = source;
+  Parser(Tokenize(text, source), text, &m).Run();
+  return m;
+}
+
+}  // namespace lang
+}  // namespace internal
+}  // namespace pk
