@@ -211,8 +211,8 @@ void NoteDefaults(const pk::Model& model, const pk::Dataset& data, const pk::Par
                 pk::FormatNumber(model.default_parameters()(i));
   }
   if (!defaults.empty()) {
-    std::cerr << "pksim: note: the catalogue's defaults for what --param and the data do not give: " << defaults
-              << "\n";
+    std::cerr << "pksim: note: the " << (model.declarations().source.empty() ? "catalogue's" : "model file's")
+              << " defaults for what --param and the data do not give: " << defaults << "\n";
   }
 }
 

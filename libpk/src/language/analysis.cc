@@ -62,7 +62,10 @@ using Polynomial = std::vector<Monomial>;
 
 class Analyser {
  public:
-  explicit Analyser(ModelText text) { out_.text = std::move(text); }
+  explicit Analyser(ModelText text) {
+    out_.text = std::move(text);
+    out_.declarations.source = out_.text.source;
+  }
 
   CompiledModel Run() {
     const ModelText& t = out_.text;
@@ -224,6 +227,10 @@ class Analyser {
 
   int ResolveSymbol(const Node& src, const std::string& context) {
     const auto it = symbols_.find(src.name);
+    if (it == symbols_.end() && (src.name == "TIME" || src.name == "T")) {
+      Fail(src, src.name + " is reserved: a model's right-hand side must not depend on time (doses and records "
+                           "carry it)");
+    }
     if (it == symbols_.end()) {
       std::vector<std::string> names;
       for (const auto& kv : symbols_) names.push_back(kv.first);
@@ -278,7 +285,9 @@ class Analyser {
       return true;
     };
     double b = 0, a = 0;
-    if (r.op == Op::kDiv && constant(r.b, &b) && b == 0) Fail(r, "division by zero: the denominator is always 0");
+    if (r.op == Op::kDiv && ((constant(r.b, &b) && b == 0) || IdenticallyZero(r.b))) {
+      Fail(r, "division by zero: the denominator is always 0");
+    }
     if ((r.op == Op::kLog || r.op == Op::kLog10) && constant(r.a, &a) && !(a > 0)) {
       Fail(r, "log of " + FormatNumber(a) + ": the argument is never positive");
     }
@@ -458,13 +467,15 @@ class Analyser {
                        std::to_string(seen[e.output]->at.line) + ")");
       }
       seen[e.output] = &e;
-      std::shared_ptr<const ResidualErrorModel> model;
-      try {
-        model = MakeResidualError(e.model);
-      } catch (const InputError& err) {
-        Fail(e.at, "$ERROR: " + err.message());
+      std::vector<std::string> names = ResidualErrorNames();
+      names.erase(names.begin());  // least squares is no error model
+      if (std::find(names.begin(), names.end(), e.model) == names.end()) {
+        const std::string closest = ClosestName(e.model, names);
+        Fail(e.at, "$ERROR: unknown error model '" + e.model + "'" +
+                       (closest.empty() ? "" : " (did you mean " + closest + "?)") + "; the error models are " +
+                       Join(names, ", "));
       }
-      if (!model->is_likelihood()) Fail(e.at, "$ERROR: least squares is not an error model; omit the line");
+      const std::shared_ptr<const ResidualErrorModel> model = MakeResidualError(e.model);
       if (!e.sigma.empty() && e.sigma.size() != model->sigma_names().size()) {
         Fail(e.at, "$ERROR: " + e.model + " takes " + std::to_string(model->sigma_names().size()) + " σ (" +
                        Join(model->sigma_names(), ", ") + "), not " + std::to_string(e.sigma.size()));
@@ -538,6 +549,25 @@ class Analyser {
         return true;
       default: return false;
     }
+  }
+
+  // Whether node k is 0 whatever the parameters and amounts: a polynomial whose like terms cancel
+  // (V - V). False when k is not a polynomial.
+  bool IdenticallyZero(int k) {
+    Polynomial p;
+    if (!Expand(k, &p) || p.empty()) return false;
+    std::map<std::pair<int, std::map<int, int>>, double> sum;
+    for (const Monomial& m : p) {
+      std::map<int, int> powers;
+      for (const auto& kv : m.powers) {
+        if (kv.second != 0) powers.insert(kv);
+      }
+      sum[{m.state, powers}] += m.c;
+    }
+    for (const auto& kv : sum) {
+      if (kv.second != 0) return false;
+    }
+    return true;
   }
 
   // The terms of `k` (a row of A or C) as LinearTerms, or false with the reason.
