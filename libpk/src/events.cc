@@ -51,6 +51,25 @@ void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base
 
 namespace {
 
+// A covariate must have a value on every record: from its column, else the model's reference value.
+void CheckCovariates(const Model& model, const ParameterLayout& layout, const PreparedSubject& s, size_t r) {
+  const Record& rec = s.records()[r];
+  const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
+  for (int i = 0; i < model.num_parameters(); ++i) {
+    if (!model.is_covariate(i) || !std::isnan(p(i))) continue;
+    const int col = s.column_of_parameter[i];
+    if (col < 0) {
+      throw InputError(s.data->source, s.data->header_line, 0,
+                       "model " + model.name() + " reads the covariate " + layout.name(i) +
+                           ", but the dataset has no column " + layout.name(i) + " (the header has " +
+                           Join(s.data->columns, ",") + ")");
+    }
+    throw ParameterValueError(s.data->source, rec.line, s.data->ColumnNumber(layout.name(i)),
+                              "the covariate " + layout.name(i) + " has no value on this record, and model " +
+                                  model.name() + " gives it no reference value");
+  }
+}
+
 // A clearance, volume or rate constant of zero or below gives rising concentrations or a "converged"
 // fit of nonsense: every parameter the model does not declare signed must be positive on record r.
 // Values from data columns are always checked; given ones when `given`.
@@ -58,12 +77,6 @@ void CheckPositive(const Model& model, const ParameterLayout& layout, const Prep
   const Record& rec = s.records()[r];
   const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
   for (int i = 0; i < model.num_parameters(); ++i) {
-    if (model.is_covariate(i) && std::isnan(p(i))) {
-      const int col = s.column_of_parameter[i];
-      throw ParameterValueError(s.data->source, rec.line, col >= 0 ? s.data->ColumnNumber(layout.name(i)) : 0,
-                                "the covariate " + layout.name(i) + " has no value on this record ('.' or empty) "
-                                "and the model gives no reference value");
-    }
     if (!model.must_be_positive(i) || !(p(i) <= 0)) continue;  // NaN: not given, reported where it is used
     const int col = s.column_of_parameter[i];
     const bool from_data = col >= 0 && !std::isnan(rec.extra[col]);
@@ -135,6 +148,7 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
     const int c = rec.cmt > 0 ? rec.cmt - 1 : (rec.IsDose() ? model.default_dose_compartment() - 1
                                                             : model.central_compartment() - 1);
     s.cmt[r] = c;
+    CheckCovariates(model, layout, s, r);
     if (check_modifiers) CheckPositive(model, layout, s, r, check_given);
     if (!rec.IsDose() || !check_modifiers) continue;
     const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
