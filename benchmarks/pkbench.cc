@@ -39,6 +39,7 @@
 #include <unistd.h>
 
 #include "pk/catalogue.h"
+#include "pk/model_file.h"
 #include "pk/dataset.h"
 #include "pk/output.h"
 #include "pk/simulate.h"
@@ -478,6 +479,41 @@ int main(int argc, char** argv) {
       const double median = fit_seconds[fit_seconds.size() / 2];
       std::printf("%-14s %-22s %9zu %14.1f %16.2f %18.1f\n", c.first, c.second, subjects, median * 1e3,
                   median * 1e3 / double(subjects), evaluations / double(subjects));
+      std::fflush(stdout);
+    }
+  }
+  // ---- 7. Model files against the catalogue: the same model, fitted from the same start.
+  if (only == 0 || only == 7) {
+    std::printf("\n== model files (models/*.pkm) against the catalogue: fitting time, all subjects, one thread ==\n");
+    std::printf("%-14s %-22s %-10s %14s %14s %8s\n", "model", "data", "propagator", "catalogue (ms)", "file (ms)",
+                "ratio");
+    const std::pair<const char*, const char*> cases[] = {{"1cmt_oral_mm", "theophylline.csv"},
+                                                         {"1cmt_iv_emax", "emax_synthetic.csv"},
+                                                         {"1cmt_oral", "theophylline.csv"},
+                                                         {"2cmt_iv", "remifentanil.csv"}};
+    const std::string models_dir = data_dir + "/../models/";
+    for (const auto& c : cases) {
+      const auto data = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/" + c.second));
+      auto request = [&](std::shared_ptr<const pk::Model> model) {
+        pk::FitSubjectsRequest req;
+        req.data = data;
+        req.jobs = 1;
+        req.curve_points = 2;
+        req.initial_from_data = false;  // both start from the catalogue's values
+        const auto catalogue = pk::MakeModel(c.first);
+        for (int i = 0; i < catalogue->num_parameters(); ++i) {
+          req.parameters.push_back({catalogue->parameter_names()[i], catalogue->default_parameters()(i)});
+        }
+        req.model = std::move(model);
+        return req;
+      };
+      const pk::FitSubjectsRequest a = request(pk::MakeModel(c.first));
+      const pk::FitSubjectsRequest b = request(pk::LoadModelFile(models_dir + c.first + ".pkm"));
+      const Timing t = Interleaved({[&] { g_sink = double(pk::FitSubjects(a).size()); },
+                                    [&] { g_sink = double(pk::FitSubjects(b).size()); }});
+      std::printf("%-14s %-22s %-10s %14.1f %14.1f %8.2f\n", c.first, c.second,
+                  b.model->is_linear() ? "exact" : "ode", t.base_seconds * 1e3, t.base_seconds * t.ratios[1] * 1e3,
+                  t.ratios[1]);
       std::fflush(stdout);
     }
   }
