@@ -28,6 +28,8 @@ printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CL,2\n1,V,30\n1,KA,2\n' >estimates_twic
 printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n1,CLEARANCE,2\n' >estimates_unknown.csv
 printf 'ID,TIME,AMT,DV,V1\n1,0,100,.,20\n1,1,0,3,20\n' >former_name_column.csv
 printf 'ID,TIME,AMT\n1,0,100\n1,1,0\n' >no_dv.csv
+printf '$PROBLEM typo\n$PARAM\nCL = 3\nV = 30\n$CMT\nCENTRAL\n$ODE\nd/dt(CENTRAL) = -CL / VV * CENTRAL\n$OUTPUT\nCP = CENTRAL / V\n' >typo.pkm
+printf '$PROBLEM wt\n$PARAM\nCL = 3\nV = 30\n$COVARIATE\nWT\n$CMT\nCENTRAL\n$ODE\nd/dt(CENTRAL) = -CL * WT / 70 / V * CENTRAL\n$OUTPUT\nCP = CENTRAL / V\n' >wt.pkm
 mkdir -p killed && printf 'ID,PARAMETER,ESTIMATE\n1,KA,1\n' >killed/estimates.csv && printf 'ID\n1\n' >killed/fit_details.csv
 
 # exit | program | message fragment | arguments (one string, split on spaces)
@@ -76,6 +78,11 @@ cases=$(cat <<CASES
 2|pksim|a NUL byte|--model 1cmt_oral --data nul.csv --times 1
 1|pksim|CL of 1cmt_iv must be positive, not -3|--model 1cmt_iv --data negative_cl_column.csv --param V=10
 2|pksim|'V1' is no longer a parameter of 2cmt_oral: its volumes have NONMEM's ADVAN4 TRANS4 names|--model 2cmt_oral --dose 100 --times 1 --param V1=25
+2|pkfit|typo.pkm:8:23: d/dt(CENTRAL) reads VV, which is not defined (did you mean V?)|--model typo.pkm --data $theo
+2|pksim|typo.pkm:8:23:|--model typo.pkm --dose 100 --times 1
+2|pkfit|no.pkm: cannot read the model file|--model no.pkm --data $theo
+2|pkfit|reads the covariate WT, but the dataset has no column WT|--model wt.pkm --data $root/datasets/cefamandole.csv
+2|pksim|reads the covariate WT, but the dataset has no column WT|--model wt.pkm --dose 100 --times 1
 3|pksim|cannot write|--model 1cmt_oral --dose 100 --times 1 --out /proc/no/such/dir/sim.csv
 CASES
 )

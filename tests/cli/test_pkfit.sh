@@ -341,4 +341,19 @@ grep -q "note: ID 1 comes back at .*rep.csv:10 after other IDs" "$work/rep.err" 
 for f in fit_ID1.svg fit_ID1_occ2.svg fit_ID2.svg; do [ -s "$work/rep/$f" ] || fail "repeated ID: missing $f"; done
 grep -q 'id="id1_occ2" class=""><figcaption>ID 1 (occurrence 2)' "$work/rep/report.html" || fail "repeated ID: report panel"
 
+# A model file in place of a catalogue name (docs/model_language.md): its twin of 1cmt_oral gives the
+# catalogue's estimates to the optimiser's precision (it starts from its own values, the catalogue
+# from the data), with the units it declares; its own error model and σ start.
+"$pkfit" --model "$root/models/1cmt_oral.pkm" --data "$root/datasets/theophylline.csv" -o "$work/file" -q --jobs 1 \
+  >/dev/null 2>&1 || fail "model file fit exited non-zero"
+paste -d, "$work/theo/estimates.csv" "$work/file/estimates.csv" |
+  awk -F, 'NR > 1 { d = ($3 - $9) / $3; if (d < 0) d = -d; if ($2 != $8 || d > 1e-6) bad = 1 } END { exit bad }' ||
+  fail "the model file twin of 1cmt_oral should give the catalogue's estimates"
+grep -q '^1,KA,.*,1/h$' "$work/file/estimates.csv" || fail "the model file's unit of KA (1/h)"
+[ -s "$work/file/report.html" ] || fail "model file: no report"
+printf '$PROBLEM mm  saturable\n$PARAM\nVMAX = 20 mg/h\nKM = 2 mg/L\nV = 30 L\n$CMT\nCENTRAL\n$ODE\nC = CENTRAL / V\nd/dt(CENTRAL) = -VMAX * C / (KM + C)\n$OUTPUT\nCP = C\n$ERROR\nCP ~ proportional(0.05)\n' >"$work/mm.pkm"
+"$pkfit" --model "$work/mm.pkm" --data "$root/datasets/mm_synthetic.csv" -o "$work/mm" -q >"$work/mm.txt" 2>&1 ||
+  fail "model file with \$ERROR: exit non-zero"
+grep -q "proportional" "$work/mm/summary.json" || fail "the model file's \$ERROR should choose the proportional error"
+grep -q ',SIGMA_PROP,' "$work/mm/estimates.csv" || fail "the model file's error model: SIGMA_PROP estimated"
 if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi
