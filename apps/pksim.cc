@@ -107,7 +107,7 @@ struct Lists {
 
 void DeclareOptions(po::options_description* desc, Lists* a) {
   desc->add_options()("help,h", "show this help")("version", "print the version of libpk and exit")("list-models", "print the model catalogue and exit")(
-      "model,m", po::value<std::string>(), "catalogue model, e.g. 2cmt_oral")(
+      "model,m", po::value<std::string>(), "catalogue model, e.g. 2cmt_oral, or a model file FILE.pkm")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "param,p", po::value<std::vector<std::string>>(&a->params)->composing(),
       "NAME=VALUE for a model parameter or dose modifier (F1, ALAG1, R1, D1); repeatable")(
