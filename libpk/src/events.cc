@@ -62,7 +62,8 @@ void CheckCovariates(const Model& model, const ParameterLayout& layout, const Pr
       throw InputError(s.data->source, s.data->header_line, 0,
                        "model " + model.name() + " reads the covariate " + layout.name(i) +
                            ", but the dataset has no column " + layout.name(i) + " (the header has " +
-                           Join(s.data->columns, ",") + ")");
+                           Join(s.data->columns, ",") + "); add the column, give a reference value in $COVARIATE ("
+                           + layout.name(i) + " = …), or, in pksim, --param " + layout.name(i) + "=VALUE");
     }
     throw ParameterValueError(s.data->source, rec.line, s.data->ColumnNumber(layout.name(i)),
                               "the covariate " + layout.name(i) + " has no value on this record, and model " +
@@ -92,17 +93,6 @@ void CheckPositive(const Model& model, const ParameterLayout& layout, const Prep
 }  // namespace
 
 void CheckColumns(const Model& model, const Dataset& data, bool fitting) {
-  // A covariate with neither a column nor a reference value has no value anywhere.
-  for (int i = 0; i < model.num_parameters(); ++i) {
-    if (!model.is_covariate(i) || data.ExtraColumn(model.parameter_names()[i]) >= 0 ||
-        !std::isnan(model.default_parameters()(i))) {
-      continue;
-    }
-    throw InputError(data.source, data.header_line, 0,
-                     "model " + model.name() + " reads the covariate " + model.parameter_names()[i] +
-                         ", but the dataset has no column " + model.parameter_names()[i] + " (the header has " +
-                         Join(data.columns, ",") + ")");
-  }
   for (const std::string& column : data.extra_columns) {
     if (!model.IsFormerName(column)) continue;
     throw InputError(data.source, data.header_line, data.ColumnNumber(column),

@@ -126,4 +126,15 @@ grep -q "sim.csv: cannot write (could not create .*: No such file or directory)"
 [ $rc -eq 2 ] || fail "--param CL=-1 should exit 2, got $rc"
 grep -q "CL of 1cmt_iv must be positive, not -1" "$work/negcl.err" || fail "--param CL=-1: message"
 
+# A model file's covariate from --param when the regimen has no such column (the ODE propagator at its
+# default tolerance against the exact one: 7 digits); the shipped IDR model's
+# response (DVID 2) next to CP.
+printf '$PROBLEM wt\n$PARAM\nCL = 3\nV = 30\n$COVARIATE\nWT\n$CMT\nCENTRAL\n$ODE\nd/dt(CENTRAL) = -CL * WT / 70 / V * CENTRAL\n$OUTPUT\nCP = CENTRAL / V\n' >"$work/wt.pkm"
+"$pksim" --model "$work/wt.pkm" --dose 100 --times 1 --param WT=140 >"$work/wt.csv" 2>/dev/null || fail "covariate by --param"
+"$pksim" --model 1cmt_iv --dose 100 --times 1 --param CL=6 --param V=30 >"$work/cl6.csv" 2>/dev/null
+[ "$(cut -d, -f4 "$work/wt.csv" | tail -1 | cut -c1-8)" = "$(cut -d, -f4 "$work/cl6.csv" | tail -1 | cut -c1-8)" ] ||
+  fail "WT=140 doubles CL=3: the model file should match 1cmt_iv with CL=6"
+"$pksim" --model "$root/models/idr3.pkm" --dose 100 --times 0,6 >"$work/idr3.csv" 2>/dev/null || fail "idr3.pkm"
+head -1 "$work/idr3.csv" | grep -q "^ID,TIME,EVID,CP,E," || fail "idr3.pkm: CP and E columns"
+
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi
