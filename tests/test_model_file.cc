@@ -15,6 +15,8 @@
 #include "pk/model_file.h"
 #include "pk/objective.h"
 #include "pk/ode_model.h"
+#include "pk/parameters.h"
+#include "pk/units.h"
 #include "test_util.h"
 
 namespace {
@@ -477,4 +479,61 @@ TEST_CASE("model files: fits recover known parameters and reach the catalogue tw
     objective[which] = fit.summary.objective;
   }
   CHECK(pk_test::RelDiff(objective[0], objective[1]) < 1e-6);
+}
+
+TEST_CASE("model files: definitions shared along a chain are analysed once each", "[model_file]") {
+  // A_k = A_{k-1}·A_{k-1}/A_{k-1} reads its predecessor three times: visiting the graph as a tree
+  // would take 3^60 steps (the test would never end); bound once each, it is K, and linear.
+  std::string text = "$PROBLEM deep  a chain of shared definitions\n$PARAM\nK = 0.1\nV = 10\n$CMT\nC dose\n$ODE\nA0 = K\n";
+  for (int k = 1; k <= 60; ++k) {
+    text += "A" + std::to_string(k) + " = A" + std::to_string(k - 1) + " * A" + std::to_string(k - 1) + " / A" +
+            std::to_string(k - 1) + "\n";
+  }
+  text += "d/dt(C) = -A60 * C\n$OUTPUT\nCP = C / V\n";
+  const auto model = pk::ParseModel(text, "deep.pkm");
+  REQUIRE(dynamic_cast<const pk::LinearModel*>(model.get()) != nullptr);
+  const pk::Objective objective(model, std::make_shared<pk::Dataset>(pk::ParseDataset("ID,TIME,AMT,DV\n1,0,1,.\n1,1,0,1\n", "d.csv")), 0,
+                                pk::ObjectiveOptions());
+  const auto e = objective.Evaluate(objective.DefaultValues(), {}, pk::Objective::Need::kValue);
+  REQUIRE(e.ok);
+  CHECK(e.predictions(0) == Approx(std::exp(-0.1) / 10).epsilon(1e-13));
+}
+
+TEST_CASE("model files: declared bounds, modifiers, covariates and σ become the fit's parameters", "[model_file][fit]") {
+  const char* text =
+      "$PROBLEM declared  what a file tells the fit\n"
+      "$PARAM\nKA = 1.2 (0.1, 10) 1/h\nCL = 3\nV = 30 (5, ) L\nF1 = 0.7 (0, 1)\n"
+      "$COVARIATE\nWT = 70 kg\n"
+      "$CMT\nDEPOT dose\nCENTRAL\n"
+      "$ODE\nd/dt(DEPOT) = -KA * DEPOT\nd/dt(CENTRAL) = KA * DEPOT - CL * WT / 70 / V * CENTRAL\n"
+      "$OUTPUT\nCP = CENTRAL / V\n$ERROR\nCP ~ proportional(0.05)\n";
+  pk::FitSubjectsRequest req;
+  req.model = pk::ParseModel(text, "declared.pkm");
+  req.data = std::make_shared<pk::Dataset>(pk::ParseDataset("ID,TIME,AMT,DV\n1,0,100,.\n1,1,0,2\n1,4,0,1\n", "d.csv"));
+  req.objective.error_model = pk::MakeResidualError(req.model->declarations().error_model);
+  const std::vector<pk::ParameterSpec> specs = pk::MakeParameterSpecs(req, {});
+  std::map<std::string, pk::ParameterSpec> by_name;
+  for (const pk::ParameterSpec& s : specs) by_name[s.name] = s;
+  CHECK(by_name.size() == 5);  // KA, CL, V, SIGMA_PROP, F1: not the covariate WT
+  CHECK(by_name.count("WT") == 0);
+  CHECK(by_name["KA"].lower == 0.1);
+  CHECK(by_name["KA"].upper == 10);
+  CHECK(by_name["V"].lower == 5);
+  CHECK(std::isinf(by_name["V"].upper));
+  CHECK(std::isinf(by_name["CL"].lower));
+  CHECK(by_name["F1"].initial == 0.7);
+  CHECK(by_name["F1"].upper == 1);
+  CHECK(by_name["SIGMA_PROP"].initial == 0.05);
+  // The layout starts F1 from the file's value; the units are the file's.
+  const pk::ParameterLayout layout(*req.model);
+  CHECK(layout.Defaults()(layout.Index("F1")) == 0.7);
+  const pk::Units units = pk::ModelUnits(pk::Units(), *req.model);
+  CHECK(pk::ParameterUnit("KA", units) == "1/h");
+  CHECK(pk::ParameterUnit("WT", units) == "kg");
+  CHECK(pk::ParameterUnit("CL", units).empty());
+  // With another error model in use, the file's σ does not apply.
+  req.objective.error_model = pk::MakeResidualError("additive");
+  for (const pk::ParameterSpec& s : pk::MakeParameterSpecs(req, {})) {
+    if (s.name == "SIGMA_ADD") CHECK(std::isnan(s.initial));
+  }
 }

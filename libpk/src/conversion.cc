@@ -171,18 +171,17 @@ bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Expon
 namespace {
 
 // The exponents' names: LAMBDA1, LAMBDA2, ... fastest first; behind a depot, the absorption rate (the
-// exponent closest to KA) is LAMBDA_ABS and the disposition rates are numbered without it.
+// exponent closest to the depot's exit rate) is LAMBDA_ABS and the disposition rates are numbered without it.
 std::vector<std::string> ExponentNames(const Model& model, const Eigen::VectorXd& theta, const Exponentials& e) {
   const int n = static_cast<int>(e.rate.size());
   int absorption = -1;
-  const InitialStructure& s = model.initial_structure();
-  const int ka = s.depot && !s.names.empty() ? model.ParameterIndex(s.names[0]) : -1;
-  double rate = ka >= 0 ? theta(ka) : NAN;
-  // A model that declares no structure (a model file) has a depot when its dose compartment is not
-  // the central one and nothing flows into it: its exit rate is −A(d, d).
+  // Behind a depot (the dose compartment, not the central one, with nothing flowing into it) the
+  // absorption rate is the depot's exit rate −A(d, d): KA in the catalogue, whatever a model file
+  // calls it.
+  double rate = NAN;
   const auto* linear = dynamic_cast<const LinearModel*>(&model);
   const int d = model.default_dose_compartment() - 1;
-  if (ka < 0 && linear != nullptr && d != model.central_compartment() - 1) {
+  if (linear != nullptr && d != model.central_compartment() - 1) {
     const Eigen::MatrixXd a = linear->SystemMatrix<double>(theta.head(model.num_parameters()));
     bool inflow = false;
     for (int j = 0; j < a.cols(); ++j) inflow = inflow || (j != d && a(d, j) != 0);

@@ -48,6 +48,7 @@ OdeModel::OdeModel(const OdeModelSpec& spec)
       id_(NextModelId()) {
   set_initial_structure(spec.initial_structure);
   set_signed_parameters(spec.signed_parameters);
+  set_declarations(spec.declarations);
 }
 
 OdeModel::~OdeModel() = default;

@@ -350,6 +350,7 @@ paste -d, "$work/theo/estimates.csv" "$work/file/estimates.csv" |
   awk -F, 'NR > 1 { d = ($3 - $9) / $3; if (d < 0) d = -d; if ($2 != $8 || d > 1e-6) bad = 1 } END { exit bad }' ||
   fail "the model file twin of 1cmt_oral should give the catalogue's estimates"
 grep -q '^1,KA,.*,1/h$' "$work/file/estimates.csv" || fail "the model file's unit of KA (1/h)"
+grep -q '^1,exponents,LAMBDA_ABS,' "$work/file/derived.csv" || fail "the model file's depot: its exponent is LAMBDA_ABS"
 [ -s "$work/file/report.html" ] || fail "model file: no report"
 printf '$PROBLEM mm  saturable\n$PARAM\nVMAX = 20 mg/h\nKM = 2 mg/L\nV = 30 L\n$CMT\nCENTRAL\n$ODE\nC = CENTRAL / V\nd/dt(CENTRAL) = -VMAX * C / (KM + C)\n$OUTPUT\nCP = C\n$ERROR\nCP ~ proportional(0.05)\n' >"$work/mm.pkm"
 "$pkfit" --model "$work/mm.pkm" --data "$root/datasets/mm_synthetic.csv" -o "$work/mm" -q >"$work/mm.txt" 2>&1 ||

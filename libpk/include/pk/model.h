@@ -43,21 +43,24 @@ struct DeclaredParameter {
   double initial = 0;
   double lower = -HUGE_VAL, upper = HUGE_VAL;
   std::string unit;  ///< "" when not given
+  /// A covariate: read from the dataset column of its name and never estimated.
+  bool covariate = false;
 };
 
 /// What a model file (pk/model_file.h) declares beyond names and defaults. Catalogue models
 /// declare nothing: every vector is empty.
 struct ModelDeclarations {
   std::string source;  ///< the model file
-  /// Per model parameter, in order: its bounds and unit (the initial value is the default).
+  /// Per model parameter, in order: its bounds, unit and whether it is a covariate (the initial
+  /// value is the default).
   std::vector<DeclaredParameter> parameters;
-  /// Per model parameter: a covariate, read from the dataset column of its name and never estimated.
-  std::vector<bool> covariate;
   /// Dose modifiers the file estimates (F1, ALAG2, …: names of pk/parameters.h), with their starts.
   std::vector<DeclaredParameter> modifiers;
   /// The residual-error model the file gives its outputs ("" when none), and initial σ values.
   std::string error_model;
   std::vector<double> sigma;
+  /// Why a model file that is not a LinearModel runs on the ODE propagator ("" otherwise).
+  std::string why_not_linear;
 };
 
 class Model {
@@ -91,7 +94,7 @@ class Model {
   const ModelDeclarations& declarations() const { return declarations_; }
   /// Whether parameter i is a covariate: a dataset column, never estimated.
   bool is_covariate(int i) const {
-    return !declarations_.covariate.empty() && declarations_.covariate[static_cast<size_t>(i)];
+    return !declarations_.parameters.empty() && declarations_.parameters[static_cast<size_t>(i)].covariate;
   }
 
   /// Text for an error about a parameter name this model does not have, given the names it

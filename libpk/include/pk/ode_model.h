@@ -60,6 +60,8 @@ struct OdeModelSpec {
   InitialStructure initial_structure;
   /// Parameters that may be zero or negative; every other one must be positive.
   std::vector<std::string> signed_parameters;
+  /// What a model file declares (pk/model.h); empty for the catalogue.
+  ModelDeclarations declarations;
 };
 
 /// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use

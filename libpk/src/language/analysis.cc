@@ -121,8 +121,8 @@ class Analyser {
       d.name = c.name;
       d.initial = c.reference;
       d.unit = c.unit;
+      d.covariate = true;
       out_.declarations.parameters.push_back(d);
-      out_.declarations.covariate.push_back(true);
     }
     for (size_t i = 0; i < t.etas.size(); ++i) {
       const EtaDecl& e = t.etas[i];
@@ -185,7 +185,6 @@ class Analyser {
     defaults_.push_back(p.initial);
     if (is_signed) out_.signed_parameters.push_back(p.name);
     out_.declarations.parameters.push_back(d);
-    out_.declarations.covariate.push_back(false);
   }
 
   // --- resolution ---------------------------------------------------------------------------
@@ -325,23 +324,18 @@ class Analyser {
     return Constant(value, r);
   }
 
-  bool DependsOnState(int k) {
-    const Node& node = g_[static_cast<size_t>(k)];
-    if (node.op == Op::kInput) return node.input < n();
-    for (int o : {node.a, node.b, node.c}) {
-      if (o >= 0 && DependsOnState(o)) return true;
-    }
-    return false;
-  }
-  // A state the node reads, or -1.
+  // A state the node reads, or -1 (memoised: definitions make the graph a DAG, and a node shared by
+  // both operands of each of a chain of nodes would otherwise be visited 2^depth times).
   int StateRead(int k) {
+    if (state_read_.size() < g_.size()) state_read_.resize(g_.size(), -2);
+    int& memo = state_read_[static_cast<size_t>(k)];
+    if (memo != -2) return memo;
     const Node& node = g_[static_cast<size_t>(k)];
-    if (node.op == Op::kInput) return node.input < n() ? node.input : -1;
+    int s = node.op == Op::kInput && node.input < n() ? node.input : -1;
     for (int o : {node.a, node.b, node.c}) {
-      const int s = o >= 0 ? StateRead(o) : -1;
-      if (s >= 0) return s;
+      if (s < 0 && o >= 0) s = StateRead(o);
     }
-    return -1;
+    return state_read_[static_cast<size_t>(k)] = s;
   }
 
   // --- the model's parts --------------------------------------------------------------------
@@ -493,8 +487,18 @@ class Analyser {
   }
 
   // --- linear structure ---------------------------------------------------------------------
-  // False when node k is not a sum of monomials with at most one state each.
+  // False when node k is not a sum of monomials with at most one state each (memoised, as StateRead).
   bool Expand(int k, Polynomial* p) {
+    const auto memo = expanded_.find(k);
+    if (memo != expanded_.end()) {
+      *p = memo->second.second;
+      return memo->second.first;
+    }
+    const bool ok = ExpandNode(k, p);
+    expanded_[k] = {ok, *p};
+    return ok;
+  }
+  bool ExpandNode(int k, Polynomial* p) {
     const Node& node = g_[static_cast<size_t>(k)];
     Polynomial a, b;
     switch (node.op) {
@@ -574,13 +578,13 @@ class Analyser {
   bool Terms(int k, int row, const std::string& what, std::vector<LinearTerm>* terms) {
     Polynomial p;
     if (!Expand(k, &p)) {
-      out_.why_not_linear = what + " is not linear in the amounts with coefficients c·θa/θb";
+      out_.declarations.why_not_linear = what + " is not linear in the amounts with coefficients c·θa/θb";
       return false;
     }
     for (Monomial& m : p) {
       if (m.c == 0) continue;
       if (m.state < 0) {
-        out_.why_not_linear = what + " has a term without an amount (a zero-order input)";
+        out_.declarations.why_not_linear = what + " has a term without an amount (a zero-order input)";
         return false;
       }
       LinearTerm t;
@@ -591,7 +595,7 @@ class Analyser {
         if (kv.second == 0) continue;
         int* slot = kv.second == 1 ? &t.numerator : kv.second == -1 ? &t.denominator : nullptr;
         if (slot == nullptr || *slot >= 0) {
-          out_.why_not_linear = what + " has a coefficient that is not c·θa/θb";
+          out_.declarations.why_not_linear = what + " has a coefficient that is not c·θa/θb";
           return false;
         }
         *slot = kv.first;
@@ -604,7 +608,7 @@ class Analyser {
   void DetectLinear() {
     out_.linear = false;
     if (out_.outputs.size() != 1) {
-      out_.why_not_linear = "it has more than one output";
+      out_.declarations.why_not_linear = "it has more than one output";
       return;
     }
     for (int c = 0; c < n(); ++c) {
@@ -629,6 +633,8 @@ class Analyser {
   std::map<int, int> input_node_;
   std::vector<int> resolved_def_, def_state_, stack_;
   std::vector<bool> used_, eta_used_;
+  std::vector<int> state_read_;                              // per node: StateRead, -2 not yet known
+  std::map<int, std::pair<bool, Polynomial>> expanded_;      // per node: Expand
 };
 
 }  // namespace

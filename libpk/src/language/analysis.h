@@ -33,11 +33,10 @@ struct CompiledModel {
   std::vector<int> outputs;  // root of each output (DVID 1, 2, …)
   /// When dx/dt = A(θ)x with every entry of A a sum of c·θ_a/θ_b, and one output y = C(θ)x of the
   /// same form: the terms for LinearModel::FromTerms. Otherwise `linear` is false and
-  /// `why_not_linear` says why (the model runs on the ODE propagator).
+  /// declarations.why_not_linear says why (the model runs on the ODE propagator).
   bool linear = false;
   std::vector<LinearTerm> a_terms;
   std::vector<LinearTerm> c_terms;
-  std::string why_not_linear;
 };
 
 /// Checks `text` and binds its names. Throws pk::InputError (file, line, column) naming what is

@@ -7,6 +7,25 @@ namespace pk {
 namespace internal {
 namespace lang {
 
+int Arity(Op op) {
+  switch (op) {
+    case Op::kConstant:
+    case Op::kInput:
+    case Op::kSymbol: return 0;
+    case Op::kNeg:
+    case Op::kExp:
+    case Op::kLog:
+    case Op::kLog10:
+    case Op::kSqrt:
+    case Op::kAbs:
+    case Op::kLogistic:
+    case Op::kLogit:
+    case Op::kNot: return 1;
+    case Op::kSelect: return 3;
+    default: return 2;
+  }
+}
+
 Program::Program(const std::vector<Node>& graph, const std::vector<int>& roots, int num_states)
     : num_states_(num_states) {
   // Depth-first order from the roots gives operands before their users; each node once.

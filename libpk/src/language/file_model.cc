@@ -1,7 +1,6 @@
 // pk::Model from a model file: a LinearModel when the analysis finds the structure the exact
 // propagator needs, otherwise an OdeModel that evaluates the expression graph on the AD types.
 #include <fstream>
-#include <mutex>
 #include <sstream>
 #include <utility>
 
@@ -24,59 +23,22 @@ std::vector<T>& Slots() {
   return slots;
 }
 
-class FileOdeModel final : public OdeModel {
- public:
-  FileOdeModel(const OdeModelSpec& spec, const CompiledModel& m, std::string why_not_linear)
-      : OdeModel(spec), rhs_(m.graph, m.rhs, static_cast<int>(m.compartments.size())),
-        why_not_linear_(std::move(why_not_linear)) {
-    for (int root : m.outputs) outputs_.emplace_back(m.graph, std::vector<int>{root}, rhs_num_states());
-    set_declarations(m.declarations);
+// The analysed model as a functor with templated Rhs and Output, which MakeOdeModel wraps as it
+// wraps a catalogue functor: the programs run on double, TapeScalar and Dual alike.
+struct ProgramFunctor {
+  Program rhs;
+  std::vector<Program> outputs;  // output k (from 1) is outputs[k - 1]
+
+  template <typename T>
+  void Rhs(const T* x, const T* theta, T* dxdt) const {
+    rhs.Run<T>(x, theta, dxdt, &Slots<T>());
   }
-
-  const std::string& why_not_linear() const { return why_not_linear_; }
-
-  void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const override {
-    f->resize(num_compartments());
-    rhs_.Run<double>(x.data(), theta.data(), f->data(), &Slots<double>());
-  }
-
-  double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override {
-    double y = 0;
-    outputs_[static_cast<size_t>(output - 1)].Run<double>(x.data(), theta.data(), &y, &Slots<double>());
+  template <typename T>
+  T Output(int output, const T* x, const T* theta) const {
+    T y(0.0);
+    outputs[static_cast<size_t>(output - 1)].Run<T>(x, theta, &y, &Slots<T>());
     return y;
   }
-
-  void OutputDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
-                         const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
-                         Eigen::RowVectorXd* dy) const override {
-    thread_local std::vector<Dual> xd, td;
-    Seed(x, dx, &xd);
-    Seed(theta, dtheta, &td);
-    Dual g;
-    outputs_[static_cast<size_t>(output - 1)].Run<Dual>(xd.data(), td.data(), &g, &Slots<Dual>());
-    *y = g.value();
-    if (g.derivatives().size()) {
-      *dy = g.derivatives().transpose();
-    } else {
-      dy->setZero(dx.cols());
-    }
-  }
-
- protected:
-  void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const override {
-    rhs_.Run<TapeScalar>(x, theta, f, &Slots<TapeScalar>());
-  }
-
- private:
-  int rhs_num_states() const { return num_compartments(); }
-  static void Seed(const Eigen::VectorXd& v, const Eigen::MatrixXd& d, std::vector<Dual>* out) {
-    out->resize(static_cast<size_t>(v.size()));
-    for (Eigen::Index i = 0; i < v.size(); ++i) (*out)[static_cast<size_t>(i)] = Dual(v(i), d.row(i).transpose());
-  }
-
-  Program rhs_;
-  std::vector<Program> outputs_;
-  std::string why_not_linear_;
 };
 
 std::shared_ptr<const Model> Build(const CompiledModel& m) {
@@ -107,7 +69,10 @@ std::shared_ptr<const Model> Build(const CompiledModel& m) {
   spec.central = m.central;
   spec.default_dose = m.default_dose;
   spec.signed_parameters = m.signed_parameters;
-  return std::make_shared<FileOdeModel>(spec, m, m.why_not_linear);
+  spec.declarations = m.declarations;
+  ProgramFunctor f{Program(m.graph, m.rhs, n), {}};
+  for (int root : m.outputs) f.outputs.emplace_back(m.graph, std::vector<int>{root}, n);
+  return MakeOdeModel(spec, std::move(f));
 }
 
 }  // namespace
@@ -128,9 +93,6 @@ std::shared_ptr<const Model> LoadModelFile(const std::string& path) {
   return ParseModel(text.str(), path);
 }
 
-std::string WhyNotLinear(const Model& model) {
-  const auto* file = dynamic_cast<const internal::lang::FileOdeModel*>(&model);
-  return file == nullptr ? "" : file->why_not_linear();
-}
+std::string WhyNotLinear(const Model& model) { return model.declarations().why_not_linear; }
 
 }  // namespace pk

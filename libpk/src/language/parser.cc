@@ -1,5 +1,6 @@
 // The recursive-descent parser of model files (grammar: docs/model_language.md).
 #include <algorithm>
+#include <initializer_list>
 #include <map>
 #include <utility>
 
@@ -364,23 +365,26 @@ class Parser {
     return static_cast<int>(m_->graph.size()) - 1;
   }
 
+  using OperatorList = std::initializer_list<std::pair<const char*, Op>>;
+
+  // operand {operator operand}, left-associative: a - b - c = (a - b) - c.
+  int LeftAssociative(int (Parser::*operand)(), OperatorList ops) {
+    int left = (this->*operand)();
+    for (;;) {
+      const std::pair<const char*, Op>* match = nullptr;
+      for (const auto& op : ops) {
+        if (IsPunct(op.first)) match = &op;
+      }
+      if (match == nullptr) return left;
+      const Token t = Next();
+      const int right = (this->*operand)();
+      left = Add(match->second, left, right, -1, t);
+    }
+  }
+
   int Expression() { return Or(); }
-  int Or() {
-    int left = And();
-    while (IsPunct("||")) {
-      const Token op = Next();
-      left = Add(Op::kOr, left, And(), -1, op);
-    }
-    return left;
-  }
-  int And() {
-    int left = Comparison();
-    while (IsPunct("&&")) {
-      const Token op = Next();
-      left = Add(Op::kAnd, left, Comparison(), -1, op);
-    }
-    return left;
-  }
+  int Or() { return LeftAssociative(&Parser::And, {{"||", Op::kOr}}); }
+  int And() { return LeftAssociative(&Parser::Comparison, {{"&&", Op::kAnd}}); }
   int Comparison() {
     const int left = Sum();
     static const std::pair<const char*, Op> kOps[] = {{"<", Op::kLess}, {"<=", Op::kLessEqual},
@@ -396,24 +400,8 @@ class Parser {
     if (IsPunct("=")) Fail(Peek(), "'=' in an expression: write '==' to compare");
     return left;
   }
-  int Sum() {
-    int left = Product();
-    while (IsPunct("+") || IsPunct("-")) {
-      const Token op = Next();
-      const int right = Product();
-      left = Add(op.text == "+" ? Op::kAdd : Op::kSub, left, right, -1, op);
-    }
-    return left;
-  }
-  int Product() {
-    int left = Unary();
-    while (IsPunct("*") || IsPunct("/")) {
-      const Token op = Next();
-      const int right = Unary();
-      left = Add(op.text == "*" ? Op::kMul : Op::kDiv, left, right, -1, op);
-    }
-    return left;
-  }
+  int Sum() { return LeftAssociative(&Parser::Product, {{"+", Op::kAdd}, {"-", Op::kSub}}); }
+  int Product() { return LeftAssociative(&Parser::Unary, {{"*", Op::kMul}, {"/", Op::kDiv}}); }
   int Unary() {
     if (IsPunct("-")) {
       const Token op = Next();
@@ -495,25 +483,6 @@ class Parser {
 };
 
 }  // namespace
-
-int Arity(Op op) {
-  switch (op) {
-    case Op::kConstant:
-    case Op::kInput:
-    case Op::kSymbol: return 0;
-    case Op::kNeg:
-    case Op::kExp:
-    case Op::kLog:
-    case Op::kLog10:
-    case Op::kSqrt:
-    case Op::kAbs:
-    case Op::kLogistic:
-    case Op::kLogit:
-    case Op::kNot: return 1;
-    case Op::kSelect: return 3;
-    default: return 2;
-  }
-}
 
 ModelText Parse(const std::string& text, const std::string& source) {
   ModelText m;
