@@ -1,0 +1,217 @@
+// libpk: population (nonlinear mixed-effects) estimation by FOCE, FOCEI and Laplace.
+//
+// Subject i's parameters vary about the typical values θ by random effects η_i ~ N(0, Ω):
+//
+//   φ_ik = θ_k · exp(η_ik)  for a parameter with an η (log-normal, NONMEM's CL=THETA(1)*EXP(ETA(1))),
+//   φ_ik = θ_k              otherwise.
+//
+// A model file writes covariate relations itself (CL = TVCL*(WT/70)^0.75): an η on TVCL then gives
+// NONMEM's CL=TVCL*(WT/70)**0.75*EXP(ETA(1)). Observations y_ij, on the scale T of the error model
+// (y, or log y for the exponential error), have predictions f_ij(θ, η) and residual variances
+// V_ij = v(ŷ_ij, σ) (pk/residual_error.h; σ are standard deviations, NONMEM's W=THETA·F with Σ
+// fixed to 1). With
+//
+//   l_i(η) = Σ_j [ (y_ij − f_ij)²/V_ij + log V_ij ] + ηᵀΩ⁻¹η
+//
+// the objective is NONMEM's: OFV = Σ_i OFV_i, −2 log L without the n·log 2π constant, where
+// (Wang, J Pharmacokinet Pharmacodyn 2007;34:575-593; docs/population.md derives them)
+//
+//   FOCEI    OFV_i = l_i(η̂_i) + log det Ω + log det H_i,
+//            H_i = Ω⁻¹ + Σ_j [ g_j g_jᵀ/V_j + ½ v_j v_jᵀ/V_j² ],  g_j = ∂f_ij/∂η, v_j = ∂V_ij/∂η
+//   FOCE     the same with V_ij evaluated at η = 0 (no interaction, v_j = 0); equal at the mode to
+//            NONMEM's linearised form log det C_i + r̃ᵀC_i⁻¹r̃, C_i = G_iΩG_iᵀ + V_i
+//   Laplace  H_i = ½ ∇²l_i(η̂_i), the full Hessian (with interaction)
+//
+// and η̂_i = argmin l_i, the conditional mode, found to a gradient of 1e-9 for every evaluation.
+//
+//   pk::PopulationProblem problem = pk::MakePopulationProblem(model, data, {"CL", "V"}, error);
+//   pk::PopulationOptions options;                 // FOCEI
+//   pk::PopulationSummary fit = pk::FitPopulation(problem, initial, options);
+//   std::cout << fit.FullReport();
+//
+// Outcomes (a subject whose mode cannot be found, an objective that cannot be evaluated, an
+// optimiser that stops early) are reported in the summary, never thrown. Invalid input throws
+// pk::InputError.
+#ifndef PK_POPULATION_H_
+#define PK_POPULATION_H_
+
+#include <functional>
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/dataset.h"
+#include "pk/model.h"
+#include "pk/objective.h"
+
+namespace pk {
+
+enum class PopulationMethod {
+  kFoce,     ///< NONMEM's METHOD=COND
+  kFocei,    ///< METHOD=COND INTER
+  kLaplace,  ///< METHOD=COND LAPLACIAN INTER
+};
+const char* ToString(PopulationMethod m);
+/// "foce", "focei" or "laplace" (case-insensitive); throws pk::InputError otherwise.
+PopulationMethod ParsePopulationMethod(const std::string& text);
+
+/// The population parameters: fixed effects θ (the model's estimated parameters), Ω over the
+/// η in PopulationProblem::etas order, and the residual-error σ.
+struct PopulationParameters {
+  Eigen::VectorXd theta;
+  Eigen::MatrixXd omega;
+  Eigen::VectorXd sigma;
+};
+
+/// Which population parameters are estimated. Ω is block diagonal, as NONMEM's $OMEGA: each
+/// η belongs to one block of consecutive η; a block of one is a variance alone. A block is
+/// estimated whole (its variances and covariances) or fixed whole (FIX).
+struct PopulationStructure {
+  std::vector<bool> theta_fixed;  ///< per θ; empty: none fixed
+  std::vector<bool> sigma_fixed;  ///< per σ; empty: none fixed
+  /// The size of each Ω block, in η order (summing to the number of η); empty: diagonal.
+  std::vector<int> omega_blocks;
+  std::vector<bool> omega_block_fixed;  ///< per block; empty: none fixed
+};
+
+/// A population problem: a model, a dataset, the parameters that carry an η, and the
+/// residual-error model. The per-subject objectives are built once.
+class PopulationProblem {
+ public:
+  /// Throws pk::InputError for an unknown η name, a covariate given an η, a dataset the model
+  /// cannot take, least squares as the error model, or censored samples (not yet supported).
+  PopulationProblem(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data,
+                    std::vector<std::string> etas, const ObjectiveOptions& options);
+  ~PopulationProblem();
+  PopulationProblem(PopulationProblem&&) noexcept;
+
+  /// The model's estimable parameters (covariates left out), in model order.
+  const std::vector<std::string>& theta_names() const;
+  /// The parameters with an η, in the order of Ω's rows.
+  const std::vector<std::string>& eta_names() const;
+  /// The error model's σ names (SIGMA_ADD, ...).
+  const std::vector<std::string>& sigma_names() const;
+  int num_subjects() const;
+  int num_observations() const;
+  const Model& model() const;
+  const Dataset& data() const;
+  const ObjectiveOptions& options() const;
+  /// The model's defaults for θ, Ω = 0.1·I, and σ from the pooled observations.
+  PopulationParameters DefaultParameters() const;
+
+  /// Internal: the per-subject machinery.
+  struct Impl;
+  const Impl& impl() const { return *impl_; }
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+struct PopulationOptions {
+  PopulationMethod method = PopulationMethod::kFocei;
+  PopulationStructure structure;
+  int max_iterations = 1000;            ///< outer objective evaluations, at most
+  double function_tolerance = 1e-9;     ///< relative change of the OFV that ends the search
+  double parameter_tolerance = 1e-7;    ///< relative change of the packed parameters that ends it
+  int threads = 1;                      ///< subjects' inner problems in parallel
+  bool covariance = true;               ///< run the covariance step
+  /// Called after each outer evaluation that improves the OFV (for a progress line); may be empty.
+  std::function<void(int evaluation, double ofv, double gradient_norm)> progress;
+
+  bool IsValid(std::string* error) const;
+};
+
+/// One subject's conditional mode and its diagnostics.
+struct PopulationSubject {
+  double id = 0;
+  bool ok = true;
+  std::string message;      ///< why the subject's mode could not be found, when !ok
+  Eigen::VectorXd eta;      ///< η̂_i
+  double ofv = 0;           ///< OFV_i
+  Eigen::VectorXd parameters;  ///< individual φ_i (theta_names order)
+};
+
+/// One sample's predictions and residuals, as NONMEM's sdtab.
+struct PopulationRow {
+  double id = 0, time = 0, dv = 0;
+  int dvid = 1;
+  double pred = 0;   ///< f(θ, η = 0)
+  double ipred = 0;  ///< f(θ, η̂)
+  double res = 0;    ///< DV − PRED
+  double wres = 0;   ///< FO weighted residual, C₀^(−½)(y − PRED), C₀ = G₀ΩG₀ᵀ + V₀ at η = 0
+  double cwres = 0;  ///< conditional (Hooker 2007): C^(−½)(y − f(η̂) + Gη̂), C = GΩGᵀ + V at η̂
+  double iwres = 0;  ///< (y − IPRED)/√V at η̂
+};
+
+/// The objective at fixed parameters, with every subject's mode.
+struct PopulationEvaluation {
+  bool ok = true;
+  std::string message;
+  double ofv = std::numeric_limits<double>::quiet_NaN();
+  std::vector<PopulationSubject> subjects;
+};
+
+/// OFV at `parameters`, each subject's mode found from η = 0.
+PopulationEvaluation EvaluatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
+                                        PopulationMethod method, int threads = 1);
+
+/// An estimate with its standard error, as NONMEM's tables show it.
+struct PopulationEstimate {
+  std::string name;   ///< CL, OMEGA(CL), OMEGA(V,CL), SIGMA_PROP, ...
+  double estimate = 0;
+  double se = std::numeric_limits<double>::quiet_NaN();
+  double rse_pct = std::numeric_limits<double>::quiet_NaN();
+  bool fixed = false;
+  bool at_boundary = false;  ///< a variance near 0, a correlation near ±1, or a θ at its bound
+};
+
+/// One line of the iteration history (NONMEM's .ext): the packed parameters' natural values.
+struct PopulationIteration {
+  int evaluation = 0;
+  double ofv = 0;
+  double gradient_norm = 0;
+  Eigen::VectorXd values;  ///< in PopulationSummary::estimates order
+};
+
+struct PopulationSummary {
+  PopulationMethod method = PopulationMethod::kFocei;
+  bool converged = false;
+  std::string message;
+  double initial_ofv = std::numeric_limits<double>::quiet_NaN();
+  double ofv = std::numeric_limits<double>::quiet_NaN();
+  int evaluations = 0;
+  double seconds = 0;
+  std::string gradient;  ///< how the outer gradient was computed
+
+  PopulationParameters parameters;
+  std::vector<PopulationEstimate> estimates;  ///< θ, then Ω's lower triangle by blocks, then σ
+  /// Covariance of the estimated ones (natural scale), the sandwich R⁻¹SR⁻¹ (NONMEM's default).
+  Eigen::MatrixXd covariance;
+  Eigen::MatrixXd correlation;
+  double condition_number = std::numeric_limits<double>::quiet_NaN();  ///< of R
+  std::string covariance_message;  ///< why there are no SEs, when there are none
+
+  std::vector<PopulationSubject> subjects;
+  std::vector<PopulationRow> rows;
+  Eigen::VectorXd eta_shrinkage_sd;        ///< 1 − SD(η̂)/ω per η
+  Eigen::VectorXd eta_shrinkage_variance;  ///< 1 − Var(η̂)/ω²
+  double epsilon_shrinkage_sd = std::numeric_limits<double>::quiet_NaN();  ///< 1 − SD(IWRES)
+  double epsilon_shrinkage_variance = std::numeric_limits<double>::quiet_NaN();
+  std::vector<PopulationIteration> history;
+  int failed_subjects = 0;
+
+  std::string BriefReport() const;
+  std::string FullReport() const;
+};
+
+/// Estimates θ, Ω and σ from `initial`. Throws pk::InputError for invalid options or initial
+/// values (a non-positive θ or σ, an Ω that is not positive definite, sizes that do not match).
+PopulationSummary FitPopulation(const PopulationProblem& problem, const PopulationParameters& initial,
+                                const PopulationOptions& options);
+
+}  // namespace pk
+
+#endif  // PK_POPULATION_H_

@@ -1,0 +1,255 @@
+// One subject's conditional problem: l(η), the mode η̂ and OFV_i (conditional.h).
+#include "population/conditional.h"
+
+#include <algorithm>
+#include <cmath>
+#include <exception>
+#include <thread>
+
+#include <Eigen/Cholesky>
+
+#include "pk/error.h"
+
+namespace pk {
+namespace internal {
+namespace {
+
+constexpr double kStepTolerance = 1e-10;   // ‖Δη‖∞ at which the mode is found
+constexpr double kNewtonFrom = 1e-4;       // scoring hands over to Newton below this step
+constexpr double kHessianStep = 1e-3;      // central-difference step in η for ½∇²l (Richardson)
+constexpr int kMaxIterations = 200;
+
+bool LogDet(const Eigen::MatrixXd& m, double* out) {
+  Eigen::LLT<Eigen::MatrixXd> llt(m);
+  if (llt.info() != Eigen::Success) return false;
+  *out = 2 * llt.matrixLLT().diagonal().array().log().sum();
+  return std::isfinite(*out);
+}
+
+// The residual variances at the predictions, and ∂V/∂ŷ.
+bool Variances(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& yhat, Eigen::VectorXd* v,
+               Eigen::VectorXd* dv_dyhat, std::string* why) {
+  const Eigen::Index n = yhat.size();
+  v->resize(n);
+  dv_dyhat->resize(n);
+  std::vector<double> dsigma(static_cast<size_t>(std::max<Eigen::Index>(p.sigma.size(), 1)));
+  for (Eigen::Index j = 0; j < n; ++j) {
+    p.error->Variance(yhat(j), p.sigma.data(), &(*v)(j), &(*dv_dyhat)(j), dsigma.data());
+    if (!((*v)(j) > 0) || !std::isfinite((*v)(j))) {
+      *why = "the residual variance of sample " + std::to_string(j + 1) + " is not positive (prediction " +
+             std::to_string(yhat(j)) + ")";
+      return false;
+    }
+  }
+  (void)s;
+  return true;
+}
+
+}  // namespace
+
+PopulationPoint PopulationPoint::Make(const PopulationParameters& pp, const ResidualErrorModel& error,
+                                      PopulationMethod m) {
+  PopulationPoint p;
+  p.theta = pp.theta;
+  p.sigma = pp.sigma;
+  p.error = &error;
+  p.method = m;
+  const Eigen::Index q = pp.omega.rows();
+  Eigen::LLT<Eigen::MatrixXd> llt(pp.omega);
+  if (llt.info() != Eigen::Success) throw InputError("Ω is not positive definite");
+  p.omega_inverse = llt.solve(Eigen::MatrixXd::Identity(q, q));
+  p.log_det_omega = 2 * llt.matrixLLT().diagonal().array().log().sum();
+  return p;
+}
+
+Eigen::VectorXd IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta) {
+  Eigen::VectorXd v = s.base;
+  for (size_t k = 0; k < s.theta_index.size(); ++k) v(s.theta_index[k]) = p.theta(static_cast<Eigen::Index>(k));
+  for (size_t m = 0; m < s.eta_free.size(); ++m) v(s.eta_free[m]) *= std::exp(eta(static_cast<Eigen::Index>(m)));
+  return v;
+}
+
+bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                         const Eigen::VectorXd* fixed_variance, bool derivatives, Conditional* c, std::string* why) {
+  const Eigen::VectorXd phi = IndividualValues(s, p, eta);
+  const Objective::Evaluation ev =
+      s.objective->Evaluate(phi, s.eta_free, derivatives ? Objective::Need::kJacobian : Objective::Need::kValue,
+                            GradientRoute::kForward);
+  if (!ev.ok) {
+    *why = ev.message;
+    return false;
+  }
+  const Eigen::Index n = s.y.size(), q = eta.size();
+  const bool logs = p.error->log_transformed();
+  c->yhat = ev.predictions;
+  if (logs && (c->yhat.array() <= 0).any()) {
+    *why = "a prediction is not positive, and the exponential error takes its logarithm";
+    return false;
+  }
+  c->f = logs ? Eigen::VectorXd(c->yhat.array().log()) : c->yhat;
+  Eigen::VectorXd dv_dyhat;
+  if (fixed_variance) {
+    c->variance = *fixed_variance;
+    dv_dyhat = Eigen::VectorXd::Zero(n);
+  } else if (!Variances(s, p, c->yhat, &c->variance, &dv_dyhat, why)) {
+    return false;
+  }
+  const Eigen::ArrayXd r = (s.y - c->f).array(), w = c->variance.array().inverse();
+  c->l = (r * r * w).sum() + c->variance.array().log().sum() + eta.dot(p.omega_inverse * eta);
+  if (!std::isfinite(c->l)) {
+    *why = "the conditional objective is not finite";
+    return false;
+  }
+  if (!derivatives) return true;
+  // ∂ŷ/∂η_m = ∂ŷ/∂φ_m · φ_m (φ_m = θ·e^η); the objective's residual Jacobian is −∂ŷ/∂φ.
+  Eigen::MatrixXd gy = -ev.jacobian.topRows(n);
+  for (Eigen::Index m = 0; m < q; ++m) gy.col(m) *= phi(s.eta_free[static_cast<size_t>(m)]);
+  c->g = logs ? Eigen::MatrixXd(c->yhat.cwiseInverse().asDiagonal() * gy) : gy;
+  c->dv = dv_dyhat.asDiagonal() * gy;
+  c->gradient = 2 * p.omega_inverse * eta;
+  c->gradient -= 2 * c->g.transpose() * (r * w).matrix();
+  c->gradient += c->dv.transpose() * (w - r * r * w * w).matrix();
+  c->h = p.omega_inverse;
+  c->h += c->g.transpose() * w.matrix().asDiagonal() * c->g;
+  c->h += 0.5 * c->dv.transpose() * (w * w).matrix().asDiagonal() * c->dv;
+  return true;
+}
+
+bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                        const Eigen::VectorXd* fixed_variance, Eigen::MatrixXd* half_hessian, std::string* why) {
+  // Central differences of the exact gradient at steps h and h/2, combined by Richardson's
+  // extrapolation (4D(h/2) − D(h))/3, whose error is O(h⁴).
+  const Eigen::Index q = eta.size();
+  half_hessian->resize(q, q);
+  Conditional plus, minus;
+  Eigen::VectorXd d[2];
+  for (Eigen::Index k = 0; k < q; ++k) {
+    for (int level = 0; level < 2; ++level) {
+      const double h = kHessianStep / (1 << level);
+      Eigen::VectorXd e = eta;
+      e(k) += h;
+      if (!EvaluateConditional(s, p, e, fixed_variance, true, &plus, why)) return false;
+      e(k) = eta(k) - h;
+      if (!EvaluateConditional(s, p, e, fixed_variance, true, &minus, why)) return false;
+      d[level] = (plus.gradient - minus.gradient) / (4 * h);
+    }
+    half_hessian->col(k) = (4 * d[1] - d[0]) / 3;
+  }
+  *half_hessian = 0.5 * (*half_hessian + half_hessian->transpose()).eval();
+  return true;
+}
+
+namespace {
+
+// Newton's (or scoring's) step from c, with `half_hessian` standing for ½∇²l.
+bool Step(const Conditional& c, const Eigen::MatrixXd& half_hessian, Eigen::VectorXd* step) {
+  Eigen::LLT<Eigen::MatrixXd> llt(half_hessian);
+  if (llt.info() != Eigen::Success) return false;
+  *step = -llt.solve(0.5 * c.gradient);
+  return step->allFinite();
+}
+
+// Moves η along `step`, halving until l decreases enough (Armijo); false when it never does.
+bool LineSearch(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd* fv, const Eigen::VectorXd& step,
+                Eigen::VectorXd* eta, Conditional* c) {
+  const double slope = c->gradient.dot(step);
+  Conditional trial;
+  std::string ignored;
+  for (double t = 1; t > 1e-10; t *= 0.5) {
+    const Eigen::VectorXd e = *eta + t * step;
+    if (!EvaluateConditional(s, p, e, fv, true, &trial, &ignored)) continue;
+    if (trial.l <= c->l + 1e-4 * t * slope || trial.l <= c->l + 1e-13 * std::abs(c->l)) {
+      *eta = e;
+      *c = std::move(trial);
+      return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace
+
+SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& start) {
+  SubjectMode mode;
+  const Eigen::Index q = start.size();
+  Conditional c;
+  if (p.method == PopulationMethod::kFoce) {
+    if (!EvaluateConditional(s, p, Eigen::VectorXd::Zero(q), nullptr, false, &c, &mode.message)) return mode;
+    mode.fixed_variance = c.variance;
+  }
+  const Eigen::VectorXd* fv = mode.fixed_variance.size() ? &mode.fixed_variance : nullptr;
+  mode.eta = start;
+  if (!EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) {
+    mode.eta.setZero();
+    if (!start.any() || !EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) return mode;
+  }
+  bool newton = false, converged = false;
+  Eigen::MatrixXd half_hessian;
+  Eigen::VectorXd step;
+  for (mode.iterations = 0; mode.iterations < kMaxIterations; ++mode.iterations) {
+    if (newton && !ConditionalHessian(s, p, mode.eta, fv, &half_hessian, &mode.message)) return mode;
+    if (!newton || !Step(c, half_hessian, &step)) {
+      newton = false;
+      if (!Step(c, c.h, &step)) {
+        mode.message = "the approximate Hessian of the conditional objective is not positive definite";
+        return mode;
+      }
+    }
+    if (step.lpNorm<Eigen::Infinity>() < kStepTolerance) {
+      converged = newton || p.method != PopulationMethod::kLaplace;
+      if (converged) break;
+      newton = true;  // Laplace needs ½∇²l at the mode: one more pass computes it
+      continue;
+    }
+    if (!LineSearch(s, p, fv, step, &mode.eta, &c)) {
+      if (step.lpNorm<Eigen::Infinity>() < 1e-7 && newton) {
+        converged = true;  // rounding: l cannot decrease further
+        break;
+      }
+      mode.message = "the search for the conditional mode made no progress";
+      return mode;
+    }
+    if (step.lpNorm<Eigen::Infinity>() < kNewtonFrom) newton = true;
+  }
+  if (!converged) {
+    mode.message = "the conditional mode was not found in " + std::to_string(kMaxIterations) + " iterations";
+    return mode;
+  }
+  double log_det_h = 0;
+  const Eigen::MatrixXd& h = p.method == PopulationMethod::kLaplace ? half_hessian : c.h;
+  if (!LogDet(h, &log_det_h)) {
+    mode.message = "the Hessian at the conditional mode is not positive definite";
+    return mode;
+  }
+  mode.ofv = c.l + p.log_det_omega + log_det_h;
+  mode.at_mode = std::move(c);
+  mode.ok = std::isfinite(mode.ofv);
+  if (!mode.ok) mode.message = "OFV_i is not finite";
+  return mode;
+}
+
+void ParallelFor(int n, int threads, const std::function<void(int)>& work) {
+  threads = std::max(1, std::min(threads, n));
+  if (threads == 1) {
+    for (int i = 0; i < n; ++i) work(i);
+    return;
+  }
+  std::vector<std::exception_ptr> errors(static_cast<size_t>(threads));
+  std::vector<std::thread> pool;
+  for (int t = 0; t < threads; ++t) {
+    pool.emplace_back([&, t] {
+      try {
+        for (int i = t; i < n; i += threads) work(i);
+      } catch (...) {
+        errors[static_cast<size_t>(t)] = std::current_exception();
+      }
+    });
+  }
+  for (auto& th : pool) th.join();
+  for (auto& e : errors) {
+    if (e) std::rethrow_exception(e);
+  }
+}
+
+}  // namespace internal
+}  // namespace pk

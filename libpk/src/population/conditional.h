@@ -1,0 +1,91 @@
+// One subject's conditional problem in a population model (not installed): the individual
+// objective l_i(η), its conditional mode η̂_i, and OFV_i for FOCE, FOCEI and Laplace
+// (pk/population.h has the formulas; docs/population.md derives them).
+#ifndef PK_SRC_POPULATION_CONDITIONAL_H_
+#define PK_SRC_POPULATION_CONDITIONAL_H_
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+
+#include "pk/objective.h"
+#include "pk/population.h"
+
+namespace pk {
+namespace internal {
+
+/// A subject bound to the model: its least-squares objective, which gives the predictions ŷ and
+/// their exact sensitivities ∂ŷ/∂φ (forward route), and where θ and the η'd parameters sit in it.
+struct SubjectModel {
+  std::unique_ptr<Objective> objective;
+  Eigen::VectorXd base;          ///< the objective's full value vector (modifiers at their defaults)
+  Eigen::VectorXd y;             ///< observations on the error model's scale (y or log y)
+  std::vector<int> theta_index;  ///< objective position of each θ
+  std::vector<int> eta_theta;    ///< the θ (index into θ) that each η multiplies
+  std::vector<int> eta_free;     ///< objective position of each η'd parameter (the free list)
+};
+
+/// The population parameters as the conditional problems use them.
+struct PopulationPoint {
+  Eigen::VectorXd theta;
+  Eigen::MatrixXd omega_inverse;
+  double log_det_omega = 0;
+  Eigen::VectorXd sigma;
+  const ResidualErrorModel* error = nullptr;
+  PopulationMethod method = PopulationMethod::kFocei;
+
+  /// Throws pk::InputError when Ω is not positive definite.
+  static PopulationPoint Make(const PopulationParameters& p, const ResidualErrorModel& error, PopulationMethod m);
+};
+
+/// l(η) and what the approximations need at one η.
+struct Conditional {
+  Eigen::VectorXd yhat;      ///< ŷ
+  Eigen::VectorXd f;         ///< T(ŷ): ŷ, or log ŷ for the exponential error
+  Eigen::VectorXd variance;  ///< V_j
+  Eigen::MatrixXd g;         ///< ∂f/∂η (n×q)
+  Eigen::MatrixXd dv;        ///< ∂V/∂η (n×q); 0 without interaction
+  double l = 0;              ///< l(η)
+  Eigen::VectorXd gradient;  ///< ∇l (with derivatives)
+  Eigen::MatrixXd h;         ///< Ω⁻¹ + Σ_j [g gᵀ/V + ½ v vᵀ/V²] (with derivatives)
+};
+
+/// The individual parameters φ at η.
+Eigen::VectorXd IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta);
+
+/// Evaluates l at η, with ∇l and H when `derivatives`. `fixed_variance` (FOCE: V at η = 0) holds
+/// the residual variances fixed when non-null. False with `why` when the model cannot be
+/// evaluated there or a variance or prediction is not positive where it must be.
+bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                         const Eigen::VectorXd* fixed_variance, bool derivatives, Conditional* out, std::string* why);
+
+/// One subject's result at a population point.
+struct SubjectMode {
+  bool ok = false;
+  std::string message;
+  Eigen::VectorXd eta;
+  double ofv = 0;
+  Conditional at_mode;
+  Eigen::VectorXd fixed_variance;  ///< FOCE: V at η = 0 (empty otherwise)
+  int iterations = 0;
+};
+
+/// Finds η̂ from `start` (damped Fisher scoring, then Newton with the Hessian from central
+/// differences of the exact gradient, to ‖step‖∞ < 1e-10) and forms OFV_i for p.method.
+SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& start);
+
+/// ½∇²l at η by central differences of the exact gradient, Richardson-extrapolated (Laplace's H).
+bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                        const Eigen::VectorXd* fixed_variance, Eigen::MatrixXd* half_hessian, std::string* why);
+
+/// Runs work(i) for i in [0, n) on `threads` threads (each takes every threads-th item, so the
+/// assignment, and hence every result, does not depend on timing).
+void ParallelFor(int n, int threads, const std::function<void(int)>& work);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_POPULATION_CONDITIONAL_H_

@@ -1,0 +1,62 @@
+// The population objective over all subjects (not installed): every subject's mode from a
+// warm start, in parallel, summed in subject order so that the result does not depend on the
+// number of threads.
+#ifndef PK_SRC_POPULATION_ENGINE_H_
+#define PK_SRC_POPULATION_ENGINE_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "population/conditional.h"
+#include "population/packing.h"
+#include "pk/population.h"
+
+namespace pk {
+namespace internal {
+
+class PopulationEngine {
+ public:
+  PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads);
+
+  /// The subjects taking part (those that failed at the initial estimates are left out).
+  const std::vector<bool>& included() const { return included_; }
+  void Exclude(int subject) { included_[static_cast<size_t>(subject)] = false; }
+
+  struct Result {
+    bool ok = false;
+    std::string message;             ///< the first failing subject and why
+    double ofv = 0;
+    Eigen::VectorXd per_subject;     ///< OFV_i (0 for a subject left out)
+    std::vector<SubjectMode> modes;  ///< when asked for
+  };
+  /// OFV at p with each subject's search starting from `starts` (η̂ of a nearby point).
+  /// Throws pk::InputError when Ω is not positive definite.
+  Result Evaluate(const PopulationParameters& p, const std::vector<Eigen::VectorXd>& starts, bool keep_modes) const;
+
+  const PopulationProblem& problem() const { return problem_; }
+  PopulationMethod method() const { return method_; }
+  int threads() const { return threads_; }
+
+ private:
+  const PopulationProblem& problem_;
+  PopulationMethod method_;
+  int threads_;
+  std::vector<bool> included_;
+};
+
+/// The covariance step at the estimate (covariance.cc): R = ∇²OFV by central differences over the
+/// estimated natural parameters, S = Σ_i ∇OFV_i ∇OFV_iᵀ, and the sandwich R⁻¹SR⁻¹; SEs, RSE%,
+/// correlations and the condition number into `summary`.
+void PopulationCovariance(const PopulationEngine& engine, const Packing& packing,
+                          const std::vector<Eigen::VectorXd>& starts, PopulationSummary* summary);
+
+/// PRED, IPRED, RES, WRES, CWRES and IWRES per sample, and the shrinkages (diagnostics.cc).
+void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParameters& p,
+                           const std::vector<SubjectMode>& modes, PopulationSummary* summary);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_POPULATION_ENGINE_H_

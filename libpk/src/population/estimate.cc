@@ -1,0 +1,184 @@
+// FOCE, FOCEI and Laplace estimation: the outer problem over θ, Ω and σ (pk/population.h).
+//
+// The outer optimiser is NLopt's L-BFGS on the packed vector x (packing.h). Its gradient is,
+// for now, central differences of the OFV with every subject's search started from the
+// centre's modes, so that the differences see the smooth objective and not the inner
+// iteration's path (NONMEM also differences its outer objective). The modes are found to
+// ‖Δη‖∞ < 1e-10, which keeps the differences' noise near 1e-6.
+#include <chrono>
+#include <cmath>
+
+#include "estimation/nlopt.h"
+#include "internal_text.h"
+#include "pk/output.h"
+#include "pk/error.h"
+#include "population/engine.h"
+#include "population/problem_impl.h"
+
+namespace pk {
+namespace internal {
+
+void CheckSizes(const PopulationProblem& problem, const PopulationParameters& p);
+
+PopulationEngine::PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads)
+    : problem_(problem), method_(method), threads_(threads),
+      included_(static_cast<size_t>(problem.num_subjects()), true) {}
+
+PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& p,
+                                                    const std::vector<Eigen::VectorXd>& starts,
+                                                    bool keep_modes) const {
+  const auto& d = problem_.impl();
+  const PopulationPoint point = PopulationPoint::Make(p, *d.options.error_model, method_);
+  const int n = problem_.num_subjects();
+  std::vector<SubjectMode> modes(static_cast<size_t>(n));
+  ParallelFor(n, threads_, [&](int i) {
+    const auto u = static_cast<size_t>(i);
+    if (included_[u]) modes[u] = SolveSubject(d.subjects[u], point, starts[u]);
+  });
+  Result r;
+  r.ok = true;
+  r.per_subject = Eigen::VectorXd::Zero(n);
+  for (int i = 0; i < n; ++i) {
+    const auto u = static_cast<size_t>(i);
+    if (!included_[u]) continue;
+    if (!modes[u].ok && r.ok) {
+      r.ok = false;
+      r.message = "subject " + FormatNumber(d.data->subjects[u].id) + ": " + modes[u].message;
+    }
+    r.per_subject(i) = modes[u].ofv;
+  }
+  r.ofv = r.ok ? r.per_subject.sum() : HUGE_VAL;
+  if (keep_modes) r.modes = std::move(modes);
+  return r;
+}
+
+namespace {
+
+constexpr double kOuterStep = 1e-4;  // central-difference step in x
+
+std::vector<Eigen::VectorXd> Etas(const std::vector<SubjectMode>& modes, Eigen::Index q) {
+  std::vector<Eigen::VectorXd> out;
+  for (const SubjectMode& m : modes) out.push_back(m.ok ? m.eta : Eigen::VectorXd::Zero(q));
+  return out;
+}
+
+// The first evaluation: subjects whose mode cannot be found are left out and reported.
+std::string StartingPoint(PopulationEngine* engine, const PopulationParameters& p, std::vector<Eigen::VectorXd>* eta,
+                          PopulationSummary* summary) {
+  const auto& d = engine->problem().impl();
+  PopulationEngine::Result r = engine->Evaluate(p, *eta, true);
+  for (size_t i = 0; i < r.modes.size(); ++i) {
+    if (r.modes[i].ok) continue;
+    engine->Exclude(static_cast<int>(i));
+    ++summary->failed_subjects;
+    PopulationSubject s;
+    s.id = d.data->subjects[i].id;
+    s.ok = false;
+    s.message = "left out: at the initial estimates, " + r.modes[i].message;
+    summary->subjects.push_back(s);
+  }
+  if (summary->failed_subjects == engine->problem().num_subjects()) {
+    return "no subject's conditional mode could be found at the initial estimates (" + r.message +
+           "): check the starting values";
+  }
+  if (!r.ok) r = engine->Evaluate(p, *eta, true);
+  *eta = Etas(r.modes, p.omega.rows());
+  summary->initial_ofv = r.ofv;
+  return r.ok ? "" : r.message;
+}
+
+}  // namespace
+
+// The outer minimisation; leaves the best x in *x and the modes' η in *eta.
+void Minimize(const PopulationEngine& engine, const Packing& packing, const PopulationOptions& options,
+              Eigen::VectorXd* x, std::vector<Eigen::VectorXd>* eta, PopulationSummary* summary) {
+  const int n = packing.size();
+  double best = HUGE_VAL;
+  auto f = [&](const double* xp, double* grad) {
+    const Eigen::VectorXd xc = Eigen::Map<const Eigen::VectorXd>(xp, n);
+    PopulationEngine::Result c = engine.Evaluate(packing.Unpack(xc), *eta, true);
+    ++summary->evaluations;
+    if (!c.ok) return HUGE_VAL;
+    const std::vector<Eigen::VectorXd> centre = Etas(c.modes, eta->front().size());
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+    for (int k = 0; grad && k < n; ++k) {
+      Eigen::VectorXd xk = xc;
+      xk(k) += kOuterStep;
+      const double up = engine.Evaluate(packing.Unpack(xk), centre, false).ofv;
+      xk(k) = xc(k) - kOuterStep;
+      const double down = engine.Evaluate(packing.Unpack(xk), centre, false).ofv;
+      g(k) = (up - down) / (2 * kOuterStep);
+      grad[k] = g(k);
+    }
+    if (c.ofv < best) {
+      best = c.ofv;
+      *x = xc;
+      *eta = centre;
+      if (options.progress) options.progress(summary->evaluations, c.ofv, g.norm());
+    }
+    summary->history.push_back({summary->evaluations, c.ofv, g.norm(), packing.Natural(packing.Unpack(xc))});
+    return c.ofv;
+  };
+  Nlopt opt("LD_LBFGS", n);
+  opt.SetRelativeTolerances(options.function_tolerance, options.parameter_tolerance);
+  opt.SetMaxEvaluations(options.max_iterations);
+  std::vector<double> xv(x->data(), x->data() + n);
+  const Nlopt::Outcome out = opt.Minimize(f, &xv);
+  summary->converged = out.kind == Nlopt::Outcome::kConverged || out.kind == Nlopt::Outcome::kRoundoff;
+  summary->message = out.kind == Nlopt::Outcome::kFailure ? out.error : out.result;
+  if (out.kind == Nlopt::Outcome::kLimit) summary->message = "the evaluation limit was reached (" + out.result + ")";
+}
+
+}  // namespace internal
+
+PopulationSummary FitPopulation(const PopulationProblem& problem, const PopulationParameters& initial,
+                                const PopulationOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("population options: " + why);
+  internal::CheckSizes(problem, initial);
+  const internal::Packing packing(problem, options.structure, initial);
+  internal::PopulationEngine engine(problem, options.method, options.threads);
+  PopulationSummary summary;
+  summary.method = options.method;
+  summary.gradient = "central differences of the OFV (modes warm-started from the centre)";
+  std::vector<Eigen::VectorXd> eta(static_cast<size_t>(problem.num_subjects()),
+                                   Eigen::VectorXd::Zero(initial.omega.rows()));
+  const std::string failure = internal::StartingPoint(&engine, initial, &eta, &summary);
+  if (!failure.empty()) {
+    summary.message = failure;
+    summary.parameters = initial;
+    return summary;
+  }
+  Eigen::VectorXd x = packing.Pack(initial);
+  if (packing.size() > 0) internal::Minimize(engine, packing, options, &x, &eta, &summary);
+  summary.parameters = packing.Unpack(x);
+  internal::PopulationEngine::Result final_eval = engine.Evaluate(summary.parameters, eta, true);
+  summary.ofv = final_eval.ofv;
+  if (!final_eval.ok) {
+    summary.converged = false;
+    summary.message = "the OFV cannot be evaluated at the estimate: " + final_eval.message;
+  }
+  summary.estimates.clear();
+  const Eigen::VectorXd z = packing.Natural(summary.parameters);
+  for (size_t k = 0; k < packing.natural_names().size(); ++k) {
+    PopulationEstimate e;
+    e.name = packing.natural_names()[k];
+    e.estimate = z(static_cast<Eigen::Index>(k));
+    e.fixed = packing.natural_fixed()[k];
+    summary.estimates.push_back(e);
+  }
+  for (int k : packing.variance_positions()) {
+    auto& e = summary.estimates[static_cast<size_t>(k)];
+    e.at_boundary = !e.fixed && e.estimate < 1e-6;
+  }
+  if (final_eval.ok) {
+    eta = internal::Etas(final_eval.modes, initial.omega.rows());
+    internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
+    if (options.covariance) internal::PopulationCovariance(engine, packing, eta, &summary);
+  }
+  summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
+}  // namespace pk

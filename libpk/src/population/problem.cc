@@ -1,0 +1,211 @@
+// A population problem: the subjects bound to the model, and the objective at fixed parameters.
+#include <algorithm>
+#include <cmath>
+
+#include "internal_text.h"
+#include "pk/output.h"
+#include "pk/error.h"
+#include "population/conditional.h"
+#include "population/problem_impl.h"
+
+namespace pk {
+
+const char* ToString(PopulationMethod m) {
+  switch (m) {
+    case PopulationMethod::kFoce: return "foce";
+    case PopulationMethod::kFocei: return "focei";
+    case PopulationMethod::kLaplace: return "laplace";
+  }
+  return "?";
+}
+
+PopulationMethod ParsePopulationMethod(const std::string& text) {
+  const std::string t = internal::ToUpper(text);
+  if (t == "FOCE") return PopulationMethod::kFoce;
+  if (t == "FOCEI") return PopulationMethod::kFocei;
+  if (t == "LAPLACE") return PopulationMethod::kLaplace;
+  throw InputError("unknown population method '" + text + "': expected foce, focei or laplace");
+}
+
+namespace {
+
+int IndexOf(const std::vector<std::string>& names, const std::string& name) {
+  const std::string u = internal::ToUpper(name);
+  for (size_t i = 0; i < names.size(); ++i) {
+    if (internal::ToUpper(names[i]) == u) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+// The subject's observations on the error model's scale; a DV the log cannot take names its line.
+Eigen::VectorXd Observations(const Objective& o, const Dataset& data, int subject, bool logs) {
+  Eigen::VectorXd y = o.observations();
+  if (!logs) return y;
+  const std::vector<int> records = o.sample_records();
+  for (Eigen::Index j = 0; j < y.size(); ++j) {
+    if (y(j) > 0) {
+      y(j) = std::log(y(j));
+      continue;
+    }
+    const Record& r = data.subjects[static_cast<size_t>(subject)].records[static_cast<size_t>(records[j])];
+    throw InputError(data.source, r.line, data.ColumnNumber("DV"),
+                     "the exponential error takes log DV, and DV is " + std::to_string(r.dv) +
+                         " (give MDV=1 to leave the sample out)");
+  }
+  return y;
+}
+
+}  // namespace
+
+PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data,
+                                     std::vector<std::string> etas, const ObjectiveOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  Impl& d = *impl_;
+  d.model = std::move(model);
+  d.data = std::move(data);
+  d.options = options;
+  if (!options.error_model || !options.error_model->is_likelihood()) {
+    throw InputError("population estimation needs a residual-error model (additive, proportional, combined or "
+                     "exponential), not least squares");
+  }
+  for (int i = 0; i < d.model->num_parameters(); ++i) {
+    if (d.model->is_covariate(i)) continue;
+    d.theta_names.push_back(d.model->parameter_names()[static_cast<size_t>(i)]);
+    d.theta_model_index.push_back(i);
+  }
+  std::vector<int> eta_theta;
+  for (const std::string& e : etas) {
+    const int k = IndexOf(d.theta_names, e);
+    if (k < 0) throw InputError("--eta: '" + e + "' is not an estimable parameter of " + d.model->name());
+    if (std::find(eta_theta.begin(), eta_theta.end(), k) != eta_theta.end()) {
+      throw InputError("--eta: '" + e + "' is given twice");
+    }
+    eta_theta.push_back(k);
+    d.eta_names.push_back(d.theta_names[static_cast<size_t>(k)]);
+  }
+  if (eta_theta.empty()) throw InputError("a population model needs at least one parameter with an η");
+  d.sigma_names = options.error_model->sigma_names();
+  ObjectiveOptions ls = options;  // predictions and their sensitivities only: least squares, forward
+  ls.error_model = LeastSquares();
+  ls.weighting = Weighting::kUniform;
+  ls.gradient = GradientRoute::kForward;
+  const bool logs = options.error_model->log_transformed();
+  for (int i = 0; i < static_cast<int>(d.data->subjects.size()); ++i) {
+    internal::SubjectModel s;
+    s.objective = std::make_unique<Objective>(d.model, d.data, i, ls);
+    s.base = s.objective->DefaultValues();
+    s.y = Observations(*s.objective, *d.data, i, logs);
+    for (const std::string& name : d.theta_names) s.theta_index.push_back(s.objective->ParameterIndex(name));
+    s.eta_theta = eta_theta;
+    for (int k : eta_theta) s.eta_free.push_back(s.theta_index[static_cast<size_t>(k)]);
+    d.num_observations += static_cast<int>(s.y.size());
+    d.subjects.push_back(std::move(s));
+  }
+}
+
+PopulationProblem::~PopulationProblem() = default;
+PopulationProblem::PopulationProblem(PopulationProblem&&) noexcept = default;
+
+const std::vector<std::string>& PopulationProblem::theta_names() const { return impl_->theta_names; }
+const std::vector<std::string>& PopulationProblem::eta_names() const { return impl_->eta_names; }
+const std::vector<std::string>& PopulationProblem::sigma_names() const { return impl_->sigma_names; }
+int PopulationProblem::num_subjects() const { return static_cast<int>(impl_->subjects.size()); }
+int PopulationProblem::num_observations() const { return impl_->num_observations; }
+const Model& PopulationProblem::model() const { return *impl_->model; }
+const Dataset& PopulationProblem::data() const { return *impl_->data; }
+const ObjectiveOptions& PopulationProblem::options() const { return impl_->options; }
+
+PopulationParameters PopulationProblem::DefaultParameters() const {
+  const Impl& d = *impl_;
+  PopulationParameters p;
+  p.theta.resize(static_cast<Eigen::Index>(d.theta_names.size()));
+  for (size_t k = 0; k < d.theta_names.size(); ++k) {
+    p.theta(static_cast<Eigen::Index>(k)) = d.model->default_parameters()(d.theta_model_index[k]);
+  }
+  const Eigen::Index q = static_cast<Eigen::Index>(d.eta_names.size());
+  p.omega = 0.1 * Eigen::MatrixXd::Identity(q, q);
+  Eigen::VectorXd pooled(d.num_observations);
+  Eigen::Index at = 0;
+  for (const auto& s : d.subjects) {
+    pooled.segment(at, s.y.size()) = s.objective->observations();
+    at += s.y.size();
+  }
+  p.sigma.resize(static_cast<Eigen::Index>(d.sigma_names.size()));
+  for (Eigen::Index j = 0; j < p.sigma.size(); ++j) {
+    p.sigma(j) = d.options.error_model->DefaultSigma(static_cast<int>(j), pooled);
+  }
+  return p;
+}
+
+bool PopulationOptions::IsValid(std::string* error) const {
+  if (max_iterations < 1) {
+    *error = "max_iterations must be at least 1";
+  } else if (!(function_tolerance >= 0) || !(parameter_tolerance >= 0)) {
+    *error = "tolerances must be non-negative";
+  } else if (threads < 1) {
+    *error = "threads must be at least 1";
+  } else {
+    return true;
+  }
+  return false;
+}
+
+namespace internal {
+
+/// Throws pk::InputError when the parameters' sizes do not match the problem.
+void CheckSizes(const PopulationProblem& problem, const PopulationParameters& p) {
+  const auto q = static_cast<Eigen::Index>(problem.eta_names().size());
+  if (p.theta.size() != static_cast<Eigen::Index>(problem.theta_names().size())) {
+    throw InputError("expected " + std::to_string(problem.theta_names().size()) + " θ values, got " +
+                     std::to_string(p.theta.size()));
+  }
+  if (p.omega.rows() != q || p.omega.cols() != q) {
+    throw InputError("expected Ω of size " + std::to_string(q) + "×" + std::to_string(q));
+  }
+  if (p.sigma.size() != static_cast<Eigen::Index>(problem.sigma_names().size())) {
+    throw InputError("expected " + std::to_string(problem.sigma_names().size()) + " σ values, got " +
+                     std::to_string(p.sigma.size()));
+  }
+}
+
+}  // namespace internal
+
+PopulationEvaluation EvaluatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
+                                        PopulationMethod method, int threads) {
+  internal::CheckSizes(problem, parameters);
+  const auto& d = problem.impl();
+  const internal::PopulationPoint point =
+      internal::PopulationPoint::Make(parameters, *d.options.error_model, method);
+  const int n = problem.num_subjects();
+  std::vector<internal::SubjectMode> modes(static_cast<size_t>(n));
+  const Eigen::VectorXd zero = Eigen::VectorXd::Zero(parameters.omega.rows());
+  internal::ParallelFor(n, threads, [&](int i) {
+    modes[static_cast<size_t>(i)] = internal::SolveSubject(d.subjects[static_cast<size_t>(i)], point, zero);
+  });
+  PopulationEvaluation out;
+  out.ofv = 0;
+  for (int i = 0; i < n; ++i) {
+    const internal::SubjectMode& m = modes[static_cast<size_t>(i)];
+    PopulationSubject s;
+    s.id = d.data->subjects[static_cast<size_t>(i)].id;
+    s.ok = m.ok;
+    s.message = m.message;
+    s.eta = m.eta;
+    s.ofv = m.ofv;
+    const Eigen::VectorXd phi = internal::IndividualValues(d.subjects[static_cast<size_t>(i)], point, m.eta);
+    s.parameters.resize(static_cast<Eigen::Index>(d.theta_names.size()));
+    for (size_t k = 0; k < d.theta_names.size(); ++k) {
+      s.parameters(static_cast<Eigen::Index>(k)) = phi(d.subjects[static_cast<size_t>(i)].theta_index[k]);
+    }
+    if (!m.ok && out.ok) {
+      out.ok = false;
+      out.message = "subject " + FormatNumber(s.id) + ": " + m.message;
+    }
+    out.ofv += m.ofv;
+    out.subjects.push_back(std::move(s));
+  }
+  if (!out.ok) out.ofv = std::numeric_limits<double>::quiet_NaN();
+  return out;
+}
+
+}  // namespace pk

@@ -1,0 +1,66 @@
+// PopulationSummary's reports: NONMEM-like tables of θ, Ω and σ with SE and RSE%, shrinkage
+// and the objective.
+#include <cmath>
+#include <sstream>
+
+#include "internal_text.h"
+#include "pk/output.h"
+#include "pk/population.h"
+
+namespace pk {
+namespace {
+
+std::string MethodName(PopulationMethod m) {
+  switch (m) {
+    case PopulationMethod::kFoce: return "FOCE";
+    case PopulationMethod::kFocei: return "FOCEI";
+    case PopulationMethod::kLaplace: return "Laplace";
+  }
+  return "?";
+}
+
+}  // namespace
+
+std::string PopulationSummary::BriefReport() const {
+  std::ostringstream out;
+  out << MethodName(method) << ": OFV " << internal::Num(ofv, "%.6f") << " (initial "
+      << internal::Num(initial_ofv, "%.6f") << "), " << evaluations << " evaluations, "
+      << internal::Num(seconds, "%.3g") << " s, " << (converged ? "converged" : "not converged") << " ("
+      << message << ")";
+  if (failed_subjects > 0) out << "; " << failed_subjects << " subject(s) left out";
+  return out.str();
+}
+
+std::string PopulationSummary::FullReport() const {
+  using internal::Cell;
+  std::ostringstream out;
+  out << BriefReport() << "\n\n";
+  out << "  parameter            estimate          SE      RSE%\n";
+  for (const PopulationEstimate& e : estimates) {
+    std::string name = e.name;
+    name.resize(std::max<size_t>(name.size(), 18), ' ');
+    out << "  " << name << Cell(e.estimate, "%.6g", 12) << Cell(e.se, "%.4g", 12) << Cell(e.rse_pct, "%.1f", 10);
+    if (e.fixed) out << "  FIX";
+    if (e.at_boundary) out << "  (near a boundary)";
+    out << "\n";
+  }
+  if (!covariance_message.empty()) out << "  no standard errors: " << covariance_message << "\n";
+  if (covariance.size()) {
+    out << "  covariance: sandwich R⁻¹SR⁻¹ (NONMEM's default); condition number "
+        << internal::Num(condition_number, "%.4g") << "\n";
+  }
+  out << "\n  shrinkage (SD form; variance form in parentheses)\n";
+  for (Eigen::Index k = 0; k < eta_shrinkage_sd.size(); ++k) {
+    out << "    η" << k + 1 << "  " << internal::Num(100 * eta_shrinkage_sd(k), "%.1f") << "%  ("
+        << internal::Num(100 * eta_shrinkage_variance(k), "%.1f") << "%)\n";
+  }
+  out << "    ε   " << internal::Num(100 * epsilon_shrinkage_sd, "%.1f") << "%  ("
+      << internal::Num(100 * epsilon_shrinkage_variance, "%.1f") << "%)\n";
+  for (const PopulationSubject& s : subjects) {
+    if (!s.ok) out << "  subject " << FormatNumber(s.id) << ": " << s.message << "\n";
+  }
+  out << "  outer gradient: " << gradient << "\n";
+  return out.str();
+}
+
+}  // namespace pk

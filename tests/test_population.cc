@@ -1,0 +1,219 @@
+// Population estimation: NONMEM's FOCE, FOCEI and Laplace objectives against an independent R
+// implementation (tests/reference/make_population_reference.R), Laplace against the exact
+// marginal likelihood by adaptive Gauss–Hermite quadrature, and estimation from data with a
+// known truth.
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <random>
+#include <sstream>
+
+#include "pk/catalogue.h"
+#include "pk/error.h"
+#include "pk/population.h"
+#include "pk/residual_error.h"
+#include "population/packing.h"
+#include "test_util.h"
+
+namespace {
+
+using Table = std::vector<std::map<std::string, std::string>>;
+
+Table ReadTable(const std::string& name) {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/tests/reference/" + name);
+  REQUIRE(in.good());
+  std::string line;
+  std::getline(in, line);
+  std::vector<std::string> header;
+  std::stringstream hs(line);
+  for (std::string f; std::getline(hs, f, ',');) header.push_back(f);
+  Table rows;
+  while (std::getline(in, line)) {
+    std::map<std::string, std::string> row;
+    std::stringstream ls(line);
+    std::string f;
+    for (size_t k = 0; k < header.size() && std::getline(ls, f, ','); ++k) row[header[k]] = f;
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+std::shared_ptr<pk::Dataset> Data(const std::string& name, bool drop_time_zero_samples = false) {
+  auto d = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/" + name + ".csv"));
+  if (drop_time_zero_samples) {
+    for (auto& s : d->subjects) {
+      for (auto& r : s.records) {
+        if (r.IsSample() && r.time == 0) r.mdv = 1;
+      }
+    }
+  }
+  return d;
+}
+
+struct Case {
+  std::string model, data, error;
+  std::vector<std::string> etas;
+  std::vector<double> theta;
+  Eigen::MatrixXd omega;
+  std::vector<double> sigma;
+  bool drop_time_zero = false;
+};
+
+Eigen::MatrixXd Diagonal(std::initializer_list<double> v) {
+  Eigen::VectorXd d(static_cast<Eigen::Index>(v.size()));
+  Eigen::Index k = 0;
+  for (double x : v) d(k++) = x;
+  return d.asDiagonal();
+}
+
+// The cases of make_population_reference.R, as its header defines them.
+std::map<std::string, Case> Cases() {
+  std::map<std::string, Case> c;
+  Eigen::MatrixXd block = Diagonal({0.4, 0.07, 0.03});
+  block(1, 2) = block(2, 1) = 0.02;
+  Eigen::MatrixXd pheno_block = Diagonal({0.25, 0.15});
+  pheno_block(0, 1) = pheno_block(1, 0) = 0.05;
+  c["theo_add"] = {"1cmt_oral", "theophylline", "additive", {"KA", "CL", "V"}, {1.5, 2.8, 32},
+                   Diagonal({0.4, 0.07, 0.02}), {0.7}};
+  c["theo_comb_block"] = {"1cmt_oral", "theophylline", "combined", {"KA", "CL", "V"}, {1.5, 2.8, 32}, block, {0.3, 0.1}};
+  c["theo_exp"] = {"1cmt_oral", "theophylline", "exponential", {"KA", "CL", "V"}, {1.5, 2.8, 32},
+                   Diagonal({0.4, 0.07, 0.02}), {0.2}, true};
+  c["pheno_prop"] = {"1cmt_iv", "phenobarbital", "proportional", {"CL", "V"}, {0.0066, 1.35}, Diagonal({0.25, 0.15}),
+                     {0.12}};
+  c["pheno_add"] = {"1cmt_iv", "phenobarbital", "additive", {"CL", "V"}, {0.0066, 1.35}, pheno_block, {2.8}};
+  c["quad_rich"] = {"1cmt_oral", "theophylline", "additive", {"CL"}, {1.5, 2.8, 32}, Diagonal({0.07}), {0.7}};
+  return c;
+}
+
+pk::PopulationProblem Problem(const Case& c, std::shared_ptr<pk::Dataset> data = nullptr) {
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError(c.error);
+  if (!data) data = Data(c.data, c.drop_time_zero);
+  return pk::PopulationProblem(pk::MakeModel(c.model), data, c.etas, o);
+}
+
+pk::PopulationParameters Parameters(const Case& c) {
+  pk::PopulationParameters p;
+  p.theta = Eigen::Map<const Eigen::VectorXd>(c.theta.data(), static_cast<Eigen::Index>(c.theta.size()));
+  p.omega = c.omega;
+  p.sigma = Eigen::Map<const Eigen::VectorXd>(c.sigma.data(), static_cast<Eigen::Index>(c.sigma.size()));
+  return p;
+}
+
+}  // namespace
+
+TEST_CASE("population OFV equals the R reference for FOCE, FOCEI and Laplace", "[population]") {
+  const auto cases = Cases();
+  const Table totals = ReadTable("population_reference.csv");
+  const Table subjects = ReadTable("population_reference_subjects.csv");
+  REQUIRE(totals.size() == 15);
+  for (const auto& row : totals) {
+    const Case& c = cases.at(row.at("case"));
+    const pk::PopulationMethod method = pk::ParsePopulationMethod(row.at("method"));
+    INFO(row.at("case") << " " << row.at("method"));
+    const pk::PopulationProblem problem = Problem(c);
+    const pk::PopulationEvaluation ev = pk::EvaluatePopulation(problem, Parameters(c), method);
+    REQUIRE(ev.ok);
+    CHECK(std::abs(ev.ofv - std::stod(row.at("ofv"))) < 1e-6);
+    for (const auto& s : subjects) {
+      if (s.at("case") != row.at("case") || s.at("method") != row.at("method")) continue;
+      const double id = std::stod(s.at("ID"));
+      const auto it = std::find_if(ev.subjects.begin(), ev.subjects.end(), [&](const auto& x) { return x.id == id; });
+      REQUIRE(it != ev.subjects.end());
+      INFO("subject " << id);
+      CHECK(std::abs(it->ofv - std::stod(s.at("ofv_i"))) < 1e-7);
+      for (Eigen::Index k = 0; k < it->eta.size(); ++k) {
+        CHECK(std::abs(it->eta(k) - std::stod(s.at("eta" + std::to_string(k + 1)))) < 1e-7);
+      }
+    }
+  }
+}
+
+TEST_CASE("Laplace approaches the exact marginal likelihood as data become rich", "[population]") {
+  // Exact −2 log L_i by adaptive Gauss–Hermite quadrature (60 nodes) in R, one η on CL.
+  const Table quad = ReadTable("population_quadrature.csv");
+  Case c = Cases().at("quad_rich");
+  auto rich = Data("theophylline");
+  auto sparse = Data("theophylline");
+  for (auto& s : sparse->subjects) {  // the 3rd and 8th sample of each subject only
+    int j = 0;
+    for (auto& r : s.records) {
+      if (!r.IsSample()) continue;
+      ++j;
+      if (j != 3 && j != 8) r.mdv = 1;
+    }
+  }
+  double error[2] = {0, 0};
+  for (int k = 0; k < 2; ++k) {
+    const pk::PopulationProblem problem = Problem(c, k == 0 ? rich : sparse);
+    const std::string name = k == 0 ? "quad_rich" : "quad_sparse";
+    const auto laplace = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kLaplace);
+    REQUIRE(laplace.ok);
+    int n = 0;
+    for (const auto& row : quad) {
+      if (row.at("case") != name) continue;
+      const double id = std::stod(row.at("ID"));
+      for (const auto& s : laplace.subjects) {
+        if (s.id != id) continue;
+        CHECK(std::abs(s.ofv - std::stod(row.at("laplace_i"))) < 1e-7);
+        CHECK(s.ofv > std::stod(row.at("exact_i")));  // Laplace overstates −2 log L here
+        error[k] += std::abs(s.ofv - std::stod(row.at("exact_i")));
+        ++n;
+      }
+    }
+    REQUIRE(n == 12);
+    error[k] /= n;
+  }
+  CHECK(error[0] < 0.5 * error[1]);
+}
+
+TEST_CASE("FOCE and FOCEI differ where the residual variance depends on η", "[population]") {
+  // (The R reference forms FOCE by NONMEM's linearised log det C + r̃ᵀC⁻¹r̃; the library by the
+  // equivalent form at the mode. The first test compares them.)
+  const Case c = Cases().at("pheno_prop");
+  const pk::PopulationProblem problem = Problem(c);
+  const auto focei = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFocei);
+  const auto foce = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFoce);
+  REQUIRE(foce.ok);
+  REQUIRE(focei.ok);
+  CHECK(foce.ofv > focei.ofv + 1);  // the interaction matters with a proportional error
+}
+
+TEST_CASE("population OFV does not depend on the number of threads", "[population]") {
+  const Case c = Cases().at("pheno_prop");
+  const pk::PopulationProblem problem = Problem(c);
+  const auto one = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFocei, 1);
+  const auto two = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFocei, 2);
+  REQUIRE(one.ok);
+  CHECK(one.ofv == two.ofv);
+}
+
+TEST_CASE("population parameters pack and unpack", "[population]") {
+  const Case c = Cases().at("theo_comb_block");
+  const pk::PopulationProblem problem = Problem(c);
+  pk::PopulationStructure s;
+  s.omega_blocks = {1, 2};
+  s.omega_block_fixed = {true, false};
+  s.theta_fixed = {false, true, false};
+  const pk::internal::Packing packing(problem, s, Parameters(c));
+  CHECK(packing.size() == 2 + 3 + 2);
+  const Eigen::VectorXd x = packing.Pack(Parameters(c));
+  const pk::PopulationParameters back = packing.Unpack(x);
+  CHECK((back.omega - c.omega).norm() < 1e-14);
+  CHECK((back.theta - Parameters(c).theta).norm() < 1e-12);
+  CHECK(packing.natural_names()[5] == "OMEGA(V,CL)");
+  s.omega_blocks = {3};
+  s.omega_block_fixed = {};
+  pk::PopulationParameters bad = Parameters(c);
+  bad.omega(0, 1) = bad.omega(1, 0) = 0.9;  // not positive definite
+  CHECK_THROWS_AS(pk::internal::Packing(problem, s, bad), pk::InputError);
+}
+
+TEST_CASE("bad population input is refused with a message", "[population]") {
+  Case c = Cases().at("pheno_prop");
+  c.etas = {"Q"};
+  CHECK_THROWS_WITH(Problem(c), Catch::Contains("'Q' is not an estimable parameter"));
+  c.etas = {"CL"};
+  c.error = "least-squares";
+  CHECK_THROWS_WITH(Problem(c), Catch::Contains("needs a residual-error model"));
+}
