@@ -217,3 +217,38 @@ TEST_CASE("bad population input is refused with a message", "[population]") {
   c.error = "least-squares";
   CHECK_THROWS_WITH(Problem(c), Catch::Contains("needs a residual-error model"));
 }
+
+TEST_CASE("FOCEI fits phenobarbital to a minimum of its objective", "[population][fit]") {
+  const Case c = Cases().at("pheno_prop");
+  const pk::PopulationProblem problem = Problem(c);
+  pk::PopulationParameters start = Parameters(c);
+  start.theta << 0.005, 1.0;
+  start.omega = Diagonal({0.1, 0.1});
+  start.sigma << 0.2;
+  pk::PopulationOptions options;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, start, options);
+  INFO(fit.FullReport());
+  REQUIRE(fit.converged);
+  // Below the objective at the reference point, and a local minimum in every direction.
+  CHECK(fit.ofv < 737.189308759361);
+  const auto at = [&](const pk::PopulationParameters& p) {
+    return pk::EvaluatePopulation(problem, p, pk::PopulationMethod::kFocei).ofv;
+  };
+  CHECK(std::abs(at(fit.parameters) - fit.ofv) < 1e-6);
+  for (int k = 0; k < 5; ++k) {
+    for (double s : {0.98, 1.02}) {
+      pk::PopulationParameters p = fit.parameters;
+      if (k < 2) p.theta(k) *= s;
+      else if (k < 4) p.omega(k - 2, k - 2) *= s;
+      else p.sigma(0) *= s;
+      CHECK(at(p) > fit.ofv);
+    }
+  }
+  for (const auto& e : fit.estimates) {
+    CHECK(e.se > 0);
+    CHECK(std::isfinite(e.se));
+    if (e.name == "CL" || e.name == "V") CHECK(e.rse_pct < 20);
+  }
+  CHECK(fit.rows.size() == 155);
+  CHECK(fit.eta_shrinkage_sd.size() == 2);
+}

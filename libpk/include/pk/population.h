@@ -99,7 +99,9 @@ class PopulationProblem {
   const Model& model() const;
   const Dataset& data() const;
   const ObjectiveOptions& options() const;
-  /// The model's defaults for θ, Ω = 0.1·I, and σ from the pooled observations.
+  /// Starting values: θ the median over subjects of the data-driven starting values
+  /// (pk/initial_estimates.h) for a model that declares the structure they need, else the
+  /// model's defaults; Ω = 0.1·I; σ from the pooled observations.
   PopulationParameters DefaultParameters() const;
 
   /// Internal: the per-subject machinery.
@@ -196,6 +198,7 @@ struct PopulationSummary {
 
   std::vector<PopulationSubject> subjects;
   std::vector<PopulationRow> rows;
+  std::vector<std::string> eta_names;      ///< the parameters with an η, in Ω's order
   Eigen::VectorXd eta_shrinkage_sd;        ///< 1 − SD(η̂)/ω per η
   Eigen::VectorXd eta_shrinkage_variance;  ///< 1 − Var(η̂)/ω²
   double epsilon_shrinkage_sd = std::numeric_limits<double>::quiet_NaN();  ///< 1 − SD(IWRES)

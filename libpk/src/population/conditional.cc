@@ -18,6 +18,7 @@ constexpr double kStepTolerance = 1e-10;   // ‖Δη‖∞ at which the mode is
 constexpr double kNewtonFrom = 1e-4;       // scoring hands over to Newton below this step
 constexpr double kHessianStep = 1e-3;      // central-difference step in η for ½∇²l (Richardson)
 constexpr int kMaxIterations = 200;
+constexpr double kMaxStep = 1;          // the largest change of one η in one iteration
 
 bool LogDet(const Eigen::MatrixXd& m, double* out) {
   Eigen::LLT<Eigen::MatrixXd> llt(m);
@@ -146,6 +147,10 @@ bool Step(const Conditional& c, const Eigen::MatrixXd& half_hessian, Eigen::Vect
   Eigen::LLT<Eigen::MatrixXd> llt(half_hessian);
   if (llt.info() != Eigen::Success) return false;
   *step = -llt.solve(0.5 * c.gradient);
+  // Far from the mode (starting values off by orders of magnitude) the quadratic model's step can
+  // be enormous; no η moves by more than kMaxStep per iteration.
+  const double longest = step->lpNorm<Eigen::Infinity>();
+  if (longest > kMaxStep) *step *= kMaxStep / longest;
   return step->allFinite();
 }
 

@@ -5,6 +5,7 @@
 // centre's modes, so that the differences see the smooth objective and not the inner
 // iteration's path (NONMEM also differences its outer objective). The modes are found to
 // ‖Δη‖∞ < 1e-10, which keeps the differences' noise near 1e-6.
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -28,14 +29,21 @@ PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& 
                                                     const std::vector<Eigen::VectorXd>& starts,
                                                     bool keep_modes) const {
   const auto& d = problem_.impl();
-  const PopulationPoint point = PopulationPoint::Make(p, *d.options.error_model, method_);
+  Result r;
+  PopulationPoint point;
+  try {
+    point = PopulationPoint::Make(p, *d.options.error_model, method_);
+  } catch (const InputError& e) {  // Ω underflowed (a variance of 1e-300) on an optimiser's trial step
+    r.message = e.message();
+    r.ofv = HUGE_VAL;
+    return r;
+  }
   const int n = problem_.num_subjects();
   std::vector<SubjectMode> modes(static_cast<size_t>(n));
   ParallelFor(n, threads_, [&](int i) {
     const auto u = static_cast<size_t>(i);
     if (included_[u]) modes[u] = SolveSubject(d.subjects[u], point, starts[u]);
   });
-  Result r;
   r.ok = true;
   r.per_subject = Eigen::VectorXd::Zero(n);
   for (int i = 0; i < n; ++i) {
@@ -119,14 +127,41 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
     summary->history.push_back({summary->evaluations, c.ofv, g.norm(), packing.Natural(packing.Unpack(xc))});
     return c.ofv;
   };
-  Nlopt opt("LD_LBFGS", n);
-  opt.SetRelativeTolerances(options.function_tolerance, options.parameter_tolerance);
-  opt.SetMaxEvaluations(options.max_iterations);
-  std::vector<double> xv(x->data(), x->data() + n);
-  const Nlopt::Outcome out = opt.Minimize(f, &xv);
+  // L-BFGS's first step is the negative gradient, which for an OFV of hundreds can move log θ by
+  // hundreds. The optimiser sees OFV·c, c making the initial gradient's largest entry 1. And it
+  // can stop with a failure after a poor step from poor starting values; it is restarted from the
+  // best point while that keeps improving the OFV.
+  std::vector<double> g0(static_cast<size_t>(n));
+  if (f(x->data(), g0.data()) == HUGE_VAL) return;
+  double largest = 0;
+  for (double v : g0) largest = std::max(largest, std::abs(v));
+  const double c = 1 / std::max(1.0, largest);
+  auto scaled = [&](const double* xp, double* grad) {
+    const double v = f(xp, grad);
+    for (int k = 0; grad && k < n; ++k) grad[k] *= c;
+    return v == HUGE_VAL ? v : c * v;
+  };
+  Nlopt::Outcome out;
+  for (int restart = 0; restart < 5; ++restart) {
+    const double before = best;
+    Nlopt opt("LD_LBFGS", n);
+    opt.SetRelativeTolerances(options.function_tolerance, options.parameter_tolerance);
+    opt.SetMaxEvaluations(options.max_iterations - summary->evaluations);
+    std::vector<double> xv(x->data(), x->data() + n);
+    out = opt.Minimize(scaled, &xv);
+    if (out.kind != Nlopt::Outcome::kFailure || !(best < before - 1e-6) ||
+        summary->evaluations >= options.max_iterations) {
+      break;
+    }
+  }
   summary->converged = out.kind == Nlopt::Outcome::kConverged || out.kind == Nlopt::Outcome::kRoundoff;
-  summary->message = out.kind == Nlopt::Outcome::kFailure ? out.error : out.result;
+  summary->message = out.result;
   if (out.kind == Nlopt::Outcome::kLimit) summary->message = "the evaluation limit was reached (" + out.result + ")";
+  if (out.kind == Nlopt::Outcome::kFailure) {
+    summary->message = "the outer optimiser failed (NLopt: " + out.result + (out.error.empty() ? "" : ", " + out.error) +
+                       "); the OFV went from " + Num(summary->initial_ofv, "%.6g") + " to " + Num(best, "%.6g") +
+                       ". Starting values far from the estimates cause this: give initial θ and Ω closer to them";
+  }
 }
 
 }  // namespace internal
@@ -141,6 +176,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   internal::PopulationEngine engine(problem, options.method, options.threads);
   PopulationSummary summary;
   summary.method = options.method;
+  summary.eta_names = problem.eta_names();
   summary.gradient = "central differences of the OFV (modes warm-started from the centre)";
   std::vector<Eigen::VectorXd> eta(static_cast<size_t>(problem.num_subjects()),
                                    Eigen::VectorXd::Zero(initial.omega.rows()));

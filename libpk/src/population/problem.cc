@@ -5,6 +5,7 @@
 #include "internal_text.h"
 #include "pk/output.h"
 #include "pk/error.h"
+#include "pk/initial_estimates.h"
 #include "population/conditional.h"
 #include "population/problem_impl.h"
 
@@ -119,8 +120,24 @@ PopulationParameters PopulationProblem::DefaultParameters() const {
   const Impl& d = *impl_;
   PopulationParameters p;
   p.theta.resize(static_cast<Eigen::Index>(d.theta_names.size()));
+  std::vector<std::vector<double>> found(d.theta_names.size());  // data-driven values per subject
+  if (d.model->initial_structure().kind != InitialStructure::Kind::kNone) {
+    for (int i = 0; i < num_subjects(); ++i) {
+      const InitialEstimate e = EstimateInitialValues(*d.model, *d.data, i);
+      for (size_t k = 0; e.ok && k < d.theta_names.size(); ++k) {
+        const auto it = e.values.find(d.theta_names[k]);
+        if (it != e.values.end() && std::isfinite(it->second)) found[k].push_back(it->second);
+      }
+    }
+  }
   for (size_t k = 0; k < d.theta_names.size(); ++k) {
-    p.theta(static_cast<Eigen::Index>(k)) = d.model->default_parameters()(d.theta_model_index[k]);
+    std::vector<double>& v = found[k];
+    double value = d.model->default_parameters()(d.theta_model_index[k]);
+    if (!v.empty()) {
+      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+      value = v[v.size() / 2];
+    }
+    p.theta(static_cast<Eigen::Index>(k)) = value;
   }
   const Eigen::Index q = static_cast<Eigen::Index>(d.eta_names.size());
   p.omega = 0.1 * Eigen::MatrixXd::Identity(q, q);

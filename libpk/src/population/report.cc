@@ -51,10 +51,13 @@ std::string PopulationSummary::FullReport() const {
   }
   out << "\n  shrinkage (SD form; variance form in parentheses)\n";
   for (Eigen::Index k = 0; k < eta_shrinkage_sd.size(); ++k) {
-    out << "    η" << k + 1 << "  " << internal::Num(100 * eta_shrinkage_sd(k), "%.1f") << "%  ("
+    std::string name = k < static_cast<Eigen::Index>(eta_names.size()) ? "η(" + eta_names[static_cast<size_t>(k)] + ")"
+                                                                      : "η" + std::to_string(k + 1);
+    name.resize(std::max<size_t>(name.size(), 12), ' ');
+    out << "    " << name << internal::Num(100 * eta_shrinkage_sd(k), "%.1f") << "%  ("
         << internal::Num(100 * eta_shrinkage_variance(k), "%.1f") << "%)\n";
   }
-  out << "    ε   " << internal::Num(100 * epsilon_shrinkage_sd, "%.1f") << "%  ("
+  out << "    ε         " << internal::Num(100 * epsilon_shrinkage_sd, "%.1f") << "%  ("
       << internal::Num(100 * epsilon_shrinkage_variance, "%.1f") << "%)\n";
   for (const PopulationSubject& s : subjects) {
     if (!s.ok) out << "  subject " << FormatNumber(s.id) << ": " << s.message << "\n";

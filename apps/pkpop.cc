@@ -1,0 +1,294 @@
+// pkpop: population (mixed-effects) estimation by FOCE, FOCEI or Laplace (parsing and I/O only).
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <iostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <boost/program_options.hpp>
+
+#include "cli.h"
+#include "pk/catalogue.h"
+#include "pk/dataset.h"
+#include "pk/error.h"
+#include "pk/output.h"
+#include "pk/population.h"
+#include "pk/residual_error.h"
+
+namespace po = boost::program_options;
+
+namespace {
+
+const char* const kUsage =
+    "Usage: pkpop --model NAME --data FILE [options]\n"
+    "Estimates a population model (NONMEM's FOCE, FOCEI or Laplace): typical values θ, between-subject\n"
+    "variances Ω of log-normal random effects η (CL_i = CL·exp(η_CL)) and residual-error σ.\n\n"
+    "Examples:\n"
+    "  pkpop --model 1cmt_iv --data datasets/phenobarbital.csv --eta CL,V --error proportional\n"
+    "  pkpop --model 1cmt_oral --data datasets/theophylline.csv --eta KA,CL,V --block CL,V --error combined\n"
+    "  pkpop --model models/1cmt_iv.pkm --data d.csv --method laplace --theta CL=0.005 --omega CL=0.2 --fix V\n";
+
+struct Lists {
+  std::vector<std::string> eta, block, theta, omega, sigma, fix, ignore, accept;
+};
+
+void DeclareOptions(po::options_description* desc, Lists* a) {
+  desc->add_options()("help,h", "show this help")("version", "print the version of libpk and exit")(
+      "model,m", po::value<std::string>(), "catalogue model, or a model file FILE.pkm")(
+      "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
+      "method", po::value<std::string>()->default_value("focei"), "foce, focei (INTER) or laplace (LAPLACIAN INTER)")(
+      "eta", po::value<std::vector<std::string>>(&a->eta)->composing(),
+      "parameters with an η, comma-separated, in Ω's order (default: every estimable parameter)")(
+      "block", po::value<std::vector<std::string>>(&a->block)->composing(),
+      "η that form a full Ω block, comma-separated and consecutive in --eta (repeatable); others are diagonal")(
+      "error", po::value<std::string>(), "additive, proportional, combined or exponential (default: the model "
+                                         "file's $ERROR, else combined)")(
+      "theta", po::value<std::vector<std::string>>(&a->theta)->composing(), "NAME=VALUE: initial θ (default: the model's)")(
+      "omega", po::value<std::vector<std::string>>(&a->omega)->composing(),
+      "NAME=VALUE: initial variance of η_NAME (default 0.1); A:B=VALUE an initial covariance in a block")(
+      "sigma", po::value<std::vector<std::string>>(&a->sigma)->composing(), "NAME=VALUE: initial σ (SIGMA_ADD, ...)")(
+      "fix", po::value<std::vector<std::string>>(&a->fix)->composing(),
+      "hold at its initial value: a θ or σ name, or OMEGA(NAME) for the Ω block of η_NAME (comma-separated)")(
+      "propagator", po::value<std::string>()->default_value("auto"), "exact, ode or auto")(
+      "threads,j", po::value<int>()->default_value(1), "subjects' inner problems on this many threads")(
+      "max-evaluations", po::value<int>()->default_value(1000), "outer objective evaluations, at most")(
+      "no-covariance", "skip the covariance step (no standard errors)")(
+      "output-dir,o", po::value<std::string>()->default_value("pkpop_out"), "where the results go")(
+      "quiet,q", "no progress line and no table on stdout");
+  pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
+}
+
+std::vector<std::string> SplitCommas(const std::vector<std::string>& items) {
+  std::vector<std::string> out;
+  for (const std::string& item : items) {
+    std::stringstream ss(item);
+    for (std::string f; std::getline(ss, f, ',');) {
+      if (!f.empty()) out.push_back(f);
+    }
+  }
+  return out;
+}
+
+std::string Upper(std::string s) {
+  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return s;
+}
+
+int Position(const std::vector<std::string>& names, const std::string& name) {
+  for (size_t i = 0; i < names.size(); ++i) {
+    if (Upper(names[i]) == Upper(name)) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+int Required(const std::vector<std::string>& names, const std::string& name, const std::string& option) {
+  const int k = Position(names, name);
+  if (k < 0) throw pk::InputError(option + ": unknown name '" + name + "'");
+  return k;
+}
+
+// Ω's blocks from --block: each a run of consecutive η; the others are blocks of one.
+void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>& specs, pk::PopulationStructure* s) {
+  std::vector<int> block_of(etas.size(), -1), first_of;
+  std::vector<int> sizes;
+  for (const std::string& spec : specs) {
+    const std::vector<std::string> names = SplitCommas({spec});
+    std::vector<int> at;
+    for (const std::string& n : names) at.push_back(Required(etas, n, "--block"));
+    std::sort(at.begin(), at.end());
+    for (size_t k = 1; k < at.size(); ++k) {
+      if (at[k] != at[k - 1] + 1) throw pk::InputError("--block " + spec + ": the η must be consecutive in --eta");
+    }
+    for (int k : at) {
+      if (block_of[static_cast<size_t>(k)] >= 0) throw pk::InputError("--block: η_" + etas[static_cast<size_t>(k)] + " is in two blocks");
+      block_of[static_cast<size_t>(k)] = at.front();
+    }
+  }
+  for (size_t k = 0; k < etas.size();) {
+    size_t size = 1;
+    while (block_of[k] >= 0 && k + size < etas.size() && block_of[k + size] == block_of[k]) ++size;
+    sizes.push_back(static_cast<int>(size));
+    k += size;
+  }
+  s->omega_blocks = sizes;
+}
+
+// Initial values and FIX flags from --theta, --omega, --sigma and --fix.
+pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lists& a, pk::PopulationStructure* s) {
+  pk::PopulationParameters p = problem.DefaultParameters();
+  for (const auto& [name, value] : pk::cli::ParseAssignments(SplitCommas(a.theta), "--theta")) {
+    p.theta(Required(problem.theta_names(), name, "--theta")) = value;
+  }
+  for (const auto& [name, value] : pk::cli::ParseAssignments(SplitCommas(a.sigma), "--sigma")) {
+    p.sigma(Required(problem.sigma_names(), name, "--sigma")) = value;
+  }
+  for (const auto& [name, value] : pk::cli::ParseAssignments(SplitCommas(a.omega), "--omega")) {
+    const size_t colon = name.find(':');
+    const int r = Required(problem.eta_names(), name.substr(0, colon), "--omega");
+    const int c = colon == std::string::npos ? r : Required(problem.eta_names(), name.substr(colon + 1), "--omega");
+    p.omega(r, c) = p.omega(c, r) = value;
+  }
+  s->theta_fixed.assign(problem.theta_names().size(), false);
+  s->sigma_fixed.assign(problem.sigma_names().size(), false);
+  s->omega_block_fixed.assign(s->omega_blocks.size(), false);
+  for (const std::string& name : SplitCommas(a.fix)) {
+    const std::string u = Upper(name);
+    if (u.rfind("OMEGA(", 0) == 0 && u.back() == ')') {
+      const int k = Required(problem.eta_names(), u.substr(6, u.size() - 7), "--fix");
+      int first = 0;
+      for (size_t b = 0; b < s->omega_blocks.size(); first += s->omega_blocks[b++]) {
+        if (k >= first && k < first + s->omega_blocks[b]) s->omega_block_fixed[b] = true;
+      }
+    } else if (Position(problem.theta_names(), name) >= 0) {
+      s->theta_fixed[static_cast<size_t>(Position(problem.theta_names(), name))] = true;
+    } else {
+      s->sigma_fixed[static_cast<size_t>(Required(problem.sigma_names(), name, "--fix"))] = true;
+    }
+  }
+  return p;
+}
+
+std::string EstimatesCsv(const pk::PopulationSummary& fit) {
+  std::string out = "PARAMETER,ESTIMATE,SE,RSE_PCT,FIXED,AT_BOUNDARY\n";
+  for (const auto& e : fit.estimates) {
+    out += e.name + "," + pk::FormatNumber(e.estimate) + "," + (std::isfinite(e.se) ? pk::FormatNumber(e.se) : "") +
+           "," + (std::isfinite(e.rse_pct) ? pk::FormatNumber(e.rse_pct) : "") + "," + (e.fixed ? "1" : "0") + "," +
+           (e.at_boundary ? "1" : "0") + "\n";
+  }
+  out += "OFV," + pk::FormatNumber(fit.ofv) + ",,,,\n";
+  return out;
+}
+
+std::string SdtabCsv(const pk::PopulationSummary& fit) {
+  std::string out = "ID,TIME,DVID,DV,PRED,IPRED,RES,WRES,CWRES,IWRES\n";
+  for (const auto& r : fit.rows) {
+    for (double v : {r.id, r.time, static_cast<double>(r.dvid), r.dv, r.pred, r.ipred, r.res, r.wres, r.cwres}) {
+      out += (std::isfinite(v) ? pk::FormatNumber(v) : "") + ",";
+    }
+    out += (std::isfinite(r.iwres) ? pk::FormatNumber(r.iwres) : "") + "\n";
+  }
+  return out;
+}
+
+std::string SubjectsCsv(const pk::PopulationProblem& problem, const pk::PopulationSummary& fit) {
+  std::string out = "ID,OK,OFV";
+  for (const auto& n : problem.eta_names()) out += ",ETA_" + n;
+  for (const auto& n : problem.theta_names()) out += "," + n;
+  out += ",MESSAGE\n";
+  for (const auto& s : fit.subjects) {
+    out += pk::FormatNumber(s.id) + "," + (s.ok ? "1" : "0") + "," + (s.ok ? pk::FormatNumber(s.ofv) : "");
+    for (Eigen::Index k = 0; k < static_cast<Eigen::Index>(problem.eta_names().size()); ++k) {
+      out += "," + (s.ok ? pk::FormatNumber(s.eta(k)) : "");
+    }
+    for (Eigen::Index k = 0; k < static_cast<Eigen::Index>(problem.theta_names().size()); ++k) {
+      out += "," + (s.ok ? pk::FormatNumber(s.parameters(k)) : "");
+    }
+    std::string m = s.message;
+    std::replace(m.begin(), m.end(), '"', '\'');
+    out += ",\"" + m + "\"\n";
+  }
+  return out;
+}
+
+std::string IterationsCsv(const pk::PopulationSummary& fit) {
+  std::string out = "EVALUATION,OFV,GRADIENT_NORM";
+  for (const auto& e : fit.estimates) out += "," + e.name;
+  out += "\n";
+  for (const auto& it : fit.history) {
+    out += std::to_string(it.evaluation) + "," + pk::FormatNumber(it.ofv) + "," + pk::FormatNumber(it.gradient_norm);
+    for (Eigen::Index k = 0; k < it.values.size(); ++k) out += "," + pk::FormatNumber(it.values(k));
+    out += "\n";
+  }
+  return out;
+}
+
+std::string CovarianceCsv(const pk::PopulationSummary& fit) {
+  std::vector<std::string> names;
+  for (const auto& e : fit.estimates) {
+    if (!e.fixed) names.push_back(e.name);
+  }
+  std::string out = "PARAMETER";
+  for (const auto& n : names) out += "," + n;
+  out += "\n";
+  for (Eigen::Index r = 0; r < fit.covariance.rows(); ++r) {
+    out += names[static_cast<size_t>(r)];
+    for (Eigen::Index c = 0; c < fit.covariance.cols(); ++c) out += "," + pk::FormatNumber(fit.covariance(r, c));
+    out += "\n";
+  }
+  return out;
+}
+
+void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit) {
+  std::filesystem::create_directories(dir);
+  pk::RemoveStaleTemporaries(dir);
+  pk::BeginOutputSet(dir);
+  const std::vector<std::pair<std::string, std::string>> files = {
+      {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit)},
+      {"subjects.csv", SubjectsCsv(problem, fit)},     {"iterations.csv", IterationsCsv(fit)},
+      {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()}};
+  std::vector<std::string> names;
+  for (const auto& [name, text] : files) {
+    pk::WriteFileAtomically(dir + "/" + name, text);
+    names.push_back(name);
+  }
+  pk::CompleteOutputSet(dir, names, "pkpop");
+}
+
+int Main(int argc, char** argv) {
+  po::options_description desc("Options");
+  Lists a;
+  DeclareOptions(&desc, &a);
+  po::variables_map vm;
+  if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
+  if (!vm.count("model") || !vm.count("data")) throw pk::InputError("--model and --data are required");
+  const auto model = pk::MakeModel(vm["model"].as<std::string>());
+  const auto data = std::make_shared<pk::Dataset>(
+      pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(a.ignore, a.accept)));
+  pk::ObjectiveOptions objective;
+  objective.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
+  const std::string error = vm.count("error") ? vm["error"].as<std::string>()
+                            : model->declarations().error_model.empty() ? "combined"
+                                                                        : model->declarations().error_model;
+  objective.error_model = pk::cli::Parsed("--error", [&] { return pk::MakeResidualError(error); });
+  std::vector<std::string> etas = SplitCommas(a.eta);
+  if (etas.empty()) {
+    for (int i = 0; i < model->num_parameters(); ++i) {
+      if (!model->is_covariate(i)) etas.push_back(model->parameter_names()[static_cast<size_t>(i)]);
+    }
+  }
+  const pk::PopulationProblem problem(model, data, etas, objective);
+  pk::PopulationOptions options;
+  options.method = pk::cli::Parsed("--method", [&] { return pk::ParsePopulationMethod(vm["method"].as<std::string>()); });
+  options.threads = vm["threads"].as<int>();
+  options.max_iterations = vm["max-evaluations"].as<int>();
+  options.covariance = !vm.count("no-covariance");
+  Blocks(problem.eta_names(), a.block, &options.structure);
+  const pk::PopulationParameters initial = Initial(problem, a, &options.structure);
+  const bool quiet = vm.count("quiet") > 0;
+  if (!quiet) {
+    options.progress = [](int evaluation, double ofv, double gradient) {
+      std::cerr << "\r  evaluation " << evaluation << "  OFV " << pk::FormatNumber(std::round(ofv * 1e6) / 1e6)
+                << "  |gradient| " << pk::FormatNumber(std::round(gradient * 1e4) / 1e4) << "        " << std::flush;
+    };
+  }
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, initial, options);
+  if (!quiet) std::cerr << "\n";
+  const std::string dir = vm["output-dir"].as<std::string>();
+  WriteOutputs(dir, problem, fit);
+  if (!quiet) {
+    std::cout << fit.FullReport() << "\nresults in " << dir
+              << "/ (population_estimates.csv, sdtab.csv, subjects.csv, iterations.csv, covariance.csv, report.txt)\n";
+  }
+  if (!fit.converged) std::cerr << "pkpop: " << fit.message << "\n";
+  return fit.converged ? 0 : 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  return pk::cli::Run("pkpop", [&] { return Main(argc, argv); });
+}
