@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Command-line tests of pkpop: a population fit on bundled data, its output set, thread
+# independence, fixed parameters, and error exits.
+set -uo pipefail
+pkpop=$1; root=$2; work=$3
+rm -rf "$work"; mkdir -p "$work"
+failures=0
+fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+
+# Phenobarbital, FOCEI, proportional error: the whole output set.
+"$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional -o "$work/pheno" \
+  >"$work/pheno.txt" 2>"$work/pheno.err" || fail "phenobarbital FOCEI exited non-zero: $(cat "$work/pheno.err")"
+for f in population_estimates.csv sdtab.csv subjects.csv iterations.csv covariance.csv report.txt MANIFEST; do
+  [ -s "$work/pheno/$f" ] || fail "missing $f"
+done
+grep -q "^FOCEI: OFV 730.8947" "$work/pheno.txt" || fail "the table's OFV: $(head -1 "$work/pheno.txt")"
+grep -q "evaluation [0-9]*  OFV" "$work/pheno.err" || fail "no progress line on stderr"
+[ "$(tail -n +2 "$work/pheno/sdtab.csv" | wc -l)" -eq 155 ] || fail "sdtab: expected 155 samples"
+[ "$(tail -n +2 "$work/pheno/subjects.csv" | wc -l)" -eq 59 ] || fail "subjects: expected 59"
+head -1 "$work/pheno/sdtab.csv" | grep -qx "ID,TIME,DVID,DV,PRED,IPRED,RES,WRES,CWRES,IWRES" || fail "sdtab header"
+# CWRES of a good model: mean near 0 and SD near 1.
+awk -F, 'NR>1 { s += $9; ss += $9*$9; n++ } END { m = s/n; sd = sqrt(ss/n - m*m);
+  if (m < -0.3 || m > 0.3 || sd < 0.7 || sd > 1.3) { print m, sd; exit 1 } }' "$work/pheno/sdtab.csv" ||
+  fail "CWRES are not about N(0, 1)"
+awk -F, '$1 ~ /^OMEGA|^CL$|^V$|^SIGMA/ && $3 == "" { bad = 1 } END { exit bad }' "$work/pheno/population_estimates.csv" ||
+  fail "an estimate without SE"
+
+# Two threads give the same numbers, byte for byte.
+"$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional -j 2 -q \
+  -o "$work/pheno2" || fail "two threads exited non-zero"
+cmp -s "$work/pheno/population_estimates.csv" "$work/pheno2/population_estimates.csv" || fail "threads changed the estimates"
+cmp -s "$work/pheno/sdtab.csv" "$work/pheno2/sdtab.csv" || fail "threads changed sdtab"
+
+# FOCE on theophylline with a fixed θ and a fixed Ω block.
+"$pkpop" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --eta KA,CL,V --method foce --error additive \
+  --theta KA=1.5 --fix KA,'OMEGA(V)' --omega V=0.02 -q -o "$work/theo" || fail "theophylline FOCE exited non-zero"
+grep -q "^KA,1.5,,,1,0$" "$work/theo/population_estimates.csv" || fail "KA was not held at 1.5"
+grep -q "^OMEGA(V),0.02,,,1,0$" "$work/theo/population_estimates.csv" || fail "OMEGA(V) was not held at 0.02"
+
+# Input errors exit with 2 and say what is wrong.
+expect_error() {  # expected message, then arguments
+  local msg=$1; shift
+  "$pkpop" "$@" -q -o "$work/bad" >"$work/err.txt" 2>&1
+  local rc=$?
+  [ $rc -eq 2 ] || fail "'$*' exited $rc, expected 2"
+  grep -qF -- "$msg" "$work/err.txt" || fail "'$*': expected '$msg', got: $(cat "$work/err.txt")"
+}
+pheno=("--model" "1cmt_iv" "--data" "$root/datasets/phenobarbital.csv")
+expect_error "'Q' is not an estimable parameter" "${pheno[@]}" --eta CL,Q
+expect_error "expected foce, focei or laplace" "${pheno[@]}" --method fo
+expect_error "needs a residual-error model" "${pheno[@]}" --error least-squares
+expect_error "--block CL,V: the η must be consecutive" --model 1cmt_oral --data "$root/datasets/theophylline.csv" \
+  --eta CL,KA,V --block CL,V
+expect_error "--omega: unknown name 'KA'" "${pheno[@]}" --omega KA=0.1
+expect_error "--model and --data are required" --model 1cmt_iv
+expect_error "initial Ω block of CL is not positive definite" "${pheno[@]}" --block CL,V --omega CL:V=1
+
+[ $failures -eq 0 ] && echo "pkpop CLI: all checks passed"
+exit $failures
