@@ -14,7 +14,6 @@ namespace pk {
 namespace internal {
 namespace {
 
-constexpr double kStepTolerance = 1e-10;   // ‖Δη‖∞ at which the mode is found
 constexpr double kNewtonFrom = 1e-4;       // scoring hands over to Newton below this step
 constexpr double kHessianStep = 1e-3;      // central-difference step in η for ½∇²l (Richardson)
 constexpr int kMaxIterations = 200;
@@ -162,6 +161,7 @@ bool LineSearch(const SubjectModel& s, const PopulationPoint& p, const Eigen::Ve
   std::string ignored;
   for (double t = 1; t > 1e-10; t *= 0.5) {
     const Eigen::VectorXd e = *eta + t * step;
+    if (e == *eta) return false;  // the step is below η's rounding: no move is possible
     if (!EvaluateConditional(s, p, e, fv, true, &trial, &ignored)) continue;
     if (trial.l <= c->l + 1e-4 * t * slope || trial.l <= c->l + 1e-13 * std::abs(c->l)) {
       *eta = e;
@@ -200,15 +200,16 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
         return mode;
       }
     }
-    if (step.lpNorm<Eigen::Infinity>() < kStepTolerance) {
+    if (step.lpNorm<Eigen::Infinity>() < s.step_tolerance) {
       converged = newton || p.method != PopulationMethod::kLaplace;
       if (converged) break;
       newton = true;  // Laplace needs ½∇²l at the mode: one more pass computes it
       continue;
     }
     if (!LineSearch(s, p, fv, step, &mode.eta, &c)) {
-      if (step.lpNorm<Eigen::Infinity>() < 1e-7 && newton) {
-        converged = true;  // rounding: l cannot decrease further
+      const double predicted = -c.gradient.dot(step), noise = s.relative_noise * (double(s.y.size()) + std::abs(c.l));
+      if ((step.lpNorm<Eigen::Infinity>() < std::max(1e-7, 10 * s.step_tolerance) && newton) || predicted < noise) {
+        converged = true;  // rounding or the solver's error: l cannot decrease further
         break;
       }
       mode.message = "the search for the conditional mode made no progress";

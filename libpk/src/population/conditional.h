@@ -26,6 +26,14 @@ struct SubjectModel {
   std::vector<int> theta_index;  ///< objective position of each θ
   std::vector<int> eta_theta;    ///< the θ (index into θ) that each η multiplies
   std::vector<int> eta_free;     ///< objective position of each η'd parameter (the free list)
+  /// ‖Δη‖∞ at which the mode counts as found: 1e-10 where the predictions are exact to rounding
+  /// (Φ/Γ); on the ODE propagator l and ∇l carry the solver's error (about rtol relative), below
+  /// which Newton's steps only wander, so 100·rtol there.
+  double step_tolerance = 1e-10;
+  /// l's error relative to its scale (number of samples + |l|): rounding on Φ/Γ, 10·rtol on the
+  /// ODE propagator. A line search that cannot decrease l along a step whose predicted decrease
+  /// is below it has found the mode to the accuracy the predictions allow.
+  double relative_noise = 1e-13;
 };
 
 /// The population parameters as the conditional problems use them.
@@ -74,7 +82,7 @@ struct SubjectMode {
 };
 
 /// Finds η̂ from `start` (damped Fisher scoring, then Newton with the Hessian from central
-/// differences of the exact gradient, to ‖step‖∞ < 1e-10) and forms OFV_i for p.method.
+/// differences of the exact gradient, to ‖step‖∞ < s.step_tolerance) and forms OFV_i for p.method.
 SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& start);
 
 /// ½∇²l at η by central differences of the exact gradient, Richardson-extrapolated (Laplace's H).
