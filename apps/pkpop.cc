@@ -54,6 +54,9 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "fix", po::value<std::vector<std::string>>(&a->fix)->composing(),
       "hold at its initial value: a θ or σ name, or OMEGA(NAME) for the Ω block of η_NAME (comma-separated)")(
       "propagator", po::value<std::string>()->default_value("auto"), "exact, ode or auto")(
+      "gradient", po::value<std::string>()->default_value("auto"),
+      "the outer gradient: implicit (the modes' implicit function theorem; FOCE, FOCEI), fd (central differences "
+      "of the OFV, as NONMEM) or auto (implicit, fd for Laplace)")(
       "threads,j", po::value<int>()->default_value(1), "subjects' inner problems on this many threads")(
       "max-evaluations", po::value<int>()->default_value(1000), "outer objective evaluations, at most")(
       "no-covariance", "skip the covariance step (no standard errors)")(
@@ -263,6 +266,8 @@ int Main(int argc, char** argv) {
   const pk::PopulationProblem problem(model, data, etas, objective);
   pk::PopulationOptions options;
   options.method = pk::cli::Parsed("--method", [&] { return pk::ParsePopulationMethod(vm["method"].as<std::string>()); });
+  options.gradient =
+      pk::cli::Parsed("--gradient", [&] { return pk::ParsePopulationGradient(vm["gradient"].as<std::string>()); });
   options.threads = vm["threads"].as<int>();
   options.max_iterations = vm["max-evaluations"].as<int>();
   options.covariance = !vm.count("no-covariance");

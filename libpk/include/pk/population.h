@@ -22,7 +22,8 @@
 //            NONMEM's linearised form log det C_i + r̃ᵀC_i⁻¹r̃, C_i = G_iΩG_iᵀ + V_i
 //   Laplace  H_i = ½ ∇²l_i(η̂_i), the full Hessian (with interaction)
 //
-// and η̂_i = argmin l_i, the conditional mode, found to a gradient of 1e-9 for every evaluation.
+// and η̂_i = argmin l_i, the conditional mode, found for every evaluation to a Newton step
+// ‖Δη‖∞ < 1e-10 (on the ODE propagator, to the accuracy its tolerance allows).
 //
 //   pk::PopulationProblem problem = pk::MakePopulationProblem(model, data, {"CL", "V"}, error);
 //   pk::PopulationOptions options;                 // FOCEI
@@ -112,10 +113,28 @@ class PopulationProblem {
   std::unique_ptr<Impl> impl_;
 };
 
+/// How the outer optimiser's gradient of the OFV is formed.
+enum class PopulationGradient {
+  /// kImplicit for FOCE and FOCEI on the exact (Φ/Γ) propagator; kFiniteDifference for Laplace
+  /// and on the ODE propagator, whose sensitivities are not yet accurate enough to difference.
+  kAuto,
+  /// By the implicit function theorem on each subject's conditional mode (Almquist et al. 2015):
+  /// exact first-order sensitivities of the predictions; their second derivatives in the η'd
+  /// parameters are Richardson-extrapolated differences of the exact first ones. FOCE and FOCEI.
+  kImplicit,
+  /// Central differences of the OFV, the subjects' searches started from the centre's modes
+  /// (what NONMEM does). Any method; the check on the others.
+  kFiniteDifference,
+};
+
+/// "auto", "implicit" or "fd" (case-insensitive); throws pk::InputError otherwise.
+PopulationGradient ParsePopulationGradient(const std::string& text);
+
 struct PopulationOptions {
   PopulationMethod method = PopulationMethod::kFocei;
+  PopulationGradient gradient = PopulationGradient::kAuto;
   PopulationStructure structure;
-  int max_iterations = 1000;            ///< outer objective evaluations, at most
+  int max_iterations = 1000;  ///< outer objective evaluations, at most (a difference gradient's are not counted)
   double function_tolerance = 1e-9;     ///< relative change of the OFV that ends the search
   double parameter_tolerance = 1e-7;    ///< relative change of the packed parameters that ends it
   int threads = 1;                      ///< subjects' inner problems in parallel
@@ -142,9 +161,9 @@ struct PopulationRow {
   int dvid = 1;
   double pred = 0;   ///< f(θ, η = 0)
   double ipred = 0;  ///< f(θ, η̂)
-  double res = 0;    ///< DV − PRED
+  double res = 0;    ///< DV − PRED, on the error model's scale (log DV − log PRED for the exponential)
   double wres = 0;   ///< FO weighted residual, C₀^(−½)(y − PRED), C₀ = G₀ΩG₀ᵀ + V₀ at η = 0
-  double cwres = 0;  ///< conditional (Hooker 2007): C^(−½)(y − f(η̂) + Gη̂), C = GΩGᵀ + V at η̂
+  double cwres = 0;  ///< conditional (Hooker 2007): C^(−½)(y − f(η̂) + Gη̂), C = GΩGᵀ + V (V at η̂; at η = 0 for FOCE)
   double iwres = 0;  ///< (y − IPRED)/√V at η̂
 };
 
@@ -167,7 +186,7 @@ struct PopulationEstimate {
   double se = std::numeric_limits<double>::quiet_NaN();
   double rse_pct = std::numeric_limits<double>::quiet_NaN();
   bool fixed = false;
-  bool at_boundary = false;  ///< a variance near 0, a correlation near ±1, or a θ at its bound
+  bool at_boundary = false;  ///< an estimated Ω variance below 1e-6
 };
 
 /// One line of the iteration history (NONMEM's .ext): the packed parameters' natural values.
@@ -193,7 +212,8 @@ struct PopulationSummary {
   /// Covariance of the estimated ones (natural scale), the sandwich R⁻¹SR⁻¹ (NONMEM's default).
   Eigen::MatrixXd covariance;
   Eigen::MatrixXd correlation;
-  double condition_number = std::numeric_limits<double>::quiet_NaN();  ///< of R
+  /// Of the estimates' correlation matrix, largest over smallest eigenvalue (as NONMEM prints it).
+  double condition_number = std::numeric_limits<double>::quiet_NaN();
   std::string covariance_message;  ///< why there are no SEs, when there are none
 
   std::vector<PopulationSubject> subjects;

@@ -35,6 +35,13 @@ class PopulationEngine {
   /// Throws pk::InputError when Ω is not positive definite.
   Result Evaluate(const PopulationParameters& p, const std::vector<Eigen::VectorXd>& starts, bool keep_modes) const;
 
+  /// ∇OFV at x from the modes of Evaluate(packing.Unpack(x), ..., true), by the implicit
+  /// function theorem (outer_gradient.h; FOCE and FOCEI). Row i of *per_subject (n×size, when
+  /// non-null) is ∇OFV_i, 0 for a subject left out. False with `why` naming the first subject
+  /// whose gradient cannot be formed.
+  bool Gradient(const Packing& packing, const Eigen::VectorXd& x, const std::vector<SubjectMode>& modes,
+                Eigen::VectorXd* gradient, Eigen::MatrixXd* per_subject, std::string* why) const;
+
   const PopulationProblem& problem() const { return problem_; }
   PopulationMethod method() const { return method_; }
   int threads() const { return threads_; }

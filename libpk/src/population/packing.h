@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 
 #include "pk/population.h"
@@ -40,6 +41,35 @@ class Packing {
   PopulationParameters FromNatural(const Eigen::VectorXd& z) const;
   /// Positions (in natural order) of the variances ω_kk, for boundary checks.
   std::vector<int> variance_positions() const;
+
+  /// Unpack on another scalar type (the exact gradient's HyperDual): θ, σ and the lower Cholesky
+  /// factor L of Ω (q×q, block diagonal, Ω = LLᵀ) as functions of x; `constant` makes a T from a
+  /// double (the fixed parts and the zeros).
+  template <typename T, typename Constant>
+  void UnpackAs(const std::vector<T>& x, const Constant& constant, std::vector<T>* theta, std::vector<T>* sigma,
+                std::vector<std::vector<T>>* l) const {
+    size_t at = 0;
+    theta->clear();
+    for (size_t k = 0; k < theta_fixed_.size(); ++k) {
+      const double v = initial_.theta(static_cast<Eigen::Index>(k));
+      theta->push_back(theta_fixed_[k] ? constant(v) : theta_log_[k] ? exp(x[at++]) : x[at++]);
+    }
+    const auto q = static_cast<size_t>(initial_.omega.rows());
+    l->assign(q, std::vector<T>(q, constant(0.0)));
+    for (const Block& b : blocks_) {
+      const Eigen::MatrixXd fixed = initial_.omega.block(b.first, b.first, b.size, b.size).llt().matrixL();
+      for (int r = 0; r < b.size; ++r) {
+        for (int c = 0; c <= r; ++c) {
+          T& e = (*l)[static_cast<size_t>(b.first + r)][static_cast<size_t>(b.first + c)];
+          e = b.fixed ? constant(fixed(r, c)) : r == c ? exp(x[at++]) : x[at++];
+        }
+      }
+    }
+    sigma->clear();
+    for (size_t j = 0; j < sigma_fixed_.size(); ++j) {
+      sigma->push_back(sigma_fixed_[j] ? constant(initial_.sigma(static_cast<Eigen::Index>(j))) : exp(x[at++]));
+    }
+  }
 
  private:
   struct Block {

@@ -6,6 +6,7 @@
 #include "pk/output.h"
 #include "pk/error.h"
 #include "pk/initial_estimates.h"
+#include "pk/propagator.h"
 #include "population/conditional.h"
 #include "population/problem_impl.h"
 
@@ -26,6 +27,14 @@ PopulationMethod ParsePopulationMethod(const std::string& text) {
   if (t == "FOCEI") return PopulationMethod::kFocei;
   if (t == "LAPLACE") return PopulationMethod::kLaplace;
   throw InputError("unknown population method '" + text + "': expected foce, focei or laplace");
+}
+
+PopulationGradient ParsePopulationGradient(const std::string& text) {
+  const std::string t = internal::ToUpper(text);
+  if (t == "AUTO") return PopulationGradient::kAuto;
+  if (t == "IMPLICIT") return PopulationGradient::kImplicit;
+  if (t == "FD") return PopulationGradient::kFiniteDifference;
+  throw InputError("unknown outer gradient '" + text + "': expected auto, implicit or fd");
 }
 
 namespace {
@@ -91,6 +100,7 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
   ls.weighting = Weighting::kUniform;
   ls.gradient = GradientRoute::kForward;
   const bool logs = options.error_model->log_transformed();
+  const bool ode = ResolvePropagator(*d.model, options.propagator) == Propagator::kOde;
   for (int i = 0; i < static_cast<int>(d.data->subjects.size()); ++i) {
     internal::SubjectModel s;
     s.objective = std::make_unique<Objective>(d.model, d.data, i, ls);
@@ -99,6 +109,10 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
     for (const std::string& name : d.theta_names) s.theta_index.push_back(s.objective->ParameterIndex(name));
     s.eta_theta = eta_theta;
     for (int k : eta_theta) s.eta_free.push_back(s.theta_index[static_cast<size_t>(k)]);
+    if (ode) {
+      s.step_tolerance = std::max(1e-10, 100 * options.ode.relative_tolerance);
+      s.relative_noise = std::max(1e-13, 10 * options.ode.relative_tolerance);
+    }
     d.num_observations += static_cast<int>(s.y.size());
     d.subjects.push_back(std::move(s));
   }
@@ -161,6 +175,8 @@ bool PopulationOptions::IsValid(std::string* error) const {
     *error = "tolerances must be non-negative";
   } else if (threads < 1) {
     *error = "threads must be at least 1";
+  } else if (gradient == PopulationGradient::kImplicit && method == PopulationMethod::kLaplace) {
+    *error = "the implicit-function gradient serves FOCE and FOCEI; Laplace takes finite differences";
   } else {
     return true;
   }

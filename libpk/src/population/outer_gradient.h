@@ -1,0 +1,27 @@
+// The gradient of a subject's OFV_i with respect to the packed population parameters x, by the
+// implicit function theorem on its conditional mode (not installed; outer_gradient.cc has the
+// formulas, docs/population.md derives them). FOCE and FOCEI only: Laplace's gradient needs third
+// derivatives of the predictions, and stays with central differences of the OFV.
+#ifndef PK_SRC_POPULATION_OUTER_GRADIENT_H_
+#define PK_SRC_POPULATION_OUTER_GRADIENT_H_
+
+#include <string>
+
+#include <Eigen/Core>
+
+#include "population/conditional.h"
+#include "population/packing.h"
+
+namespace pk {
+namespace internal {
+
+/// dOFV_i/dx at x (p = packing.Unpack(x) made into a point), given the subject's mode at p.
+/// False with `why` when the predictions or their sensitivities cannot be evaluated there.
+bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
+                          const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
+                          std::string* why);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_POPULATION_OUTER_GRADIENT_H_
