@@ -14,7 +14,8 @@ namespace pk {
 namespace internal {
 namespace {
 
-constexpr double kNewtonFrom = 1e-4;       // scoring hands over to Newton below this step
+constexpr double kNewtonFrom = 1e-4;       // scoring hands over to Newton below this step,
+constexpr int kScoringIterations = 20;     // or after this many iterations (scoring can zig-zag slowly)
 constexpr double kHessianStep = 1e-3;      // central-difference step in η for ½∇²l (Richardson)
 constexpr int kMaxIterations = 200;
 constexpr double kMaxStep = 1;          // the largest change of one η in one iteration
@@ -163,7 +164,9 @@ bool LineSearch(const SubjectModel& s, const PopulationPoint& p, const Eigen::Ve
     const Eigen::VectorXd e = *eta + t * step;
     if (e == *eta) return false;  // the step is below η's rounding: no move is possible
     if (!EvaluateConditional(s, p, e, fv, true, &trial, &ignored)) continue;
-    if (trial.l <= c->l + 1e-4 * t * slope || trial.l <= c->l + 1e-13 * std::abs(c->l)) {
+    // Armijo, or a full step whose change of l is rounding (at the mode l cannot resolve the
+    // decrease). Fractions of a step are not accepted on rounding: they would creep without end.
+    if (trial.l <= c->l + 1e-4 * t * slope || (t == 1 && trial.l <= c->l + 1e-13 * std::abs(c->l))) {
       *eta = e;
       *c = std::move(trial);
       return true;
@@ -215,7 +218,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
       mode.message = "the search for the conditional mode made no progress";
       return mode;
     }
-    if (step.lpNorm<Eigen::Infinity>() < kNewtonFrom) newton = true;
+    if (step.lpNorm<Eigen::Infinity>() < kNewtonFrom || mode.iterations + 1 >= kScoringIterations) newton = true;
   }
   if (!converged) {
     mode.message = "the conditional mode was not found in " + std::to_string(kMaxIterations) + " iterations";

@@ -30,10 +30,11 @@ struct SubjectModel {
   /// (Φ/Γ); on the ODE propagator l and ∇l carry the solver's error (about rtol relative), below
   /// which Newton's steps only wander, so 100·rtol there.
   double step_tolerance = 1e-10;
-  /// l's error relative to its scale (number of samples + |l|): rounding on Φ/Γ, 10·rtol on the
-  /// ODE propagator. A line search that cannot decrease l along a step whose predicted decrease
-  /// is below it has found the mode to the accuracy the predictions allow.
-  double relative_noise = 1e-13;
+  /// l's error relative to its scale (number of samples + |l|): 1e-10 on Φ/Γ, whose predictions
+  /// are accurate to about 1e-12 and enter l through 2r·δŷ/V; 10·rtol on the ODE propagator. A
+  /// line search that cannot decrease l along a step whose predicted decrease is below it has
+  /// found the mode to the accuracy the predictions allow.
+  double relative_noise = 1e-10;
 };
 
 /// The population parameters as the conditional problems use them.

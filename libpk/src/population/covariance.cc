@@ -30,8 +30,9 @@ struct Differences {
   bool At(const Eigen::VectorXd& z, PopulationEngine::Result* r) const {
     try {
       *r = engine.Evaluate(packing.FromNatural(z), starts, false);
-    } catch (const std::exception&) {  // a perturbed Ω that is not positive definite
-      return false;
+    } catch (const std::exception& e) {  // a perturbed Ω that is not positive definite
+      r->ok = false;
+      r->message = e.what();
     }
     return r->ok;
   }
@@ -66,7 +67,8 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
   for (int a = 0; a < p; ++a) {
     if (!diff.At(shifted(a, 1, -1, 0), &plus) || !diff.At(shifted(a, -1, -1, 0), &minus)) {
       summary->covariance_message = "the OFV cannot be evaluated next to the estimate of " +
-                                    packing.natural_names()[static_cast<size_t>(est[a])];
+                                    packing.natural_names()[static_cast<size_t>(est[a])] + " (" +
+                                    (plus.ok ? minus.message : plus.message) + ")";
       return;
     }
     r(a, a) = (plus.ofv - 2 * centre.ofv + minus.ofv) / (h(a) * h(a));

@@ -111,7 +111,7 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
     for (int k : eta_theta) s.eta_free.push_back(s.theta_index[static_cast<size_t>(k)]);
     if (ode) {
       s.step_tolerance = std::max(1e-10, 100 * options.ode.relative_tolerance);
-      s.relative_noise = std::max(1e-13, 10 * options.ode.relative_tolerance);
+      s.relative_noise = std::max(1e-10, 10 * options.ode.relative_tolerance);
     }
     d.num_observations += static_cast<int>(s.y.size());
     d.subjects.push_back(std::move(s));
