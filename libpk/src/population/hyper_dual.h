@@ -15,11 +15,18 @@
 namespace pk {
 namespace internal {
 
-class HyperDual {
+/// MaxD bounds the number of variables at compile time, which keeps the gradient and Hessian on
+/// the stack (no allocation per operation); Eigen::Dynamic allows any number, on the heap.
+template <int MaxD>
+class HyperDualT {
  public:
-  HyperDual() = default;
+  using Vector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, MaxD, 1>;
+  using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, MaxD, MaxD>;
+  using HyperDual = HyperDualT;
+
+  HyperDualT() = default;
   /// A constant in d variables.
-  HyperDual(double v, int d) : v_(v), g_(Eigen::VectorXd::Zero(d)), h_(Eigen::MatrixXd::Zero(d, d)) {}
+  HyperDualT(double v, int d) : v_(v), g_(Vector::Zero(d)), h_(Matrix::Zero(d, d)) {}
   /// Variable i of d.
   static HyperDual Variable(double v, int d, int i) {
     HyperDual x(v, d);
@@ -28,8 +35,8 @@ class HyperDual {
   }
 
   double value() const { return v_; }
-  const Eigen::VectorXd& gradient() const { return g_; }
-  const Eigen::MatrixXd& hessian() const { return h_; }
+  const Vector& gradient() const { return g_; }
+  const Matrix& hessian() const { return h_; }
 
   HyperDual& operator+=(const HyperDual& o) {
     v_ += o.v_;
@@ -76,29 +83,29 @@ class HyperDual {
 
  private:
   double v_ = 0;
-  Eigen::VectorXd g_;
-  Eigen::MatrixXd h_;
+  Vector g_;
+  Matrix h_;
 };
 
-inline HyperDual operator+(HyperDual a, const HyperDual& b) { return a += b; }
-inline HyperDual operator-(HyperDual a, const HyperDual& b) { return a -= b; }
-inline HyperDual operator*(HyperDual a, const HyperDual& b) { return a *= b; }
-inline HyperDual operator/(HyperDual a, const HyperDual& b) { return a /= b; }
-inline HyperDual operator*(HyperDual a, double c) { return a *= c; }
-inline HyperDual operator*(double c, HyperDual a) { return a *= c; }
-inline HyperDual operator+(HyperDual a, double c) { return a += c; }
-inline HyperDual operator-(HyperDual a) { return a *= -1.0; }
-inline HyperDual exp(const HyperDual& a) {
+template <int D> HyperDualT<D> operator+(HyperDualT<D> a, const HyperDualT<D>& b) { return a += b; }
+template <int D> HyperDualT<D> operator-(HyperDualT<D> a, const HyperDualT<D>& b) { return a -= b; }
+template <int D> HyperDualT<D> operator*(HyperDualT<D> a, const HyperDualT<D>& b) { return a *= b; }
+template <int D> HyperDualT<D> operator/(HyperDualT<D> a, const HyperDualT<D>& b) { return a /= b; }
+template <int D> HyperDualT<D> operator*(HyperDualT<D> a, double c) { return a *= c; }
+template <int D> HyperDualT<D> operator*(double c, HyperDualT<D> a) { return a *= c; }
+template <int D> HyperDualT<D> operator+(HyperDualT<D> a, double c) { return a += c; }
+template <int D> HyperDualT<D> operator-(HyperDualT<D> a) { return a *= -1.0; }
+template <int D> HyperDualT<D> exp(const HyperDualT<D>& a) {
   const double e = std::exp(a.value());
-  return HyperDual::Apply(a, e, e, e);
+  return HyperDualT<D>::Apply(a, e, e, e);
 }
-inline HyperDual log(const HyperDual& a) {
+template <int D> HyperDualT<D> log(const HyperDualT<D>& a) {
   const double x = a.value();
-  return HyperDual::Apply(a, std::log(x), 1 / x, -1 / (x * x));
+  return HyperDualT<D>::Apply(a, std::log(x), 1 / x, -1 / (x * x));
 }
-inline HyperDual sqrt(const HyperDual& a) {
+template <int D> HyperDualT<D> sqrt(const HyperDualT<D>& a) {
   const double s = std::sqrt(a.value());
-  return HyperDual::Apply(a, s, 0.5 / s, -0.25 / (s * a.value()));
+  return HyperDualT<D>::Apply(a, s, 0.5 / s, -0.25 / (s * a.value()));
 }
 
 }  // namespace internal

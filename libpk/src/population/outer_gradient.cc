@@ -111,11 +111,9 @@ VarianceTaylor Variance(const ResidualErrorModel& error, double yhat, const Eige
   return t;
 }
 
-using HD = HyperDual;
-using HDMatrix = std::vector<std::vector<HD>>;
-
 // log det of a symmetric positive definite matrix by Cholesky, and false when it is not.
-bool LogDet(HDMatrix a, HD* out) {
+template <class HD>
+bool LogDet(std::vector<std::vector<HD>> a, HD* out) {
   const size_t q = a.size();
   *out = HD(0, static_cast<int>(a.empty() ? 0 : a[0][0].gradient().size()));
   for (size_t k = 0; k < q; ++k) {
@@ -132,7 +130,9 @@ bool LogDet(HDMatrix a, HD* out) {
 }
 
 // The inverse of a lower-triangular matrix.
-HDMatrix LowerInverse(const HDMatrix& l, int d) {
+template <class HD>
+std::vector<std::vector<HD>> LowerInverse(const std::vector<std::vector<HD>>& l, int d) {
+  using HDMatrix = std::vector<std::vector<HD>>;
   const size_t q = l.size();
   HDMatrix inv(q, std::vector<HD>(q, HD(0, d)));
   for (size_t i = 0; i < q; ++i) {
@@ -146,11 +146,10 @@ HDMatrix LowerInverse(const HDMatrix& l, int d) {
   return inv;
 }
 
-}  // namespace
-
-bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
-                          const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
-                          std::string* why) {
+template <class HD>
+bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& packing, const Eigen::VectorXd& x,
+                const SubjectMode& mode, Eigen::VectorXd* gradient, std::string* why) {
+  using HDMatrix = std::vector<std::vector<HD>>;
   const bool foce = p.method == PopulationMethod::kFoce, logs = p.error->log_transformed();
   const auto q = static_cast<int>(mode.eta.size()), m = static_cast<int>(x.size()), d = q + m;
   const auto np = static_cast<int>(s.theta_index.size());
@@ -184,7 +183,7 @@ bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const
   for (size_t i = 0; i < sigma.size(); ++i) dsigma.push_back(sigma[i] + (-p.sigma(static_cast<Eigen::Index>(i))));
 
   // Ω⁻¹ = L⁻ᵀL⁻¹, log det Ω = 2 Σ log L_kk, ηᵀΩ⁻¹η = ‖L⁻¹η‖².
-  const HDMatrix linv = LowerInverse(lo, d);
+  const HDMatrix linv = LowerInverse<HD>(lo, d);
   HD log_det_omega(0, d), quad(0, d);
   for (int i = 0; i < q; ++i) {
     log_det_omega += 2 * log(lo[static_cast<size_t>(i)][static_cast<size_t>(i)]);
@@ -259,7 +258,7 @@ bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const
     }
   }
   HD log_det_h;
-  if (!LogDet(h, &log_det_h)) {
+  if (!LogDet<HD>(h, &log_det_h)) {
     *why = "H is not positive definite at the mode";
     return false;
   }
@@ -271,9 +270,20 @@ bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const
     *why = "the Hessian of the conditional objective is not positive definite at the mode";
     return false;
   }
-  const Eigen::VectorXd deta_weights = llt.solve(big_l.gradient().head(q));
+  const Eigen::VectorXd deta_weights = llt.solve(Eigen::VectorXd(big_l.gradient().head(q)));
   *gradient = big_l.gradient().tail(m) - lex.transpose() * deta_weights;
   return gradient->allFinite();
+}
+
+}  // namespace
+
+bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
+                          const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
+                          std::string* why) {
+  // The scalar's derivatives over z = (η, x) live on the stack up to 16 variables (2 η and 6
+  // population parameters make 8), on the heap beyond.
+  if (mode.eta.size() + x.size() <= 16) return GradientOn<HyperDualT<16>>(s, p, packing, x, mode, gradient, why);
+  return GradientOn<HyperDualT<Eigen::Dynamic>>(s, p, packing, x, mode, gradient, why);
 }
 
 }  // namespace internal
