@@ -18,6 +18,7 @@ packages=(
   chromium                          # the report's screenshot test (tests/cli/test_report.sh)
   fonts-dejavu-core                 # a font for Chromium to render the report with
   locales                           # localedef's sources: the tests read and write numbers under a comma-decimal locale
+  libopenmpi-dev openmpi-bin        # pkpop across MPI processes (pk::mpi), and its mpirun test
 )
 
 missing=()

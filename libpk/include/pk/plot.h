@@ -52,6 +52,12 @@ const char* PaletteColour(int k);
 PlotSeries Lowess(const std::vector<double>& x, const std::vector<double>& y, double f = 2.0 / 3.0,
                   int iterations = 3);
 
+/// A goodness-of-fit plot: `points` (observations, drawn as markers in `points.colour`), a
+/// `reference` line (identity or zero), any `extra` marker series (e.g. censored samples), and
+/// R's lowess() of the points as the axes show them (on log axes, of the logarithms), in red.
+std::string RenderGofSvg(const PlotSeries& points, const PlotSeries& reference, const PlotOptions& options,
+                         const std::vector<PlotSeries>& extra = {});
+
 }  // namespace pk
 
 #endif  // PK_PLOT_H_

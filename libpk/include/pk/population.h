@@ -127,6 +127,22 @@ enum class PopulationGradient {
   kFiniteDifference,
 };
 
+/// Splits the subjects of a population problem across processes. Every process runs the same
+/// outer optimisation on the same arguments; each solves the conditional modes of the subjects it
+/// owns (subject i belongs to process i mod size()), and Sum() shares them. Since every other
+/// process contributes exact zeros, the sums, and so every OFV and estimate, equal one process's
+/// to the bit. pk/mpi.h implements it over MPI_COMM_WORLD (library pk::mpi, built with PK_MPI).
+class SubjectDistribution {
+ public:
+  virtual ~SubjectDistribution() = default;
+  virtual int rank() const = 0;
+  virtual int size() const = 0;
+  /// Element-wise sum over the processes, in place; every process receives it.
+  virtual void Sum(double* values, int count) const = 0;
+  /// `text` as process `root` has it, on every process.
+  virtual std::string Broadcast(const std::string& text, int root) const = 0;
+};
+
 /// "auto", "implicit" or "fd" (case-insensitive); throws pk::InputError otherwise.
 PopulationGradient ParsePopulationGradient(const std::string& text);
 
@@ -138,6 +154,8 @@ struct PopulationOptions {
   double function_tolerance = 1e-9;     ///< relative change of the OFV that ends the search
   double parameter_tolerance = 1e-7;    ///< relative change of the packed parameters that ends it
   int threads = 1;                      ///< subjects' inner problems in parallel
+  /// Subjects split across processes (pk/mpi.h), each process using `threads`; null: all here.
+  std::shared_ptr<const SubjectDistribution> distribution;
   bool covariance = true;               ///< run the covariance step
   /// Called after each outer evaluation that improves the OFV (for a progress line); may be empty.
   std::function<void(int evaluation, double ofv, double gradient_norm)> progress;

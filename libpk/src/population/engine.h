@@ -4,6 +4,7 @@
 #ifndef PK_SRC_POPULATION_ENGINE_H_
 #define PK_SRC_POPULATION_ENGINE_H_
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -18,7 +19,9 @@ namespace internal {
 
 class PopulationEngine {
  public:
-  PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads);
+  /// `distribution` (may be null) splits the subjects across processes (pk/population.h).
+  PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads,
+                   std::shared_ptr<const SubjectDistribution> distribution = nullptr);
 
   /// The subjects taking part (those that failed at the initial estimates are left out).
   const std::vector<bool>& included() const { return included_; }
@@ -31,9 +34,11 @@ class PopulationEngine {
     Eigen::VectorXd per_subject;     ///< OFV_i (0 for a subject left out)
     std::vector<SubjectMode> modes;  ///< when asked for
   };
-  /// OFV at p with each subject's search starting from `starts` (η̂ of a nearby point).
-  /// Throws pk::InputError when Ω is not positive definite.
-  Result Evaluate(const PopulationParameters& p, const std::vector<Eigen::VectorXd>& starts, bool keep_modes) const;
+  /// OFV at p with each subject's search starting from `starts` (η̂ of a nearby point). Across
+  /// processes every mode's ok, OFV_i, η̂_i and failure message are shared, but the rest of a
+  /// SubjectMode (at_mode) only where it was found; `here` solves every subject in this process.
+  Result Evaluate(const PopulationParameters& p, const std::vector<Eigen::VectorXd>& starts, bool keep_modes,
+                  bool here = false) const;
 
   /// ∇OFV at x from the modes of Evaluate(packing.Unpack(x), ..., true), by the implicit
   /// function theorem (outer_gradient.h; FOCE and FOCEI). Row i of *per_subject (n×size, when
@@ -50,7 +55,14 @@ class PopulationEngine {
   const PopulationProblem& problem_;
   PopulationMethod method_;
   int threads_;
+  std::shared_ptr<const SubjectDistribution> distribution_;
   std::vector<bool> included_;
+
+  bool Owns(int subject) const {
+    return !distribution_ || subject % distribution_->size() == distribution_->rank();
+  }
+  int Owner(int subject) const { return distribution_ ? subject % distribution_->size() : 0; }
+  void Share(std::vector<SubjectMode>* modes) const;
 };
 
 /// The covariance step at the estimate (covariance.cc): R = ∇²OFV by central differences over the

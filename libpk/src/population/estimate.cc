@@ -25,13 +25,43 @@ namespace internal {
 
 void CheckSizes(const PopulationProblem& problem, const PopulationParameters& p);
 
-PopulationEngine::PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads)
-    : problem_(problem), method_(method), threads_(threads),
-      included_(static_cast<size_t>(problem.num_subjects()), true) {}
+PopulationEngine::PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads,
+                                   std::shared_ptr<const SubjectDistribution> distribution)
+    : problem_(problem), method_(method), threads_(threads), distribution_(std::move(distribution)),
+      included_(static_cast<size_t>(problem.num_subjects()), true) {
+  if (distribution_ && distribution_->size() == 1) distribution_.reset();
+}
+
+// Each process has the modes of its own subjects; afterwards every process has every subject's
+// ok, OFV_i and η̂_i (summed with the others' zeros, hence exact) and the failed ones' messages.
+void PopulationEngine::Share(std::vector<SubjectMode>* modes) const {
+  const int n = problem_.num_subjects();
+  const Eigen::Index q = static_cast<Eigen::Index>(problem_.eta_names().size());
+  const Eigen::Index width = 2 + q;
+  Eigen::VectorXd packed = Eigen::VectorXd::Zero(n * width);
+  for (int i = 0; i < n; ++i) {
+    const SubjectMode& m = (*modes)[static_cast<size_t>(i)];
+    if (!included_[static_cast<size_t>(i)] || !Owns(i)) continue;
+    packed(i * width) = m.ok ? 1 : 0;
+    packed(i * width + 1) = m.ok ? m.ofv : 0;
+    if (m.ok) packed.segment(i * width + 2, q) = m.eta;
+  }
+  distribution_->Sum(packed.data(), static_cast<int>(packed.size()));
+  for (int i = 0; i < n; ++i) {
+    SubjectMode& m = (*modes)[static_cast<size_t>(i)];
+    if (!included_[static_cast<size_t>(i)]) continue;
+    const bool ok = packed(i * width) > 0.5;
+    if (!ok) m.message = distribution_->Broadcast(m.message, Owner(i));
+    if (Owns(i)) continue;
+    m.ok = ok;
+    m.ofv = packed(i * width + 1);
+    m.eta = packed.segment(i * width + 2, q);
+  }
+}
 
 PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& p,
                                                     const std::vector<Eigen::VectorXd>& starts,
-                                                    bool keep_modes) const {
+                                                    bool keep_modes, bool here) const {
   const auto& d = problem_.impl();
   Result r;
   PopulationPoint point;
@@ -44,10 +74,12 @@ PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& 
   }
   const int n = problem_.num_subjects();
   std::vector<SubjectMode> modes(static_cast<size_t>(n));
+  const bool shared = distribution_ && !here;
   ParallelFor(n, threads_, [&](int i) {
     const auto u = static_cast<size_t>(i);
-    if (included_[u]) modes[u] = SolveSubject(d.subjects[u], point, starts[u]);
+    if (included_[u] && (!shared || Owns(i))) modes[u] = SolveSubject(d.subjects[u], point, starts[u]);
   });
+  if (shared) Share(&modes);
   r.ok = true;
   r.per_subject = Eigen::VectorXd::Zero(n);
   for (int i = 0; i < n; ++i) {
@@ -75,15 +107,23 @@ bool PopulationEngine::Gradient(const Packing& packing, const Eigen::VectorXd& x
   std::vector<char> ok(static_cast<size_t>(n), 1);
   ParallelFor(n, threads_, [&](int i) {
     const auto u = static_cast<size_t>(i);
-    if (!included_[u]) return;
+    if (!included_[u] || !Owns(i)) return;
     Eigen::VectorXd g;
     ok[u] = SubjectOuterGradient(d.subjects[u], point, packing, x, modes[u], &g, &errors[u]);
     if (ok[u]) rows.row(i) = g.transpose();
   });
+  if (distribution_) {  // every row from its owner, exactly, and the failures
+    Eigen::VectorXd failed(n);
+    for (int i = 0; i < n; ++i) failed(i) = ok[static_cast<size_t>(i)] ? 0 : 1;
+    distribution_->Sum(rows.data(), static_cast<int>(rows.size()));
+    distribution_->Sum(failed.data(), n);
+    for (int i = 0; i < n; ++i) ok[static_cast<size_t>(i)] = failed(i) < 0.5;
+  }
   for (int i = 0; i < n; ++i) {
-    if (ok[static_cast<size_t>(i)]) continue;
-    *why = "subject " + FormatNumber(d.data->subjects[static_cast<size_t>(i)].id) + ": the outer gradient: " +
-           errors[static_cast<size_t>(i)];
+    const auto u = static_cast<size_t>(i);
+    if (ok[u]) continue;
+    const std::string error = distribution_ ? distribution_->Broadcast(errors[u], Owner(i)) : errors[u];
+    *why = "subject " + FormatNumber(d.data->subjects[u].id) + ": the outer gradient: " + error;
     return false;
   }
   *gradient = rows.colwise().sum().transpose();  // in subject order, whatever the threads
@@ -94,6 +134,10 @@ bool PopulationEngine::Gradient(const Packing& packing, const Eigen::VectorXd& x
 namespace {
 
 constexpr double kOuterStep = 1e-4;  // central-difference step in x
+// An NLopt failure at a point whose gradient is below this (OFV per unit of x, where x moves log θ,
+// log σ and Ω's Cholesky factor) is convergence: a 1% change of any parameter moves the OFV by less
+// than 1e-4 there.
+constexpr double kGradientTolerance = 1e-2;
 
 std::vector<Eigen::VectorXd> Etas(const std::vector<SubjectMode>& modes, Eigen::Index q) {
   std::vector<Eigen::VectorXd> out;
@@ -128,9 +172,10 @@ std::string StartingPoint(PopulationEngine* engine, const PopulationParameters& 
 
 }  // namespace
 
-// ∇OFV at xc by central differences, every perturbed search started from the centre's modes.
+// ∇OFV at xc (where the OFV is `ofv`) by central differences, every perturbed search started from
+// the centre's modes; one-sided where the OFV cannot be evaluated on one side.
 Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing& packing, const Eigen::VectorXd& xc,
-                                   const std::vector<Eigen::VectorXd>& centre) {
+                                   double ofv, const std::vector<Eigen::VectorXd>& centre) {
   Eigen::VectorXd g(xc.size());
   for (Eigen::Index k = 0; k < xc.size(); ++k) {
     Eigen::VectorXd xk = xc;
@@ -138,7 +183,11 @@ Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing
     const double up = engine.Evaluate(packing.Unpack(xk), centre, false).ofv;
     xk(k) = xc(k) - kOuterStep;
     const double down = engine.Evaluate(packing.Unpack(xk), centre, false).ofv;
-    g(k) = (up - down) / (2 * kOuterStep);
+    if (up != HUGE_VAL && down != HUGE_VAL) {
+      g(k) = (up - down) / (2 * kOuterStep);
+    } else {
+      g(k) = up != HUGE_VAL ? (up - ofv) / kOuterStep : down != HUGE_VAL ? (ofv - down) / kOuterStep : HUGE_VAL;
+    }
   }
   return g;
 }
@@ -160,6 +209,7 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   const bool implicit = UsesImplicitGradient(engine.problem(), options);
   double best = HUGE_VAL;
   int fallbacks = 0;  // evaluations whose implicit gradient could not be formed
+  double best_gradient = HUGE_VAL;  // ‖∇OFV‖∞ at the best point
   auto f = [&](const double* xp, double* grad) {
     const Eigen::VectorXd xc = Eigen::Map<const Eigen::VectorXd>(xp, n);
     PopulationEngine::Result c = engine.Evaluate(packing.Unpack(xc), *eta, true);
@@ -170,11 +220,12 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
     std::string why;
     if (grad && !(implicit && engine.Gradient(packing, xc, c.modes, &g, nullptr, &why))) {
       if (implicit) ++fallbacks;
-      g = DifferenceGradient(engine, packing, xc, centre);
+      g = DifferenceGradient(engine, packing, xc, c.ofv, centre);
     }
     for (int k = 0; grad && k < n; ++k) grad[k] = g(k);
     if (c.ofv < best) {
       best = c.ofv;
+      if (grad) best_gradient = g.lpNorm<Eigen::Infinity>();
       *x = xc;
       *eta = centre;
       if (options.progress) options.progress(summary->evaluations, c.ofv, g.norm());
@@ -215,7 +266,12 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   summary->converged = out.kind == Nlopt::Outcome::kConverged || out.kind == Nlopt::Outcome::kRoundoff;
   summary->message = out.result;
   if (out.kind == Nlopt::Outcome::kLimit) summary->message = "the evaluation limit was reached (" + out.result + ")";
-  if (out.kind == Nlopt::Outcome::kFailure) {
+  if (out.kind == Nlopt::Outcome::kFailure && best_gradient <= kGradientTolerance) {
+    // L-BFGS's line search often ends so at the minimum, where rounding hides any decrease.
+    summary->converged = true;
+    summary->message = "the line search could not decrease the OFV further, at a point where ‖∇OFV‖∞ = " +
+                       Num(best_gradient, "%.2g") + " (NLopt: " + out.result + ")";
+  } else if (out.kind == Nlopt::Outcome::kFailure) {
     summary->message = "the outer optimiser failed (NLopt: " + out.result + (out.error.empty() ? "" : ", " + out.error) +
                        "); the OFV went from " + Num(summary->initial_ofv, "%.6g") + " to " + Num(best, "%.6g") +
                        ". Starting values far from the estimates cause this: give initial θ and Ω closer to them";
@@ -231,7 +287,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   if (!options.IsValid(&why)) throw InputError("population options: " + why);
   internal::CheckSizes(problem, initial);
   const internal::Packing packing(problem, options.structure, initial);
-  internal::PopulationEngine engine(problem, options.method, options.threads);
+  internal::PopulationEngine engine(problem, options.method, options.threads, options.distribution);
   PopulationSummary summary;
   summary.method = options.method;
   summary.eta_names = problem.eta_names();
@@ -250,7 +306,8 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   Eigen::VectorXd x = packing.Pack(initial);
   if (packing.size() > 0) internal::Minimize(engine, packing, options, &x, &eta, &summary);
   summary.parameters = packing.Unpack(x);
-  internal::PopulationEngine::Result final_eval = engine.Evaluate(summary.parameters, eta, true);
+  // Every process forms the diagnostics from every subject's mode.
+  internal::PopulationEngine::Result final_eval = engine.Evaluate(summary.parameters, eta, true, true);
   summary.ofv = final_eval.ofv;
   if (!final_eval.ok) {
     summary.converged = false;
