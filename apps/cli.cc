@@ -1,7 +1,10 @@
 #include "cli.h"
 
+#include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <filesystem>
 #include <iostream>
 #include <sstream>
@@ -142,6 +145,22 @@ DatasetFilter ParseFilter(const std::vector<std::string>& ignore, const std::vec
 
 Propagator ParsePropagator(const std::string& text) {
   return Parsed("--propagator", [&] { return pk::ParsePropagator(text); });
+}
+
+std::string Sig(double v, int digits) {
+  if (!std::isfinite(v)) return "–";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*g", digits, v);
+  return buf;
+}
+
+std::string Today() {
+  const std::time_t now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+  std::tm utc{};
+  gmtime_r(&now, &utc);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M UTC", &utc);
+  return buf;
 }
 
 }  // namespace cli

@@ -53,6 +53,11 @@ auto Parsed(const std::string& option, const Parse& parse) -> decltype(parse()) 
 /// with one line "<program>: error: ..." on stderr; other exceptions -> 3.
 int Run(const std::string& program, const std::function<int()>& body);
 
+/// `v` to `digits` significant digits, "–" when not finite.
+std::string Sig(double v, int digits);
+/// The date and time now, for a report's header ("2026-11-25 14:03 UTC").
+std::string Today();
+
 }  // namespace cli
 }  // namespace pk
 

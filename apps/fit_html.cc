@@ -25,7 +25,6 @@ using kainjow::mustache::object;
 
 const char* const kObserved = "#1f77b4";
 const char* const kFitted = "#333333";
-const char* const kSmoother = "#d62728";
 
 // Text as mustache data. (A bare const char* would become a bool: data has a constructor from bool.)
 data Text(const std::string& s) { return data(s); }
@@ -146,26 +145,14 @@ std::string GofSvg(const std::vector<double>& x, const std::vector<double>& y, c
                    const PlotOptions& o, const GofPoints* censored) {
   PlotSeries points{"samples", x, y, true};
   points.colour = kObserved;
-  std::vector<double> sx, sy;  // the smoother sees what the axes show
-  for (size_t i = 0; i < x.size(); ++i) {
-    if ((o.log_x && !(x[i] > 0)) || (o.log_y && !(y[i] > 0))) continue;
-    sx.push_back(o.log_x ? std::log(x[i]) : x[i]);
-    sy.push_back(o.log_y ? std::log(y[i]) : y[i]);
-  }
-  PlotSeries smooth = Lowess(sx, sy);
-  for (double& v : smooth.x) v = o.log_x ? std::exp(v) : v;
-  for (double& v : smooth.y) v = o.log_y ? std::exp(v) : v;
-  smooth.reference = true;
-  smooth.colour = kSmoother;
-  std::vector<PlotSeries> series{reference, points};
+  std::vector<PlotSeries> extra;
   if (censored && !censored->cens_ipred.empty()) {
     PlotSeries c{"censored (at its limit)", censored->cens_ipred, censored->cens_dv, true};
     c.hollow = true;
     c.colour = kObserved;
-    series.push_back(c);
+    extra.push_back(c);
   }
-  if (smooth.y.size() >= 3) series.push_back(smooth);
-  return RenderSvg(series, o);
+  return RenderGofSvg(points, reference, o, extra);
 }
 
 // The goodness-of-fit plots of one output: DV against IPRED (linear and log-log, with the line of
@@ -340,15 +327,6 @@ void Details(const std::vector<SubjectFit>& fits, const Units& units, data* page
                              {"derived", derived}});
   }
   (*page)["details"] = details;
-}
-
-std::string Today() {
-  const std::time_t now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
-  std::tm utc{};
-  gmtime_r(&now, &utc);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M UTC", &utc);
-  return buf;
 }
 
 std::string UnitsText(const Units& u) {

@@ -20,13 +20,6 @@ std::string SubjectLabel(const SubjectFit& f) {
   return FormatNumber(f.id) + (f.occurrence > 1 ? " (occurrence " + std::to_string(f.occurrence) + ")" : "");
 }
 
-std::string Sig(double v, int digits) {
-  if (!std::isfinite(v)) return "–";
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%.*g", digits, v);
-  return buf;
-}
-
 std::string EstimateText(const ParameterEstimate& e) { return e.at_bound ? "0 (bound)" : Sig(e.estimate, 4); }
 
 std::string RseText(const ParameterEstimate& e) { return e.fixed ? "fixed" : Sig(e.rse_pct, 3); }

@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "cli.h"
 #include "pk/dataset.h"
 #include "pk/fit_subjects.h"
 #include "pk/two_stage.h"
@@ -56,8 +57,6 @@ std::string EstimatesTable(const std::vector<SubjectFit>& fits, const Units& uni
 /// A subject in file names and anchors ("1", "1_occ2") and in text ("1", "1 (occurrence 2)").
 std::string SubjectKey(const SubjectFit& f);
 std::string SubjectLabel(const SubjectFit& f);
-/// `v` to `digits` significant digits, "–" when not finite.
-std::string Sig(double v, int digits);
 /// An estimate as every table shows it: 4 significant digits, "0 (bound)" for a σ gone to 0.
 std::string EstimateText(const ParameterEstimate& e);
 /// RSE% to 3 significant digits ("–" for none, "fixed" for a fixed parameter).

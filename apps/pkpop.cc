@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -12,11 +13,15 @@
 #include <boost/program_options.hpp>
 
 #include "cli.h"
+#include "pop_html.h"
 #include "pk/catalogue.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/output.h"
 #include "pk/population.h"
+#ifdef PK_HAVE_MPI
+#include "pk/mpi.h"
+#endif
 #include "pk/residual_error.h"
 
 namespace po = boost::program_options;
@@ -225,14 +230,17 @@ std::string CovarianceCsv(const pk::PopulationSummary& fit) {
   return out;
 }
 
-void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit) {
+void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
+                  const pk::cli::PopulationReportContext& context) {
   std::filesystem::create_directories(dir);
   pk::RemoveStaleTemporaries(dir);
   pk::BeginOutputSet(dir);
-  const std::vector<std::pair<std::string, std::string>> files = {
+  std::vector<std::pair<std::string, std::string>> files = {
       {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit)},
       {"subjects.csv", SubjectsCsv(problem, fit)},     {"iterations.csv", IterationsCsv(fit)},
       {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()}};
+  const auto report = pk::cli::PopulationReport(problem, fit, context);
+  files.insert(files.end(), report.begin(), report.end());
   std::vector<std::string> names;
   for (const auto& [name, text] : files) {
     pk::WriteFileAtomically(dir + "/" + name, text);
@@ -241,7 +249,13 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
   pk::CompleteOutputSet(dir, names, "pkpop");
 }
 
-int Main(int argc, char** argv) {
+// This process's place when pkpop runs under mpirun (one process otherwise).
+struct Process {
+  int rank = 0;
+  std::shared_ptr<const pk::SubjectDistribution> distribution;  ///< null: one process
+};
+
+int Main(int argc, char** argv, const Process& process) {
   po::options_description desc("Options");
   Lists a;
   DeclareOptions(&desc, &a);
@@ -269,11 +283,12 @@ int Main(int argc, char** argv) {
   options.gradient =
       pk::cli::Parsed("--gradient", [&] { return pk::ParsePopulationGradient(vm["gradient"].as<std::string>()); });
   options.threads = vm["threads"].as<int>();
+  options.distribution = process.distribution;
   options.max_iterations = vm["max-evaluations"].as<int>();
   options.covariance = !vm.count("no-covariance");
   Blocks(problem.eta_names(), a.block, &options.structure);
   const pk::PopulationParameters initial = Initial(problem, a, &options.structure);
-  const bool quiet = vm.count("quiet") > 0;
+  const bool quiet = vm.count("quiet") > 0 || process.rank > 0;  // process 0 alone speaks and writes
   if (!quiet) {
     options.progress = [](int evaluation, double ofv, double gradient) {
       std::cerr << "\r  evaluation " << evaluation << "  OFV " << pk::FormatNumber(std::round(ofv * 1e6) / 1e6)
@@ -283,17 +298,33 @@ int Main(int argc, char** argv) {
   const pk::PopulationSummary fit = pk::FitPopulation(problem, initial, options);
   if (!quiet) std::cerr << "\n";
   const std::string dir = vm["output-dir"].as<std::string>();
-  WriteOutputs(dir, problem, fit);
+  pk::cli::PopulationReportContext context;
+  context.model = vm["model"].as<std::string>();
+  context.error = error;
+  context.dataset_path = vm["data"].as<std::string>();
+  for (int k = 0; k < argc; ++k) context.command_line += (k ? " " : "") + std::string(argv[k]);
+  if (process.rank == 0) WriteOutputs(dir, problem, fit, context);
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
-              << "/ (population_estimates.csv, sdtab.csv, subjects.csv, iterations.csv, covariance.csv, report.txt)\n";
+              << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, subjects.csv, iterations.csv, "
+                 "covariance.csv, report.txt)\n";
   }
-  if (!fit.converged) std::cerr << "pkpop: " << fit.message << "\n";
+  if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
   return fit.converged ? 0 : 1;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  return pk::cli::Run("pkpop", [&] { return Main(argc, argv); });
+  Process process;
+#ifdef PK_HAVE_MPI
+  // Under mpirun the subjects are split across the processes; alone, this is one process of one.
+  std::unique_ptr<pk::MpiSession> mpi;
+  if (pk::LaunchedByMpi()) {
+    mpi = std::make_unique<pk::MpiSession>(&argc, &argv);
+    process.rank = mpi->rank();
+    if (mpi->size() > 1) process.distribution = mpi->Distribution();
+  }
+#endif
+  return pk::cli::Run("pkpop", [&] { return Main(argc, argv, process); });
 }

@@ -1,0 +1,225 @@
+// pkpop's report.html (pop_html.h): estimates, goodness-of-fit plots as Xpose draws them, η against
+// covariates and the individual fits, rendered from templates/pop_report.html.mustache.
+#include "pop_html.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+
+#include <kainjow/mustache.hpp>
+
+#include "cli.h"
+#include "pk/output.h"
+#include "pk/plot.h"
+#include "pk/simulate.h"
+#include "pk/version.h"
+#include "pop_report_template.h"
+
+namespace pk {
+namespace cli {
+namespace {
+
+using kainjow::mustache::data;
+using kainjow::mustache::list;
+using kainjow::mustache::object;
+using Files = std::vector<std::pair<std::string, std::string>>;
+
+const char* const kObserved = "#1f77b4";
+const char* const kIpred = "#333333";
+const char* const kPred = "#2ca02c";
+constexpr size_t kMaxPanels = 100;
+
+data Text(const std::string& s) { return data(s); }
+
+PlotOptions Small(const std::string& title, const std::string& x, const std::string& y) {
+  PlotOptions o;
+  o.title = title;
+  o.x_label = x;
+  o.y_label = y;
+  o.width = 420;
+  o.height = 320;
+  o.legend = false;
+  return o;
+}
+
+// Points against a reference line (identity from the data's range, or zero) with a smoother.
+std::string Gof(const std::vector<double>& x, const std::vector<double>& y, bool identity, const PlotOptions& o) {
+  PlotSeries points{"samples", x, y, true};
+  points.colour = kObserved;
+  double lo = HUGE_VAL, hi = -HUGE_VAL;
+  for (const auto* v : {&x, &y}) {
+    for (double e : *v) {
+      if (std::isfinite(e)) lo = std::min(lo, e), hi = std::max(hi, e);
+    }
+  }
+  if (!(lo <= hi)) lo = 0, hi = 1;
+  PlotSeries reference = identity ? PlotSeries{"identity", {lo, hi}, {lo, hi}}
+                                  : PlotSeries{"zero", {*std::min_element(x.begin(), x.end()),
+                                                        *std::max_element(x.begin(), x.end())}, {0, 0}};
+  reference.reference = true;
+  return RenderGofSvg(points, reference, o);
+}
+
+void GoodnessOfFit(const PopulationSummary& fit, list* svgs, Files* files) {
+  std::map<std::string, std::vector<double>> c;
+  for (const PopulationRow& r : fit.rows) {
+    for (const auto& [name, v] : std::map<std::string, double>{{"DV", r.dv}, {"PRED", r.pred}, {"IPRED", r.ipred},
+                                                                {"TIME", r.time}, {"CWRES", r.cwres}, {"IWRES", r.iwres}}) {
+      c[name].push_back(v);
+    }
+  }
+  if (fit.rows.empty()) return;
+  const struct {
+    const char *file, *x, *y;
+    bool identity;
+  } plots[] = {{"dv_pred", "PRED", "DV", true},       {"dv_ipred", "IPRED", "DV", true},
+               {"cwres_time", "TIME", "CWRES", false}, {"cwres_pred", "PRED", "CWRES", false},
+               {"iwres_ipred", "IPRED", "IWRES", false}};
+  for (const auto& p : plots) {
+    const std::string svg = Gof(c[p.x], c[p.y], p.identity, Small(std::string(p.y) + " against " + p.x, p.x, p.y));
+    svgs->push_back(object{{"svg", svg}});
+    files->push_back({std::string("gof_") + p.file + ".svg", svg});
+  }
+}
+
+// η̂ against each covariate column's first value per subject (columns with one value only are left out).
+void Covariates(const PopulationProblem& problem, const PopulationSummary& fit, list* svgs, Files* files) {
+  const Dataset& data = problem.data();
+  for (size_t col = 0; col < data.extra_columns.size(); ++col) {
+    std::vector<double> x;
+    std::vector<std::vector<double>> y(problem.eta_names().size());
+    for (const PopulationSubject& s : fit.subjects) {
+      if (!s.ok) continue;
+      const auto it = std::find_if(data.subjects.begin(), data.subjects.end(), [&](const auto& d) { return d.id == s.id; });
+      if (it == data.subjects.end() || it->records.empty() || !std::isfinite(it->records.front().extra[col])) continue;
+      x.push_back(it->records.front().extra[col]);
+      for (size_t k = 0; k < y.size(); ++k) y[k].push_back(s.eta(static_cast<Eigen::Index>(k)));
+    }
+    if (x.size() < 3 || *std::min_element(x.begin(), x.end()) == *std::max_element(x.begin(), x.end())) continue;
+    const std::string& cov = data.extra_columns[col];
+    for (size_t k = 0; k < y.size(); ++k) {
+      const std::string eta = "ETA_" + problem.eta_names()[k];
+      const std::string svg = Gof(x, y[k], false, Small(eta + " against " + cov, cov, eta));
+      svgs->push_back(object{{"svg", svg}});
+      files->push_back({"eta_" + problem.eta_names()[k] + "_" + cov + ".svg", svg});
+    }
+  }
+}
+
+// A subject's prediction curve from time 0 to its last record: at φ (IPRED) or θ (PRED).
+PlotSeries Curve(const PopulationProblem& problem, int subject, const Eigen::VectorXd& values, const std::string& label) {
+  const auto& records = problem.data().subjects[static_cast<size_t>(subject)].records;
+  SimulationOptions options;
+  options.check_values = false;  // estimates may sit at the edge of their range
+  const double last = records.empty() ? 0 : records.back().time;
+  for (int k = 0; k <= 240; ++k) options.output_times.push_back(last * k / 240.0);
+  ParameterValues p;
+  for (size_t k = 0; k < problem.theta_names().size(); ++k) p[problem.theta_names()[k]] = values(static_cast<Eigen::Index>(k));
+  PlotSeries curve{label, {}, {}};
+  const SubjectSimulation sim = SimulateSubject(problem.model(), problem.data(), subject, p, options);
+  for (const SimulatedRecord& r : sim.rows) {
+    if (r.evid == Evid::kOther) curve.x.push_back(r.time), curve.y.push_back(r.pred);
+  }
+  return curve;
+}
+
+// Each subject's DV with its IPRED and PRED curves, in dataset order (the first kMaxPanels).
+list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
+  std::map<double, std::vector<const PopulationRow*>> rows;
+  for (const PopulationRow& r : fit.rows) rows[r.id].push_back(&r);
+  list panels;
+  size_t shown = 0;
+  for (const PopulationSubject& s : fit.subjects) {
+    if (!s.ok || shown == kMaxPanels) continue;
+    const auto& subjects = problem.data().subjects;
+    const auto it = std::find_if(subjects.begin(), subjects.end(), [&](const auto& d) { return d.id == s.id; });
+    if (it == subjects.end()) continue;
+    const int index = static_cast<int>(it - subjects.begin());
+    PlotSeries dv{"DV", {}, {}, true};
+    for (const PopulationRow* r : rows[s.id]) dv.x.push_back(r->time), dv.y.push_back(r->dv);
+    PlotSeries ipred = Curve(problem, index, s.parameters, "IPRED"), pred = Curve(problem, index, fit.parameters.theta, "PRED");
+    dv.colour = kObserved, ipred.colour = kIpred, pred.colour = kPred;
+    panels.push_back(object{{"caption", Text("ID " + FormatNumber(s.id))},
+                            {"svg", RenderSvg({pred, ipred, dv}, Small("", "time", "concentration"))}});
+    ++shown;
+  }
+  return panels;
+}
+
+list Estimates(const PopulationProblem& problem, const PopulationSummary& fit) {
+  list rows;
+  for (const PopulationEstimate& e : fit.estimates) {
+    std::string cv, shrinkage;
+    for (size_t k = 0; k < problem.eta_names().size(); ++k) {
+      if (e.name != "OMEGA(" + problem.eta_names()[k] + ")") continue;
+      cv = Sig(100 * std::sqrt(std::exp(e.estimate) - 1), 3);
+      if (static_cast<Eigen::Index>(k) < fit.eta_shrinkage_sd.size()) {
+        shrinkage = Sig(100 * fit.eta_shrinkage_sd(static_cast<Eigen::Index>(k)), 3) + "%";
+      }
+    }
+    const std::string flag = e.fixed ? "fixed" : e.at_boundary ? "at its boundary" : "";
+    rows.push_back(object{{"name", Text(e.name)}, {"estimate", Sig(e.estimate, 4)}, {"se", Sig(e.se, 3)},
+                          {"rse", Sig(e.rse_pct, 3)}, {"cv", Text(cv)}, {"shrinkage", Text(shrinkage)},
+                          {"flag", Text(flag)}, {"class", Text(e.at_boundary ? "bad" : "")}});
+  }
+  return rows;
+}
+
+}  // namespace
+
+Files PopulationReport(const PopulationProblem& problem, const PopulationSummary& fit,
+                       const PopulationReportContext& c) {
+  Files files;
+  object page;
+  page["model"] = c.model;
+  page["dataset"] = c.dataset_path.substr(c.dataset_path.find_last_of('/') + 1);
+  page["dataset_path"] = c.dataset_path;
+  page["num_subjects"] = std::to_string(problem.num_subjects());
+  page["num_samples"] = std::to_string(problem.num_observations());
+  std::string etas;
+  for (const auto& n : problem.eta_names()) etas += (etas.empty() ? "" : ", ") + n;
+  page["etas"] = etas;
+  page["error"] = c.error;
+  page["method"] = Text(std::string(ToString(fit.method)) + " (NONMEM's " +
+                        (fit.method == PopulationMethod::kFoce    ? "METHOD=COND"
+                         : fit.method == PopulationMethod::kFocei ? "METHOD=COND INTER"
+                                                                  : "METHOD=COND LAPLACIAN INTER") + ")");
+  page["date"] = Today();
+  page["version"] = Text(Version());
+  page["command"] = c.command_line;
+  page["ofv"] = Sig(fit.ofv, 10);
+  page["converged"] = data(fit.converged);
+  page["status"] = Text(fit.converged ? "converged" : "not converged");
+  if (fit.failed_subjects > 0) page["num_failed"] = std::to_string(fit.failed_subjects);
+  page["evaluations"] = std::to_string(fit.evaluations);
+  page["seconds"] = Sig(fit.seconds, 3);
+  page["message"] = Text("The outer optimiser ended: " + fit.message + ".");
+  page["covariance"] = Text(fit.covariance_message.empty() ? "the sandwich R⁻¹SR⁻¹, NONMEM's default" : "none");
+  page["estimates"] = Estimates(problem, fit);
+  page["epsilon_shrinkage"] = Sig(100 * fit.epsilon_shrinkage_sd, 3) + "%";
+  page["gradient"] = fit.gradient;
+  list notes;
+  if (!fit.covariance_message.empty()) notes.push_back(Text("No standard errors: " + fit.covariance_message));
+  for (const PopulationSubject& s : fit.subjects) {
+    if (!s.ok) notes.push_back(Text("Subject " + FormatNumber(s.id) + ": " + s.message));
+  }
+  page["has_notes"] = data(!notes.empty());
+  page["notes"] = notes;
+  list gof, covariates;
+  GoodnessOfFit(fit, &gof, &files);
+  Covariates(problem, fit, &covariates, &files);
+  page["gof"] = gof;
+  page["has_covariates"] = data(!covariates.empty());
+  page["covariate_plots"] = covariates;
+  page["panels"] = Panels(problem, fit);
+  const size_t subjects = fit.subjects.size();
+  page["panels_note"] = Text(subjects > kMaxPanels ? "The first " + std::to_string(kMaxPanels) + " of " +
+                                                         std::to_string(subjects) + " subjects."
+                                                   : "");
+  kainjow::mustache::mustache tmpl(PopulationReportTemplate());
+  files.insert(files.begin(), {"report.html", tmpl.render(page)});
+  return files;
+}
+
+}  // namespace cli
+}  // namespace pk

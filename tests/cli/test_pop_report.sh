@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# pkpop's report as a person sees it: rendered by headless Chromium, screenshotted, and its DOM read
+# back. Fails on a blank or broken page: a template that did not render, missing plots, an empty
+# screenshot. The screenshot stays in the work directory (report.png) to look at.
+set -uo pipefail
+pkpop=$1; root=$2; work=$3; chromium=$4
+rm -rf "$work"; mkdir -p "$work"
+failures=0
+fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+browse() {  # browse WHAT ARGS... : headless Chromium with a profile of its own (it runs as root in CI)
+  timeout 120 "$chromium" --headless --no-sandbox --disable-gpu --hide-scrollbars --no-first-run \
+    --disable-background-networking --disable-component-update --disable-sync \
+    --user-data-dir="$work/profile" "$@" 2>>"$work/chromium.log"
+}
+
+# Phenobarbital: 59 subjects, covariates WT and APGAR.
+"$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional -q -o "$work/pheno" ||
+  fail "pkpop on phenobarbital"
+browse --dump-dom "file://$work/pheno/report.html" >"$work/dom.html"
+grep -q "pkpop report: 1cmt_iv on phenobarbital.csv" "$work/dom.html" || fail "the rendered page has no title"
+grep -q "{{" "$work/dom.html" && fail "a mustache tag was left unrendered"
+# 5 goodness-of-fit plots, 2 η × 2 covariates, 59 subjects' panels.
+[ "$(grep -o "<svg" "$work/dom.html" | wc -l)" -eq $((5 + 4 + 59)) ] ||
+  fail "the page should show 5 goodness-of-fit plots, 4 η-covariate plots and 59 panels: $(grep -o "<svg" "$work/dom.html" | wc -l)"
+grep -q "ETA_CL against WT" "$work/dom.html" || fail "no plot of η(CL) against WT"
+grep -q "CWRES against TIME" "$work/dom.html" || fail "no CWRES against TIME"
+grep -q "730.8947" "$work/dom.html" || fail "the OFV card"
+for f in gof_dv_pred.svg gof_cwres_time.svg eta_CL_WT.svg; do
+  grep -q "^$f," "$work/pheno/MANIFEST" || fail "$f is not in the output set's MANIFEST"
+done
+
+browse --window-size=1400,2400 --screenshot="$work/report.png" "file://$work/pheno/report.html" >/dev/null
+printf '<!DOCTYPE html><html><body></body></html>\n' >"$work/blank.html"
+browse --window-size=1400,2400 --screenshot="$work/blank.png" "file://$work/blank.html" >/dev/null
+report_bytes=$(stat -c %s "$work/report.png" 2>/dev/null || echo 0)
+blank_bytes=$(stat -c %s "$work/blank.png" 2>/dev/null || echo 0)
+[ "$blank_bytes" -gt 0 ] || fail "Chromium made no screenshot (see $work/chromium.log)"
+[ "$report_bytes" -gt $((blank_bytes * 10)) ] && [ "$report_bytes" -gt 100000 ] ||
+  fail "the report's screenshot ($report_bytes bytes) looks blank next to a blank page's ($blank_bytes bytes)"
+
+if [ $failures -eq 0 ]; then echo "cli_pop_report: all checks passed ($report_bytes-byte screenshot)"; else exit 1; fi
