@@ -16,7 +16,7 @@ namespace {
 
 constexpr double kNewtonFrom = 1e-4;       // scoring hands over to Newton below this step,
 constexpr int kScoringIterations = 20;     // or after this many iterations (scoring can zig-zag slowly)
-constexpr double kHessianStep = 1e-3;      // central-difference step in η for ½∇²l (Richardson)
+constexpr double kHessianStep = 1e-3;      // central-difference step in η for ½∇²l
 constexpr int kMaxIterations = 200;
 constexpr double kMaxStep = 1;          // the largest change of one η in one iteration
 
@@ -117,15 +117,17 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
 }
 
 bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
-                        const Eigen::VectorXd* fixed_variance, Eigen::MatrixXd* half_hessian, std::string* why) {
+                        const Eigen::VectorXd* fixed_variance, bool extrapolate, Eigen::MatrixXd* half_hessian,
+                        std::string* why) {
   // Central differences of the exact gradient at steps h and h/2, combined by Richardson's
-  // extrapolation (4D(h/2) − D(h))/3, whose error is O(h⁴).
+  // extrapolation (4D(h/2) − D(h))/3, whose error is O(h⁴); or at h alone (error O(h²)).
   const Eigen::Index q = eta.size();
   half_hessian->resize(q, q);
   Conditional plus, minus;
   Eigen::VectorXd d[2];
+  const int levels = extrapolate ? 2 : 1;
   for (Eigen::Index k = 0; k < q; ++k) {
-    for (int level = 0; level < 2; ++level) {
+    for (int level = 0; level < levels; ++level) {
       const double h = kHessianStep / (1 << level);
       Eigen::VectorXd e = eta;
       e(k) += h;
@@ -134,7 +136,7 @@ bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const E
       if (!EvaluateConditional(s, p, e, fixed_variance, true, &minus, why)) return false;
       d[level] = (plus.gradient - minus.gradient) / (4 * h);
     }
-    half_hessian->col(k) = (4 * d[1] - d[0]) / 3;
+    half_hessian->col(k) = extrapolate ? Eigen::VectorXd((4 * d[1] - d[0]) / 3) : d[0];
   }
   *half_hessian = 0.5 * (*half_hessian + half_hessian->transpose()).eval();
   return true;
@@ -195,7 +197,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
   Eigen::MatrixXd half_hessian;
   Eigen::VectorXd step;
   for (mode.iterations = 0; mode.iterations < kMaxIterations; ++mode.iterations) {
-    if (newton && !ConditionalHessian(s, p, mode.eta, fv, &half_hessian, &mode.message)) return mode;
+    if (newton && !ConditionalHessian(s, p, mode.eta, fv, false, &half_hessian, &mode.message)) return mode;
     if (!newton || !Step(c, half_hessian, &step)) {
       newton = false;
       if (!Step(c, c.h, &step)) {
@@ -204,10 +206,8 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
       }
     }
     if (step.lpNorm<Eigen::Infinity>() < s.step_tolerance) {
-      converged = newton || p.method != PopulationMethod::kLaplace;
-      if (converged) break;
-      newton = true;  // Laplace needs ½∇²l at the mode: one more pass computes it
-      continue;
+      converged = true;
+      break;
     }
     if (!LineSearch(s, p, fv, step, &mode.eta, &c)) {
       const double predicted = -c.gradient.dot(step), noise = s.relative_noise * (double(s.y.size()) + std::abs(c.l));
@@ -222,6 +222,11 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
   }
   if (!converged) {
     mode.message = "the conditional mode was not found in " + std::to_string(kMaxIterations) + " iterations";
+    return mode;
+  }
+  // Laplace's H enters the OFV: at the mode, extrapolated.
+  if (p.method == PopulationMethod::kLaplace &&
+      !ConditionalHessian(s, p, mode.eta, fv, true, &half_hessian, &mode.message)) {
     return mode;
   }
   double log_det_h = 0;

@@ -86,9 +86,12 @@ struct SubjectMode {
 /// differences of the exact gradient, to ‖step‖∞ < s.step_tolerance) and forms OFV_i for p.method.
 SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& start);
 
-/// ½∇²l at η by central differences of the exact gradient, Richardson-extrapolated (Laplace's H).
+/// ½∇²l at η by central differences of the exact gradient: Richardson-extrapolated (error
+/// O(h⁴); Laplace's H at the mode) when `extrapolate`, else one central difference (Newton's
+/// iteration matrix, which sets only the rate of convergence).
 bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
-                        const Eigen::VectorXd* fixed_variance, Eigen::MatrixXd* half_hessian, std::string* why);
+                        const Eigen::VectorXd* fixed_variance, bool extrapolate, Eigen::MatrixXd* half_hessian,
+                        std::string* why);
 
 /// Runs work(i) for i in [0, n) on `threads` threads (each takes every threads-th item, so the
 /// assignment, and hence every result, does not depend on timing).
