@@ -7,11 +7,7 @@ pkpop=$1; root=$2; work=$3; chromium=$4
 rm -rf "$work"; mkdir -p "$work"
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
-browse() {  # browse WHAT ARGS... : headless Chromium with a profile of its own (it runs as root in CI)
-  timeout 120 "$chromium" --headless --no-sandbox --disable-gpu --hide-scrollbars --no-first-run \
-    --disable-background-networking --disable-component-update --disable-sync \
-    --user-data-dir="$work/profile" "$@" 2>>"$work/chromium.log"
-}
+. "$(dirname "$0")/browser.sh"
 
 # Phenobarbital: 59 subjects, covariates WT and APGAR.
 "$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional -q -o "$work/pheno" ||
@@ -29,13 +25,6 @@ for f in gof_dv_pred.svg gof_cwres_time.svg eta_CL_WT.svg; do
   grep -q "^$f," "$work/pheno/MANIFEST" || fail "$f is not in the output set's MANIFEST"
 done
 
-browse --window-size=1400,2400 --screenshot="$work/report.png" "file://$work/pheno/report.html" >/dev/null
-printf '<!DOCTYPE html><html><body></body></html>\n' >"$work/blank.html"
-browse --window-size=1400,2400 --screenshot="$work/blank.png" "file://$work/blank.html" >/dev/null
-report_bytes=$(stat -c %s "$work/report.png" 2>/dev/null || echo 0)
-blank_bytes=$(stat -c %s "$work/blank.png" 2>/dev/null || echo 0)
-[ "$blank_bytes" -gt 0 ] || fail "Chromium made no screenshot (see $work/chromium.log)"
-[ "$report_bytes" -gt $((blank_bytes * 10)) ] && [ "$report_bytes" -gt 100000 ] ||
-  fail "the report's screenshot ($report_bytes bytes) looks blank next to a blank page's ($blank_bytes bytes)"
+check_screenshot "$work/pheno/report.html"
 
 if [ $failures -eq 0 ]; then echo "cli_pop_report: all checks passed ($report_bytes-byte screenshot)"; else exit 1; fi

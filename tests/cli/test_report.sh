@@ -7,10 +7,7 @@ pkfit=$1; root=$2; work=$3; chromium=$4
 rm -rf "$work"; mkdir -p "$work"
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
-browse() {  # browse WHAT ARGS... : headless Chromium with a profile of its own (it runs as root in CI)
-  timeout 120 "$chromium" --headless --no-sandbox --disable-gpu --hide-scrollbars --no-first-run \
-    --user-data-dir="$work/profile" "$@" 2>>"$work/chromium.log"
-}
+. "$(dirname "$0")/browser.sh"
 
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --units time=h,amt=mg,conc=mg/L -o "$work/theo" -q ||
   fail "pkfit on theophylline"
@@ -25,15 +22,6 @@ grep -q '^CL,.*,L/h$' "$work/theo/population.csv" || fail "population.csv: CL's 
 grep -q ',exponents,THALF1,.*,h$' "$work/theo/derived.csv" || fail "derived.csv: a half-life's unit"
 grep -q "libpk $("$pkfit" --version | sed 's/.* //')" "$work/dom.html" || fail "the header should name libpk's version"
 
-# A screenshot of a page with plots is far larger than one of a blank page of the same size; the
-# blank page is rendered too, so that the threshold is known to tell them apart.
-browse --window-size=1400,2400 --screenshot="$work/report.png" "file://$work/theo/report.html" >/dev/null
-printf '<!DOCTYPE html><html><body></body></html>\n' >"$work/blank.html"
-browse --window-size=1400,2400 --screenshot="$work/blank.png" "file://$work/blank.html" >/dev/null
-report_bytes=$(stat -c %s "$work/report.png" 2>/dev/null || echo 0)
-blank_bytes=$(stat -c %s "$work/blank.png" 2>/dev/null || echo 0)
-[ "$blank_bytes" -gt 0 ] || fail "Chromium made no screenshot (see $work/chromium.log)"
-[ "$report_bytes" -gt $((blank_bytes * 10)) ] && [ "$report_bytes" -gt 100000 ] ||
-  fail "the report's screenshot ($report_bytes bytes) looks blank next to a blank page's ($blank_bytes bytes)"
+check_screenshot "$work/theo/report.html"
 
 if [ $failures -eq 0 ]; then echo "cli_report: all checks passed ($report_bytes-byte screenshot)"; else exit 1; fi
