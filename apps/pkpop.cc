@@ -61,7 +61,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "propagator", po::value<std::string>()->default_value("auto"), "exact, ode or auto")(
       "gradient", po::value<std::string>()->default_value("auto"),
       "the outer gradient: implicit (the modes' implicit function theorem; FOCE, FOCEI), fd (central differences "
-      "of the OFV, as NONMEM) or auto (implicit, fd for Laplace)")(
+      "of the OFV, as NONMEM) or auto (implicit on the exact propagator; fd for Laplace and ODE models)")(
       "threads,j", po::value<int>()->default_value(1), "subjects' inner problems on this many threads")(
       "max-evaluations", po::value<int>()->default_value(1000), "outer objective evaluations, at most")(
       "no-covariance", "skip the covariance step (no standard errors)")(

@@ -149,10 +149,9 @@ list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
 list Estimates(const PopulationProblem& problem, const PopulationSummary& fit) {
   list rows;
   for (const PopulationEstimate& e : fit.estimates) {
-    std::string cv, shrinkage;
+    std::string cv = std::isfinite(e.cv_pct) ? Sig(e.cv_pct, 3) : "", shrinkage;
     for (size_t k = 0; k < problem.eta_names().size(); ++k) {
       if (e.name != "OMEGA(" + problem.eta_names()[k] + ")") continue;
-      cv = Sig(100 * std::sqrt(std::exp(e.estimate) - 1), 3);
       if (static_cast<Eigen::Index>(k) < fit.eta_shrinkage_sd.size()) {
         shrinkage = Sig(100 * fit.eta_shrinkage_sd(static_cast<Eigen::Index>(k)), 3) + "%";
       }

@@ -12,8 +12,9 @@
 //   mpirun -np 4 ./app
 //
 // Every process reads the same data and runs the same outer optimisation; each solves its own
-// subjects' conditional modes (on PopulationOptions::threads threads) and one MPI_Allreduce per
-// evaluation shares them. The estimates equal one process's to the bit (pk/population.h).
+// subjects' conditional modes (on PopulationOptions::threads threads); an MPI_Allreduce per
+// evaluation (two more per implicit gradient) shares them. The estimates equal one process's to
+// the bit on identical machines (pk/population.h).
 #ifndef PK_MPI_H_
 #define PK_MPI_H_
 
@@ -28,7 +29,7 @@ namespace pk {
 /// MpiSession, and run as one ordinary process otherwise.
 bool LaunchedByMpi();
 
-/// MPI_Init_thread (MPI_THREAD_FUNNELED: only the calling thread uses MPI) on construction,
+/// MPI_Init_thread (MPI_THREAD_FUNNELED: only the thread that constructs it uses MPI) on construction,
 /// unless MPI is already initialised, and MPI_Finalize on destruction when it initialised it.
 /// One per process. Throws std::runtime_error when MPI cannot be initialised.
 class MpiSession {

@@ -22,7 +22,7 @@
 //            NONMEM's linearised form log det C_i + r̃ᵀC_i⁻¹r̃, C_i = G_iΩG_iᵀ + V_i
 //   Laplace  H_i = ½ ∇²l_i(η̂_i), the full Hessian (with interaction)
 //
-// and η̂_i = argmin l_i, the conditional mode, found for every evaluation to a Newton step
+// and η̂_i = argmin l_i, the conditional mode, found for every evaluation to a step
 // ‖Δη‖∞ < 1e-10 (on the ODE propagator, to the accuracy its tolerance allows).
 //
 //   pk::PopulationProblem problem = pk::MakePopulationProblem(model, data, {"CL", "V"}, error);
@@ -205,6 +205,8 @@ struct PopulationEstimate {
   double rse_pct = std::numeric_limits<double>::quiet_NaN();
   bool fixed = false;
   bool at_boundary = false;  ///< an estimated Ω variance below 1e-6
+  /// For Ω's variance of a log-normal parameter's η: the between-subject CV%, 100·√(exp(ω²) − 1).
+  double cv_pct = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// One line of the iteration history (NONMEM's .ext): the packed parameters' natural values.
@@ -224,6 +226,7 @@ struct PopulationSummary {
   int evaluations = 0;
   double seconds = 0;
   std::string gradient;  ///< how the outer gradient was computed
+  int processes = 1;     ///< processes the subjects were split across (PopulationOptions::distribution)
 
   PopulationParameters parameters;
   std::vector<PopulationEstimate> estimates;  ///< θ, then Ω's lower triangle by blocks, then σ

@@ -93,7 +93,9 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
   const Eigen::VectorXd se = summary->covariance.diagonal().cwiseMax(0).cwiseSqrt();
   summary->correlation = se.cwiseInverse().asDiagonal() * summary->covariance * se.cwiseInverse().asDiagonal();
   Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(summary->correlation, Eigen::EigenvaluesOnly);
-  summary->condition_number = es.eigenvalues().maxCoeff() / es.eigenvalues().minCoeff();
+  // A singular sandwich (S has rank at most the number of subjects) has no finite condition number.
+  const double smallest = es.eigenvalues().minCoeff();
+  summary->condition_number = smallest > 0 ? es.eigenvalues().maxCoeff() / smallest : HUGE_VAL;
   for (int a = 0; a < p; ++a) {
     PopulationEstimate& e = summary->estimates[static_cast<size_t>(est[a])];
     e.se = se(a);

@@ -63,6 +63,7 @@ class PopulationEngine {
   }
   int Owner(int subject) const { return distribution_ ? subject % distribution_->size() : 0; }
   void Share(std::vector<SubjectMode>* modes) const;
+  std::vector<int> Work(bool shared) const;
 };
 
 /// The covariance step at the estimate (covariance.cc): R = ∇²OFV by central differences over the

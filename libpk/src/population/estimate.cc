@@ -6,7 +6,8 @@
 // asked, it is central differences of the OFV with every subject's search started from the
 // centre's modes, so that the differences see the smooth objective and not the inner
 // iteration's path (NONMEM differences its outer objective). The modes are found to
-// ‖Δη‖∞ < 1e-10, which keeps the differences' noise near 1e-6.
+// ‖Δη‖∞ < 1e-10 on the exact propagator (100·rtol on CVODES), which keeps the differences' noise
+// near 1e-6 there.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -30,6 +31,16 @@ PopulationEngine::PopulationEngine(const PopulationProblem& problem, PopulationM
     : problem_(problem), method_(method), threads_(threads), distribution_(std::move(distribution)),
       included_(static_cast<size_t>(problem.num_subjects()), true) {
   if (distribution_ && distribution_->size() == 1) distribution_.reset();
+}
+
+// The subjects this process solves: those taking part, and with `shared` only its own. Threads
+// take every threads-th of them, so that both the processes and the threads share the work.
+std::vector<int> PopulationEngine::Work(bool shared) const {
+  std::vector<int> mine;
+  for (int i = 0; i < problem_.num_subjects(); ++i) {
+    if (included_[static_cast<size_t>(i)] && (!shared || Owns(i))) mine.push_back(i);
+  }
+  return mine;
 }
 
 // Each process has the modes of its own subjects; afterwards every process has every subject's
@@ -75,9 +86,15 @@ PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& 
   const int n = problem_.num_subjects();
   std::vector<SubjectMode> modes(static_cast<size_t>(n));
   const bool shared = distribution_ && !here;
-  ParallelFor(n, threads_, [&](int i) {
-    const auto u = static_cast<size_t>(i);
-    if (included_[u] && (!shared || Owns(i))) modes[u] = SolveSubject(d.subjects[u], point, starts[u]);
+  const std::vector<int> mine = Work(shared);
+  ParallelFor(static_cast<int>(mine.size()), threads_, [&](int k) {
+    const auto u = static_cast<size_t>(mine[static_cast<size_t>(k)]);
+    try {
+      modes[u] = SolveSubject(d.subjects[u], point, starts[u]);
+    } catch (const std::exception& e) {  // a subject's failure, reported as such (and shared)
+      modes[u].ok = false;
+      modes[u].message = e.what();
+    }
   });
   if (shared) Share(&modes);
   r.ok = true;
@@ -99,17 +116,27 @@ PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& 
 bool PopulationEngine::Gradient(const Packing& packing, const Eigen::VectorXd& x,
                                 const std::vector<SubjectMode>& modes, Eigen::VectorXd* gradient,
                                 Eigen::MatrixXd* per_subject, std::string* why) const {
+  if (method_ == PopulationMethod::kLaplace) {  // its OFV_i holds log det ½∇²l: third derivatives
+    *why = "the implicit-function gradient serves FOCE and FOCEI, not Laplace";
+    return false;
+  }
   const auto& d = problem_.impl();
   const PopulationPoint point = PopulationPoint::Make(packing.Unpack(x), *d.options.error_model, method_);
   const int n = problem_.num_subjects();
   Eigen::MatrixXd rows = Eigen::MatrixXd::Zero(n, x.size());
   std::vector<std::string> errors(static_cast<size_t>(n));
   std::vector<char> ok(static_cast<size_t>(n), 1);
-  ParallelFor(n, threads_, [&](int i) {
+  const std::vector<int> mine = Work(distribution_ != nullptr);
+  ParallelFor(static_cast<int>(mine.size()), threads_, [&](int k) {
+    const int i = mine[static_cast<size_t>(k)];
     const auto u = static_cast<size_t>(i);
-    if (!included_[u] || !Owns(i)) return;
     Eigen::VectorXd g;
-    ok[u] = SubjectOuterGradient(d.subjects[u], point, packing, x, modes[u], &g, &errors[u]);
+    try {
+      ok[u] = SubjectOuterGradient(d.subjects[u], point, packing, x, modes[u], &g, &errors[u]);
+    } catch (const std::exception& e) {
+      ok[u] = false;
+      errors[u] = e.what();
+    }
     if (ok[u]) rows.row(i) = g.transpose();
   });
   if (distribution_) {  // every row from its owner, exactly, and the failures
@@ -135,8 +162,8 @@ namespace {
 
 constexpr double kOuterStep = 1e-4;  // central-difference step in x
 // An NLopt failure at a point whose gradient is below this (OFV per unit of x, where x moves log θ,
-// log σ and Ω's Cholesky factor) is convergence: a 1% change of any parameter moves the OFV by less
-// than 1e-4 there.
+// log σ and Ω's Cholesky factor) is convergence: a 1% change of a log-scaled parameter moves the OFV
+// by less than 1e-4 there (a signed θ or an off-diagonal Cholesky entry, by 0.01 per unit).
 constexpr double kGradientTolerance = 1e-2;
 
 std::vector<Eigen::VectorXd> Etas(const std::vector<SubjectMode>& modes, Eigen::Index q) {
@@ -325,7 +352,9 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   for (int k : packing.variance_positions()) {
     auto& e = summary.estimates[static_cast<size_t>(k)];
     e.at_boundary = !e.fixed && e.estimate < 1e-6;
+    e.cv_pct = 100 * std::sqrt(std::expm1(e.estimate));  // φ = θ·exp(η): every η is log-normal
   }
+  summary.processes = options.distribution ? options.distribution->size() : 1;
   if (final_eval.ok) {
     eta = internal::Etas(final_eval.modes, initial.omega.rows());
     internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);

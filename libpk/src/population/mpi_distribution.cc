@@ -51,6 +51,9 @@ MpiSession::MpiSession(int* argc, char*** argv) {
     int provided = 0;
     Check(MPI_Init_thread(argc, argv, MPI_THREAD_FUNNELED, &provided), "MPI_Init_thread");
     finalize_ = true;
+    if (provided < MPI_THREAD_FUNNELED) {
+      throw std::runtime_error("MPI provides no thread support (MPI_THREAD_FUNNELED), which libpk's threads need");
+    }
   }
   Check(MPI_Comm_rank(MPI_COMM_WORLD, &rank_), "MPI_Comm_rank");
   Check(MPI_Comm_size(MPI_COMM_WORLD, &size_), "MPI_Comm_size");

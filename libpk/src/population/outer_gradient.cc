@@ -16,7 +16,9 @@
 // derivatives differences of its exact first ones.
 #include "population/outer_gradient.h"
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include <Eigen/Cholesky>
 
@@ -51,7 +53,7 @@ bool SecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<
   for (size_t m = 0; m < s.eta_free.size(); ++m) {
     const int at = s.eta_free[m], k = s.eta_theta[m];
     for (int level = 0; level < 2; ++level) {
-      const double h = kPhiStep * std::abs(phi(at)) / (1 << level);
+      const double h = kPhiStep * std::max(std::abs(phi(at)), 1e-8) / (1 << level);
       Eigen::VectorXd e = phi;
       e(at) += h;
       if (!Sensitivities(s, e, &y, &jp, why)) return false;
@@ -146,124 +148,155 @@ std::vector<std::vector<HD>> LowerInverse(const std::vector<std::vector<HD>>& l,
   return inv;
 }
 
+// The predictions' expansion: J and T at φ̂ = φ(η̂), and (FOCE) ŷ and J at η = 0.
+struct Expansion {
+  Eigen::VectorXd phi0, y0, phi00, y00;
+  Eigen::MatrixXd j0, j00;
+  std::vector<Eigen::MatrixXd> t;
+};
+
+bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta, bool foce, Expansion* e,
+            std::string* why) {
+  e->phi0 = IndividualValues(s, p, eta);
+  if (!Sensitivities(s, e->phi0, &e->y0, &e->j0, why) || !SecondOrder(s, e->phi0, &e->t, why)) return false;
+  e->phi00 = IndividualValues(s, p, Eigen::VectorXd::Zero(eta.size()));
+  if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) return false;
+  const auto np = static_cast<Eigen::Index>(s.theta_index.size());
+  if (e->t.empty()) e->t.assign(static_cast<size_t>(e->y0.size()), Eigen::MatrixXd::Zero(np, np));
+  return true;
+}
+
+// The parameters as functions of z = (η, x), and their offsets from the expansion point.
+template <class HD>
+struct Variables {
+  int d = 0;
+  std::vector<HD> eta, theta, sigma, phi, dphi, dphi00, dsigma;
+  std::vector<std::vector<HD>> lo;  // Ω's Cholesky factor
+};
+
+template <class HD>
+Variables<HD> MakeVariables(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
+                            const Eigen::VectorXd& x, const Eigen::VectorXd& eta, const Expansion& e) {
+  Variables<HD> v;
+  const auto q = static_cast<int>(eta.size()), m = static_cast<int>(x.size()), d = q + m;
+  v.d = d;
+  std::vector<HD> xs;
+  for (int i = 0; i < q; ++i) v.eta.push_back(HD::Variable(eta(i), d, i));
+  for (int i = 0; i < m; ++i) xs.push_back(HD::Variable(x(i), d, q + i));
+  packing.UnpackAs(xs, [d](double c) { return HD(c, d); }, &v.theta, &v.sigma, &v.lo);
+  std::vector<int> eta_of(s.theta_index.size(), -1);
+  for (int i = 0; i < q; ++i) eta_of[static_cast<size_t>(s.eta_theta[static_cast<size_t>(i)])] = i;
+  for (size_t k = 0; k < s.theta_index.size(); ++k) {
+    v.phi.push_back(eta_of[k] >= 0 ? v.theta[k] * exp(v.eta[static_cast<size_t>(eta_of[k])]) : v.theta[k]);
+    v.dphi.push_back(v.phi.back() + (-e.phi0(s.theta_index[k])));
+    v.dphi00.push_back(v.theta[k] + (-e.phi00(s.theta_index[k])));
+  }
+  for (size_t i = 0; i < v.sigma.size(); ++i) v.dsigma.push_back(v.sigma[i] + (-p.sigma(static_cast<Eigen::Index>(i))));
+  return v;
+}
+
+// ηᵀΩ⁻¹η = ‖L⁻¹η‖², log det Ω = 2 Σ log L_kk, and Ω⁻¹ = L⁻ᵀL⁻¹ (H's first term).
+template <class HD>
+void OmegaTerms(const Variables<HD>& v, HD* quad, HD* log_det_omega, std::vector<std::vector<HD>>* h) {
+  const size_t q = v.eta.size();
+  const std::vector<std::vector<HD>> linv = LowerInverse<HD>(v.lo, v.d);
+  *quad = *log_det_omega = HD(0, v.d);
+  for (size_t i = 0; i < q; ++i) {
+    *log_det_omega += 2 * log(v.lo[i][i]);
+    HD w(0, v.d);
+    for (size_t k = 0; k <= i; ++k) w += linv[i][k] * v.eta[k];
+    *quad += w * w;
+  }
+  h->assign(q, std::vector<HD>(q, HD(0, v.d)));
+  for (size_t a = 0; a < q; ++a) {
+    for (size_t b = 0; b < q; ++b) {
+      for (size_t k = std::max(a, b); k < q; ++k) (*h)[a][b] += linv[k][a] * linv[k][b];
+    }
+  }
+}
+
+// Sample j's residual variance V and ∂V/∂ŷ (vy): at φ̂ to second order (FOCEI), or at η = 0 to
+// first order (FOCE, where vy stays 0: V does not depend on η).
+template <class HD>
+void ResidualVariance(const PopulationPoint& p, const Expansion& e, const Variables<HD>& v, Eigen::Index j,
+                      const HD& yhat, HD* var, HD* vy) {
+  const bool foce = p.method == PopulationMethod::kFoce;
+  const VarianceTaylor vt = Variance(*p.error, foce ? e.y00(j) : e.y0(j), p.sigma);
+  HD dy(0, v.d);
+  if (foce) {
+    for (size_t k = 0; k < v.dphi00.size(); ++k) dy += e.j00(j, static_cast<Eigen::Index>(k)) * v.dphi00[k];
+  } else {
+    dy = yhat + (-e.y0(j));
+  }
+  *var = dy * vt.vy + vt.v;
+  *vy = HD(0, v.d);
+  for (size_t i = 0; i < v.dsigma.size(); ++i) *var += vt.vs(static_cast<Eigen::Index>(i)) * v.dsigma[i];
+  if (foce) return;
+  HD second = dy * dy * vt.vyy;
+  *vy = dy * vt.vyy + vt.vy;
+  for (size_t i = 0; i < v.dsigma.size(); ++i) {
+    const auto ii = static_cast<Eigen::Index>(i);
+    second += 2 * vt.vys(ii) * dy * v.dsigma[i];
+    *vy += vt.vys(ii) * v.dsigma[i];
+    for (size_t k = 0; k < v.dsigma.size(); ++k) second += vt.vss(ii, static_cast<Eigen::Index>(k)) * v.dsigma[i] * v.dsigma[k];
+  }
+  *var += 0.5 * second;
+}
+
+// Sample j's terms of l, (y − f)²/V + log V, and of H, g gᵀ/V + ½ v vᵀ/V² (v = 0 for FOCE), with
+// ŷ(z) to second order about φ̂ and ∂ŷ/∂η(z) to first order.
+template <class HD>
+void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion& e, const Variables<HD>& v,
+               Eigen::Index j, HD* l, std::vector<std::vector<HD>>* h) {
+  const Eigen::MatrixXd& tj = e.t[static_cast<size_t>(j)];
+  const auto np = static_cast<int>(v.dphi.size()), q = static_cast<int>(v.eta.size());
+  HD yhat(e.y0(j), v.d);
+  for (int k = 0; k < np; ++k) {
+    HD slope(e.j0(j, k), v.d);
+    for (int c = 0; c < np; ++c) slope += 0.5 * tj(k, c) * v.dphi[static_cast<size_t>(c)];
+    yhat += slope * v.dphi[static_cast<size_t>(k)];
+  }
+  const bool logs = p.error->log_transformed();
+  HD var, vy;
+  ResidualVariance(p, e, v, j, yhat, &var, &vy);
+  const HD r = (logs ? log(yhat) : yhat) * -1.0 + s.y(j);
+  const HD w = HD::Reciprocal(var);
+  *l += r * r * w + log(var);
+  std::vector<HD> g, dv;
+  for (int i = 0; i < q; ++i) {
+    const int k = s.eta_theta[static_cast<size_t>(i)];
+    HD slope(e.j0(j, k), v.d);
+    for (int c = 0; c < np; ++c) slope += tj(k, c) * v.dphi[static_cast<size_t>(c)];
+    const HD dy_deta = slope * v.phi[static_cast<size_t>(k)];
+    g.push_back(logs ? dy_deta / yhat : dy_deta);
+    dv.push_back(vy * dy_deta);
+  }
+  const bool foce = p.method == PopulationMethod::kFoce;
+  for (size_t a = 0; a < g.size(); ++a) {
+    for (size_t b = 0; b < g.size(); ++b) {
+      (*h)[a][b] += g[a] * g[b] * w;
+      if (!foce) (*h)[a][b] += 0.5 * dv[a] * dv[b] * w * w;
+    }
+  }
+}
+
 template <class HD>
 bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& packing, const Eigen::VectorXd& x,
                 const SubjectMode& mode, Eigen::VectorXd* gradient, std::string* why) {
-  using HDMatrix = std::vector<std::vector<HD>>;
-  const bool foce = p.method == PopulationMethod::kFoce, logs = p.error->log_transformed();
-  const auto q = static_cast<int>(mode.eta.size()), m = static_cast<int>(x.size()), d = q + m;
-  const auto np = static_cast<int>(s.theta_index.size());
-  const Eigen::VectorXd phi0 = IndividualValues(s, p, mode.eta);
-  Eigen::VectorXd y0, y00;
-  Eigen::MatrixXd j0, j00;
-  std::vector<Eigen::MatrixXd> t;
-  if (!Sensitivities(s, phi0, &y0, &j0, why) || !SecondOrder(s, phi0, &t, why)) return false;
-  const Eigen::VectorXd phi00 = IndividualValues(s, p, Eigen::VectorXd::Zero(q));
-  if (foce && !Sensitivities(s, phi00, &y00, &j00, why)) return false;
-  const Eigen::Index n = y0.size();
-  if (t.empty()) t.assign(static_cast<size_t>(n), Eigen::MatrixXd::Zero(np, np));
-
-  // z = (η, x): the parameters as functions of z.
-  std::vector<HD> eta, xs, theta, sigma;
-  for (int i = 0; i < q; ++i) eta.push_back(HD::Variable(mode.eta(i), d, i));
-  for (int i = 0; i < m; ++i) xs.push_back(HD::Variable(x(i), d, q + i));
-  HDMatrix lo;
-  packing.UnpackAs(xs, [d](double v) { return HD(v, d); }, &theta, &sigma, &lo);
-  std::vector<HD> dphi, dphi00;
-  std::vector<int> eta_of(static_cast<size_t>(np), -1);
-  for (int i = 0; i < q; ++i) eta_of[static_cast<size_t>(s.eta_theta[static_cast<size_t>(i)])] = i;
-  std::vector<HD> phi;
-  for (int k = 0; k < np; ++k) {
-    const auto u = static_cast<size_t>(k);
-    phi.push_back(eta_of[u] >= 0 ? theta[u] * exp(eta[static_cast<size_t>(eta_of[u])]) : theta[u]);
-    dphi.push_back(phi.back() + (-phi0(s.theta_index[u])));
-    dphi00.push_back(theta[u] + (-phi00(s.theta_index[u])));
-  }
-  std::vector<HD> dsigma;
-  for (size_t i = 0; i < sigma.size(); ++i) dsigma.push_back(sigma[i] + (-p.sigma(static_cast<Eigen::Index>(i))));
-
-  // Ω⁻¹ = L⁻ᵀL⁻¹, log det Ω = 2 Σ log L_kk, ηᵀΩ⁻¹η = ‖L⁻¹η‖².
-  const HDMatrix linv = LowerInverse<HD>(lo, d);
-  HD log_det_omega(0, d), quad(0, d);
-  for (int i = 0; i < q; ++i) {
-    log_det_omega += 2 * log(lo[static_cast<size_t>(i)][static_cast<size_t>(i)]);
-    HD w(0, d);
-    for (int k = 0; k <= i; ++k) w += linv[static_cast<size_t>(i)][static_cast<size_t>(k)] * eta[static_cast<size_t>(k)];
-    quad += w * w;
-  }
-  HDMatrix h(static_cast<size_t>(q), std::vector<HD>(static_cast<size_t>(q), HD(0, d)));
-  for (int a = 0; a < q; ++a) {
-    for (int b = 0; b < q; ++b) {
-      for (int k = std::max(a, b); k < q; ++k) {
-        h[static_cast<size_t>(a)][static_cast<size_t>(b)] +=
-            linv[static_cast<size_t>(k)][static_cast<size_t>(a)] * linv[static_cast<size_t>(k)][static_cast<size_t>(b)];
-      }
-    }
-  }
-  HD l = quad;
-  for (Eigen::Index j = 0; j < n; ++j) {
-    const Eigen::MatrixXd& tj = t[static_cast<size_t>(j)];
-    // ŷ(z) to second order about φ̂, and ∂ŷ/∂η_i(z) to first order.
-    HD yhat(y0(j), d);
-    for (int k = 0; k < np; ++k) {
-      const auto u = static_cast<size_t>(k);
-      HD slope(j0(j, k), d);
-      for (int c = 0; c < np; ++c) slope += 0.5 * tj(k, c) * dphi[static_cast<size_t>(c)];
-      yhat += slope * dphi[u];
-    }
-    std::vector<HD> dy_deta;
-    for (int i = 0; i < q; ++i) {
-      const int k = s.eta_theta[static_cast<size_t>(i)];
-      HD slope(j0(j, k), d);
-      for (int c = 0; c < np; ++c) slope += tj(k, c) * dphi[static_cast<size_t>(c)];
-      dy_deta.push_back(slope * phi[static_cast<size_t>(k)]);
-    }
-    const HD f = logs ? log(yhat) : yhat;
-    // The residual variance: at φ̂ (FOCEI), or at η = 0 to first order (FOCE).
-    HD v(0, d), vy(0, d);
-    if (foce) {
-      const VarianceTaylor vt = Variance(*p.error, y00(j), p.sigma);
-      HD dy(0, d);
-      for (int k = 0; k < np; ++k) dy += j00(j, k) * dphi00[static_cast<size_t>(k)];
-      v = dy * vt.vy + vt.v;
-      for (size_t i = 0; i < dsigma.size(); ++i) v += vt.vs(static_cast<Eigen::Index>(i)) * dsigma[i];
-    } else {
-      const VarianceTaylor vt = Variance(*p.error, y0(j), p.sigma);
-      const HD dy = yhat + (-y0(j));
-      HD second = dy * dy * vt.vyy;
-      vy = dy * vt.vyy + vt.vy;
-      for (size_t i = 0; i < dsigma.size(); ++i) {
-        const auto ii = static_cast<Eigen::Index>(i);
-        second += 2 * vt.vys(ii) * dy * dsigma[i];
-        vy += vt.vys(ii) * dsigma[i];
-        for (size_t k = 0; k < dsigma.size(); ++k) second += vt.vss(ii, static_cast<Eigen::Index>(k)) * dsigma[i] * dsigma[k];
-      }
-      v = dy * vt.vy + vt.v + 0.5 * second;
-      for (size_t i = 0; i < dsigma.size(); ++i) v += vt.vs(static_cast<Eigen::Index>(i)) * dsigma[i];
-    }
-    const HD r = f * -1.0 + s.y(j);
-    const HD w = HD::Reciprocal(v);
-    l += r * r * w + log(v);
-    std::vector<HD> g, dv;
-    for (int i = 0; i < q; ++i) {
-      g.push_back(logs ? dy_deta[static_cast<size_t>(i)] / yhat : dy_deta[static_cast<size_t>(i)]);
-      dv.push_back(vy * dy_deta[static_cast<size_t>(i)]);
-    }
-    for (int a = 0; a < q; ++a) {
-      for (int b = 0; b < q; ++b) {
-        HD& e = h[static_cast<size_t>(a)][static_cast<size_t>(b)];
-        e += g[static_cast<size_t>(a)] * g[static_cast<size_t>(b)] * w;
-        if (!foce) e += 0.5 * dv[static_cast<size_t>(a)] * dv[static_cast<size_t>(b)] * w * w;
-      }
-    }
-  }
-  HD log_det_h;
+  Expansion e;
+  if (!Expand(s, p, mode.eta, p.method == PopulationMethod::kFoce, &e, why)) return false;
+  const Variables<HD> v = MakeVariables<HD>(s, p, packing, x, mode.eta, e);
+  HD l, log_det_omega, log_det_h;
+  std::vector<std::vector<HD>> h;
+  OmegaTerms(v, &l, &log_det_omega, &h);  // l starts as ηᵀΩ⁻¹η
+  for (Eigen::Index j = 0; j < e.y0.size(); ++j) AddSample(s, p, e, v, j, &l, &h);
   if (!LogDet<HD>(h, &log_det_h)) {
     *why = "H is not positive definite at the mode";
     return false;
   }
   const HD big_l = l + log_det_omega + log_det_h;
   // dOFV/dx = ∂L/∂x − (∂L/∂η)ᵀ (∇²_ηη l)⁻¹ ∇²_ηx l
+  const auto q = mode.eta.size(), m = x.size();
   const Eigen::MatrixXd lee = l.hessian().topLeftCorner(q, q), lex = l.hessian().topRightCorner(q, m);
   Eigen::LLT<Eigen::MatrixXd> llt(lee);
   if (llt.info() != Eigen::Success) {
@@ -272,6 +305,7 @@ bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& 
   }
   const Eigen::VectorXd deta_weights = llt.solve(Eigen::VectorXd(big_l.gradient().head(q)));
   *gradient = big_l.gradient().tail(m) - lex.transpose() * deta_weights;
+  if (!gradient->allFinite()) *why = "the gradient is not finite";
   return gradient->allFinite();
 }
 

@@ -63,6 +63,7 @@ std::string PopulationSummary::FullReport() const {
     if (!s.ok) out << "  subject " << FormatNumber(s.id) << ": " << s.message << "\n";
   }
   out << "  outer gradient: " << gradient << "\n";
+  if (processes > 1) out << "  subjects split across " << processes << " processes\n";
   return out.str();
 }
 
