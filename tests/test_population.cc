@@ -345,6 +345,23 @@ TEST_CASE("the outer gradient holds with more than 16 variables (HyperDual on th
   CheckOuterGradient(Problem(c), Parameters(c), s, pk::PopulationMethod::kFocei, 1e-5);
 }
 
+TEST_CASE("an η's CV% is 100·√(exp(ω²) − 1), fixed or estimated", "[population]") {
+  // Everything fixed: the summary is formed at the initial values, ω² = log 1.09 and log 1.16.
+  Case c = Cases().at("pheno_prop");
+  c.omega = Diagonal({std::log(1.09), std::log(1.16)});
+  pk::PopulationOptions options;
+  options.covariance = false;
+  options.structure.theta_fixed = {true, true};
+  options.structure.sigma_fixed = {true};
+  options.structure.omega_block_fixed = {true, true};
+  const pk::PopulationSummary fit = pk::FitPopulation(Problem(c), Parameters(c), options);
+  REQUIRE(fit.estimates.size() == 5);
+  CHECK(std::abs(fit.estimates[2].cv_pct - 30) < 1e-12);
+  CHECK(std::abs(fit.estimates[3].cv_pct - 40) < 1e-12);
+  CHECK(std::isnan(fit.estimates[0].cv_pct));  // a θ has none
+  CHECK(fit.processes == 1);
+}
+
 TEST_CASE("FOCE on theophylline agrees with R nlme (method ML)", "[population][fit]") {
   // tests/reference/make_nlme_reference.R: nlme's Lindstrom-Bates fit, additive error, η on log KA,
   // log CL and log V, Ω diagonal and full. At nlme's estimates its −2 log L (less N log 2π) is the

@@ -206,13 +206,14 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
         return mode;
       }
     }
-    if (step.lpNorm<Eigen::Infinity>() < s.step_tolerance) {
+    const double length = step.lpNorm<Eigen::Infinity>();
+    if (length < s.step_tolerance) {
       converged = true;
       break;
     }
     if (!LineSearch(s, p, fv, step, &mode.eta, &c)) {
       const double predicted = -c.gradient.dot(step), noise = s.relative_noise * (double(s.y.size()) + std::abs(c.l));
-      if ((step.lpNorm<Eigen::Infinity>() < std::max(1e-7, 10 * s.step_tolerance) && newton) || predicted < noise) {
+      if ((length < std::max(1e-7, 10 * s.step_tolerance) && newton) || predicted < noise) {
         converged = true;  // rounding or the solver's error: l cannot decrease further
         break;
       }
@@ -221,7 +222,6 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     }
     // Scoring contracts fast near the mode when the residuals are small; Newton (5 sensitivity
     // passes an iteration to scoring's 1) takes over where it does not.
-    const double length = step.lpNorm<Eigen::Infinity>();
     const bool slow = previous > 0 && length > 0.2 * previous;
     if ((length < kNewtonFrom && slow) || mode.iterations + 1 >= kScoringIterations) newton = true;
     previous = length;

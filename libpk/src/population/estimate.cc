@@ -197,8 +197,6 @@ std::string StartingPoint(PopulationEngine* engine, const PopulationParameters& 
   return r.ok ? "" : r.message;
 }
 
-}  // namespace
-
 // ∇OFV at xc (where the OFV is `ofv`) by central differences, every perturbed search started from
 // the centre's modes; one-sided where the OFV cannot be evaluated on one side.
 Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing& packing, const Eigen::VectorXd& xc,
@@ -228,6 +226,8 @@ bool UsesImplicitGradient(const PopulationProblem& problem, const PopulationOpti
   return o.method != PopulationMethod::kLaplace &&
          ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
 }
+
+}  // namespace
 
 // The outer minimisation; leaves the best x in *x and the modes' η in *eta.
 void Minimize(const PopulationEngine& engine, const Packing& packing, const PopulationOptions& options,

@@ -50,6 +50,7 @@ bool SecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<
   const auto p = static_cast<Eigen::Index>(s.theta_index.size());
   Eigen::VectorXd y;
   Eigen::MatrixXd jp, jm, d[2];
+  std::vector<bool> done(static_cast<size_t>(p), false);  // η'd parameters whose differences are in T
   for (size_t m = 0; m < s.eta_free.size(); ++m) {
     const int at = s.eta_free[m], k = s.eta_theta[m];
     for (int level = 0; level < 2; ++level) {
@@ -67,31 +68,32 @@ bool SecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<
       for (Eigen::Index l = 0; l < p; ++l) {
         Eigen::MatrixXd& tj = (*t)[static_cast<size_t>(j)];
         // A pair of η'd parameters is seen from both sides: average the two differences.
-        const bool both = tj(k, l) != 0 || tj(l, k) != 0;
-        const double v = both ? 0.5 * (tj(k, l) + dj(j, l)) : dj(j, l);
+        const double v = done[static_cast<size_t>(l)] ? 0.5 * (tj(k, l) + dj(j, l)) : dj(j, l);
         tj(k, l) = tj(l, k) = v;
       }
     }
+    done[static_cast<size_t>(k)] = true;
   }
   return true;
 }
 
-// v(ŷ, σ) and its derivatives to second order at one sample.
+// v(ŷ, σ) and its first derivatives at one sample, and with `second` its second derivatives
+// (FOCEI; FOCE takes V to first order).
 struct VarianceTaylor {
   double v = 0, vy = 0, vyy = 0;
   Eigen::VectorXd vs, vys;
   Eigen::MatrixXd vss;
 };
 
-VarianceTaylor Variance(const ResidualErrorModel& error, double yhat, const Eigen::VectorXd& sigma) {
+VarianceTaylor Variance(const ResidualErrorModel& error, double yhat, const Eigen::VectorXd& sigma, bool second) {
   const auto ns = sigma.size();
   VarianceTaylor t;
-  t.vs.resize(ns);
   auto first = [&](double y, const Eigen::VectorXd& s, double* v, double* vy, Eigen::VectorXd* vs) {
     vs->resize(ns);
     error.Variance(y, s.data(), v, vy, vs->data());
   };
   first(yhat, sigma, &t.v, &t.vy, &t.vs);
+  if (!second) return t;
   double v1, v2, vy1, vy2;
   Eigen::VectorXd vs1, vs2;
   const double hy = 1e-5 * std::max(std::abs(yhat), 1e-8);
@@ -221,7 +223,7 @@ template <class HD>
 void ResidualVariance(const PopulationPoint& p, const Expansion& e, const Variables<HD>& v, Eigen::Index j,
                       const HD& yhat, HD* var, HD* vy) {
   const bool foce = p.method == PopulationMethod::kFoce;
-  const VarianceTaylor vt = Variance(*p.error, foce ? e.y00(j) : e.y0(j), p.sigma);
+  const VarianceTaylor vt = Variance(*p.error, foce ? e.y00(j) : e.y0(j), p.sigma, !foce);
   HD dy(0, v.d);
   if (foce) {
     for (size_t k = 0; k < v.dphi00.size(); ++k) dy += e.j00(j, static_cast<Eigen::Index>(k)) * v.dphi00[k];
