@@ -196,7 +196,7 @@ void ResetPeakMemory() { std::ofstream("/proc/self/clear_refs") << "5"; }
 // formatting and writing to a file committed whole, as pksim does. Rows per second, µs per row, and
 // the peak memory of (b), which must not grow with the number of subjects.
 void SimulationThroughput(int subjects) {
-  std::string text = "ID,TIME,AMT,ADDL,II,CL,V1\n";
+  std::string text = "ID,TIME,AMT,ADDL,II,CL,V2\n";
   for (int id = 1; id <= subjects; ++id) {
     text += std::to_string(id) + ",0,500,4,12," + std::to_string(3 * std::exp(0.3 * std::sin(id))) + "," +
             std::to_string(20 * std::exp(0.2 * std::cos(id))) + "\n";
@@ -208,7 +208,7 @@ void SimulationThroughput(int subjects) {
   pk::SimulationOptions options;
   options.jobs = 1;
   for (int k = 1; k <= 100; ++k) options.output_times.push_back(0.96 * k);
-  const pk::ParameterValues values = {{"KA", 1.2}, {"Q", 4}, {"V2", 40}};
+  const pk::ParameterValues values = {{"KA", 1.2}, {"Q", 4}, {"V3", 40}};
   const double rows = 100.0 * subjects;
   using Clock = std::chrono::steady_clock;
 
