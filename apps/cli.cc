@@ -154,6 +154,10 @@ std::string Sig(double v, int digits) {
   return buf;
 }
 
+std::string EtaLabel(const std::string& eta_name) {
+  return eta_name.rfind("ETA", 0) == 0 ? eta_name : "ETA_" + eta_name;
+}
+
 std::string Today() {
   const std::time_t now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
   std::tm utc{};

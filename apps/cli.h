@@ -57,6 +57,9 @@ int Run(const std::string& program, const std::function<int()>& body);
 std::string Sig(double v, int digits);
 /// The date and time now, for a report's header ("2026-11-25 14:03 UTC").
 std::string Today();
+/// An η's column label: ETA_CL for the log-normal η on CL; a model file's η keeps its own name
+/// when that already starts with ETA (ETA_CL, not ETA_ETA_CL).
+std::string EtaLabel(const std::string& eta_name);
 
 }  // namespace cli
 }  // namespace pk

@@ -184,7 +184,7 @@ std::string SdtabCsv(const pk::PopulationSummary& fit) {
 
 std::string SubjectsCsv(const pk::PopulationProblem& problem, const pk::PopulationSummary& fit) {
   std::string out = "ID,OK,OFV";
-  for (const auto& n : problem.eta_names()) out += ",ETA_" + n;
+  for (const auto& n : problem.eta_names()) out += "," + pk::cli::EtaLabel(n);
   for (const auto& n : problem.theta_names()) out += "," + n;
   out += ",MESSAGE\n";
   for (const auto& s : fit.subjects) {
@@ -249,6 +249,17 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
   pk::CompleteOutputSet(dir, names, "pkpop");
 }
 
+// Without --eta: a model file's own η (its $OMEGA), else an η on every estimable parameter.
+std::vector<std::string> DefaultEtas(const pk::Model& model) {
+  std::vector<std::string> file, every;
+  for (int i = 0; i < model.num_parameters(); ++i) {
+    const std::string& name = model.parameter_names()[static_cast<size_t>(i)];
+    if (model.is_eta(i)) file.push_back(name);
+    if (!model.is_covariate(i) && !model.is_eta(i)) every.push_back(name);
+  }
+  return file.empty() ? every : file;
+}
+
 // This process's place when pkpop runs under mpirun (one process otherwise).
 struct Process {
   int rank = 0;
@@ -262,7 +273,8 @@ int Main(int argc, char** argv, const Process& process) {
   po::variables_map vm;
   if (!pk::cli::ParseCommandLine(argc, argv, desc, kUsage, &vm)) return 0;
   if (!vm.count("model") || !vm.count("data")) throw pk::InputError("--model and --data are required");
-  const auto model = pk::MakeModel(vm["model"].as<std::string>());
+  // A model file's η (its $OMEGA) are the population model's random effects.
+  const auto model = pk::MakeModel(vm["model"].as<std::string>(), pk::RandomEffects::kParameters);
   const auto data = std::make_shared<pk::Dataset>(
       pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(a.ignore, a.accept)));
   pk::ObjectiveOptions objective;
@@ -272,11 +284,7 @@ int Main(int argc, char** argv, const Process& process) {
                                                                         : model->declarations().error_model;
   objective.error_model = pk::cli::Parsed("--error", [&] { return pk::MakeResidualError(error); });
   std::vector<std::string> etas = SplitCommas(a.eta);
-  if (etas.empty()) {
-    for (int i = 0; i < model->num_parameters(); ++i) {
-      if (!model->is_covariate(i)) etas.push_back(model->parameter_names()[static_cast<size_t>(i)]);
-    }
-  }
+  if (etas.empty()) etas = DefaultEtas(*model);
   const pk::PopulationProblem problem(model, data, etas, objective);
   pk::PopulationOptions options;
   options.method = pk::cli::Parsed("--method", [&] { return pk::ParsePopulationMethod(vm["method"].as<std::string>()); });

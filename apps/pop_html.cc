@@ -98,7 +98,7 @@ void Covariates(const PopulationProblem& problem, const PopulationSummary& fit, 
     if (x.size() < 3 || *std::min_element(x.begin(), x.end()) == *std::max_element(x.begin(), x.end())) continue;
     const std::string& cov = data.extra_columns[col];
     for (size_t k = 0; k < y.size(); ++k) {
-      const std::string eta = "ETA_" + problem.eta_names()[k];
+      const std::string eta = EtaLabel(problem.eta_names()[k]);
       const std::string svg = Gof(x, y[k], false, Small(eta + " against " + cov, cov, eta));
       svgs->push_back(object{{"svg", svg}});
       files->push_back({"eta_" + problem.eta_names()[k] + "_" + cov + ".svg", svg});

@@ -37,11 +37,11 @@ std::vector<std::string> CatalogueModelNames() {
   return names;
 }
 
-std::shared_ptr<const Model> MakeModel(const std::string& spec) {
+std::shared_ptr<const Model> MakeModel(const std::string& spec, RandomEffects etas) {
   // A model file: a name ending in .pkm, or a path.
   const bool file = (spec.size() > 4 && internal::ToLower(spec.substr(spec.size() - 4)) == ".pkm") ||
                     spec.find('/') != std::string::npos;
-  if (file) return LoadModelFile(spec);
+  if (file) return LoadModelFile(spec, etas);
   // Model options follow the name: "1cmt_oral_transit:NTR=5".
   const size_t colon = spec.find(':');
   const std::string name = spec.substr(0, colon);

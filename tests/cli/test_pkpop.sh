@@ -37,6 +37,25 @@ cmp -s "$work/pheno/sdtab.csv" "$work/pheno2/sdtab.csv" || fail "threads changed
 grep -q "^KA,1.5,,,1,0$" "$work/theo/population_estimates.csv" || fail "KA was not held at 1.5"
 grep -q "^OMEGA(V),0.02,,,1,0$" "$work/theo/population_estimates.csv" || fail "OMEGA(V) was not held at 0.02"
 
+# A model file's own η and covariates (NONMEM's phenobarbital example, models/pheno_pop.pkm): the
+# η keep the file's names and Ω starts from its $OMEGA. Two evaluations only: the whole fit runs
+# on CVODES (exp(η) is not a linear coefficient) and takes a minute; the library's tests check its
+# objective against NONMEM's.
+"$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --max-evaluations 2 \
+  --no-covariance -q -o "$work/pheno_file" 2>"$work/pheno_file.err"
+[ $? -eq 1 ] || fail "a fit stopped at its evaluation limit should exit 1: $(cat "$work/pheno_file.err")"
+grep -q "MAXEVAL_REACHED" "$work/pheno_file.err" || fail "the evaluation limit is not reported"
+head -1 "$work/pheno_file/iterations.csv" |
+  grep -qx "EVALUATION,OFV,GRADIENT_NORM,TVCL,TVV,APGV,OMEGA(ETA_CL),OMEGA(ETA_V),SIGMA_PROP" ||
+  fail "the file's θ and η names: $(head -1 "$work/pheno_file/iterations.csv")"
+awk -F, 'NR == 2 { if ($7 != 0.05 && $7 !~ /^0.0500000000/) exit 1 }' "$work/pheno_file/iterations.csv" ||
+  fail "Ω did not start from \$OMEGA"
+head -1 "$work/pheno_file/subjects.csv" | grep -q "^ID,OK,OFV,ETA_CL,ETA_V," || fail "subjects.csv η columns"
+"$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --eta ETA_KA \
+  -o "$work/bad_eta" 2>"$work/bad_eta.err"
+[ $? -eq 2 ] && grep -q "'ETA_KA' is not an estimable parameter or a random effect" "$work/bad_eta.err" ||
+  fail "an unknown η: $(cat "$work/bad_eta.err")"
+
 # Input errors exit with 2 and say what is wrong.
 expect_error() {  # expected message, then arguments
   local msg=$1; shift

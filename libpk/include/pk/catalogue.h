@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "pk/model.h"
+#include "pk/model_file.h"
 
 namespace pk {
 
@@ -40,9 +41,9 @@ std::vector<std::string> CatalogueModelNames();
 
 /// The catalogue model with this name (case-insensitive), optionally followed by
 /// a model option (":NTR=5"), or the model in a file when `name` ends in .pkm or holds a '/'
-/// (pk/model_file.h). Throws
+/// (pk/model_file.h), whose random effects enter as `etas` says. Throws
 /// pk::InputError listing the catalogue when there is none.
-std::shared_ptr<const Model> MakeModel(const std::string& name);
+std::shared_ptr<const Model> MakeModel(const std::string& name, RandomEffects etas = RandomEffects::kZero);
 
 }  // namespace pk
 

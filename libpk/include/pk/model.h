@@ -45,6 +45,11 @@ struct DeclaredParameter {
   std::string unit;  ///< "" when not given
   /// A covariate: read from the dataset column of its name and never estimated.
   bool covariate = false;
+  /// A random effect η of a model file's $OMEGA, made a parameter by pk::RandomEffects::kParameters:
+  /// 0 by default (`initial`), of either sign, never estimated by an individual fit; a population
+  /// fit binds it to the subject's η. `variance` is its ω² from $OMEGA (NaN for other parameters).
+  bool eta = false;
+  double variance = NAN;
 };
 
 /// What a model file (pk/model_file.h) declares beyond names and defaults. Catalogue models
@@ -95,6 +100,10 @@ class Model {
   /// Whether parameter i is a covariate: a dataset column, never estimated.
   bool is_covariate(int i) const {
     return !declarations_.parameters.empty() && declarations_.parameters[static_cast<size_t>(i)].covariate;
+  }
+  /// Whether parameter i is a model file's random effect η (DeclaredParameter::eta).
+  bool is_eta(int i) const {
+    return !declarations_.parameters.empty() && declarations_.parameters[static_cast<size_t>(i)].eta;
   }
 
   /// Text for an error about a parameter name this model does not have, given the names it

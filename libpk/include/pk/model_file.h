@@ -35,12 +35,24 @@
 
 namespace pk {
 
+/// How a model file's random effects (the η of $OMEGA) enter the model.
+enum class RandomEffects {
+  /// η = 0: an individual model, as pkfit and pksim use it. η's are folded away, so a file whose
+  /// right-hand side is linear stays on the exact Φ/Γ propagator.
+  kZero,
+  /// Each η is a model parameter (DeclaredParameter::eta, 0 by default) that a
+  /// pk::PopulationProblem binds to the subject's random effect, as NONMEM's ETA(n).
+  kParameters,
+};
+
 /// The model in file `path`. Throws pk::InputError naming the file, line and column of the first
 /// error, and what was expected there.
-std::shared_ptr<const Model> LoadModelFile(const std::string& path);
+std::shared_ptr<const Model> LoadModelFile(const std::string& path,
+                                           RandomEffects etas = RandomEffects::kZero);
 
 /// The model in `text`; `source` names it in messages (a file name).
-std::shared_ptr<const Model> ParseModel(const std::string& text, const std::string& source);
+std::shared_ptr<const Model> ParseModel(const std::string& text, const std::string& source,
+                                        RandomEffects etas = RandomEffects::kZero);
 
 /// Why a model file that is not linear runs on the ODE propagator ("" for a linear one or a
 /// catalogue model), for a note to the user.

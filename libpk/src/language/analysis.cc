@@ -62,7 +62,7 @@ using Polynomial = std::vector<Monomial>;
 
 class Analyser {
  public:
-  explicit Analyser(ModelText text) {
+  Analyser(ModelText text, bool bind_etas) : bind_etas_(bind_etas) {
     out_.text = std::move(text);
     out_.declarations.source = out_.text.source;
   }
@@ -130,6 +130,7 @@ class Analyser {
         Fail(e.at, "the variance ω² of " + e.name + " must be positive, not " + FormatNumber(e.variance));
       }
       Declare(e.name, SymbolKind::kEta, static_cast<int>(i), e.at);
+      if (bind_etas_) DeclareEtaParameter(e);
     }
     for (size_t i = 0; i < t.definitions.size(); ++i) {
       const Definition& d = t.definitions[i];
@@ -147,6 +148,20 @@ class Analyser {
     def_state_.assign(t.definitions.size(), 0);
     used_.assign(out_.parameters.size(), false);
     eta_used_.assign(t.etas.size(), false);
+  }
+
+  // A population model's η: a parameter of either sign, 0 unless the population fit binds it.
+  void DeclareEtaParameter(const EtaDecl& e) {
+    eta_input_.push_back(static_cast<int>(out_.parameters.size()));
+    out_.parameters.push_back(e.name);
+    defaults_.push_back(0.0);
+    out_.signed_parameters.push_back(e.name);
+    DeclaredParameter d;
+    d.name = e.name;
+    d.initial = 0;
+    d.eta = true;
+    d.variance = e.variance;
+    out_.declarations.parameters.push_back(d);
   }
 
   void DeclareParameter(const ParameterDecl& p, int n) {
@@ -246,6 +261,7 @@ class Analyser {
         return Input(n() + s.index, src);
       case SymbolKind::kEta:
         eta_used_[static_cast<size_t>(s.index)] = true;
+        if (bind_etas_) return Input(n() + eta_input_[static_cast<size_t>(s.index)], src);
         return Constant(0.0, src);  // an individual model: η = 0
       case SymbolKind::kDefinition: return ResolveDefinition(s.index, src);
       case SymbolKind::kModifier:
@@ -626,6 +642,8 @@ class Analyser {
     out_.linear = true;
   }
 
+  const bool bind_etas_;
+  std::vector<int> eta_input_;  // per η: its model parameter (bind_etas_ only)
   CompiledModel out_;
   std::vector<Node> g_;
   std::map<std::string, Symbol> symbols_;
@@ -639,7 +657,7 @@ class Analyser {
 
 }  // namespace
 
-CompiledModel Analyse(ModelText text) { return Analyser(std::move(text)).Run(); }
+CompiledModel Analyse(ModelText text, bool bind_etas) { return Analyser(std::move(text), bind_etas).Run(); }
 
 }  // namespace lang
 }  // namespace internal

@@ -17,8 +17,8 @@ namespace internal {
 namespace lang {
 
 /// A model file, checked and bound: every name is a state, a model parameter (the declared
-/// parameters, then the covariates) or a definition inlined into the graph. Random effects are 0
-/// here (an individual model); the population model binds them itself.
+/// parameters, then the covariates, then with `bind_etas` the random effects) or a definition
+/// inlined into the graph. Without `bind_etas` random effects are 0 (an individual model).
 struct CompiledModel {
   ModelText text;
   std::vector<Node> graph;  // resolved (no kSymbol) and constant-folded
@@ -39,9 +39,10 @@ struct CompiledModel {
   std::vector<LinearTerm> c_terms;
 };
 
-/// Checks `text` and binds its names. Throws pk::InputError (file, line, column) naming what is
+/// Checks `text` and binds its names; `bind_etas` makes each η a model parameter
+/// (pk::RandomEffects::kParameters). Throws pk::InputError (file, line, column) naming what is
 /// wrong and what was expected.
-CompiledModel Analyse(ModelText text);
+CompiledModel Analyse(ModelText text, bool bind_etas = false);
 
 }  // namespace lang
 }  // namespace internal

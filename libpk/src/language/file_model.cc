@@ -79,18 +79,18 @@ std::shared_ptr<const Model> Build(const CompiledModel& m) {
 }  // namespace lang
 }  // namespace internal
 
-std::shared_ptr<const Model> ParseModel(const std::string& text, const std::string& source) {
+std::shared_ptr<const Model> ParseModel(const std::string& text, const std::string& source, RandomEffects etas) {
   using namespace internal::lang;
-  return Build(Analyse(Parse(text, source)));
+  return Build(Analyse(Parse(text, source), etas == RandomEffects::kParameters));
 }
 
-std::shared_ptr<const Model> LoadModelFile(const std::string& path) {
+std::shared_ptr<const Model> LoadModelFile(const std::string& path, RandomEffects etas) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path, 0, 0, "cannot read the model file");
   std::ostringstream text;
   text << in.rdbuf();
   if (in.bad()) throw InputError(path, 0, 0, "cannot read the model file");
-  return ParseModel(text.str(), path);
+  return ParseModel(text.str(), path, etas);
 }
 
 std::string WhyNotLinear(const Model& model) { return model.declarations().why_not_linear; }

@@ -66,7 +66,10 @@ PopulationPoint PopulationPoint::Make(const PopulationParameters& pp, const Resi
 Eigen::VectorXd IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta) {
   Eigen::VectorXd v = s.base;
   for (size_t k = 0; k < s.theta_index.size(); ++k) v(s.theta_index[k]) = p.theta(static_cast<Eigen::Index>(k));
-  for (size_t m = 0; m < s.eta_free.size(); ++m) v(s.eta_free[m]) *= std::exp(eta(static_cast<Eigen::Index>(m)));
+  for (size_t m = 0; m < s.eta_free.size(); ++m) {
+    const double e = eta(static_cast<Eigen::Index>(m));
+    v(s.eta_free[m]) = s.eta_log[m] ? v(s.eta_free[m]) * std::exp(e) : e;
+  }
   return v;
 }
 
@@ -102,9 +105,13 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
     return false;
   }
   if (!derivatives) return true;
-  // ∂ŷ/∂η_m = ∂ŷ/∂φ_m · φ_m (φ_m = θ·e^η); the objective's residual Jacobian is −∂ŷ/∂φ.
+  // ∂ŷ/∂η_m = ∂ŷ/∂φ_m · φ_m for φ_m = θ·e^η, ∂ŷ/∂φ_m for φ_m = η; the objective's residual
+  // Jacobian is −∂ŷ/∂φ.
   Eigen::MatrixXd gy = -ev.jacobian.topRows(n);
-  for (Eigen::Index m = 0; m < q; ++m) gy.col(m) *= phi(s.eta_free[static_cast<size_t>(m)]);
+  for (Eigen::Index m = 0; m < q; ++m) {
+    const auto mm = static_cast<size_t>(m);
+    if (s.eta_log[mm]) gy.col(m) *= phi(s.eta_free[mm]);
+  }
   c->g = logs ? Eigen::MatrixXd(c->yhat.cwiseInverse().asDiagonal() * gy) : gy;
   c->dv = dv_dyhat.asDiagonal() * gy;
   c->gradient = 2 * p.omega_inverse * eta;
@@ -194,6 +201,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     if (!start.any() || !EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) return mode;
   }
   bool newton = false, converged = false;
+  const Eigen::VectorXd scale = p.omega_inverse.diagonal().cwiseSqrt();
   double previous = 0;  // the last step's length
   Eigen::MatrixXd half_hessian;
   Eigen::VectorXd step;
@@ -206,7 +214,8 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
         return mode;
       }
     }
-    const double length = step.lpNorm<Eigen::Infinity>();
+    // Measured in η's own scale, 1/√(Ω⁻¹)_mm: a model file's additive η may be far from 1.
+    const double length = step.cwiseProduct(scale).lpNorm<Eigen::Infinity>();
     if (length < s.step_tolerance) {
       converged = true;
       break;

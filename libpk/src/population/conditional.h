@@ -24,8 +24,14 @@ struct SubjectModel {
   Eigen::VectorXd base;          ///< the objective's full value vector (modifiers at their defaults)
   Eigen::VectorXd y;             ///< observations on the error model's scale (y or log y)
   std::vector<int> theta_index;  ///< objective position of each θ
-  std::vector<int> eta_theta;    ///< the θ (index into θ) that each η multiplies
-  std::vector<int> eta_free;     ///< objective position of each η'd parameter (the free list)
+  /// The individual parameters φ the predictions are differentiated in: the θ positions, then
+  /// the positions of a model file's η parameters (pk::RandomEffects::kParameters).
+  std::vector<int> phi_index;
+  std::vector<int> eta_phi;   ///< per η: the φ it acts on (index into phi_index)
+  /// Per η: φ = θ·exp(η), a log-normal η on a θ (the catalogue's CL_i = CL·exp(η_CL)); else
+  /// φ = η, a model file's η parameter, which the file's own expressions transform.
+  std::vector<bool> eta_log;
+  std::vector<int> eta_free;  ///< objective position of each η's φ (the free list)
   /// ‖Δη‖∞ at which the mode counts as found: 1e-10 where the predictions are exact to rounding
   /// (Φ/Γ); on the ODE propagator l and ∇l carry the solver's error (about rtol relative), below
   /// which Newton's steps only wander, so 100·rtol there.

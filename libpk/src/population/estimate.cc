@@ -349,10 +349,12 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
     e.fixed = packing.natural_fixed()[k];
     summary.estimates.push_back(e);
   }
-  for (int k : packing.variance_positions()) {
-    auto& e = summary.estimates[static_cast<size_t>(k)];
+  const std::vector<int>& variances = packing.variance_positions();
+  for (size_t m = 0; m < variances.size(); ++m) {
+    auto& e = summary.estimates[static_cast<size_t>(variances[m])];
     e.at_boundary = !e.fixed && e.estimate < 1e-6;
-    e.cv_pct = 100 * std::sqrt(std::expm1(e.estimate));  // φ = θ·exp(η): every η is log-normal
+    // φ = θ·exp(η) is log-normal; a model file's η enters through the file's own expression.
+    if (problem.impl().eta_log_normal[m]) e.cv_pct = 100 * std::sqrt(std::expm1(e.estimate));
   }
   summary.processes = options.distribution ? options.distribution->size() : 1;
   if (final_eval.ok) {

@@ -30,11 +30,11 @@ namespace {
 
 constexpr double kPhiStep = 1e-3;  // relative step in φ for T (Richardson with h and h/2)
 
-// ŷ and J = ∂ŷ/∂φ over every θ at φ.
+// ŷ and J = ∂ŷ/∂φ over every φ (the θ, then a model file's η parameters) at φ.
 bool Sensitivities(const SubjectModel& s, const Eigen::VectorXd& phi, Eigen::VectorXd* yhat, Eigen::MatrixXd* j,
                    std::string* why) {
   const Objective::Evaluation ev =
-      s.objective->Evaluate(phi, s.theta_index, Objective::Need::kJacobian, GradientRoute::kForward);
+      s.objective->Evaluate(phi, s.phi_index, Objective::Need::kJacobian, GradientRoute::kForward);
   if (!ev.ok) {
     *why = ev.message;
     return false;
@@ -44,17 +44,19 @@ bool Sensitivities(const SubjectModel& s, const Eigen::VectorXd& phi, Eigen::Vec
   return true;
 }
 
-// T[j](k, l) = ∂²ŷ_j/∂φ_k∂φ_l for k or l η'd (others 0).
-bool SecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<Eigen::MatrixXd>* t,
-                 std::string* why) {
-  const auto p = static_cast<Eigen::Index>(s.theta_index.size());
+// T[j](k, l) = ∂²ŷ_j/∂φ_k∂φ_l for k or l η'd (others 0). The step is relative to φ_k, or for
+// a file's η parameter (φ = η, near 0) to the η's prior scale 1/√(Ω⁻¹)_mm.
+bool SecondOrder(const SubjectModel& s, const PopulationPoint& point, const Eigen::VectorXd& phi,
+                 std::vector<Eigen::MatrixXd>* t, std::string* why) {
+  const auto p = static_cast<Eigen::Index>(s.phi_index.size());
   Eigen::VectorXd y;
   Eigen::MatrixXd jp, jm, d[2];
   std::vector<bool> done(static_cast<size_t>(p), false);  // η'd parameters whose differences are in T
   for (size_t m = 0; m < s.eta_free.size(); ++m) {
-    const int at = s.eta_free[m], k = s.eta_theta[m];
+    const int at = s.eta_free[m], k = s.eta_phi[m];
     for (int level = 0; level < 2; ++level) {
-      const double h = kPhiStep * std::max(std::abs(phi(at)), 1e-8) / (1 << level);
+      const double scale = s.eta_log[m] ? 1e-8 : 1 / std::sqrt(point.omega_inverse(static_cast<Eigen::Index>(m), static_cast<Eigen::Index>(m)));
+      const double h = kPhiStep * std::max(std::abs(phi(at)), scale) / (1 << level);
       Eigen::VectorXd e = phi;
       e(at) += h;
       if (!Sensitivities(s, e, &y, &jp, why)) return false;
@@ -160,10 +162,10 @@ struct Expansion {
 bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta, bool foce, Expansion* e,
             std::string* why) {
   e->phi0 = IndividualValues(s, p, eta);
-  if (!Sensitivities(s, e->phi0, &e->y0, &e->j0, why) || !SecondOrder(s, e->phi0, &e->t, why)) return false;
+  if (!Sensitivities(s, e->phi0, &e->y0, &e->j0, why) || !SecondOrder(s, p, e->phi0, &e->t, why)) return false;
   e->phi00 = IndividualValues(s, p, Eigen::VectorXd::Zero(eta.size()));
   if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) return false;
-  const auto np = static_cast<Eigen::Index>(s.theta_index.size());
+  const auto np = static_cast<Eigen::Index>(s.phi_index.size());
   if (e->t.empty()) e->t.assign(static_cast<size_t>(e->y0.size()), Eigen::MatrixXd::Zero(np, np));
   return true;
 }
@@ -186,12 +188,21 @@ Variables<HD> MakeVariables(const SubjectModel& s, const PopulationPoint& p, con
   for (int i = 0; i < q; ++i) v.eta.push_back(HD::Variable(eta(i), d, i));
   for (int i = 0; i < m; ++i) xs.push_back(HD::Variable(x(i), d, q + i));
   packing.UnpackAs(xs, [d](double c) { return HD(c, d); }, &v.theta, &v.sigma, &v.lo);
-  std::vector<int> eta_of(s.theta_index.size(), -1);
-  for (int i = 0; i < q; ++i) eta_of[static_cast<size_t>(s.eta_theta[static_cast<size_t>(i)])] = i;
-  for (size_t k = 0; k < s.theta_index.size(); ++k) {
-    v.phi.push_back(eta_of[k] >= 0 ? v.theta[k] * exp(v.eta[static_cast<size_t>(eta_of[k])]) : v.theta[k]);
-    v.dphi.push_back(v.phi.back() + (-e.phi0(s.theta_index[k])));
-    v.dphi00.push_back(v.theta[k] + (-e.phi00(s.theta_index[k])));
+  std::vector<int> eta_of(s.phi_index.size(), -1);
+  for (int i = 0; i < q; ++i) eta_of[static_cast<size_t>(s.eta_phi[static_cast<size_t>(i)])] = i;
+  for (size_t k = 0; k < s.phi_index.size(); ++k) {
+    // φ_k = θ_k, θ_k·exp(η) or (a file's η parameter, k past the θ) η; at η = 0: θ_k or 0.
+    const bool is_theta = k < s.theta_index.size();
+    const HD at_zero = is_theta ? v.theta[k] : HD(0, d);
+    const int m = eta_of[k];
+    if (m < 0) {
+      v.phi.push_back(at_zero);
+    } else {
+      const HD& eta_m = v.eta[static_cast<size_t>(m)];
+      v.phi.push_back(s.eta_log[static_cast<size_t>(m)] ? at_zero * exp(eta_m) : eta_m);
+    }
+    v.dphi.push_back(v.phi.back() + (-e.phi0(s.phi_index[k])));
+    v.dphi00.push_back(at_zero + (-e.phi00(s.phi_index[k])));
   }
   for (size_t i = 0; i < v.sigma.size(); ++i) v.dsigma.push_back(v.sigma[i] + (-p.sigma(static_cast<Eigen::Index>(i))));
   return v;
@@ -266,10 +277,11 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
   *l += r * r * w + log(var);
   std::vector<HD> g, dv;
   for (int i = 0; i < q; ++i) {
-    const int k = s.eta_theta[static_cast<size_t>(i)];
+    const int k = s.eta_phi[static_cast<size_t>(i)];
     HD slope(e.j0(j, k), v.d);
     for (int c = 0; c < np; ++c) slope += tj(k, c) * v.dphi[static_cast<size_t>(c)];
-    const HD dy_deta = slope * v.phi[static_cast<size_t>(k)];
+    // ∂φ_k/∂η: φ_k for a log-normal η, 1 for a file's η parameter.
+    const HD dy_deta = s.eta_log[static_cast<size_t>(i)] ? slope * v.phi[static_cast<size_t>(k)] : slope;
     g.push_back(logs ? dy_deta / yhat : dy_deta);
     dv.push_back(vy * dy_deta);
   }

@@ -65,6 +65,13 @@ Eigen::VectorXd Observations(const Objective& o, const Dataset& data, int subjec
   return y;
 }
 
+bool HasEtas(const Model& model) {
+  for (int i = 0; i < model.num_parameters(); ++i) {
+    if (model.is_eta(i)) return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data,
@@ -79,21 +86,41 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
                      "exponential), not least squares");
   }
   for (int i = 0; i < d.model->num_parameters(); ++i) {
-    if (d.model->is_covariate(i)) continue;
+    if (d.model->is_covariate(i) || d.model->is_eta(i)) continue;
     d.theta_names.push_back(d.model->parameter_names()[static_cast<size_t>(i)]);
     d.theta_model_index.push_back(i);
   }
-  std::vector<int> eta_theta;
+  std::vector<int> eta_phi;
+  std::vector<std::string> eta_parameters;  // a model file's η parameters, in φ order after θ
   for (const std::string& e : etas) {
-    const int k = IndexOf(d.theta_names, e);
-    if (k < 0) throw InputError("--eta: '" + e + "' is not an estimable parameter of " + d.model->name());
-    if (std::find(eta_theta.begin(), eta_theta.end(), k) != eta_theta.end()) {
+    int k = IndexOf(d.theta_names, e);
+    const bool log_normal = k >= 0;
+    if (!log_normal) {
+      const int i = d.model->ParameterIndex(e);
+      if (i < 0 || !d.model->is_eta(i)) {
+        throw InputError("--eta: '" + e + "' is not an estimable parameter" +
+                         (HasEtas(*d.model) ? " or a random effect" : "") + " of " + d.model->name());
+      }
+      const std::string& name = d.model->parameter_names()[static_cast<size_t>(i)];
+      if (d.data->ExtraColumn(name) >= 0) {
+        throw InputError(d.data->source, 1, d.data->ColumnNumber(name),
+                         "the column " + name + " would hold the random effect " + name + " of " + d.model->name() +
+                             " fixed; rename or drop it");
+      }
+      if (std::find(eta_parameters.begin(), eta_parameters.end(), name) != eta_parameters.end()) {
+        throw InputError("--eta: '" + e + "' is given twice");
+      }
+      k = static_cast<int>(d.theta_names.size() + eta_parameters.size());
+      eta_parameters.push_back(name);
+    }
+    if (std::find(eta_phi.begin(), eta_phi.end(), k) != eta_phi.end()) {
       throw InputError("--eta: '" + e + "' is given twice");
     }
-    eta_theta.push_back(k);
-    d.eta_names.push_back(d.theta_names[static_cast<size_t>(k)]);
+    eta_phi.push_back(k);
+    d.eta_log_normal.push_back(log_normal);
+    d.eta_names.push_back(log_normal ? d.theta_names[static_cast<size_t>(k)] : eta_parameters.back());
   }
-  if (eta_theta.empty()) throw InputError("a population model needs at least one parameter with an η");
+  if (eta_phi.empty()) throw InputError("a population model needs at least one parameter with an η");
   d.sigma_names = options.error_model->sigma_names();
   ObjectiveOptions ls = options;  // predictions and their sensitivities only: least squares, forward
   ls.error_model = LeastSquares();
@@ -107,8 +134,11 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
     s.base = s.objective->DefaultValues();
     s.y = Observations(*s.objective, *d.data, i, logs);
     for (const std::string& name : d.theta_names) s.theta_index.push_back(s.objective->ParameterIndex(name));
-    s.eta_theta = eta_theta;
-    for (int k : eta_theta) s.eta_free.push_back(s.theta_index[static_cast<size_t>(k)]);
+    s.phi_index = s.theta_index;
+    for (const std::string& name : eta_parameters) s.phi_index.push_back(s.objective->ParameterIndex(name));
+    s.eta_phi = eta_phi;
+    s.eta_log = d.eta_log_normal;
+    for (int k : eta_phi) s.eta_free.push_back(s.phi_index[static_cast<size_t>(k)]);
     if (ode) {
       s.step_tolerance = std::max(1e-10, 100 * options.ode.relative_tolerance);
       s.relative_noise = std::max(1e-10, 10 * options.ode.relative_tolerance);
@@ -155,6 +185,10 @@ PopulationParameters PopulationProblem::DefaultParameters() const {
   }
   const Eigen::Index q = static_cast<Eigen::Index>(d.eta_names.size());
   p.omega = 0.1 * Eigen::MatrixXd::Identity(q, q);
+  for (Eigen::Index m = 0; m < q; ++m) {  // a model file's $OMEGA gives its η's variances
+    const int i = d.model->ParameterIndex(d.eta_names[static_cast<size_t>(m)]);
+    if (!d.eta_log_normal[static_cast<size_t>(m)]) p.omega(m, m) = d.model->declarations().parameters[static_cast<size_t>(i)].variance;
+  }
   Eigen::VectorXd pooled(d.num_observations);
   Eigen::Index at = 0;
   for (const auto& s : d.subjects) {

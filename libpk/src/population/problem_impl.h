@@ -17,6 +17,8 @@ struct PopulationProblem::Impl {
   ObjectiveOptions options;  ///< as given (the error model); the subjects run least squares
   std::vector<std::string> theta_names, eta_names, sigma_names;
   std::vector<int> theta_model_index;  ///< model parameter index of each θ
+  /// Per η: log-normal on a θ (CL_i = CL·exp(η)), else a model file's η parameter.
+  std::vector<bool> eta_log_normal;
   std::vector<internal::SubjectModel> subjects;
   int num_observations = 0;
 };
