@@ -687,3 +687,30 @@ CP = CENTRAL / V
     CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
   }
 }
+
+TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVARIANCE",
+          "[population][model-file][release-only]") {
+  // NONMEM's SEs at its estimate (pheno_real.ext, row -1000000001; $COVARIANCE UNCONDITIONAL, its
+  // default R⁻¹SR⁻¹): θ 2.10036e-4, 2.68952e-2, 8.37623e-2; ω² 1.34153e-2, 7.47651e-3; σ² 2.27940e-3,
+  // so SE(σ) = SE(σ²)/(2σ). The covariance step at NONMEM's estimates (one evaluation, then the
+  // step) on CVODES, whose OFV carries about 1e-7 relative noise: about a minute on 2 threads.
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
+  std::stringstream text;
+  text << in.rdbuf();
+  const pk::PopulationProblem problem = FileProblem(text.str(), "proportional", 1e-8);
+  pk::PopulationParameters p;
+  p.theta = Eigen::Vector3d(4.69555e-03, 9.84258e-01, 1.58920e-01);
+  p.omega = Diagonal({2.93508e-02, 2.79060e-02});
+  p.sigma = Eigen::VectorXd::Constant(1, std::sqrt(1.32410e-02));
+  pk::PopulationOptions options;
+  options.max_iterations = 1;
+  options.threads = 2;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, p, options);
+  REQUIRE(fit.estimates.size() == 6);
+  const double sigma = fit.estimates[5].estimate;
+  const double nonmem[6] = {2.10036e-4, 2.68952e-2, 8.37623e-2, 1.34153e-2, 7.47651e-3, 2.27940e-3 / (2 * sigma)};
+  for (int k = 0; k < 6; ++k) {
+    INFO(fit.estimates[static_cast<size_t>(k)].name << ": " << fit.estimates[static_cast<size_t>(k)].se);
+    CHECK(std::abs(fit.estimates[static_cast<size_t>(k)].se / nonmem[k] - 1) < 0.02);
+  }
+}
