@@ -31,11 +31,13 @@ namespace {
 const char* const kUsage =
     "Usage: pkpop --model NAME --data FILE [options]\n"
     "Estimates a population model (NONMEM's FOCE, FOCEI or Laplace): typical values θ, between-subject\n"
-    "variances Ω of log-normal random effects η (CL_i = CL·exp(η_CL)) and residual-error σ.\n\n"
+    "variances Ω of the random effects η and residual-error σ. η are a model file's own ($OMEGA, written\n"
+    "into $PK) or log-normal on a parameter (CL_i = CL·exp(η_CL)).\n\n"
     "Examples:\n"
     "  pkpop --model 1cmt_iv --data datasets/phenobarbital.csv --eta CL,V --error proportional\n"
     "  pkpop --model 1cmt_oral --data datasets/theophylline.csv --eta KA,CL,V --block CL,V --error combined\n"
-    "  pkpop --model models/1cmt_iv.pkm --data d.csv --method laplace --theta CL=0.005 --omega CL=0.2 --fix V\n";
+    "  pkpop --model models/1cmt_iv.pkm --data d.csv --method laplace --theta CL=0.005 --omega CL=0.2 --fix V\n"
+    "  pkpop --model models/pheno_pop.pkm --data datasets/phenobarbital.csv -j 2\n";
 
 struct Lists {
   std::vector<std::string> eta, block, theta, omega, sigma, fix, ignore, accept;
@@ -47,14 +49,16 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "method", po::value<std::string>()->default_value("focei"), "foce, focei (INTER) or laplace (LAPLACIAN INTER)")(
       "eta", po::value<std::vector<std::string>>(&a->eta)->composing(),
-      "parameters with an η, comma-separated, in Ω's order (default: every estimable parameter)")(
+      "the η, comma-separated, in Ω's order: a model file's own (ETA_CL), or a parameter NAME for a log-normal "
+      "η on it (default: the file's η, else every estimable parameter)")(
       "block", po::value<std::vector<std::string>>(&a->block)->composing(),
       "η that form a full Ω block, comma-separated and consecutive in --eta (repeatable); others are diagonal")(
       "error", po::value<std::string>(), "additive, proportional, combined or exponential (default: the model "
                                          "file's $ERROR, else combined)")(
       "theta", po::value<std::vector<std::string>>(&a->theta)->composing(), "NAME=VALUE: initial θ (default: the model's)")(
       "omega", po::value<std::vector<std::string>>(&a->omega)->composing(),
-      "NAME=VALUE: initial variance of η_NAME (default 0.1); A:B=VALUE an initial covariance in a block")(
+      "NAME=VALUE: initial variance of η NAME (default: a model file's $OMEGA, else 0.1); A:B=VALUE an initial "
+      "covariance in a block")(
       "sigma", po::value<std::vector<std::string>>(&a->sigma)->composing(), "NAME=VALUE: initial σ (SIGMA_ADD, ...)")(
       "fix", po::value<std::vector<std::string>>(&a->fix)->composing(),
       "hold at its initial value: a θ or σ name, or OMEGA(NAME) for the Ω block of η_NAME (comma-separated)")(

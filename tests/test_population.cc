@@ -613,6 +613,44 @@ TEST_CASE("a model file's η bind as parameters, and an individual model keeps t
                     Catch::Contains("'ETA_KA' is not an estimable parameter or a random effect"));
 }
 
+TEST_CASE("a model file's η has no CV%, and a data column may not hold it", "[population][model-file]") {
+  // Its transform is the file's own expression, so 100·√(exp(ω²) − 1) would be a guess. The model
+  // keeps k = CL/V + η_k on Φ/Γ; everything fixed, the summary is formed at the initial values.
+  const char* text = R"($PROBLEM additive_eta
+$PARAM
+CL = 0.0066
+V  = 1.35
+$OMEGA
+ETA_K ~ 1e-6
+$CMT
+CENTRAL dose central
+$ODE
+d/dt(CENTRAL) = -(CL / V + ETA_K) * CENTRAL
+$OUTPUT
+CP = CENTRAL / V
+)";
+  const pk::PopulationProblem problem = FileProblem(text, "proportional", 1e-8);
+  pk::PopulationOptions options;
+  options.covariance = false;
+  options.structure.theta_fixed = {true, true};
+  options.structure.sigma_fixed = {true};
+  options.structure.omega_block_fixed = {true};
+  pk::PopulationParameters p = problem.DefaultParameters();
+  p.sigma(0) = 0.12;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, p, options);
+  REQUIRE(fit.estimates.size() == 4);
+  CHECK(fit.estimates[2].name == "OMEGA(ETA_K)");
+  CHECK(fit.estimates[2].estimate == 1e-6);
+  CHECK(std::isnan(fit.estimates[2].cv_pct));
+  // A dataset column named as the η would hold it fixed.
+  auto data = std::make_shared<pk::Dataset>(pk::ParseDataset("ID,TIME,AMT,DV,ETA_K\n1,0,10,0,0\n1,1,0,5,0\n", "eta.csv"));
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  CHECK_THROWS_WITH(pk::PopulationProblem(pk::ParseModel(text, "t.pkm", pk::RandomEffects::kParameters), data,
+                                          {"ETA_K"}, o),
+                    Catch::Contains("eta.csv:1:5: the column ETA_K would hold the random effect ETA_K"));
+}
+
 TEST_CASE("η written in a model file give the catalogue's log-normal η objective", "[population][model-file]") {
   // The file runs on CVODES (exp(η) is not a linear coefficient), the catalogue on Φ/Γ.
   const Case c = Cases().at("pheno_prop");

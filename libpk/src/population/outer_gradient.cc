@@ -54,8 +54,9 @@ bool SecondOrder(const SubjectModel& s, const PopulationPoint& point, const Eige
   std::vector<bool> done(static_cast<size_t>(p), false);  // η'd parameters whose differences are in T
   for (size_t m = 0; m < s.eta_free.size(); ++m) {
     const int at = s.eta_free[m], k = s.eta_phi[m];
+    const auto mm = static_cast<Eigen::Index>(m);
+    const double scale = s.eta_log[m] ? 1e-8 : 1 / std::sqrt(point.omega_inverse(mm, mm));
     for (int level = 0; level < 2; ++level) {
-      const double scale = s.eta_log[m] ? 1e-8 : 1 / std::sqrt(point.omega_inverse(static_cast<Eigen::Index>(m), static_cast<Eigen::Index>(m)));
       const double h = kPhiStep * std::max(std::abs(phi(at)), scale) / (1 << level);
       Eigen::VectorXd e = phi;
       e(at) += h;

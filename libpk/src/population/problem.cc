@@ -72,6 +72,51 @@ bool HasEtas(const Model& model) {
   return false;
 }
 
+// The model's name of a model file's η parameter `e` (pk::RandomEffects::kParameters).
+std::string EtaParameter(const PopulationProblem::Impl& d, const std::string& e) {
+  const int i = d.model->ParameterIndex(e);
+  if (i < 0 || !d.model->is_eta(i)) {
+    throw InputError("--eta: '" + e + "' is not an estimable parameter" + (HasEtas(*d.model) ? " or a random effect" : "") +
+                     " of " + d.model->name());
+  }
+  const std::string& name = d.model->parameter_names()[static_cast<size_t>(i)];
+  if (d.data->ExtraColumn(name) >= 0) {
+    throw InputError(d.data->source, 1, d.data->ColumnNumber(name),
+                     "the column " + name + " would hold the random effect " + name + " of " + d.model->name() +
+                         " fixed; rename or drop it");
+  }
+  return name;
+}
+
+// Where each η acts: on a θ (log-normal, φ = θ·exp(η)), or as a model file's η parameter
+// (φ = η), which follow the θ in the φ list.
+struct EtaBindings {
+  std::vector<int> phi;                 ///< per η: its φ (index into θ, then `parameters`)
+  std::vector<std::string> parameters;  ///< the file's η parameters, in φ order after θ
+};
+
+// Binds `etas` and fills d's eta_names and eta_log_normal.
+EtaBindings BindEtas(const std::vector<std::string>& etas, PopulationProblem::Impl* d) {
+  EtaBindings b;
+  for (const std::string& e : etas) {
+    int k = IndexOf(d->theta_names, e);
+    const bool log_normal = k >= 0;
+    const std::string name = log_normal ? d->theta_names[static_cast<size_t>(k)] : EtaParameter(*d, e);
+    if (std::find(d->eta_names.begin(), d->eta_names.end(), name) != d->eta_names.end()) {
+      throw InputError("--eta: '" + e + "' is given twice");
+    }
+    if (!log_normal) {
+      k = static_cast<int>(d->theta_names.size() + b.parameters.size());
+      b.parameters.push_back(name);
+    }
+    b.phi.push_back(k);
+    d->eta_log_normal.push_back(log_normal);
+    d->eta_names.push_back(name);
+  }
+  if (b.phi.empty()) throw InputError("a population model needs at least one parameter with an η");
+  return b;
+}
+
 }  // namespace
 
 PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data,
@@ -90,37 +135,7 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
     d.theta_names.push_back(d.model->parameter_names()[static_cast<size_t>(i)]);
     d.theta_model_index.push_back(i);
   }
-  std::vector<int> eta_phi;
-  std::vector<std::string> eta_parameters;  // a model file's η parameters, in φ order after θ
-  for (const std::string& e : etas) {
-    int k = IndexOf(d.theta_names, e);
-    const bool log_normal = k >= 0;
-    if (!log_normal) {
-      const int i = d.model->ParameterIndex(e);
-      if (i < 0 || !d.model->is_eta(i)) {
-        throw InputError("--eta: '" + e + "' is not an estimable parameter" +
-                         (HasEtas(*d.model) ? " or a random effect" : "") + " of " + d.model->name());
-      }
-      const std::string& name = d.model->parameter_names()[static_cast<size_t>(i)];
-      if (d.data->ExtraColumn(name) >= 0) {
-        throw InputError(d.data->source, 1, d.data->ColumnNumber(name),
-                         "the column " + name + " would hold the random effect " + name + " of " + d.model->name() +
-                             " fixed; rename or drop it");
-      }
-      if (std::find(eta_parameters.begin(), eta_parameters.end(), name) != eta_parameters.end()) {
-        throw InputError("--eta: '" + e + "' is given twice");
-      }
-      k = static_cast<int>(d.theta_names.size() + eta_parameters.size());
-      eta_parameters.push_back(name);
-    }
-    if (std::find(eta_phi.begin(), eta_phi.end(), k) != eta_phi.end()) {
-      throw InputError("--eta: '" + e + "' is given twice");
-    }
-    eta_phi.push_back(k);
-    d.eta_log_normal.push_back(log_normal);
-    d.eta_names.push_back(log_normal ? d.theta_names[static_cast<size_t>(k)] : eta_parameters.back());
-  }
-  if (eta_phi.empty()) throw InputError("a population model needs at least one parameter with an η");
+  const EtaBindings etas_bound = BindEtas(etas, &d);
   d.sigma_names = options.error_model->sigma_names();
   ObjectiveOptions ls = options;  // predictions and their sensitivities only: least squares, forward
   ls.error_model = LeastSquares();
@@ -135,10 +150,10 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
     s.y = Observations(*s.objective, *d.data, i, logs);
     for (const std::string& name : d.theta_names) s.theta_index.push_back(s.objective->ParameterIndex(name));
     s.phi_index = s.theta_index;
-    for (const std::string& name : eta_parameters) s.phi_index.push_back(s.objective->ParameterIndex(name));
-    s.eta_phi = eta_phi;
+    for (const std::string& name : etas_bound.parameters) s.phi_index.push_back(s.objective->ParameterIndex(name));
+    s.eta_phi = etas_bound.phi;
     s.eta_log = d.eta_log_normal;
-    for (int k : eta_phi) s.eta_free.push_back(s.phi_index[static_cast<size_t>(k)]);
+    for (int k : etas_bound.phi) s.eta_free.push_back(s.phi_index[static_cast<size_t>(k)]);
     if (ode) {
       s.step_tolerance = std::max(1e-10, 100 * options.ode.relative_tolerance);
       s.relative_noise = std::max(1e-10, 10 * options.ode.relative_tolerance);
@@ -186,8 +201,10 @@ PopulationParameters PopulationProblem::DefaultParameters() const {
   const Eigen::Index q = static_cast<Eigen::Index>(d.eta_names.size());
   p.omega = 0.1 * Eigen::MatrixXd::Identity(q, q);
   for (Eigen::Index m = 0; m < q; ++m) {  // a model file's $OMEGA gives its η's variances
-    const int i = d.model->ParameterIndex(d.eta_names[static_cast<size_t>(m)]);
-    if (!d.eta_log_normal[static_cast<size_t>(m)]) p.omega(m, m) = d.model->declarations().parameters[static_cast<size_t>(i)].variance;
+    const auto mm = static_cast<size_t>(m);
+    if (d.eta_log_normal[mm]) continue;
+    const int i = d.model->ParameterIndex(d.eta_names[mm]);
+    p.omega(m, m) = d.model->declarations().parameters[static_cast<size_t>(i)].variance;
   }
   Eigen::VectorXd pooled(d.num_observations);
   Eigen::Index at = 0;
