@@ -15,6 +15,7 @@ packages=(
   libbenchmark-dev                  # benchmarks
   libkainjow-mustache-dev           # pkfit's HTML report is rendered from a template
   nlohmann-json3-dev                # pkfit's machine-readable run summary (summary.json)
+  libfmt-dev                        # shortest digits of a double (Dragonbox), for pksim's output
   chromium                          # the report's screenshot test (tests/cli/test_report.sh)
   fonts-dejavu-core                 # a font for Chromium to render the report with
   locales                           # localedef's sources: the tests read and write numbers under a comma-decimal locale

@@ -30,10 +30,12 @@ TEST_CASE("1cmt oral matches the Bateman function with F", "[closed-form]") {
                                 "ID,TIME,AMT,EVID,CMT\n1,0,320,1,1\n1,0.25,0,0,2\n1,1,0,0,2\n1,2.5,0,0,2\n1,12,0,0,2\n",
                                 {{"KA", ka}, {"CL", cl}, {"V", v}, {"F1", f}});
   REQUIRE(sim.ok);
-  for (const auto& r : sim.rows) {
+  REQUIRE(sim.amounts.cols() == static_cast<Eigen::Index>(sim.rows.size()));
+  for (size_t i = 0; i < sim.rows.size(); ++i) {
+    const auto& r = sim.rows[i];
     const double c = f * dose * ka / (v * (ka - k)) * (std::exp(-k * r.time) - std::exp(-ka * r.time));
     CHECK(RelDiff(r.cp, c) < 1e-12);
-    CHECK(RelDiff(r.amounts(0), f * dose * std::exp(-ka * r.time)) < 1e-12);
+    CHECK(RelDiff(sim.amounts(0, static_cast<Eigen::Index>(i)), f * dose * std::exp(-ka * r.time)) < 1e-12);
   }
 }
 
@@ -107,8 +109,11 @@ TEST_CASE("3cmt IV bolus matches an independent eigendecomposition", "[closed-fo
   const auto sim = SimulateText("3cmt_iv", "ID,TIME,AMT,EVID\n1,0,250,1\n1,0.2,0,0\n1,2,0,0\n1,20,0,0\n1,200,0,0\n",
                                 {{"CL", 2}, {"V1", 8}, {"Q2", 10}, {"V2", 20}, {"Q3", 1.5}, {"V3", 70}});
   REQUIRE(sim.ok);
-  for (const auto& r : sim.rows) {
-    Eigen::VectorXcd x = vecs * (coeff.array() * (vals.array() * r.time).exp()).matrix();
-    for (int i = 0; i < 3; ++i) CHECK(RelDiff(r.amounts(i), x(i).real(), 1e-9) < 1e-10);
+  REQUIRE(sim.amounts.cols() == static_cast<Eigen::Index>(sim.rows.size()));
+  for (size_t k = 0; k < sim.rows.size(); ++k) {
+    Eigen::VectorXcd x = vecs * (coeff.array() * (vals.array() * sim.rows[k].time).exp()).matrix();
+    for (int i = 0; i < 3; ++i) {
+      CHECK(RelDiff(sim.amounts(i, static_cast<Eigen::Index>(k)), x(i).real(), 1e-9) < 1e-10);
+    }
   }
 }

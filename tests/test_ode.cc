@@ -770,7 +770,8 @@ TEST_CASE("pksim through CVODES: AUC and amounts equal the exact propagator's", 
     INFO("t = " << a.rows[k].time);
     CHECK(b.rows[k].auc == Approx(a.rows[k].auc).epsilon(1e-9));
     CHECK(b.rows[k].cp == Approx(a.rows[k].cp).epsilon(1e-9));
-    for (int c = 0; c < 3; ++c) CHECK(b.rows[k].amounts(c) == Approx(a.rows[k].amounts(c)).epsilon(1e-9).margin(1e-12));
+    const auto col = static_cast<Eigen::Index>(k);
+    for (int c = 0; c < 3; ++c) CHECK(b.amounts(c, col) == Approx(a.amounts(c, col)).epsilon(1e-9).margin(1e-12));
   }
   // The exposure metrics see the same doses.
   REQUIRE(a.doses.size() == b.doses.size());

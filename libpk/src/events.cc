@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "internal_text.h"
 #include "pk/error.h"
@@ -30,9 +31,19 @@ void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base
   s->sets.clear();
   s->from_data.clear();
   s->set_of_record.assign(records.size(), 0);
+  // One scratch vector for every record: a subject's records mostly repeat the set before them.
+  Eigen::VectorXd v(base.size());
+  std::vector<char> data_flags(static_cast<size_t>(layout.size()));
   for (size_t r = 0; r < records.size(); ++r) {
-    Eigen::VectorXd v = base;
-    std::vector<char> data_flags(layout.size(), 0);
+    // The same columns as the record before (bitwise, as an added output record copies them): its set.
+    const std::vector<double>& extra = records[r].extra;
+    if (r > 0 && extra.size() == records[r - 1].extra.size() &&
+        (extra.empty() || std::memcmp(extra.data(), records[r - 1].extra.data(), extra.size() * sizeof(double)) == 0)) {
+      s->set_of_record[r] = s->set_of_record[r - 1];
+      continue;
+    }
+    v = base;
+    std::fill(data_flags.begin(), data_flags.end(), 0);
     for (int i = 0; i < layout.size(); ++i) {
       const int col = s->column_of_parameter[i];
       if (col >= 0 && !std::isnan(records[r].extra[col])) {
@@ -43,7 +54,7 @@ void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base
     // Unused modifiers (R, D of compartments nobody infuses into) are NaN: NaN matches NaN here.
     if (s->sets.empty() || !SameValues(s->sets.back(), v) || s->from_data.back() != data_flags) {
       s->sets.push_back(v);
-      s->from_data.push_back(std::move(data_flags));
+      s->from_data.push_back(data_flags);
     }
     s->set_of_record[r] = static_cast<int>(s->sets.size()) - 1;
   }
@@ -138,8 +149,11 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
     const int c = rec.cmt > 0 ? rec.cmt - 1 : (rec.IsDose() ? model.default_dose_compartment() - 1
                                                             : model.central_compartment() - 1);
     s.cmt[r] = c;
-    CheckCovariates(model, layout, s, r);
-    if (check_modifiers) CheckPositive(model, layout, s, r, check_given);
+    // A record under the same set as the one before it (same values, same sources) passes the same checks.
+    if (r == 0 || s.set_of_record[r] != s.set_of_record[r - 1]) {
+      CheckCovariates(model, layout, s, r);
+      if (check_modifiers) CheckPositive(model, layout, s, r, check_given);
+    }
     if (!rec.IsDose() || !check_modifiers) continue;
     const Eigen::VectorXd& p = s.sets[s.set_of_record[r]];
     // A modifier the dose needs must be a finite value in range; name where it came from.

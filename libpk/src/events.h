@@ -172,15 +172,14 @@ class EventEngine {
     T end;
   };
 
-  Vec<T> Rates() const {
-    Vec<T> u = Vec<T>::Zero(n_);
-    for (const Infusion& inf : active_) u(inf.cmt) += inf.rate;
-    return u;
-  }
-
   void AdvanceTo(const T& t, int set) {
     const T h = t - t_;
-    if (!IsExactlyZero(h)) v_->Advance(h, Rates(), set);
+    if (!IsExactlyZero(h)) {
+      // The rates in a member: a step is a few hundred instructions, an allocation a good part of that.
+      rates_.setZero(n_);
+      for (const Infusion& inf : active_) rates_(inf.cmt) += inf.rate;
+      v_->Advance(h, rates_, set);
+    }
     t_ = t;
   }
 
@@ -363,6 +362,7 @@ class EventEngine {
   const std::vector<Vec<T>>& sets_;
   Visitor* v_;
   const int n_;
+  Vec<T> rates_;  // AdvanceTo's input rates
   T t_;
   std::vector<Infusion> active_;
   std::vector<Pending> pending_;

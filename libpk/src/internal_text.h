@@ -27,6 +27,9 @@ std::string Cell(double v, const char* fmt, int width);
 /// in `name_width` columns, indented by two spaces), three decimals.
 std::string LowerTriangle(const std::vector<std::string>& names, const Eigen::MatrixXd& m, int name_width);
 
+/// pk::FormatNumber's text written to `out`, which has room for 32 characters; returns its end.
+char* WriteNumber(double value, char* out);
+
 }  // namespace internal
 }  // namespace pk
 

@@ -18,6 +18,8 @@
 
 #include <filesystem>
 
+#include "internal_text.h"
+
 namespace pk {
 namespace {
 
@@ -113,69 +115,14 @@ void RemoveStaleTemporaries(const std::string& directory) {
   }
 }
 
-namespace {
-
-// printf's %.Ng and strtod follow the C locale (a program that embeds libpk and sets a German one
-// would write and read 0,25); std::to_chars and std::from_chars do not.
-//
-// The text is printf's %.Pg with the least P >= 6 that reads back. That P is the digit count d of
-// the shortest round-trip form when d > 6, and 6 otherwise; and the digits are the shortest form's,
-// since a double's rounding interval (about 1e-16 wide) holds at most one decimal of d <= 17
-// digits that is nearest, for normal numbers (see FormatNumber's test against that definition). So one shortest
-// to_chars in scientific form gives the digits and the exponent, and %g's layout follows.
-char* WriteNumber(double value, char* out) {
-  if (!std::isfinite(value)) return std::to_chars(out, out + 40, value).ptr;
-  if (value != 0 && std::fabs(value) < std::numeric_limits<double>::min()) {
-    // A subnormal's rounding interval is wide: several 6-digit decimals may read back, and %.6g
-    // takes the nearest, not the shortest. The definition itself, then.
-    for (int precision = 6;; ++precision) {
-      char* const end = std::to_chars(out, out + 40, value, std::chars_format::general, precision).ptr;
-      double back = 0;
-      std::from_chars(out, end, back);
-      if (back == value || precision == 17) return end;
-    }
-  }
-  char sci[40];
-  const char* const sci_end = std::to_chars(sci, sci + sizeof sci, value, std::chars_format::scientific).ptr;
-  const char* p = sci;
-  const bool negative = *p == '-';
-  if (negative) ++p;
-  char digits[20];
-  int d = 0;
-  for (; p < sci_end && *p != 'e'; ++p) {
-    if (*p != '.') digits[d++] = *p;
-  }
-  int exponent = 0;  // after 'e': a sign and two or three digits
-  for (const char* e = p + 2; e < sci_end; ++e) exponent = 10 * exponent + (*e - '0');
-  if (p[1] == '-') exponent = -exponent;
-  const int precision = std::max(6, d);
-  if (exponent < -4 || exponent >= precision) return std::copy(static_cast<const char*>(sci), sci_end, out);  // %g's scientific form
-  char* o = out;
-  if (negative) *o++ = '-';
-  if (exponent < 0) {
-    *o++ = '0';
-    *o++ = '.';
-    for (int k = 0; k < -exponent - 1; ++k) *o++ = '0';
-    return std::copy(digits, digits + d, o);
-  }
-  for (int k = 0; k <= exponent; ++k) *o++ = k < d ? digits[k] : '0';
-  if (d > exponent + 1) {
-    *o++ = '.';
-    o = std::copy(digits + exponent + 1, digits + d, o);
-  }
-  return o;
-}
-
-}  // namespace
-
 std::string FormatNumber(double value) {
   char buf[48];
-  return std::string(buf, WriteNumber(value, buf));
+  return std::string(buf, internal::WriteNumber(value, buf));
 }
 
 void AppendNumber(std::string* out, double value) {
   char buf[48];
-  out->append(buf, WriteNumber(value, buf));
+  out->append(buf, internal::WriteNumber(value, buf));
 }
 
 bool ParseNumber(const std::string& text, double* value) {

@@ -12,6 +12,7 @@
 #include "pk/residual_error.h"
 #include "ode/ode_propagator.h"
 #include "ordered_parallel.h"
+#include "output_times.h"
 
 namespace pk {
 namespace {
@@ -33,9 +34,12 @@ class Recorder {
         dvid_(s.data->ExtraColumn("DVID")) {
     if (!s.records().empty()) prop_.set_time(s.records()[0].time);
     for (const Eigen::VectorXd& set : s.sets) theta_.push_back(set.head(sys.num_theta()));
-    out->rows.reserve(static_cast<size_t>(std::count_if(s.records().begin(), s.records().end(), [](const Record& r) {
+    const auto rows = std::count_if(s.records().begin(), s.records().end(), [](const Record& r) {
       return r.evid == Evid::kObservation || r.evid == Evid::kOther;
-    })));
+    });
+    out->rows.reserve(static_cast<size_t>(rows));
+    out->amounts.resize(sys.n(), rows);
+    out->outputs.resize(ode_ ? ode_->num_outputs() : 0, rows);
   }
 
   void Advance(double h, const Eigen::VectorXd& u, int set) { prop_.Advance(h, u, set); }
@@ -44,29 +48,27 @@ class Recorder {
   void SteadyState(const internal::SteadyStateCycle<double>& c, int set, bool add) { prop_.SteadyState(c, set, add); }
   void SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) { prop_.SteadyInfusion(u, set, add); }
   void DoseEntered(double time, int set) {
-    const Eigen::VectorXd x = Amounts();
-    out_->doses.push_back({time, Output(sys_.central_key(), x, set, &central_), prop_.auc()});
+    out_->doses.push_back({time, Output(sys_.central_key(), Amounts(), set, &central_), prop_.auc()});
   }
 
   void RecordDone(int r, int set) {
     const Record& rec = s_.records()[r];
     prop_.set_time(rec.time);
     if (rec.evid != Evid::kObservation && rec.evid != Evid::kOther) return;
+    const Eigen::Index i = static_cast<Eigen::Index>(out_->rows.size());
+    out_->amounts.col(i) = Amounts();
     SimulatedRecord row;
     row.record = r;
     row.time = rec.time;
     row.evid = rec.evid;
-    row.amounts = Amounts();
-    row.cp = Output(sys_.central_key(), row.amounts, set, &central_);
-    row.pred = Output(Key(r), row.amounts, set, &record_);
+    row.cp = Output(sys_.central_key(), out_->amounts.col(i), set, &central_);
+    row.pred = Output(Key(r), out_->amounts.col(i), set, &record_);
     row.auc = prop_.auc();
     if (ode_) {
-      row.outputs.resize(ode_->num_outputs());
-      for (int k = 0; k < ode_->num_outputs(); ++k) {
-        row.outputs(k) = ode_->OutputValue(k + 1, row.amounts, Theta(set));
-      }
+      x_ = out_->amounts.col(i);  // OutputValue takes a vector
+      for (int k = 0; k < ode_->num_outputs(); ++k) out_->outputs(k, i) = ode_->OutputValue(k + 1, x_, Theta(set));
     }
-    out_->rows.push_back(std::move(row));
+    out_->rows.push_back(row);
   }
 
  private:
@@ -77,8 +79,11 @@ class Recorder {
     Eigen::RowVectorXd c;
   };
 
-  double Output(int key, const Eigen::VectorXd& x, int set, CachedRow* cache) {
-    if (!linear_) return sys_.Observe(key, x, Theta(set));
+  double Output(int key, const Eigen::Ref<const Eigen::VectorXd>& x, int set, CachedRow* cache) {
+    if (!linear_) {
+      x_ = x;
+      return sys_.Observe(key, x_, Theta(set));
+    }
     if (cache->key != key || cache->set != set) {
       cache->c = linear_->OutputRow<double>(key, Theta(set));
       cache->key = key;
@@ -88,7 +93,7 @@ class Recorder {
   }
 
   // The exact propagator's state carries the AUC after the amounts.
-  Eigen::VectorXd Amounts() const { return prop_.state().head(sys_.n()); }
+  auto Amounts() const { return prop_.state().head(sys_.n()); }
   const Eigen::VectorXd& Theta(int set) const { return theta_[static_cast<size_t>(set)]; }
   // Nonlinear models: the DVID's output; linear models: the record's compartment.
   int Key(int r) const {
@@ -105,6 +110,7 @@ class Recorder {
   int dvid_ = -1;
   std::vector<Eigen::VectorXd> theta_;  // the model's θ of each parameter set
   CachedRow central_, record_;
+  Eigen::VectorXd x_;  // amounts for a nonlinear model's outputs, which take a vector
 };
 
 // The non-PREDPP columns a simulation reads: parameters and dose modifiers by name, and DVID.
@@ -120,6 +126,11 @@ void Run(const internal::OdeSystem& sys, const ParameterLayout& layout, const in
   Recorder<Propagator> recorder(sys, s, prop, out);
   internal::EventEngine<double, Recorder<Propagator>> engine(s, layout, s.sets, &recorder);
   engine.Run();
+  const auto rows = static_cast<Eigen::Index>(out->rows.size());
+  if (out->amounts.cols() != rows) {  // every output record gives a row; this keeps the shapes whatever
+    out->amounts.conservativeResize(Eigen::NoChange, rows);
+    out->outputs.conservativeResize(Eigen::NoChange, rows);
+  }
 }
 
 }  // namespace
@@ -141,12 +152,13 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
   const ParameterLayout layout(model);
   SubjectSimulation out;
   out.id = data.subjects[subject].id;
-  // With an output grid: this subject alone, with the grid's records added.
-  Dataset with_times;
+  // With an output grid: this subject alone, with the grid's records added, in storage this thread
+  // keeps from one subject to the next.
+  thread_local internal::OutputTimesWorkspace with_times;
   const Dataset* source = &data;
   if (!options.output_times.empty()) {
-    with_times = SubjectWithOutputTimes(data, subject, options.output_times, ColumnsRead(layout));
-    source = &with_times;
+    internal::SubjectWithOutputTimes(data, subject, options.output_times, ColumnsRead(layout), &with_times);
+    source = &with_times.one;
     subject = 0;
   }
   internal::PreparedSubject s;
@@ -170,6 +182,8 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
     out.ok = false;
     out.message = e.what();
     out.rows.clear();
+    out.amounts.resize(0, 0);
+    out.outputs.resize(0, 0);
     out.doses.clear();
   }
   return out;

@@ -56,9 +56,6 @@ struct SimulatedRecord {
   double cp = 0;      ///< central concentration
   double pred = 0;    ///< prediction for the record's CMT (equal to cp for the default)
   double auc = 0;     ///< ∫ cp dt from the subject's first record
-  Eigen::VectorXd amounts;
-  /// Every output of a nonlinear model (outputs(0) = cp); empty for linear models.
-  Eigen::VectorXd outputs;
 };
 
 /// A dose entering the system, with the state just before it.
@@ -73,6 +70,12 @@ struct SubjectSimulation {
   bool ok = true;
   std::string message;  ///< why the simulation failed, when !ok
   std::vector<SimulatedRecord> rows;
+  /// Column i: the compartments' amounts after rows[i] (n × rows.size()). One matrix a subject,
+  /// not a vector a row: a simulation allocates per subject, not per row.
+  Eigen::MatrixXd amounts;
+  /// Column i: every output of a nonlinear model after rows[i] (outputs(0, i) = rows[i].cp);
+  /// 0 × rows.size() for linear models.
+  Eigen::MatrixXd outputs;
   std::vector<DoseEntry> doses;
 };
 

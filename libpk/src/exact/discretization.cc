@@ -89,6 +89,19 @@ const Discretization::Step& Discretization::Get(double h, bool with_gamma) {
   return *step;
 }
 
+const Discretization::Step& Discretization::GetNearby(double h, bool with_gamma, double* at) {
+  if (a_norm_ < 0) a_norm_ = a_.cwiseAbs().colwise().sum().maxCoeff();
+  *at = h;
+  for (const auto& entry : steps_) {
+    if (entry.first == h) break;
+    if (a_norm_ * std::fabs(h - entry.first) <= 0x1p-30) {
+      *at = entry.first;
+      break;
+    }
+  }
+  return Get(*at, with_gamma);
+}
+
 const Eigen::MatrixXd& Discretization::DividedDifferences(double h) {
   if (Eigen::MatrixXd* f = Find(divided_, h)) return *f;
   Eigen::MatrixXd f(n_, n_);

@@ -103,6 +103,12 @@ class Discretization {
 
   /// Φ(h), and Γ(h) too when `with_gamma`.
   const Step& Get(double h, bool with_gamma = true);
+  /// The step of a cached length *at with ‖A‖₁·|h − *at| ≤ 2⁻³⁰ (h itself when none is): grids of
+  /// output times computed as k·Δ give step lengths a few ulps apart. Then
+  ///   Φ(h) = Φ(at)(I + Aδ) + O((‖A‖δ)²),   Γ(h) = Γ(at) + Φ(at)δB + O(δ²‖A‖),   δ = h − at,
+  /// and the neglected terms are below 1e-18 of the step's size: the caller applies the correction
+  /// (ExactPropagator::Advance) at the cost of one product with A instead of one exponential.
+  const Step& GetNearby(double h, bool with_gamma, double* at);
   /// ∂Φ (and ∂Γ when `with_gamma`) for each of `da` (∂A/∂θ_j, the same list on every call).
   const Sensitivity& GetSensitivity(double h, bool with_gamma, const std::vector<Eigen::MatrixXd>& da);
 
@@ -122,6 +128,7 @@ class Discretization {
   Sensitivity BlockSensitivity(double h, const std::vector<Eigen::MatrixXd>& da);
 
   Eigen::MatrixXd a_;
+  double a_norm_ = -1;  // ‖A‖₁, computed on GetNearby's first call
   int n_;
   int n_in_;
   bool allow_eigen_;

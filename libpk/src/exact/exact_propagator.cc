@@ -25,9 +25,19 @@ ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eig
 }
 
 void ExactPropagator::Advance(double h, const Eigen::VectorXd& rate, int set) {
-  const Discretization::Step& d = Get(set, h, rate);
-  x_ = d.phi * x_;
-  if (d.gamma.size()) x_ += d.gamma * rate;
+  const bool input = !rate.isZero(0.0);
+  Discretization& disc = *cache_[set];
+  double at = h;
+  const Discretization::Step& d = disc.GetNearby(h, input, &at);
+  if (at != h) {
+    // A cached step a few ulps away (see GetNearby): x + δ(Ax + Bu) first, then Φ(at) and Γ(at)u.
+    scratch_.noalias() = disc.A() * x_;
+    if (input) scratch_.head(rate.size()) += rate;
+    x_ += (h - at) * scratch_;
+  }
+  scratch_.noalias() = d.phi * x_;
+  if (input) scratch_.noalias() += d.gamma * rate;
+  x_.swap(scratch_);
 }
 
 void ExactPropagator::Bolus(int cmt, double amount, int /*set*/) { x_(cmt) += amount; }

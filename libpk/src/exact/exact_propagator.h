@@ -7,7 +7,8 @@
 // discretization.h); unlike Γ = A⁻¹(Φ − I), both hold for singular A. With AUC
 // tracking the state gains an integral row, d(AUC)/dt = c(θ)ᵀx, so A is
 // singular by construction. Φ and Γ are cached per (parameter set, h):
-// repeated dosing intervals cost one evaluation.
+// repeated dosing intervals cost one evaluation, and so do step lengths a few
+// ulps apart, through a first-order correction (Discretization::GetNearby).
 #ifndef PK_SRC_EXACT_EXACT_PROPAGATOR_H_
 #define PK_SRC_EXACT_EXACT_PROPAGATOR_H_
 
@@ -54,6 +55,7 @@ class ExactPropagator {
   const bool track_auc_;
   std::vector<std::unique_ptr<Discretization>> cache_;
   Eigen::VectorXd x_;
+  Eigen::VectorXd scratch_;  // Advance's product, swapped with x_
 };
 
 }  // namespace internal

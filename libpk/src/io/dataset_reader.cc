@@ -380,8 +380,7 @@ class Parser {
       r.time = 24.0 * static_cast<double>(day - origin_.first) + (r.time - origin_.second);
     }
     if (new_subject) {
-      int occurrence = 1;
-      for (const Subject& earlier : data->subjects) occurrence += earlier.id == r.id ? 1 : 0;
+      const int occurrence = ++occurrences_[r.id];  // a map: a scan of the subjects so far is quadratic
       data->subjects.push_back(Subject());
       data->subjects.back().id = r.id;
       data->subjects.back().occurrence = occurrence;
@@ -441,6 +440,7 @@ class Parser {
   bool clock_ = false;     // some TIME is a clock time
   bool blank_separated_ = false;  // items separated by spaces or tabs (NONMEM accepts them), not commas
   std::pair<long, double> origin_;  // day and hours of the current subject's first record
+  std::unordered_map<double, int> occurrences_;  // subjects so far of each ID
 };
 
 }  // namespace

@@ -373,11 +373,13 @@ std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const st
   const SubjectSimulation sim = SimulateSubject(*d.model, one, 0, named, opts);
   std::vector<double> out;
   if (!sim.ok) return std::vector<double>(times.size(), std::numeric_limits<double>::quiet_NaN());
-  for (const SimulatedRecord& row : sim.rows) {
+  for (size_t i = 0; i < sim.rows.size(); ++i) {
+    const SimulatedRecord& row = sim.rows[i];
     // A reset that sets TIME back gives each later period the times again: the curve is the first period's.
     if (out.size() == times.size()) break;
     if (one.subjects[0].records[row.record].line != -1) continue;
-    out.push_back(output > 1 && output <= row.outputs.size() ? row.outputs(output - 1) : row.cp);
+    out.push_back(output > 1 && output <= sim.outputs.rows() ? sim.outputs(output - 1, static_cast<Eigen::Index>(i))
+                                                              : row.cp);
   }
   return out;
 }

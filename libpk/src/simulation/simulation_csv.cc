@@ -1,5 +1,8 @@
 #include "pk/simulation_csv.h"
 
+#include <algorithm>
+
+#include "../internal_text.h"
 #include "pk/ode_model.h"
 #include "pk/output.h"
 
@@ -15,27 +18,34 @@ std::string SimulationCsvHeader(const Model& model) {
 
 void AppendSimulationCsv(const SubjectSimulation& s, std::string* out) {
   if (!s.ok || s.rows.empty()) return;
-  std::string id;
-  AppendNumber(&id, s.id);
-  const auto& first = s.rows.front();
-  // About 20 characters a number: one allocation for the subject's rows.
-  out->reserve(out->size() + s.rows.size() * (id.size() + 24 * (3 + first.outputs.size() + first.amounts.size())));
-  for (const SimulatedRecord& r : s.rows) {
-    *out += id;
-    *out += ',';
-    AppendNumber(out, r.time);
-    *out += r.evid == Evid::kObservation ? ",0," : ",2,";
-    AppendNumber(out, r.cp);
-    for (int k = 1; k < r.outputs.size(); ++k) {
-      *out += ',';
-      AppendNumber(out, r.outputs(k));
+  char id[48];
+  const size_t id_size = static_cast<size_t>(internal::WriteNumber(s.id, id) - id);
+  const Eigen::Index outputs = std::max<Eigen::Index>(s.outputs.rows() - 1, 0), amounts = s.amounts.rows();
+  // Room for the longest row (a number is at most 24 characters and its comma), written through a
+  // pointer, then cut to what was written.
+  const size_t longest = id_size + 3 + static_cast<size_t>(3 + outputs + amounts) * 25 + 1;
+  const size_t start = out->size();
+  out->resize(start + s.rows.size() * longest);
+  char* p = &(*out)[start];
+  for (size_t i = 0; i < s.rows.size(); ++i) {
+    const SimulatedRecord& r = s.rows[i];
+    const auto col = static_cast<Eigen::Index>(i);
+    p = std::copy(id, id + id_size, p);
+    *p++ = ',';
+    p = internal::WriteNumber(r.time, p);
+    p = std::copy_n(r.evid == Evid::kObservation ? ",0," : ",2,", 3, p);
+    p = internal::WriteNumber(r.cp, p);
+    for (Eigen::Index k = 1; k <= outputs; ++k) {
+      *p++ = ',';
+      p = internal::WriteNumber(s.outputs(k, col), p);
     }
-    for (int c = 0; c < r.amounts.size(); ++c) {
-      *out += ',';
-      AppendNumber(out, r.amounts(c));
+    for (Eigen::Index c = 0; c < amounts; ++c) {
+      *p++ = ',';
+      p = internal::WriteNumber(s.amounts(c, col), p);
     }
-    *out += '\n';
+    *p++ = '\n';
   }
+  out->resize(static_cast<size_t>(p - out->data()));
 }
 
 }  // namespace pk
