@@ -306,9 +306,11 @@ int Main(int argc, char** argv) {
       std::cerr << "pksim: ID " << pk::FormatNumber(s.id) << ": simulation failed: " << s.message << "\n";
     }
     if (rows) rows->Write(text);
-    const pk::Exposure e = pk::ComputeExposure(s);
-    if (vm.count("summary")) std::cout << SummaryText(e, s, units);
-    if (summary_csv) summary_csv->Write(SummaryCsvRows(e));
+    if (vm.count("summary") || summary_csv) {  // the exposure metrics only when asked for
+      const pk::Exposure e = pk::ComputeExposure(s);
+      if (vm.count("summary")) std::cout << SummaryText(e, s, units);
+      if (summary_csv) summary_csv->Write(SummaryCsvRows(e));
+    }
     if (vm.count("plot") && s.ok) plot.push_back(PlotLine(s));
   };
   if (!vm.count("estimates")) NoteDefaults(*model, data, values);

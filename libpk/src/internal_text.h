@@ -27,7 +27,8 @@ std::string Cell(double v, const char* fmt, int width);
 /// in `name_width` columns, indented by two spaces), three decimals.
 std::string LowerTriangle(const std::vector<std::string>& names, const Eigen::MatrixXd& m, int name_width);
 
-/// pk::FormatNumber's text written to `out`, which has room for 32 characters; returns its end.
+/// pk::FormatNumber's text written to `out`, which has room for 48 characters (the text has at most
+/// 24; fixed-length copies may write past it); returns its end.
 char* WriteNumber(double value, char* out);
 
 }  // namespace internal

@@ -28,6 +28,7 @@ class AtomicFile {
  private:
   std::string path_, temporary_;
   int fd_ = -1;
+  size_t written_ = 0, flushing_ = 0;  // bytes written; bytes whose writeback has been started
 };
 
 /// Writes `contents` to `path` through an AtomicFile, so a reader never sees a partial file.

@@ -3,6 +3,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 
 #include <fmt/format.h>
@@ -13,11 +14,6 @@ namespace pk {
 namespace internal {
 namespace {
 
-// The shortest decimal that reads back as |value| (a normal double): its digits and the exponent of
-// the first, value = ±d₁.d₂…d_n × 10^exponent. {fmt}'s Dragonbox gives the digits as an integer in
-// about 14 ns; libstdc++'s std::to_chars (Ryū) takes about 60. Dragonbox sits in {fmt}'s detail
-// namespace (Debian 12: fmt 9.1; fmt 10 and 11 keep it); FormatNumber's test against the printf
-// definition on 400 000 doubles guards the use.
 const char* DigitPair(unsigned k) {  // k < 100: its two decimal digits
   static const char kPairs[] =
       "00010203040506070809101112131415161718192021222324252627282930313233343536373839"
@@ -26,47 +22,53 @@ const char* DigitPair(unsigned k) {  // k < 100: its two decimal digits
   return kPairs + 2 * k;
 }
 
-// The decimal digits of m, written to end back; returns their start. Two digits a step, and a
-// significand of up to 17 digits in two independent halves: a digit a division is a chain of
-// dependent multiplications that dominated the time.
-char* WriteDigitsBackward(std::uint64_t m, char* end) {
-  char* p = end;
-  std::uint32_t high;
-  if (m >= 100000000) {
-    auto low = static_cast<std::uint32_t>(m % 100000000);
-    high = static_cast<std::uint32_t>(m / 100000000);
-    for (int k = 0; k < 4; ++k, low /= 100) {
-      p -= 2;
-      std::copy_n(DigitPair(low % 100), 2, p);
-    }
-  } else {
-    high = static_cast<std::uint32_t>(m);
-  }
-  for (; high >= 100; high /= 100) {
-    p -= 2;
-    std::copy_n(DigitPair(high % 100), 2, p);
-  }
-  if (high >= 10) {
-    p -= 2;
-    std::copy_n(DigitPair(high), 2, p);
-  } else if (high > 0 || p == end) {
-    *--p = static_cast<char>('0' + high);
-  }
-  return p;
+// Exactly eight digits of v < 10⁸ at p: four pairs from two independent halves, not a chain of
+// dependent divisions (a digit a division was a good part of the time).
+void WriteEightDigits(std::uint32_t v, char* p) {
+  const std::uint32_t high = v / 10000, low = v % 10000;
+  std::copy_n(DigitPair(high / 100), 2, p);
+  std::copy_n(DigitPair(high % 100), 2, p + 2);
+  std::copy_n(DigitPair(low / 100), 2, p + 4);
+  std::copy_n(DigitPair(low % 100), 2, p + 6);
 }
 
-// The shortest decimal that reads back as |value| (a normal double): its digits and the exponent of
-// the first, value = ±d₁.d₂…d_n × 10^exponent. {fmt}'s Dragonbox gives the digits as an integer in
-// about 14 ns; libstdc++'s std::to_chars (Ryū) takes about 60. Dragonbox sits in {fmt}'s detail
-// namespace (Debian 12: fmt 9.1; fmt 10 and 11 keep it); FormatNumber's test against the printf
-// definition on 400 000 doubles guards the use.
-const char* ShortestDigits(double value, char (&buffer)[24], int* count, int* exponent) {
+// The shortest decimal that reads back as |value| (a normal double): its digits (into buffer; the
+// result points at the first) and the exponent of the first, value = ±d₁.d₂…d_n × 10^exponent.
+// {fmt}'s Dragonbox gives the digits as an integer below 10¹⁷ in about 14 ns; libstdc++'s
+// std::to_chars (Ryū) takes about 60. Dragonbox sits in {fmt}'s detail namespace (Debian 12: fmt 9.1;
+// fmt 10 and 11 keep it); FormatNumber's test against the printf definition on 400 000 doubles guards
+// the use. All 17 places are written and the leading zeros skipped; '0's follow the digits to the
+// buffer's end (48 bytes), so the layout below copies fixed lengths.
+const char* ShortestDigits(double value, char (&buffer)[48], int* count, int* exponent) {
+  static const std::uint64_t kPowers[18] = {1,
+                                            10,
+                                            100,
+                                            1000,
+                                            10000,
+                                            100000,
+                                            1000000,
+                                            10000000,
+                                            100000000,
+                                            1000000000,
+                                            10000000000,
+                                            100000000000,
+                                            1000000000000,
+                                            10000000000000,
+                                            100000000000000,
+                                            1000000000000000,
+                                            10000000000000000,
+                                            100000000000000000};
   const auto decimal = fmt::detail::dragonbox::to_decimal(std::fabs(value));
-  char* const end = buffer + sizeof buffer;
-  const char* const start = WriteDigitsBackward(decimal.significand, end);
-  *count = static_cast<int>(end - start);
+  const std::uint64_t m = decimal.significand;  // 0 < m < 10¹⁷
+  buffer[0] = static_cast<char>('0' + m / 10000000000000000u);
+  WriteEightDigits(static_cast<std::uint32_t>(m / 100000000 % 100000000), buffer + 1);
+  WriteEightDigits(static_cast<std::uint32_t>(m % 100000000), buffer + 9);
+  std::memset(buffer + 17, '0', sizeof buffer - 17);
+  // Digits of m without a loop: log10 from the bit length (1233/4096 ≈ log10 2), corrected once.
+  const int t = ((64 - __builtin_clzll(m)) * 1233) >> 12;
+  *count = t + (m >= kPowers[t] ? 1 : 0);
   *exponent = decimal.exponent + *count - 1;
-  return start;
+  return buffer + 17 - *count;
 }
 
 }  // namespace
@@ -97,34 +99,38 @@ char* WriteNumber(double value, char* out) {
     *o++ = '0';
     return o;
   }
-  char buffer[24];
+  char buffer[48];
   int d = 0, exponent = 0;
   const char* const digits = ShortestDigits(value, buffer, &d, &exponent);
   const int precision = std::max(6, d);
+  // Fixed-length copies (the caller's 48 bytes of room allow them), each followed by the true length:
+  // copies of varying length branch unpredictably, and were half of this function's time.
   if (exponent < -4 || exponent >= precision) {  // %g's scientific form: d.ddde±XX
     *o++ = digits[0];
     if (d > 1) {
       *o++ = '.';
-      o = std::copy(digits + 1, digits + d, o);
+      std::memcpy(o, digits + 1, 16);
+      o += d - 1;
     }
     *o++ = 'e';
     *o++ = exponent < 0 ? '-' : '+';
     const int e = std::abs(exponent);
     if (e >= 100) *o++ = static_cast<char>('0' + e / 100);
-    *o++ = static_cast<char>('0' + e / 10 % 10);
-    *o++ = static_cast<char>('0' + e % 10);
-    return o;
+    std::memcpy(o, DigitPair(static_cast<unsigned>(e % 100)), 2);
+    return o + 2;
   }
-  if (exponent < 0) {
-    *o++ = '0';
-    *o++ = '.';
-    for (int k = 0; k < -exponent - 1; ++k) *o++ = '0';
-    return std::copy(digits, digits + d, o);
+  if (exponent < 0) {  // 0.000ddd
+    std::memcpy(o, "0.000", 5);
+    o += 1 - exponent;
+    std::memcpy(o, digits, 17);
+    return o + d;
   }
-  for (int k = 0; k <= exponent; ++k) *o++ = k < d ? digits[k] : '0';
+  std::memcpy(o, digits, 17);  // the integer part, the buffer's '0's past the last digit
+  o += exponent + 1;
   if (d > exponent + 1) {
     *o++ = '.';
-    o = std::copy(digits + exponent + 1, digits + d, o);
+    std::memcpy(o, digits + exponent + 1, 16);
+    o += d - exponent - 1;
   }
   return o;
 }

@@ -25,7 +25,7 @@ void AppendSimulationCsv(const SubjectSimulation& s, std::string* out) {
   // pointer, then cut to what was written.
   const size_t longest = id_size + 3 + static_cast<size_t>(3 + outputs + amounts) * 25 + 1;
   const size_t start = out->size();
-  out->resize(start + s.rows.size() * longest);
+  out->resize(start + s.rows.size() * longest + 48);  // WriteNumber's room past the last number
   char* p = &(*out)[start];
   for (size_t i = 0; i < s.rows.size(); ++i) {
     const SimulatedRecord& r = s.rows[i];
