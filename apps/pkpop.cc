@@ -62,7 +62,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "sigma", po::value<std::vector<std::string>>(&a->sigma)->composing(), "NAME=VALUE: initial σ (SIGMA_ADD, ...)")(
       "fix", po::value<std::vector<std::string>>(&a->fix)->composing(),
       "hold at its initial value: a θ or σ name, or OMEGA(NAME) for the Ω block of η_NAME (comma-separated)")(
-      "propagator", po::value<std::string>()->default_value("auto"), "exact, ode or auto")(
+      "propagator", po::value<std::string>()->default_value("auto"), "exact, ode, rk or auto (as pkfit)")(
       "gradient", po::value<std::string>()->default_value("auto"),
       "the outer gradient: implicit (the modes' implicit function theorem; FOCE, FOCEI), fd (central differences "
       "of the OFV, as NONMEM) or auto (implicit on the exact propagator; fd for Laplace and ODE models)")(

@@ -40,6 +40,29 @@ struct Scenario {
   std::vector<double> extra_values;
 };
 
+/// Every event type on the ODE routes (doses, infusions, ADDL, resets, steady states, lag, F, R, D,
+/// initial states), for tests/test_ode.cc and tests/test_rk.cc.
+inline const std::vector<Scenario>& OdeScenarios() {
+  static const std::vector<Scenario> s = {
+      {"bolus", "1,0,100,0,0,0,0,1,.\n", {}, {}},
+      {"infusion", "1,0,100,40,0,0,0,1,.\n", {}, {}},
+      {"bolus then infusion", "1,0,60,0,0,0,0,1,.\n1,4,80,20,0,0,0,1,.\n", {}, {}},
+      {"addl", "1,0,100,0,6,3,0,1,.\n", {}, {}},
+      {"reset", "1,0,100,0,0,0,0,1,.\n1,4,0,0,0,0,0,3,.\n1,4.5,70,0,0,0,0,1,.\n", {}, {}},
+      {"ss1 bolus", "1,0,100,0,12,0,1,1,.\n", {}, {}},
+      {"ss2 on a dose", "1,0,50,0,0,0,0,1,.\n1,0.2,100,0,12,0,2,1,.\n", {}, {}},
+      {"ss1 infusion longer than II", "1,0,100,5,8,0,1,1,.\n", {}, {}},
+      {"ss constant infusion", "1,0,0,10,0,0,1,1,.\n", {}, {}},
+      {"lag", "1,0,100,0,6,2,0,1,.\n", {"ALAG1"}, {0.7}},
+      {"F bolus", "1,0,100,0,0,0,0,1,.\n", {"F1"}, {0.8}},
+      {"R", "1,0,100,-1,0,0,0,1,.\n", {"R1"}, {35}},
+      {"D and F", "1,0,100,-2,0,0,0,1,.\n", {"D1", "F1"}, {2.2, 0.9}},
+      {"ss1 with lag", "1,0,100,0,12,0,1,1,.\n", {"ALAG1"}, {1.3}},
+      {"initial state", "1,0,100,0,6,2,0,1,.\n", {"X0_1"}, {30.0}},
+  };
+  return s;
+}
+
 /// The scenario's dose rows merged by time with nine samples (doses first at equal times).
 inline std::shared_ptr<pk::Dataset> ScenarioData(const Scenario& sc) {
   std::vector<std::pair<double, std::string>> rows;

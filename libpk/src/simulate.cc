@@ -175,7 +175,8 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
       internal::ExactPropagator prop(*linear, s.sets, options.track_auc);
       Run(sys, layout, s, &prop, &out);
     } else {
-      internal::OdePropagator<double> prop(sys, s.sets, 0, options.ode, false, false, options.track_auc);
+      internal::OdePropagator<double> prop(sys, s.sets, 0, options.ode, false, false, options.track_auc, nullptr,
+                                           propagator);
       Run(sys, layout, s, &prop, &out);
     }
   } catch (const internal::NumericalFailure& e) {

@@ -42,7 +42,7 @@ struct LmData {
 // free: 1e-16 to 8e-10 at rtol 1e-8).
 double LmSingular(const Objective& objective) {
   constexpr double kExact = 1e-12;
-  if (objective.propagator() != Propagator::kOde) return kExact;
+  if (!IntegratesOde(objective.propagator())) return kExact;
   return std::max(kExact, objective.options().ode.relative_tolerance);
 }
 

@@ -159,7 +159,7 @@ namespace {
 using Need = Objective::Need;
 
 // The route that computes the derivatives `need` asks for.
-GradientRoute ResolveRoute(GradientRoute route, Need need, int num_model, bool ode) {
+GradientRoute ResolveRoute(GradientRoute route, Need need, int num_model, bool ode, bool adjoint) {
   if (route == GradientRoute::kAuto) {
     if (need == Need::kJacobian) {
       route = GradientRoute::kForward;
@@ -170,6 +170,7 @@ GradientRoute ResolveRoute(GradientRoute route, Need need, int num_model, bool o
     }
   }
   if (need == Need::kJacobian && route == GradientRoute::kAdjoint) route = GradientRoute::kForward;
+  if (!adjoint && route == GradientRoute::kAdjoint) route = GradientRoute::kForward;
   if (need == Need::kValue) route = GradientRoute::kAuto;
   return route;
 }
@@ -276,7 +277,8 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   const internal::FreeParameters fp(free, d.L());
   const int pm = fp.num_model();
   ev.propagator = ToString(d.propagator);
-  route = ResolveRoute(route, need, pm, d.propagator == Propagator::kOde);
+  // The Runge–Kutta integrator has no adjoint route (yet): its gradients come from route (a).
+  route = ResolveRoute(route, need, pm, IntegratesOde(d.propagator), d.propagator != Propagator::kRungeKutta);
   ev.route = need == Need::kValue ? "none" : ToString(route);
   if (need == Need::kJacobian && !d.ode.continuous.empty()) {
     ev.ok = false;

@@ -27,11 +27,12 @@ ObjectiveState::ObjectiveState(std::shared_ptr<const Model> m, std::shared_ptr<c
   propagator = ResolvePropagator(*model, options.propagator);
   // Dose modifiers (R, D, ...) are checked when values are given (Objective::CheckValues).
   prepared = PrepareSubject(*model, layout, *data, subject, layout.Defaults(), false);
-  if (propagator == Propagator::kOde) {
+  if (IntegratesOde(propagator)) {
     ode_system.reset(new OdeSystem(*model));
     ode.system = ode_system.get();
     ode.layout = &layout;
     ode.options = options.ode;
+    ode.integrator = propagator;
   }
   names = layout.names();
   for (const std::string& name : error->sigma_names()) {
@@ -87,7 +88,7 @@ ModalEvaluator* ObjectiveState::Modal(const Eigen::VectorXd& values, const std::
 
 double ObjectiveState::FdStep() const {
   if (options.fd_relative_step > 0) return options.fd_relative_step;
-  return propagator == Propagator::kOde ? std::cbrt(options.ode.relative_tolerance) : 1e-5;
+  return IntegratesOde(propagator) ? std::cbrt(options.ode.relative_tolerance) : 1e-5;
 }
 
 }  // namespace internal

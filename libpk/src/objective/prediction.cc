@@ -106,7 +106,7 @@ std::vector<DualVector> DualSets(const PreparedSubject& s, int layout_size, cons
 // tf<n> models: the two companion filters give ∂ŷ/∂a_i and ∂ŷ/∂b_i (layout entries 0..2n−1).
 void PredictCompanion(const ObjectiveState& d, const PreparedSubject& s, const FreeParameters& free,
                       Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian) {
-  const bool ode = d.propagator == Propagator::kOde;
+  const bool ode = IntegratesOde(d.propagator);
   const int order = d.linear == nullptr || ode ? 0 : d.linear->transfer_function_order();
   if (order == 0) {
     throw NumericalFailure("the companion route applies to tf<n> models only (with the exact propagator)");
@@ -128,7 +128,7 @@ void PredictAt(const ObjectiveState& d, const Eigen::VectorXd& v, Eigen::VectorX
   PreparedSubject sv = d.prepared;
   RebindParameters(d.layout, v.head(d.L()), &sv);
   *continuous_loss = 0;
-  if (d.propagator == Propagator::kOde) {
+  if (IntegratesOde(d.propagator)) {
     OdePredict(d.ode, sv, y, continuous_loss, stats);
   } else {
     internal::Predict(*d.linear, d.layout, sv, y);
@@ -155,7 +155,7 @@ void FdJacobian(const ObjectiveState& d, const Eigen::VectorXd& values, const Fr
 void PredictRoute(const ObjectiveState& d, const Eigen::VectorXd& values, const FreeParameters& free,
                   GradientRoute route, bool events_depend, Prediction* out, Objective::Evaluation* ev) {
   Eigen::VectorXd& yhat = ev->predictions;
-  const bool ode = d.propagator == Propagator::kOde;
+  const bool ode = IntegratesOde(d.propagator);
   const int pm = free.num_model();
   PreparedSubject s = d.prepared;
   RebindParameters(d.layout, values.head(d.L()), &s);
@@ -193,7 +193,7 @@ bool Predict(const ObjectiveState& d, const Eigen::VectorXd& values, const FreeP
   const bool events_depend = EventsDepend(d, free);
   try {
     bool done = false;
-    if (d.propagator != Propagator::kOde && d.linear && d.options.modal_propagation && !events_depend &&
+    if (!IntegratesOde(d.propagator) && d.linear && d.options.modal_propagation && !events_depend &&
         ModalRoute(route) && values.head(d.model->num_parameters()).allFinite()) {
       done = PredictModal(d, values, free, need, route, out, &ev->predictions);
       ev->modal = done;

@@ -39,7 +39,7 @@ void CheckContinuous(const ObjectiveState& d, const Record& r, int censored) {
     throw InputError(d.data->source, r.line, d.data->ColumnNumber("CENS"),
                      "a continuous record (CONT=1) cannot be censored");
   }
-  if (d.propagator != Propagator::kOde) {
+  if (!IntegratesOde(d.propagator)) {
     throw InputError(d.data->source, r.line, d.data->ColumnNumber("CONT"),
                      "continuous records (CONT=1) need the ODE propagator (--propagator ode)");
   }

@@ -33,7 +33,7 @@
 #include "../autodiff.h"
 #include "../events.h"
 #include "numerical_failure.h"
-#include "cvodes_solver.h"
+#include "segment_solver.h"
 #include "ode_system.h"
 
 namespace pk {
@@ -73,13 +73,15 @@ struct TapeStep {
 template <typename T>
 class OdePropagator {
  public:
+  /// `integrator`: Propagator::kOde (CVODES) or kRungeKutta (Dormand–Prince; no tape for the adjoint).
   OdePropagator(const OdeSystem& sys, const std::vector<Vec<T>>& sets, int p, const OdeOptions& options,
-                bool sensitivities, bool tape, bool track_auc, const ContinuousRecords* continuous = nullptr)
+                bool sensitivities, bool tape, bool track_auc, const ContinuousRecords* continuous = nullptr,
+                Propagator integrator = Propagator::kOde)
       : sys_(sys),
         sets_(sets),
         p_(p),
         n_(sys.n()),
-        solver_(sys, options),
+        solver_(MakeSegmentSolver(sys, options, integrator)),
         options_(options),
         sens_(sensitivities),
         tape_on_(tape),
@@ -104,12 +106,12 @@ class OdePropagator {
     const Eigen::RowVectorXd dh = Derivatives(h, p_).transpose();
     double loss_time = 0;
     if (sens_) {
-      solver_.AdvanceSensitivity(seg, &x_, &s_, cont ? &loss_ : nullptr, &dloss_, &loss_time);
+      solver_->AdvanceSensitivity(seg, &x_, &s_, cont ? &loss_ : nullptr, &dloss_, &loss_time);
       s_ += FlowAtEnd(seg) * dh;
     } else if (tape_on_ && options_.adjoint_store_all_segments && seg.continuous.empty() && !auc) {
-      step.handle = solver_.StoreSegment(seg, &x_);
+      step.handle = solver_->StoreSegment(seg, &x_);
     } else {
-      solver_.Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr, &loss_time);
+      solver_->Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr, &loss_time);
     }
     if (!seg.continuous.empty() && p_ > 0) {
       // The loss integral ∫_{t0}^{t0+h} L(t, x) dt in the segment's own frame
@@ -285,7 +287,7 @@ class OdePropagator {
     step.x1 = x_;
     tape_.push_back(std::move(step));
   }
-  CvodesSolver& solver() { return solver_; }
+  SegmentSolver& solver() { return *solver_; }
   /// θ and ∂θ/∂p of a parameter set.
   void Theta(int set, Eigen::VectorXd* theta, Eigen::MatrixXd* dtheta) const {
     const int m = sys_.num_theta();
@@ -371,7 +373,7 @@ class OdePropagator {
     if (steps) step.x0 = *x;
     const Eigen::RowVectorXd dh = Derivatives(h, p_).transpose();
     if (s->cols() == 0) {
-      solver_.Advance(seg_p, x);
+      solver_->Advance(seg_p, x);
     } else {
       const int params = static_cast<int>(s->cols()) - offset;  // p_, or 0 for the initial states alone
       SegmentInput seg = seg_p;
@@ -379,7 +381,7 @@ class OdePropagator {
       seg.du.rightCols(params) = seg_p.du.leftCols(params);
       seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), offset + params);
       seg.dtheta.rightCols(params) = seg_p.dtheta.leftCols(params);
-      solver_.AdvanceSensitivity(seg, x, s);
+      solver_->AdvanceSensitivity(seg, x, s);
       if (params > 0) {
         Eigen::VectorXd f;
         sys_.Rhs(*x, seg.theta, &f);
@@ -408,7 +410,7 @@ class OdePropagator {
   const std::vector<Vec<T>>& sets_;
   const int p_;
   const int n_;
-  CvodesSolver solver_;
+  std::unique_ptr<SegmentSolver> solver_;
   OdeOptions options_;
   const bool sens_;
   const bool tape_on_;

@@ -86,7 +86,7 @@ void Accumulate(const OdeStatistics& from, OdeStatistics* to) {
 
 void OdePredict(const OdeSubject& o, const PreparedSubject& s, Eigen::VectorXd* yhat, double* continuous_loss,
                 OdeStatistics* stats) {
-  OdePropagator<double> prop(*o.system, s.sets, 0, o.options, false, false, false, &o.continuous);
+  OdePropagator<double> prop(*o.system, s.sets, 0, o.options, false, false, false, &o.continuous, o.integrator);
   *yhat = Eigen::VectorXd::Zero(o.num_samples);
   Collector<double> c(o, s, &prop, yhat, nullptr);
   EventEngine<double, Collector<double>> engine(s, *o.layout, s.sets, &c);
@@ -98,7 +98,7 @@ void OdePredict(const OdeSubject& o, const PreparedSubject& s, Eigen::VectorXd* 
 void OdeForwardSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
                              int p, Eigen::VectorXd* yhat, Eigen::MatrixXd* jacobian, double* continuous_loss,
                              Eigen::RowVectorXd* continuous_gradient, OdeStatistics* stats) {
-  OdePropagator<Dual> prop(*o.system, sets, p, o.options, true, false, false, &o.continuous);
+  OdePropagator<Dual> prop(*o.system, sets, p, o.options, true, false, false, &o.continuous, o.integrator);
   *yhat = Eigen::VectorXd::Zero(o.num_samples);
   *jacobian = Eigen::MatrixXd::Zero(o.num_samples, p);
   Collector<Dual> c(o, s, &prop, yhat, jacobian);

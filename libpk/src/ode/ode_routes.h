@@ -35,6 +35,7 @@ struct OdeSubject {
   const OdeSystem* system = nullptr;
   const ParameterLayout* layout = nullptr;
   OdeOptions options;
+  Propagator integrator = Propagator::kOde;  ///< kOde (CVODES) or kRungeKutta
   std::vector<int> key_of_record;
   std::vector<int> sample_of_record;  ///< -1 when the record is not a (discrete) sample
   int num_samples = 0;

@@ -10,15 +10,16 @@ const char* ToString(Propagator p) {
     case Propagator::kAuto: return "auto";
     case Propagator::kExact: return "exact";
     case Propagator::kOde: return "ode";
+    case Propagator::kRungeKutta: return "rk";
   }
   return "?";
 }
 
 Propagator ParsePropagator(const std::string& text) {
-  for (Propagator p : {Propagator::kAuto, Propagator::kExact, Propagator::kOde}) {
+  for (Propagator p : {Propagator::kAuto, Propagator::kExact, Propagator::kOde, Propagator::kRungeKutta}) {
     if (text == ToString(p)) return p;
   }
-  throw InputError("expected auto, exact or ode, got '" + text + "'");
+  throw InputError("expected auto, exact, ode or rk, got '" + text + "'");
 }
 
 Propagator ResolvePropagator(const Model& model, Propagator requested) {
@@ -30,6 +31,8 @@ Propagator ResolvePropagator(const Model& model, Propagator requested) {
   if (requested == Propagator::kAuto) return model.is_linear() ? Propagator::kExact : Propagator::kOde;
   return requested;
 }
+
+bool IntegratesOde(Propagator p) { return p == Propagator::kOde || p == Propagator::kRungeKutta; }
 
 bool OdeOptions::IsValid(std::string* error) const {
   auto fail = [&](const char* why) {

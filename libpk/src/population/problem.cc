@@ -142,7 +142,7 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
   ls.weighting = Weighting::kUniform;
   ls.gradient = GradientRoute::kForward;
   const bool logs = options.error_model->log_transformed();
-  const bool ode = ResolvePropagator(*d.model, options.propagator) == Propagator::kOde;
+  const bool ode = IntegratesOde(ResolvePropagator(*d.model, options.propagator));
   for (int i = 0; i < static_cast<int>(d.data->subjects.size()); ++i) {
     internal::SubjectModel s;
     s.objective = std::make_unique<Objective>(d.model, d.data, i, ls);

@@ -1,0 +1,50 @@
+// The one-step integrator of the ODE propagator (not installed): Dormand–Prince 5(4) with error
+// control and its dense output (Boost.Odeint's runge_kutta_dopri5, compiled with the model's types).
+//
+// PK systems are small (1–10 states), mostly non-stiff and restarted at every dose, infusion start and
+// stop. A multistep method (CVODES's BDF) pays its start-up — order 1, tiny steps — at each restart; a
+// one-step method restarts at the cost of one step. Samples do not end a step either: a segment that
+// continues the previous one's initial value problem (same θ, inputs and state; a sample between
+// them) carries on with the same stepper and reads its end from the dense output (the 4th-order
+// interpolant of Dormand–Prince), so the step sequence does not depend on where the samples are.
+//
+// Values and quadratures (continuous-record loss, AUC) are integrated as one state. Route (a)'s
+// forward sensitivities are the seed's dS/dt = f_x S + f_θ ∂θ/∂p + ∂u/∂p, integrated as part of the
+// state [x; vec S], so S is under the same error control as x. No adjoint route yet
+// (supports_adjoint() is false): the objective takes route (a) with this integrator.
+//
+// Non-stiff only: a stiff system makes the step size control take steps at the stability limit
+// (many of them); `max_steps` ends such a segment with "too much work", and CVODES (`ode`) is the
+// integrator for it.
+#ifndef PK_SRC_ODE_RK_SOLVER_H_
+#define PK_SRC_ODE_RK_SOLVER_H_
+
+#include <memory>
+
+#include "segment_solver.h"
+
+namespace pk {
+namespace internal {
+
+class RkSolver final : public SegmentSolver {
+ public:
+  RkSolver(const OdeSystem& system, const OdeOptions& options);
+  ~RkSolver() override;
+  RkSolver(const RkSolver&) = delete;
+  RkSolver& operator=(const RkSolver&) = delete;
+
+  void Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss = nullptr, double* auc = nullptr,
+               double* loss_time = nullptr) override;
+  void AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, double* loss = nullptr,
+                          Eigen::RowVectorXd* dloss = nullptr, double* loss_time = nullptr) override;
+  const OdeStatistics& statistics() const override;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_ODE_RK_SOLVER_H_

@@ -1,0 +1,79 @@
+// What the ODE propagator asks of an integrator (not installed): one integration between two events
+// at a time (cvodes_solver.h documents each call). Two integrators serve it: CVODES's BDF with its
+// continuous adjoint (CvodesSolver) and the one-step Dormand–Prince 5(4) (RkSolver).
+#ifndef PK_SRC_ODE_SEGMENT_SOLVER_H_
+#define PK_SRC_ODE_SEGMENT_SOLVER_H_
+
+#include <memory>
+
+#include <Eigen/Core>
+
+#include "ode_system.h"
+#include "pk/ode_options.h"
+#include "pk/propagator.h"
+
+namespace pk {
+namespace internal {
+
+/// Part of a continuous record of output `key` over one segment: the record
+/// y_m(t) and its weight per unit time w(t) are linear in the absolute time t
+/// (the seed's dF/dt), and the loss grows by ½ w (y − y_m)².
+struct ContinuousTerm {
+  int key = 1;
+  double ym0 = 0, ym_slope = 0;  ///< y_m(t) = ym0 + ym_slope·(t − t0)
+  double w0 = 0, w_slope = 0;    ///< w(t) = w0 + w_slope·(t − t0)
+};
+
+/// One integration interval.
+struct SegmentInput {
+  double h = 0;
+  Eigen::VectorXd u;        ///< input rates
+  Eigen::MatrixXd du;       ///< ∂u/∂p (n×k); may have zero columns
+  Eigen::VectorXd theta;    ///< model parameters
+  Eigen::MatrixXd dtheta;   ///< ∂θ/∂p (m×k)
+  std::vector<ContinuousTerm> continuous;
+  int auc_key = 0;          ///< output integrated by Advance(…, auc)
+};
+
+using OdeStatistics = pk::OdeStatistics;
+
+/// The continuous loss integrand L = Σ ½ w (y − y_m)² of a segment at local time
+/// t, with (optionally) ∂L/∂y per term, L_t = ∂L/∂t and ∂L_t/∂y per term.
+double ContinuousLoss(const OdeSystem& sys, const SegmentInput& in, double t, const Eigen::VectorXd& x,
+                      Eigen::VectorXd* dl_dy = nullptr, double* lt = nullptr, Eigen::VectorXd* dlt_dy = nullptr);
+
+/// What the adjoint's backward solves need to know of the whole gradient (see
+/// CvodesSolver::Impl::Backward): S = Σ_k |Δλ_k|ᵀ|x(t_k)| over all samples
+/// (0: unknown), and the gradient accumulated so far (null: none).
+struct AdjointScales {
+  double state = 0;
+  const Eigen::VectorXd* gradient = nullptr;
+};
+
+class SegmentSolver {
+ public:
+  virtual ~SegmentSolver() = default;
+  virtual void Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss = nullptr, double* auc = nullptr,
+                       double* loss_time = nullptr) = 0;
+  virtual void AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s,
+                                  double* loss = nullptr, Eigen::RowVectorXd* dloss = nullptr,
+                                  double* loss_time = nullptr) = 0;
+  /// The adjoint calls; only an integrator with an adjoint route (supports_adjoint()) has them.
+  virtual bool supports_adjoint() const { return false; }
+  virtual void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales& scales,
+                              const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                              Eigen::RowVectorXd* q);
+  virtual int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x);
+  virtual void BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
+                              Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
+  virtual const OdeStatistics& statistics() const = 0;
+};
+
+/// The integrator of `propagator` (kOde: CVODES; kRungeKutta: Dormand–Prince).
+std::unique_ptr<SegmentSolver> MakeSegmentSolver(const OdeSystem& system, const OdeOptions& options,
+                                                 Propagator propagator);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_ODE_SEGMENT_SOLVER_H_

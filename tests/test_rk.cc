@@ -1,0 +1,255 @@
+// The one-step integrator (--propagator rk, Dormand–Prince 5(4)): against CVODES solved to 1e-12 on
+// every catalogue ODE model × event type, against the exact propagator on every linear model, its
+// forward sensitivities against central differences of its own objective, steps that samples do not
+// shorten, simulation, a fit, and the stiff case it refuses to grind through.
+#include <cmath>
+#include <sstream>
+
+#include <catch2/catch.hpp>
+
+#include "pk/catalogue.h"
+#include "pk/fit.h"
+#include "pk/objective.h"
+#include "pk/simulate.h"
+#include "test_util.h"
+
+namespace {
+
+using Need = pk::Objective::Need;
+
+pk::ObjectiveOptions Options(pk::Propagator propagator, double rtol,
+                             std::shared_ptr<const pk::ResidualErrorModel> e = pk::MakeResidualError("least-squares")) {
+  pk::ObjectiveOptions o;
+  o.error_model = e;
+  o.propagator = propagator;
+  o.ode.relative_tolerance = rtol;
+  o.ode.absolute_tolerance = rtol * 1e-2;
+  o.fd_relative_step = 1e-4;
+  return o;
+}
+
+// Values away from the defaults, with the scenario's modifiers, all free (as tests/test_ode.cc).
+void Setup(const pk::Objective& obj, const pk_test::Scenario& sc, Eigen::VectorXd* values, std::vector<int>* free) {
+  *values = obj.DefaultValues();
+  free->clear();
+  for (int i = 0; i < obj.model().num_parameters(); ++i) {
+    (*values)(i) *= 1.0 + 0.05 * i;
+    free->push_back(i);
+  }
+  for (size_t e = 0; e < sc.extra_free.size(); ++e) {
+    const int i = obj.ParameterIndex(sc.extra_free[e]);
+    REQUIRE(i >= 0);
+    (*values)(i) = sc.extra_values[e];
+    free->push_back(i);
+  }
+}
+
+double MaxAbs(const Eigen::MatrixXd& m) { return m.cwiseAbs().maxCoeff(); }
+
+}  // namespace
+
+TEST_CASE("Dormand-Prince agrees with CVODES at 1e-12 on every catalogue ODE model and event type", "[rk]") {
+  const auto name = GENERATE(as<std::string>{}, "1cmt_iv_mm", "1cmt_oral_mm", "2cmt_iv_mm", "1cmt_iv_emax",
+                             "2cmt_oral", "1cmt_oral_transit");
+  const auto model = pk::MakeModel(name);
+  for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
+    INFO(name << " / " << sc.name);
+    const auto data = pk_test::ScenarioData(sc);
+    const pk::Objective rk(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-10));
+    const pk::Objective cvodes(model, data, 0, Options(pk::Propagator::kOde, 1e-12));
+    Eigen::VectorXd values;
+    std::vector<int> free;
+    Setup(rk, sc, &values, &free);
+    const auto a = rk.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kForward);
+    const auto b = cvodes.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kForward);
+    INFO(a.message);
+    REQUIRE(a.ok);
+    REQUIRE(b.ok);
+    CHECK(std::string(a.propagator) == "rk");
+    // Each prediction and sensitivity to 1e-9 of the largest: the requested 1e-10, and the global error.
+    CHECK(MaxAbs(a.predictions - b.predictions) < 1e-9 * MaxAbs(b.predictions));
+    CHECK(MaxAbs(a.jacobian - b.jacobian) < 1e-9 * MaxAbs(b.jacobian));
+  }
+}
+
+TEST_CASE("Dormand-Prince agrees with the exact propagator on every linear model", "[rk]") {
+  const auto name = GENERATE(as<std::string>{}, "1cmt_iv", "1cmt_oral", "2cmt_iv", "3cmt_oral", "tf2");
+  const auto model = pk::MakeModel(name);
+  for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
+    INFO(name << " / " << sc.name);
+    const auto data = pk_test::ScenarioData(sc);
+    const pk::Objective rk(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-10));
+    const pk::Objective exact(model, data, 0, Options(pk::Propagator::kExact, 1e-10));
+    Eigen::VectorXd values;
+    std::vector<int> free;
+    Setup(exact, sc, &values, &free);
+    const auto a = rk.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kForward);
+    const auto e = exact.Evaluate(values, free, Need::kJacobian, pk::GradientRoute::kForward);
+    REQUIRE(a.ok);
+    REQUIRE(e.ok);
+    CHECK(MaxAbs(a.predictions - e.predictions) < 1e-9 * MaxAbs(e.predictions));
+    CHECK(MaxAbs(a.jacobian - e.jacobian) < 1e-9 * MaxAbs(e.jacobian));
+  }
+}
+
+TEST_CASE("Dormand-Prince forward sensitivities against central differences of its own objective",
+          "[rk][gradient]") {
+  const auto name = GENERATE(as<std::string>{}, "1cmt_iv_mm", "1cmt_oral_mm", "2cmt_iv_mm", "1cmt_iv_emax",
+                             "1cmt_oral_transit");
+  const auto model = pk::MakeModel(name);
+  for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
+    INFO(name << " / " << sc.name);
+    const auto data = pk_test::ScenarioData(sc);
+    const pk::Objective obj(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-10));
+    Eigen::VectorXd values;
+    std::vector<int> free;
+    Setup(obj, sc, &values, &free);
+    const auto fwd = obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+    REQUIRE(fwd.ok);
+    // Differences of the same route's objective, solved to 1e-12 so that their noise is below 1e-8.
+    const pk::Objective tight(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-12));
+    const Eigen::VectorXd fd = pk_test::CentralDifferences(tight, values, free);
+    const double scale = MaxAbs(fwd.gradient);
+    INFO("forward " << fwd.gradient.transpose() << "\nfd      " << fd.transpose());
+    CHECK(MaxAbs(fwd.gradient - fd) <= 1e-6 * scale);
+  }
+}
+
+TEST_CASE("Dormand-Prince: samples do not shorten steps, the adjoint request takes route (a)", "[rk]") {
+  const auto model = pk::MakeModel(GENERATE(as<std::string>{}, "1cmt_iv_mm", "1cmt_oral_mm", "2cmt_iv_mm"));
+  const double times[] = {0.25, 0.5, 1, 1.5, 2, 3, 4, 6, 8, 12, 16, 24};
+  auto data_with = [](const double* t, int count) {
+    std::ostringstream csv;
+    csv << "ID,TIME,AMT,EVID,CMT,DV\n1,0,100,1,1,.\n";
+    for (int k = 0; k < count; ++k) csv << "1," << t[k] << ",0,0,0,1\n";
+    return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), "samples.csv"));
+  };
+  const auto options = Options(pk::Propagator::kRungeKutta, 1e-10);
+  const pk::Objective many(model, data_with(times, 12), 0, options);
+  const pk::Objective last(model, data_with(times + 11, 1), 0, options);
+  std::vector<int> free;
+  for (int i = 0; i < many.model().num_parameters(); ++i) free.push_back(i);
+  for (const Need need : {Need::kValue, Need::kJacobian}) {
+    const auto a = many.Evaluate(many.DefaultValues(), free, need, pk::GradientRoute::kForward);
+    const auto b = last.Evaluate(last.DefaultValues(), free, need, pk::GradientRoute::kForward);
+    REQUIRE(a.ok);
+    REQUIRE(b.ok);
+    INFO(model->name() << ": 12 samples " << a.ode_statistics.steps << " steps, 1 sample " << b.ode_statistics.steps);
+    // The same steps whatever the samples: each is read from the dense output.
+    CHECK(a.ode_statistics.steps == b.ode_statistics.steps);
+    CHECK(a.predictions(11) == b.predictions(0));
+  }
+  const auto adjoint = many.Evaluate(many.DefaultValues(), free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  REQUIRE(adjoint.ok);
+  CHECK(std::string(adjoint.route) == "forward");
+}
+
+TEST_CASE("Dormand-Prince: continuous records (CONT=1), forward sensitivities against differences",
+          "[rk][gradient][continuous]") {
+  const auto model = pk::MakeModel("1cmt_iv_emax");
+  std::ostringstream csv;
+  csv << "ID,TIME,AMT,RATE,II,ADDL,EVID,DVID,CONT,DV\n1,0,100,0,6,2,1,.,.,.\n";
+  for (int k = 1; k <= 48; ++k) {
+    const double t = 0.25 * k;
+    if (k % 6 == 0) csv << "1," << t << ",0,0,0,0,0,1,0," << 3.0 * std::exp(-0.1 * t) << "\n";
+    csv << "1," << t << ",0,0,0,0,0,2,1," << 10 + 30 * std::sin(0.3 * t) * std::sin(0.3 * t) << "\n";
+  }
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), "cont.csv"));
+  const pk::Objective rk(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-10));
+  const pk::Objective cvodes(model, data, 0, Options(pk::Propagator::kOde, 1e-12));
+  REQUIRE(rk.has_continuous_records());
+  Eigen::VectorXd values;
+  std::vector<int> free;
+  Setup(rk, pk_test::OdeScenarios()[0], &values, &free);
+  const auto a = rk.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+  const auto b = cvodes.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+  REQUIRE(a.ok);
+  REQUIRE(b.ok);
+  CHECK(std::fabs(a.value - b.value) <= 1e-9 * b.value);
+  const pk::Objective tight(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-12));
+  const Eigen::VectorXd fd = pk_test::CentralDifferences(tight, values, free);
+  INFO("forward " << a.gradient.transpose() << "\nfd      " << fd.transpose());
+  CHECK(MaxAbs(a.gradient - fd) <= 1e-6 * MaxAbs(a.gradient));
+  CHECK(MaxAbs(a.gradient - b.gradient) <= 1e-8 * MaxAbs(b.gradient));
+}
+
+TEST_CASE("pksim through Dormand-Prince: AUC and amounts equal the exact propagator's", "[rk][simulate]") {
+  const auto model = pk::MakeModel("2cmt_oral");
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,RATE,II,ADDL,SS,EVID\n1,0,100,0,12,3,0,1\n1,5,0,0,0,0,0,2\n1,20,0,0,0,0,0,2\n"
+      "1,30,50,25,0,0,0,1\n1,40,0,0,0,0,0,2\n1,60,0,0,0,0,0,2\n",
+      "sim.csv"));
+  const pk::ParameterValues p = {{"KA", 1.3}, {"CL", 4}, {"V2", 25}, {"Q", 6}, {"V3", 60}};
+  pk::SimulationOptions exact, rk;
+  exact.propagator = pk::Propagator::kExact;
+  rk.propagator = pk::Propagator::kRungeKutta;
+  rk.ode.relative_tolerance = 1e-11;
+  rk.ode.absolute_tolerance = 1e-13;
+  const auto a = pk::SimulateSubject(*model, *data, 0, p, exact);
+  const auto b = pk::SimulateSubject(*model, *data, 0, p, rk);
+  REQUIRE(a.ok);
+  REQUIRE(b.ok);
+  REQUIRE(a.rows.size() == b.rows.size());
+  for (size_t k = 0; k < a.rows.size(); ++k) {
+    INFO("t = " << a.rows[k].time);
+    CHECK(b.rows[k].auc == Approx(a.rows[k].auc).epsilon(1e-9));
+    CHECK(b.rows[k].cp == Approx(a.rows[k].cp).epsilon(1e-9));
+  }
+  CHECK(MaxAbs(b.amounts - a.amounts) <= 1e-9 * MaxAbs(a.amounts));
+}
+
+TEST_CASE("Dormand-Prince recovers synthetic Michaelis-Menten data (bolus, then infusion) to 1e-5", "[rk][fit]") {
+  const auto model = pk::MakeModel("2cmt_iv_mm");
+  const pk::ParameterValues truth = {{"VMAX", 30}, {"KM", 1.8}, {"V1", 20}, {"Q", 6}, {"V2", 45}};
+  std::ostringstream csv;
+  csv << "ID,TIME,AMT,RATE,EVID,DV\n1,0,200,0,1,.\n";
+  for (double t : {0.25, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0}) csv << "1," << t << ",0,0,0,0\n";
+  csv << "1,8,300,50,1,.\n";
+  for (double t : {8.5, 9.0, 10.0, 12.0, 13.0, 14.0, 16.0, 20.0, 26.0, 32.0}) csv << "1," << t << ",0,0,0,0\n";
+  // The data from CVODES at 1e-12, fitted with Dormand–Prince at 1e-12.
+  auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), "mm.csv"));
+  pk::SimulationOptions truth_options;
+  truth_options.propagator = pk::Propagator::kOde;
+  truth_options.ode.relative_tolerance = 1e-12;
+  truth_options.ode.absolute_tolerance = 1e-14;
+  const auto sim = pk::SimulateSubject(*model, *data, 0, truth, truth_options);
+  REQUIRE(sim.ok);
+  for (const auto& row : sim.rows) {
+    auto& r = data->subjects[0].records[static_cast<size_t>(row.record)];
+    r.dv = row.pred;
+  }
+  const pk::Objective objective(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-12));
+  std::vector<pk::ParameterSpec> specs;
+  for (const auto& kv : truth) {
+    pk::ParameterSpec s;
+    s.name = kv.first;
+    s.initial = kv.second * 1.3;
+    specs.push_back(s);
+  }
+  const pk::FitSummary fit = pk::Fit(objective, specs, pk::FitOptions());
+  INFO(fit.BriefReport());
+  REQUIRE(fit.converged());
+  CHECK(fit.propagator == "rk");
+  for (const auto& e : fit.estimates) {
+    INFO(e.name);
+    CHECK(e.estimate == Approx(truth.at(e.name)).epsilon(1e-5));
+  }
+}
+
+TEST_CASE("Dormand-Prince on a stiff system ends with 'too much work', reported, not thrown", "[rk]") {
+  // Exchange 10⁵ times faster than elimination: the explicit method's stability limit, not accuracy,
+  // bounds its steps. CVODES's BDF is the integrator for this.
+  const auto model = pk::MakeModel("2cmt_iv");
+  const auto data = std::make_shared<pk::Dataset>(
+      pk::ParseDataset("ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,24,0,0,1\n", "stiff.csv"));
+  pk::ObjectiveOptions o = Options(pk::Propagator::kRungeKutta, 1e-8);
+  o.ode.max_steps = 20000;
+  const pk::Objective rk(model, data, 0, o);
+  Eigen::VectorXd values = rk.DefaultValues();
+  values(rk.ParameterIndex("Q")) = 1e6;
+  const auto a = rk.Evaluate(values, {0, 1}, Need::kValue);
+  CHECK_FALSE(a.ok);
+  CHECK(a.message.find("too much work") != std::string::npos);
+  const pk::Objective cvodes(model, data, 0, Options(pk::Propagator::kOde, 1e-8));
+  CHECK(cvodes.Evaluate(values, {0, 1}, Need::kValue).ok);
+}
