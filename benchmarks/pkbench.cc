@@ -436,6 +436,30 @@ int main(int argc, char** argv) {
       }
       std::printf("\n");
     }
+    // The same chains through Dormand–Prince (rk): its loss against CVODES's, and its routes' cost.
+    for (const double vmax_scale : {1.0, 0.1}) {
+      std::printf("== the same chain, VMAX_i = %g(40 + i), through Dormand-Prince (rk), rtol 1e-8 ==\n", vmax_scale);
+      std::printf("%4s %4s %14s %16s %14s %14s %16s\n", "n", "m", "rk solve (ms)", "ode solve / rk", "(a) / solve",
+                  "(b) / solve", "(b) stored bytes");
+      for (int n : {1, 2, 4, 8, 16, 24, 32}) {
+        pk::ObjectiveOptions rk_options;
+        rk_options.propagator = pk::Propagator::kRungeKutta;
+        const pk::Objective rk(Chain(n, vmax_scale), OneDose("1", 100), 0, rk_options);
+        const pk::Objective ode(Chain(n, vmax_scale), OneDose("1", 100), 0, pk::ObjectiveOptions());
+        const Eigen::VectorXd v = rk.DefaultValues();
+        std::vector<int> free;
+        for (int i = 0; i < 2 * n; ++i) free.push_back(i);
+        const auto adj = rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint);
+        const Timing t = Interleaved({[&] { g_sink = rk.Evaluate(v, free, Need::kValue).value; },
+                                      [&] { g_sink = ode.Evaluate(v, free, Need::kValue).value; },
+                                      [&] { g_sink = rk.Evaluate(v, free, Need::kGradient, Route::kForward).value; },
+                                      [&] { g_sink = rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
+        std::printf("%4d %4d %14.3f %16.2f %14.2f %14.2f %16ld\n", n, 2 * n, t.base_seconds * 1e3, t.ratios[1],
+                    t.ratios[2], t.ratios[3], adj.ode_statistics.peak_adjoint_bytes);
+        std::fflush(stdout);
+      }
+      std::printf("\n");
+    }
     // The same choice on catalogue models and bundled data (first four
     // subjects, all model parameters free): what pk::kOdeAdjointThreshold rests on.
     std::printf("== catalogue ODE models on bundled data: gradient by (a) forward sensitivities over (b) the adjoint ==\n");

@@ -277,8 +277,9 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   const internal::FreeParameters fp(free, d.L());
   const int pm = fp.num_model();
   ev.propagator = ToString(d.propagator);
-  // The Runge–Kutta integrator has no adjoint route (yet): its gradients come from route (a).
-  route = ResolveRoute(route, need, pm, IntegratesOde(d.propagator), d.propagator != Propagator::kRungeKutta);
+  // The Runge–Kutta integrator's adjoint does not cover continuous records: route (a) there.
+  route = ResolveRoute(route, need, pm, IntegratesOde(d.propagator),
+                       d.propagator != Propagator::kRungeKutta || d.ode.continuous.empty());
   ev.route = need == Need::kValue ? "none" : ToString(route);
   if (need == Need::kJacobian && !d.ode.continuous.empty()) {
     ev.ok = false;

@@ -56,7 +56,6 @@ class CvodesSolver final : public SegmentSolver {
   int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) override;
   void BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
                       Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) override;
-  bool supports_adjoint() const override { return true; }
 
   const OdeStatistics& statistics() const override;
 

@@ -73,7 +73,7 @@ struct TapeStep {
 template <typename T>
 class OdePropagator {
  public:
-  /// `integrator`: Propagator::kOde (CVODES) or kRungeKutta (Dormand–Prince; no tape for the adjoint).
+  /// `integrator`: Propagator::kOde (CVODES) or kRungeKutta (Dormand–Prince).
   OdePropagator(const OdeSystem& sys, const std::vector<Vec<T>>& sets, int p, const OdeOptions& options,
                 bool sensitivities, bool tape, bool track_auc, const ContinuousRecords* continuous = nullptr,
                 Propagator integrator = Propagator::kOde)
@@ -81,7 +81,7 @@ class OdePropagator {
         sets_(sets),
         p_(p),
         n_(sys.n()),
-        solver_(MakeSegmentSolver(sys, options, integrator)),
+        solver_(MakeSegmentSolver(sys, options, integrator, tape)),
         options_(options),
         sens_(sensitivities),
         tape_on_(tape),
@@ -108,7 +108,8 @@ class OdePropagator {
     if (sens_) {
       solver_->AdvanceSensitivity(seg, &x_, &s_, cont ? &loss_ : nullptr, &dloss_, &loss_time);
       s_ += FlowAtEnd(seg) * dh;
-    } else if (tape_on_ && options_.adjoint_store_all_segments && seg.continuous.empty() && !auc) {
+    } else if (tape_on_ && (options_.adjoint_store_all_segments || solver_->stores_every_segment()) &&
+               seg.continuous.empty() && !auc) {
       step.handle = solver_->StoreSegment(seg, &x_);
     } else {
       solver_->Advance(seg, &x_, cont ? &loss_ : nullptr, auc ? &auc_ : nullptr, &loss_time);

@@ -140,7 +140,7 @@ struct OdeAdjoint::Impl {
 
   Impl(const OdeSubject& oo, const PreparedSubject& ss, const std::vector<DualVector>& st, int pp)
       : o(oo), s(ss), sets(st), p(pp), prop(*oo.system, sets, pp, oo.options, false, true, false,
-                                            &oo.continuous) {}
+                                            &oo.continuous, oo.integrator) {}
 
   // Backward over one recorded segment: the moving-end term, then CVODES.
   void BackwardSegment(const TapeStep& step, Eigen::VectorXd* lambda, Eigen::VectorXd* g) {

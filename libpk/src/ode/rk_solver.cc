@@ -24,6 +24,27 @@ using Stepper = odeint::runge_kutta_dopri5<State, double, State, double, odeint:
                                            odeint::default_operations, odeint::always_resizer>;
 using Dense = odeint::result_of::make_dense_output<Stepper>::type;
 using Rhs = std::function<void(const State& z, State& dz, double t)>;
+using Controlled = odeint::controlled_runge_kutta<Stepper>;
+
+// Dormand–Prince 5(4), the tableau Odeint's runge_kutta_dopri5 steps with: the stages of a step are
+// recomputed from its start for the discrete adjoint (Odeint does not expose them). b₇ = 0, so the
+// seventh stage (the next step's first, FSAL) does not enter x_{n+1}.
+constexpr int kStages = 6;
+constexpr double kA[kStages][kStages] = {
+    {0, 0, 0, 0, 0, 0},
+    {1.0 / 5, 0, 0, 0, 0, 0},
+    {3.0 / 40, 9.0 / 40, 0, 0, 0, 0},
+    {44.0 / 45, -56.0 / 15, 32.0 / 9, 0, 0, 0},
+    {19372.0 / 6561, -25360.0 / 2187, 64448.0 / 6561, -212.0 / 729, 0, 0},
+    {9017.0 / 3168, -355.0 / 33, 46732.0 / 5247, 49.0 / 176, -5103.0 / 18656, 0}};
+constexpr double kB[kStages] = {35.0 / 384, 0, 500.0 / 1113, 125.0 / 192, -2187.0 / 6784, 11.0 / 84};
+
+// One segment's accepted steps, for the discrete adjoint: the state at each step's start and its length.
+struct StoredSteps {
+  SegmentInput in;
+  Eigen::MatrixXd x;  // n × steps
+  std::vector<double> h;
+};
 
 }  // namespace
 
@@ -33,8 +54,9 @@ struct RkSolver::Impl {
   int n;
   OdeStatistics stats;
   const SegmentInput* in = nullptr;
-  Eigen::MatrixXd s_buf, df_buf;  // scratch of the sensitivity right-hand side
-  Eigen::VectorXd f_buf;
+  Eigen::MatrixXd s_buf, df_buf;  // scratch of the right-hand sides
+  Eigen::VectorXd x_buf, f_buf, start_buf;
+  std::vector<double> starts_buf;
 
   // The problem the stepper is on, for a segment that continues it (see rk_solver.h).
   Dense dense = odeint::make_dense_output(1e-10, 1e-8, Stepper());
@@ -50,8 +72,101 @@ struct RkSolver::Impl {
     }
   } last;
 
-  Impl(const OdeSystem& s, const OdeOptions& o) : sys(s), opt(o), n(s.n()) {
+  // With an adjoint tape: steps that end exactly at each segment's end, recorded or replayable, and no
+  // continuation through samples (a replay from the segment's start must take the same steps).
+  bool replay = false;
+  std::vector<StoredSteps> stored;
+  double next_dt = 0;  // the step size control's proposal after the last segment (replay mode)
+
+  Impl(const OdeSystem& s, const OdeOptions& o, bool tape) : sys(s), opt(o), n(s.n()), replay(tape) {
     dense = odeint::make_dense_output(opt.absolute_tolerance, opt.relative_tolerance, Stepper());
+  }
+
+  // Values only, replay mode: x ← x(h) by controlled steps whose last one ends at h, each accepted
+  // step's start and length into *steps when given. The same x and `in` give the same steps.
+  void FixedEndSteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps) {
+    const Rhs rhs = [&](const State& z, State& dz, double) {
+      ++stats.rhs_evaluations;
+      sys.Rhs(z, in.theta, &f_buf);
+      dz = f_buf + in.u;
+    };
+    Controlled stepper(Controlled::error_checker_type(opt.absolute_tolerance, opt.relative_tolerance));
+    double t = 0, dt = InitialStep(*x, rhs, in.h);
+    long count = 0, tries = 0;
+    std::vector<double>& starts = starts_buf;  // the steps' starts, n numbers each
+    starts.clear();
+    while (t < in.h) {
+      const bool last = dt >= in.h - t;
+      double step = last ? in.h - t : dt;
+      start_buf = *x;
+      double tt = t;
+      if (stepper.try_step(std::cref(rhs), *x, tt, step) == odeint::fail) {
+        dt = step;  // the control's smaller proposal
+        if (++tries > 1000) throw NumericalFailure("the Dormand–Prince step size control failed");
+        continue;
+      }
+      if (!x->allFinite()) throw NumericalFailure("the ODE solution is not finite at t = " + std::to_string(tt));
+      if (steps) {
+        starts.insert(starts.end(), start_buf.data(), start_buf.data() + n);
+        steps->h.push_back(last ? in.h - t : tt - t);
+      }
+      t = last ? in.h : tt;
+      dt = step;
+      ++stats.steps;
+      if (++count > opt.max_steps) {
+        throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
+                               " Dormand–Prince steps between two events (a stiff system? use --propagator ode)");
+      }
+    }
+    if (steps) {
+      steps->in = in;
+      steps->x = Eigen::Map<const Eigen::MatrixXd>(starts.data(), n, static_cast<Eigen::Index>(steps->h.size()));
+    }
+  }
+
+  // The discrete adjoint of `steps` (the seed's §4 done on the method's own steps): for each step,
+  // backward, with stages X_i = x_n + h Σ_j a_ij k_j, k_i = f(X_i) + u, x_{n+1} = x_n + h Σ b_i k_i,
+  //   κ_i = h (b_i λ_{n+1} + Σ_{j>i} a_ji ξ_j),   ξ_i = f_x(X_i)ᵀ κ_i,   λ_n = λ_{n+1} + Σ_i ξ_i,
+  //   q += Σ_i κ_iᵀ (f_θ(X_i) ∂θ/∂p + ∂u/∂p).
+  // One vector–Jacobian product a stage, whatever the number of parameters.
+  void Backward(const StoredSteps& steps, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                Eigen::RowVectorXd* q) {
+    const SegmentInput& in = steps.in;
+    const int k = static_cast<int>(in.dtheta.cols());
+    Eigen::VectorXd lambda = lambda_end, wft_sum = Eigen::VectorXd::Zero(in.theta.size());
+    Eigen::VectorXd kappa_sum = Eigen::VectorXd::Zero(n);
+    Eigen::MatrixXd stage_k(n, kStages), xi(n, kStages);
+    Eigen::VectorXd f, wfx, wft, point(n), kappa(n), lambda_next(n);
+    for (Eigen::Index step = steps.x.cols() - 1; step >= 0; --step) {
+      const double h = steps.h[static_cast<size_t>(step)];
+      const auto x0 = steps.x.col(step);
+      // The stages, forward again.
+      for (int i = 0; i < kStages; ++i) {
+        point = x0;
+        for (int j = 0; j < i; ++j) point += h * kA[i][j] * stage_k.col(j);
+        sys.Rhs(point, in.theta, &f);
+        stage_k.col(i) = f + in.u;
+        ++stats.rhs_evaluations;
+      }
+      // Their adjoints, backward.
+      lambda_next = lambda;
+      for (int i = kStages - 1; i >= 0; --i) {
+        kappa = kB[i] * lambda_next;
+        for (int j = i + 1; j < kStages; ++j) kappa += kA[j][i] * xi.col(j);
+        kappa *= h;
+        point = x0;
+        for (int j = 0; j < i; ++j) point += h * kA[i][j] * stage_k.col(j);
+        sys.RhsVectorJacobian(point, in.theta, kappa, &f, &wfx, &wft);
+        xi.col(i) = wfx;
+        wft_sum += wft;
+        kappa_sum += kappa;
+        lambda += wfx;
+      }
+      ++stats.backward_steps;
+    }
+    *lambda_start = lambda;
+    *q = wft_sum.transpose() * in.dtheta;
+    if (in.du.cols() == k) *q += kappa_sum.transpose() * in.du;
   }
 
   // Hairer, Nørsett and Wanner's first step: 1% of the state's scale over its rate's, at most h.
@@ -109,7 +224,33 @@ struct RkSolver::Impl {
   }
 };
 
-RkSolver::RkSolver(const OdeSystem& system, const OdeOptions& options) : impl_(new Impl(system, options)) {}
+RkSolver::RkSolver(const OdeSystem& system, const OdeOptions& options, bool tape)
+    : impl_(new Impl(system, options, tape)) {}
+
+int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
+  Impl& d = *impl_;
+  StoredSteps steps;
+  d.FixedEndSteps(in, x, &steps);
+  d.stored.push_back(std::move(steps));
+  long bytes = 0;
+  for (const StoredSteps& s : d.stored) bytes += static_cast<long>(sizeof(double)) * (s.x.size() + static_cast<long>(s.h.size()));
+  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, bytes);
+  return static_cast<int>(d.stored.size()) - 1;
+}
+
+void RkSolver::BackwardStored(int handle, const AdjointScales&, const Eigen::VectorXd& lambda_end,
+                              Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
+  impl_->Backward(impl_->stored.at(static_cast<size_t>(handle)), lambda_end, lambda_start, q);
+}
+
+void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales&,
+                              const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
+  // The forward steps again from the segment's start (replay mode took these very steps), then back.
+  StoredSteps steps;
+  Eigen::VectorXd x = x0;
+  impl_->FixedEndSteps(in, &x, &steps);
+  impl_->Backward(steps, lambda_end, lambda_start, q);
+}
 RkSolver::~RkSolver() = default;
 
 const OdeStatistics& RkSolver::statistics() const { return impl_->stats; }
@@ -124,11 +265,11 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   z.head(n) = *x;
   const Rhs rhs = [&](const State& zz, State& dz, double t) {
     ++d.stats.rhs_evaluations;
-    const Eigen::VectorXd xs = zz.head(n);
-    Eigen::VectorXd f;
-    d.sys.Rhs(xs, in.theta, &f);
+    Eigen::VectorXd& xs = d.x_buf;
+    xs = zz.head(n);
+    d.sys.Rhs(xs, in.theta, &d.f_buf);
     dz.resize(zz.size());
-    dz.head(n) = f + in.u;
+    dz.head(n) = d.f_buf + in.u;
     if (with_loss) {
       double lt = 0;
       dz(n) = ContinuousLoss(d.sys, in, t, xs, nullptr, &lt);
@@ -136,6 +277,10 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
     }
     if (with_auc) dz(dz.size() - 1) = d.sys.Observe(in.auc_key, xs, in.theta);
   };
+  if (d.replay && !with_loss && !with_auc) {  // the steps an adjoint replays (see Impl::replay)
+    d.FixedEndSteps(in, x, nullptr);
+    return;
+  }
   const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
   d.Integrate(rhs, in.h, continues, &z);
   *x = z.head(n);
@@ -164,7 +309,8 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
   z.segment(n, nk) = Eigen::Map<const Eigen::VectorXd>(s->data(), nk);
   const Rhs rhs = [&](const State& zz, State& dz, double t) {
     ++d.stats.rhs_evaluations;
-    const Eigen::VectorXd xs = zz.head(n);
+    Eigen::VectorXd& xs = d.x_buf;
+    xs = zz.head(n);
     d.s_buf = Eigen::Map<const Eigen::MatrixXd>(zz.data() + n, n, k);
     d.sys.RhsDirectional(xs, in.theta, d.s_buf, in.dtheta, &d.f_buf, &d.df_buf);
     if (in.du.cols() == k) d.df_buf += in.du;

@@ -10,8 +10,13 @@
 //
 // Values and quadratures (continuous-record loss, AUC) are integrated as one state. Route (a)'s
 // forward sensitivities are the seed's dS/dt = f_x S + f_θ ∂θ/∂p + ∂u/∂p, integrated as part of the
-// state [x; vec S], so S is under the same error control as x. No adjoint route yet
-// (supports_adjoint() is false): the objective takes route (a) with this integrator.
+// state [x; vec S], so S is under the same error control as x.
+//
+// Route (b) is the discrete adjoint of the method's own steps (Impl::Backward): the exact gradient of
+// the computed loss for the accepted step sizes, with no backward integration and no error control of
+// its own. With a tape, every segment is stepped to end exactly at its end (no continuation through
+// samples), its accepted steps' starts and lengths are kept (n + 1 numbers a step), and the backward pass
+// recomputes each step's stages from its start. Segments with continuous records take route (a).
 //
 // Non-stiff only: a stiff system makes the step size control take steps at the stability limit
 // (many of them); `max_steps` ends such a segment with "too much work", and CVODES (`ode`) is the
@@ -28,7 +33,8 @@ namespace internal {
 
 class RkSolver final : public SegmentSolver {
  public:
-  RkSolver(const OdeSystem& system, const OdeOptions& options);
+  /// `tape`: the forward pass of the adjoint route (see above).
+  RkSolver(const OdeSystem& system, const OdeOptions& options, bool tape);
   ~RkSolver() override;
   RkSolver(const RkSolver&) = delete;
   RkSolver& operator=(const RkSolver&) = delete;
@@ -37,6 +43,13 @@ class RkSolver final : public SegmentSolver {
                double* loss_time = nullptr) override;
   void AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, double* loss = nullptr,
                           Eigen::RowVectorXd* dloss = nullptr, double* loss_time = nullptr) override;
+  void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales& scales,
+                      const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) override;
+  int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) override;
+  void BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
+                      Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) override;
+  /// Every segment of a tape is stored: a replay must take the forward pass's steps.
+  bool stores_every_segment() const override { return true; }
   const OdeStatistics& statistics() const override;
 
  private:

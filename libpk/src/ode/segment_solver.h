@@ -58,20 +58,23 @@ class SegmentSolver {
   virtual void AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s,
                                   double* loss = nullptr, Eigen::RowVectorXd* dloss = nullptr,
                                   double* loss_time = nullptr) = 0;
-  /// The adjoint calls; only an integrator with an adjoint route (supports_adjoint()) has them.
-  virtual bool supports_adjoint() const { return false; }
+  /// The adjoint route's calls (see CvodesSolver and RkSolver for what each integrator does).
   virtual void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales& scales,
                               const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
-                              Eigen::RowVectorXd* q);
-  virtual int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x);
+                              Eigen::RowVectorXd* q) = 0;
+  virtual int StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) = 0;
   virtual void BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
-                              Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
+                              Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) = 0;
+  /// Whether a tape's forward pass stores every segment (StoreSegment) whatever
+  /// OdeOptions::adjoint_store_all_segments says.
+  virtual bool stores_every_segment() const { return false; }
   virtual const OdeStatistics& statistics() const = 0;
 };
 
 /// The integrator of `propagator` (kOde: CVODES; kRungeKutta: Dormand–Prince).
+/// `tape`: for the forward pass of the adjoint route.
 std::unique_ptr<SegmentSolver> MakeSegmentSolver(const OdeSystem& system, const OdeOptions& options,
-                                                 Propagator propagator);
+                                                 Propagator propagator, bool tape);
 
 }  // namespace internal
 }  // namespace pk
