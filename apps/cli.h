@@ -29,7 +29,7 @@ void AddFilterOptions(boost::program_options::options_description* desc, std::ve
 /// The dataset filter they give: a one-character --ignore is IGNORE=c, longer ones are conditions.
 DatasetFilter ParseFilter(const std::vector<std::string>& ignore, const std::vector<std::string>& accept);
 
-/// "auto", "exact" or "ode"; throws pk::InputError otherwise.
+/// "auto", "exact", "ode" or "rk"; throws pk::InputError otherwise.
 Propagator ParsePropagator(const std::string& text);
 
 /// Parses the command line into `vm`; prints `usage` and the options and returns false when

@@ -190,6 +190,9 @@ std::string SubjectsCsv(const pk::PopulationProblem& problem, const pk::Populati
   std::string out = "ID,OK,OFV";
   for (const auto& n : problem.eta_names()) out += "," + pk::cli::EtaLabel(n);
   for (const auto& n : problem.theta_names()) out += "," + n;
+  // A model file's individual parameters as its $PK defines them (CL, V, …), at the first record.
+  const std::vector<std::string>& defined = problem.model().declarations().pk_definitions;
+  for (const auto& n : defined) out += "," + n;
   out += ",MESSAGE\n";
   for (const auto& s : fit.subjects) {
     out += pk::FormatNumber(s.id) + "," + (s.ok ? "1" : "0") + "," + (s.ok ? pk::FormatNumber(s.ofv) : "");
@@ -198,6 +201,9 @@ std::string SubjectsCsv(const pk::PopulationProblem& problem, const pk::Populati
     }
     for (Eigen::Index k = 0; k < static_cast<Eigen::Index>(problem.theta_names().size()); ++k) {
       out += "," + (s.ok ? pk::FormatNumber(s.parameters(k)) : "");
+    }
+    for (Eigen::Index k = 0; k < static_cast<Eigen::Index>(defined.size()); ++k) {
+      out += "," + (s.ok && k < s.definitions.size() ? pk::FormatNumber(s.definitions(k)) : "");
     }
     std::string m = s.message;
     std::replace(m.begin(), m.end(), '"', '\'');

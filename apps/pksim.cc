@@ -273,6 +273,9 @@ int Main(int argc, char** argv) {
   sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
   sim_options.ode.absolute_tolerance = vm["atol"].as<double>();
   sim_options.jobs = vm["jobs"].as<int>();
+  // The AUC is a state of its own, integrated only for the exposure metrics (and an extra state keeps
+  // a one-step integrator from continuing through the output times).
+  sim_options.track_auc = vm.count("summary") > 0 || vm.count("summary-csv") > 0;
   if (vm.count("data")) sim_options.output_times = grid;  // a regimen has them already
   std::string why;
   if (!sim_options.IsValid(&why)) throw pk::InputError(why);

@@ -63,6 +63,14 @@ TEST_CASE("FormatNumber is %.Pg with the least P >= 6 that reads back, for every
     std::memcpy(&v, &bits, sizeof v);
     if (std::isfinite(v)) values.push_back(v);
   }
+  // Every power of two and its neighbours: a lopsided rounding interval, where the shortest digits
+  // and the correctly rounded ones of as many digits part (2^-24, 2^-44, 2^89, …).
+  for (int e = -1074; e <= 1023; ++e) {
+    const double v = std::ldexp(1.0, e);
+    for (double w : {v, std::nextafter(v, 0.0), std::nextafter(v, INFINITY), -v}) {
+      if (std::isfinite(w)) values.push_back(w);
+    }
+  }
   std::uniform_int_distribution<int> digits(1, 17), exponent(-12, 22);
   for (int i = 0; i < 200000; ++i) {  // short decimals, as data hold them, around %g's switch points
     const double mantissa = std::floor(std::ldexp(static_cast<double>(rng() >> 11), -53) * std::pow(10.0, digits(rng)));

@@ -695,6 +695,19 @@ TEST_CASE("phenobarbital with weight and Apgar covariates reproduces NONMEM's FO
   REQUIRE(e.subjects.size() == 59);
   CHECK(std::abs(e.subjects[0].ofv - 5.9473520242962552) < 1e-5);
   CHECK(std::abs(e.subjects[56].ofv - 5.6639479151436394) < 1e-5);
+  // The individual parameters as $PK defines them, from each subject's own weight and Apgar score:
+  // ID 1 weighs 1.4 kg with Apgar 7, ID 19 1 kg with Apgar 1 (V gains the factor 1 + APGV).
+  REQUIRE(problem.model().declarations().pk_definitions == std::vector<std::string>{"FAPG", "CL", "V"});
+  const auto individual = [&](size_t i, double wt, double apgar_factor) {
+    const pk::PopulationSubject& s = e.subjects[i];
+    REQUIRE(s.definitions.size() == 3);
+    CHECK(s.definitions(0) == Approx(apgar_factor).epsilon(1e-15));
+    CHECK(s.definitions(1) == Approx(p.theta(0) * wt * std::exp(s.eta(0))).epsilon(1e-14));
+    CHECK(s.definitions(2) == Approx(p.theta(1) * wt * apgar_factor * std::exp(s.eta(1))).epsilon(1e-14));
+  };
+  individual(0, 1.4, 1.0);
+  REQUIRE(e.subjects[18].id == 19);
+  individual(18, 1.0, 1.0 + p.theta(2));
 }
 
 TEST_CASE("the outer gradient holds for a model file's additive η on the exact propagator",

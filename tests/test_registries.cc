@@ -150,7 +150,8 @@ TEST_CASE("names of routes, propagators, weightings and population models parse 
                                     pk::GradientRoute::kFiniteDifference, pk::GradientRoute::kCompanion}) {
     CHECK(pk::ParseGradientRoute(pk::ToString(r)) == r);
   }
-  for (const pk::Propagator p : {pk::Propagator::kAuto, pk::Propagator::kExact, pk::Propagator::kOde}) {
+  for (const pk::Propagator p :
+       {pk::Propagator::kAuto, pk::Propagator::kExact, pk::Propagator::kOde, pk::Propagator::kRungeKutta}) {
     CHECK(pk::ParsePropagator(pk::ToString(p)) == p);
   }
   for (const std::string w : {"uniform", "dv2", "dv", "column:W"}) {

@@ -262,3 +262,28 @@ TEST_CASE("Dormand-Prince on a stiff system ends with 'too much work', reported,
   const pk::Objective cvodes(model, data, 0, Options(pk::Propagator::kOde, 1e-8));
   CHECK(cvodes.Evaluate(values, {0, 1}, Need::kValue).ok);
 }
+
+TEST_CASE("Dormand-Prince: a free lag at 0 (an empty segment that carries a derivative)", "[rk][gradient]") {
+  // The engine advances by h = ALAG = 0 with ∂h/∂ALAG = 1: no time passes, and the derivative
+  // enters by the lag term. An integrator that stepped an empty segment gave NaN here.
+  const auto model = pk::MakeModel("1cmt_oral_mm");
+  const auto data = pk_test::ScenarioData(pk_test::OdeScenarios()[0]);
+  const pk::Objective rk(model, data, 0, Options(pk::Propagator::kRungeKutta, 1e-10));
+  const pk::Objective cvodes(model, data, 0, Options(pk::Propagator::kOde, 1e-12));
+  Eigen::VectorXd values = rk.DefaultValues();
+  std::vector<int> free;
+  for (int i = 0; i < model->num_parameters(); ++i) free.push_back(i);
+  const int lag = rk.ParameterIndex("ALAG1");
+  REQUIRE(lag >= 0);
+  values(lag) = 0;
+  free.push_back(lag);
+  const auto reference = cvodes.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+  REQUIRE(reference.ok);
+  for (const auto route : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint}) {
+    const auto e = rk.Evaluate(values, free, Need::kGradient, route);
+    INFO(pk::ToString(route) << ": " << e.message);
+    REQUIRE(e.ok);
+    REQUIRE(e.gradient.allFinite());
+    CHECK(MaxAbs(e.gradient - reference.gradient) <= 1e-7 * MaxAbs(reference.gradient));
+  }
+}

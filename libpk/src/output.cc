@@ -72,8 +72,10 @@ void AtomicFile::Write(const char* data, size_t size) {
   // little left to write: the file is on disk almost as soon as the last row is computed.
   constexpr size_t kWritebackChunk = size_t{4} << 20;
   if (!temporary_.empty() && written_ - flushing_ >= kWritebackChunk) {
+#ifdef __linux__
     ::sync_file_range(fd_, static_cast<off_t>(flushing_), static_cast<off_t>(written_ - flushing_),
                       SYNC_FILE_RANGE_WRITE);
+#endif
     flushing_ = written_;
   }
 }

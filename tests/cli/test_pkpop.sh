@@ -50,6 +50,8 @@ head -1 "$work/pheno_file/iterations.csv" |
   fail "the file's θ and η names: $(head -1 "$work/pheno_file/iterations.csv")"
 awk -F, 'NR == 2 { if ($7 != 0.05 && $7 !~ /^0.0500000000/) exit 1 }' "$work/pheno_file/iterations.csv" ||
   fail "Ω did not start from \$OMEGA"
+head -1 "$work/pheno_file/subjects.csv" | grep -qx "ID,OK,OFV,ETA_CL,ETA_V,TVCL,TVV,APGV,FAPG,CL,V,MESSAGE" ||
+  fail "subjects.csv lacks the file's \$PK definitions: $(head -1 "$work/pheno_file/subjects.csv")"
 head -1 "$work/pheno_file/subjects.csv" | grep -q "^ID,OK,OFV,ETA_CL,ETA_V," || fail "subjects.csv η columns"
 "$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --eta ETA_KA \
   -o "$work/bad_eta" 2>"$work/bad_eta.err"

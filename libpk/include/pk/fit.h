@@ -97,7 +97,7 @@ struct FitSummary {
   double seconds = 0;            ///< wall time of the whole fit
   std::string optimizer;
   std::string gradient;          ///< the route that computed the derivatives
-  std::string propagator;        ///< "exact" (Φ/Γ) or "ode" (CVODES)
+  std::string propagator;        ///< "exact" (Φ/Γ), "ode" (CVODES) or "rk" (Dormand–Prince)
 
   std::vector<ParameterEstimate> estimates;  ///< every ParameterSpec, in order (fixed included)
   std::vector<std::string> estimated;        ///< the names of the estimated ones

@@ -8,6 +8,7 @@
 #define PK_MODEL_H_
 
 #include <cmath>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -66,6 +67,11 @@ struct ModelDeclarations {
   std::vector<double> sigma;
   /// Why a model file that is not a LinearModel runs on the ODE propagator ("" otherwise).
   std::string why_not_linear;
+  /// What the file's $PK defines (CL, V, FAPG, …: the individual parameters), in file order, and
+  /// their values from a full model parameter vector (covariates and bound η included, as one
+  /// record's parameter set holds them). Empty, and pk_values empty, for the catalogue.
+  std::vector<std::string> pk_definitions;
+  std::function<Eigen::VectorXd(const Eigen::VectorXd& parameters)> pk_values;
 };
 
 class Model {

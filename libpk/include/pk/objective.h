@@ -138,7 +138,7 @@ class Objective {
     /// the free parameters (Need::kJacobian).
     Eigen::MatrixXd information;
     const char* route = "";       ///< the route that computed the derivatives
-    const char* propagator = "";  ///< "exact" or "ode"
+    const char* propagator = "";  ///< "exact", "ode" (CVODES) or "rk" (Dormand–Prince)
     /// Exact propagator: whether Φ/Γ ran in eigen-coordinates (ObjectiveOptions::modal_propagation).
     bool modal = false;
     OdeStatistics ode_statistics;  ///< the ODE propagator's work (ode only)
@@ -158,11 +158,15 @@ class Objective {
   int ParameterIndex(const std::string& name) const;
   /// Catalogue defaults, F=1, ALAG=0, and σ starting values from the data.
   Eigen::VectorXd DefaultValues() const;
+  /// The model's parameter vector (num_parameters() of the model) that governs record `record` of
+  /// the subject at `values`: data columns and covariates of that record applied, as a prediction
+  /// sees them.
+  Eigen::VectorXd RecordParameters(const Eigen::VectorXd& values, int record) const;
 
   int num_samples() const;
   /// True when the subject has continuous records (CONT=1).
   bool has_continuous_records() const;
-  /// The propagator in use ("exact" or "ode").
+  /// The propagator in use (exact, ode or rk).
   Propagator propagator() const;
   /// Rows of Evaluation::residuals (least squares): the samples, then one per prior.
   int num_residuals() const;

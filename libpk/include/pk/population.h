@@ -171,6 +171,9 @@ struct PopulationSubject {
   Eigen::VectorXd eta;      ///< η̂_i
   double ofv = 0;           ///< OFV_i
   Eigen::VectorXd parameters;  ///< individual φ_i (theta_names order)
+  /// A model file's $PK values (Model::declarations().pk_definitions order: CL_i, V_i, …) at the
+  /// subject's first record, its covariates applied; empty for the catalogue.
+  Eigen::VectorXd definitions;
 };
 
 /// One sample's predictions and residuals, as NONMEM's sdtab.

@@ -79,13 +79,19 @@ const char* ShortestDigits(double value, char (&buffer)[48], int* count, int* ex
 // The text is printf's %.Pg with the least P >= 6 that reads back. That P is the digit count d of
 // the shortest round-trip form when d > 6, and 6 otherwise; and the digits are the shortest form's,
 // since a double's rounding interval (about 1e-16 wide) holds at most one decimal of d <= 17
-// digits that is nearest, for normal numbers (see FormatNumber's test against that definition). So
+// digits that is nearest, for normal numbers whose interval is symmetric, that is all but the
+// powers of two (see FormatNumber's test against that definition, every power of two included). So
 // the shortest digits and their exponent give the text, in %g's layout.
 char* WriteNumber(double value, char* out) {
   if (!std::isfinite(value)) return std::to_chars(out, out + 40, value).ptr;
-  if (value != 0 && std::fabs(value) < std::numeric_limits<double>::min()) {
+  std::uint64_t bits = 0;
+  std::memcpy(&bits, &value, sizeof bits);
+  const bool power_of_two = value != 0 && (bits & ((std::uint64_t{1} << 52) - 1)) == 0;
+  if (value != 0 && (std::fabs(value) < std::numeric_limits<double>::min() || power_of_two)) {
     // A subnormal's rounding interval is wide: several 6-digit decimals may read back, and %.6g
-    // takes the nearest, not the shortest. The definition itself, then.
+    // takes the nearest, not the shortest. A power of two's is lopsided (the gap below is half the
+    // gap above): the shortest decimal may lie in the wide half, where the correctly rounded one of
+    // as many digits does not read back (2⁻²⁴ needs 17 digits, not 16). The definition itself, then.
     for (int precision = 6;; ++precision) {
       char* const end = std::to_chars(out, out + 40, value, std::chars_format::general, precision).ptr;
       double back = 0;

@@ -408,6 +408,11 @@ class Analyser {
                                       ": $PK computes individual parameters, which cannot depend on the state; "
                                       "define it in $ODE");
       }
+      const std::string& name = t.definitions[d].name;
+      if (t.definitions[d].in_pk && std::find(out_.pk_names.begin(), out_.pk_names.end(), name) == out_.pk_names.end()) {
+        out_.pk_names.push_back(name);
+        out_.pk_roots.push_back(r);
+      }
     }
   }
 

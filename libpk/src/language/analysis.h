@@ -31,6 +31,8 @@ struct CompiledModel {
   std::vector<int> rhs;      // root of d/dt of each compartment
   std::vector<std::string> output_names;
   std::vector<int> outputs;  // root of each output (DVID 1, 2, …)
+  std::vector<std::string> pk_names;  // the $PK definitions, in file order
+  std::vector<int> pk_roots;          // and their roots (they read no state)
   /// When dx/dt = A(θ)x with every entry of A a sum of c·θ_a/θ_b, and one output y = C(θ)x of the
   /// same form: the terms for LinearModel::FromTerms. Otherwise `linear` is false and
   /// declarations.why_not_linear says why (the model runs on the ODE propagator).

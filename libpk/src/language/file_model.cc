@@ -41,9 +41,26 @@ struct ProgramFunctor {
   }
 };
 
+// The $PK definitions' values from a model parameter vector: one program, no state.
+ModelDeclarations WithPkValues(const CompiledModel& m, int n) {
+  ModelDeclarations declarations = m.declarations;
+  declarations.pk_definitions = m.pk_names;
+  if (m.pk_roots.empty()) return declarations;
+  const Program program(m.graph, m.pk_roots, n);
+  declarations.pk_values = [program, n](const Eigen::VectorXd& parameters) {
+    Eigen::VectorXd out(program.num_roots());
+    const std::vector<double> x(static_cast<size_t>(n), 0.0);  // $PK reads no amount (checked)
+    std::vector<double> slots;
+    program.Run<double>(x.data(), parameters.data(), out.data(), &slots);
+    return out;
+  };
+  return declarations;
+}
+
 std::shared_ptr<const Model> Build(const CompiledModel& m) {
   const ModelText& t = m.text;
   const int n = static_cast<int>(m.compartments.size());
+  const ModelDeclarations declarations = WithPkValues(m, n);
   if (m.linear) {
     // Observations in the central compartment measure the output; in another, its amount.
     std::vector<std::vector<LinearTerm>> rows(static_cast<size_t>(n));
@@ -57,7 +74,7 @@ std::shared_ptr<const Model> Build(const CompiledModel& m) {
       }
     }
     return LinearModel::FromTerms(t.name, t.description, m.compartments, m.parameters, m.defaults, m.central,
-                                  m.default_dose, m.a_terms, rows, 0, InitialStructure(), m.declarations,
+                                  m.default_dose, m.a_terms, rows, 0, InitialStructure(), declarations,
                                   m.signed_parameters);
   }
   OdeModelSpec spec;
@@ -69,7 +86,7 @@ std::shared_ptr<const Model> Build(const CompiledModel& m) {
   spec.central = m.central;
   spec.default_dose = m.default_dose;
   spec.signed_parameters = m.signed_parameters;
-  spec.declarations = m.declarations;
+  spec.declarations = declarations;
   ProgramFunctor f{Program(m.graph, m.rhs, n), {}};
   for (int root : m.outputs) f.outputs.emplace_back(m.graph, std::vector<int>{root}, n);
   return MakeOdeModel(spec, std::move(f));

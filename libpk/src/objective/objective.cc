@@ -119,6 +119,15 @@ Eigen::VectorXd Objective::DefaultValues() const {
   return v;
 }
 
+Eigen::VectorXd Objective::RecordParameters(const Eigen::VectorXd& values, int record) const {
+  const internal::ObjectiveState& d = *impl_;
+  internal::PreparedSubject s = d.prepared;
+  internal::RebindParameters(d.layout, values.head(d.L()), &s);
+  const auto r = static_cast<size_t>(record);
+  if (r >= s.set_of_record.size()) throw std::out_of_range("Objective::RecordParameters: no record " + std::to_string(record));
+  return s.sets[static_cast<size_t>(s.set_of_record[r])].head(d.model->num_parameters());
+}
+
 int Objective::num_samples() const { return static_cast<int>(impl_->y.size()); }
 bool Objective::has_continuous_records() const { return !impl_->ode.continuous.empty(); }
 Propagator Objective::propagator() const { return impl_->propagator; }

@@ -30,6 +30,8 @@ using Controlled = odeint::controlled_runge_kutta<Stepper>;
 // recomputed from its start for the discrete adjoint (Odeint does not expose them). b₇ = 0, so the
 // seventh stage (the next step's first, FSAL) does not enter x_{n+1}.
 constexpr int kStages = 6;
+// A segment no longer than this is empty, as CVODES's solver takes it.
+constexpr double kEmptySegment = 1e-13;
 constexpr double kA[kStages][kStages] = {
     {0, 0, 0, 0, 0, 0},
     {1.0 / 5, 0, 0, 0, 0, 0},
@@ -53,7 +55,6 @@ struct RkSolver::Impl {
   OdeOptions opt;
   int n;
   OdeStatistics stats;
-  const SegmentInput* in = nullptr;
   Eigen::MatrixXd s_buf, df_buf;  // scratch of the right-hand sides
   Eigen::VectorXd x_buf, f_buf, start_buf;
   std::vector<double> starts_buf;
@@ -76,7 +77,7 @@ struct RkSolver::Impl {
   // continuation through samples (a replay from the segment's start must take the same steps).
   bool replay = false;
   std::vector<StoredSteps> stored;
-  double next_dt = 0;  // the step size control's proposal after the last segment (replay mode)
+  long stored_bytes = 0;
 
   Impl(const OdeSystem& s, const OdeOptions& o, bool tape) : sys(s), opt(o), n(s.n()), replay(tape) {
     dense = odeint::make_dense_output(opt.absolute_tolerance, opt.relative_tolerance, Stepper());
@@ -98,6 +99,7 @@ struct RkSolver::Impl {
     while (t < in.h) {
       const bool last = dt >= in.h - t;
       double step = last ? in.h - t : dt;
+      const double length = step;  // Odeint's step, not fl(t + step) − t
       start_buf = *x;
       double tt = t;
       if (stepper.try_step(std::cref(rhs), *x, tt, step) == odeint::fail) {
@@ -105,10 +107,11 @@ struct RkSolver::Impl {
         if (++tries > 1000) throw NumericalFailure("the Dormand–Prince step size control failed");
         continue;
       }
+      tries = 0;  // consecutive rejections, as Odeint's own checker counts them
       if (!x->allFinite()) throw NumericalFailure("the ODE solution is not finite at t = " + std::to_string(tt));
       if (steps) {
         starts.insert(starts.end(), start_buf.data(), start_buf.data() + n);
-        steps->h.push_back(last ? in.h - t : tt - t);
+        steps->h.push_back(length);
       }
       t = last ? in.h : tt;
       dt = step;
@@ -135,15 +138,17 @@ struct RkSolver::Impl {
     const int k = static_cast<int>(in.dtheta.cols());
     Eigen::VectorXd lambda = lambda_end, wft_sum = Eigen::VectorXd::Zero(in.theta.size());
     Eigen::VectorXd kappa_sum = Eigen::VectorXd::Zero(n);
-    Eigen::MatrixXd stage_k(n, kStages), xi(n, kStages);
+    Eigen::MatrixXd stage_k(n, kStages), stage_x(n, kStages), xi(n, kStages);
     Eigen::VectorXd f, wfx, wft, point(n), kappa(n), lambda_next(n);
     for (Eigen::Index step = steps.x.cols() - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
       const auto x0 = steps.x.col(step);
-      // The stages, forward again.
+      // The stage points, forward again (the last stage's slope enters only through X₆'s product below).
       for (int i = 0; i < kStages; ++i) {
-        point = x0;
-        for (int j = 0; j < i; ++j) point += h * kA[i][j] * stage_k.col(j);
+        stage_x.col(i) = x0;
+        for (int j = 0; j < i; ++j) stage_x.col(i) += h * kA[i][j] * stage_k.col(j);
+        if (i + 1 == kStages) break;
+        point = stage_x.col(i);
         sys.Rhs(point, in.theta, &f);
         stage_k.col(i) = f + in.u;
         ++stats.rhs_evaluations;
@@ -154,8 +159,7 @@ struct RkSolver::Impl {
         kappa = kB[i] * lambda_next;
         for (int j = i + 1; j < kStages; ++j) kappa += kA[j][i] * xi.col(j);
         kappa *= h;
-        point = x0;
-        for (int j = 0; j < i; ++j) point += h * kA[i][j] * stage_k.col(j);
+        point = stage_x.col(i);
         sys.RhsVectorJacobian(point, in.theta, kappa, &f, &wfx, &wft);
         xi.col(i) = wfx;
         wft_sum += wft;
@@ -231,10 +235,9 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl& d = *impl_;
   StoredSteps steps;
   d.FixedEndSteps(in, x, &steps);
+  d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
-  long bytes = 0;
-  for (const StoredSteps& s : d.stored) bytes += static_cast<long>(sizeof(double)) * (s.x.size() + static_cast<long>(s.h.size()));
-  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, bytes);
+  d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
   return static_cast<int>(d.stored.size()) - 1;
 }
 
@@ -245,6 +248,11 @@ void RkSolver::BackwardStored(int handle, const AdjointScales&, const Eigen::Vec
 
 void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales&,
                               const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
+  if (!(in.h > kEmptySegment)) {
+    *lambda_start = lambda_end;
+    *q = Eigen::RowVectorXd::Zero(in.dtheta.cols());
+    return;
+  }
   // The forward steps again from the segment's start (replay mode took these very steps), then back.
   StoredSteps steps;
   Eigen::VectorXd x = x0;
@@ -257,6 +265,7 @@ const OdeStatistics& RkSolver::statistics() const { return impl_->stats; }
 
 void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc, double* loss_time) {
   Impl& d = *impl_;
+  if (!(in.h > kEmptySegment)) return;  // a zero lag that carries a derivative: no time passes
   const int n = d.n;
   const bool with_loss = loss != nullptr && !in.continuous.empty();
   const bool with_auc = auc != nullptr && in.auc_key != 0;
@@ -299,6 +308,7 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
 void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, double* loss,
                                   Eigen::RowVectorXd* dloss, double* loss_time) {
   Impl& d = *impl_;
+  if (!(in.h > kEmptySegment)) return;
   const int n = d.n;
   const int k = static_cast<int>(s->cols());
   const bool with_loss = loss != nullptr && !in.continuous.empty();

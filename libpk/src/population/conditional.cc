@@ -73,6 +73,16 @@ Eigen::VectorXd IndividualValues(const SubjectModel& s, const PopulationPoint& p
   return v;
 }
 
+void DescribeIndividual(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                        PopulationSubject* out) {
+  const Eigen::VectorXd phi = IndividualValues(s, p, eta);
+  out->parameters.resize(static_cast<Eigen::Index>(s.theta_index.size()));
+  for (size_t k = 0; k < s.theta_index.size(); ++k) out->parameters(static_cast<Eigen::Index>(k)) = phi(s.theta_index[k]);
+  const ModelDeclarations& declared = s.objective->model().declarations();
+  out->definitions.resize(0);
+  if (declared.pk_values) out->definitions = declared.pk_values(s.objective->RecordParameters(phi, 0));
+}
+
 bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
                          const Eigen::VectorXd* fixed_variance, bool derivatives, Conditional* c, std::string* why) {
   const Eigen::VectorXd phi = IndividualValues(s, p, eta);

@@ -71,6 +71,10 @@ struct Conditional {
 /// The individual parameters φ at η.
 Eigen::VectorXd IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta);
 
+/// PopulationSubject::parameters and ::definitions at η.
+void DescribeIndividual(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                        PopulationSubject* out);
+
 /// Evaluates l at η, with ∇l and H when `derivatives`. `fixed_variance` (FOCE: V at η = 0) holds
 /// the residual variances fixed when non-null. False with `why` when the model cannot be
 /// evaluated there or a variance or prediction is not positive where it must be.

@@ -100,11 +100,7 @@ void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParam
     s.message = m.message;
     s.eta = m.eta;
     s.ofv = m.ofv;
-    const Eigen::VectorXd phi = IndividualValues(d.subjects[i], point, m.eta);
-    s.parameters.resize(static_cast<Eigen::Index>(d.theta_names.size()));
-    for (size_t k = 0; k < d.theta_names.size(); ++k) {
-      s.parameters(static_cast<Eigen::Index>(k)) = phi(d.subjects[i].theta_index[k]);
-    }
+    DescribeIndividual(d.subjects[i], point, m.eta, &s);
     summary->subjects.push_back(s);
     if (!m.ok) continue;
     for (Eigen::Index k = 0; k < q; ++k) etas[static_cast<size_t>(k)].push_back(m.eta(k));

@@ -276,11 +276,7 @@ PopulationEvaluation EvaluatePopulation(const PopulationProblem& problem, const 
     s.message = m.message;
     s.eta = m.eta;
     s.ofv = m.ofv;
-    const Eigen::VectorXd phi = internal::IndividualValues(d.subjects[static_cast<size_t>(i)], point, m.eta);
-    s.parameters.resize(static_cast<Eigen::Index>(d.theta_names.size()));
-    for (size_t k = 0; k < d.theta_names.size(); ++k) {
-      s.parameters(static_cast<Eigen::Index>(k)) = phi(d.subjects[static_cast<size_t>(i)].theta_index[k]);
-    }
+    internal::DescribeIndividual(d.subjects[static_cast<size_t>(i)], point, m.eta, &s);
     if (!m.ok && out.ok) {
       out.ok = false;
       out.message = "subject " + FormatNumber(s.id) + ": " + m.message;

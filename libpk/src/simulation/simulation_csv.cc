@@ -1,6 +1,7 @@
 #include "pk/simulation_csv.h"
 
 #include <algorithm>
+#include <stdexcept>
 
 #include "../internal_text.h"
 #include "pk/ode_model.h"
@@ -18,6 +19,10 @@ std::string SimulationCsvHeader(const Model& model) {
 
 void AppendSimulationCsv(const SubjectSimulation& s, std::string* out) {
   if (!s.ok || s.rows.empty()) return;
+  if (s.amounts.cols() != static_cast<Eigen::Index>(s.rows.size()) ||
+      (s.outputs.size() && s.outputs.cols() != s.amounts.cols())) {
+    throw std::invalid_argument("AppendSimulationCsv: the amounts and outputs need a column per row");
+  }
   char id[48];
   const size_t id_size = static_cast<size_t>(internal::WriteNumber(s.id, id) - id);
   const Eigen::Index outputs = std::max<Eigen::Index>(s.outputs.rows() - 1, 0), amounts = s.amounts.rows();
