@@ -10,6 +10,7 @@
 #include <boost/numeric/odeint.hpp>
 #include <boost/numeric/odeint/external/eigen/eigen.hpp>
 
+#include "cvodes_solver.h"
 #include "numerical_failure.h"
 
 namespace pk {
@@ -46,7 +47,13 @@ struct StoredSteps {
   SegmentInput in;
   Eigen::MatrixXd x;  // n × steps
   std::vector<double> h;
+  int cvodes = -1;    // a stiff segment: its handle in the CVODES fallback instead
 };
+
+// h·‖f_x‖∞ above which a segment is stiff for an explicit method: Dormand–Prince's stability region
+// reaches about 3.3 along the negative axis, so stability alone would take some 300 steps, however
+// smooth the solution; BDF takes the segment in tens. (‖f_x‖∞ bounds the spectral radius.)
+constexpr double kStiffness = 1000;
 
 }  // namespace
 
@@ -81,6 +88,21 @@ struct RkSolver::Impl {
 
   Impl(const OdeSystem& s, const OdeOptions& o, bool tape) : sys(s), opt(o), n(s.n()), replay(tape) {
     dense = odeint::make_dense_output(opt.absolute_tolerance, opt.relative_tolerance, Stepper());
+  }
+
+  // Stiff segments go to CVODES's BDF (created on the first): whether one is stiff is decided from
+  // the segment alone (θ, u, its start and length), so a replay decides the same.
+  std::unique_ptr<CvodesSolver> bdf;
+  mutable OdeStatistics combined;  // stats plus the fallback's, for statistics()
+  bool Stiff(const SegmentInput& in, const Eigen::VectorXd& x0) {
+    const double norm = sys.StateJacobian(x0, in.theta).cwiseAbs().rowwise().sum().maxCoeff();
+    ++stats.jacobian_evaluations;
+    return in.h * norm > kStiffness;
+  }
+  CvodesSolver& Bdf() {
+    if (!bdf) bdf.reset(new CvodesSolver(sys, opt));
+    last.at_end = false;
+    return *bdf;
   }
 
   // Values only, replay mode: x ← x(h) by controlled steps whose last one ends at h, each accepted
@@ -234,23 +256,38 @@ RkSolver::RkSolver(const OdeSystem& system, const OdeOptions& options, bool tape
 int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl& d = *impl_;
   StoredSteps steps;
-  d.FixedEndSteps(in, x, &steps);
+  if (!(in.h > kEmptySegment)) {
+    steps.in = in;  // no steps: the backward pass passes λ through
+  } else if (d.Stiff(in, *x)) {
+    steps.cvodes = d.Bdf().StoreSegment(in, x);
+  } else {
+    d.FixedEndSteps(in, x, &steps);
+  }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
   d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
   return static_cast<int>(d.stored.size()) - 1;
 }
 
-void RkSolver::BackwardStored(int handle, const AdjointScales&, const Eigen::VectorXd& lambda_end,
+void RkSolver::BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
                               Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
-  impl_->Backward(impl_->stored.at(static_cast<size_t>(handle)), lambda_end, lambda_start, q);
+  const StoredSteps& steps = impl_->stored.at(static_cast<size_t>(handle));
+  if (steps.cvodes >= 0) {
+    impl_->Bdf().BackwardStored(steps.cvodes, scales, lambda_end, lambda_start, q);
+    return;
+  }
+  impl_->Backward(steps, lambda_end, lambda_start, q);
 }
 
-void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales&,
+void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales& scales,
                               const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   if (!(in.h > kEmptySegment)) {
     *lambda_start = lambda_end;
     *q = Eigen::RowVectorXd::Zero(in.dtheta.cols());
+    return;
+  }
+  if (impl_->Stiff(in, x0)) {
+    impl_->Bdf().AdjointSegment(in, x0, scales, lambda_end, lambda_start, q);
     return;
   }
   // The forward steps again from the segment's start (replay mode took these very steps), then back.
@@ -261,11 +298,27 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
 }
 RkSolver::~RkSolver() = default;
 
-const OdeStatistics& RkSolver::statistics() const { return impl_->stats; }
+const OdeStatistics& RkSolver::statistics() const {
+  const Impl& d = *impl_;
+  d.combined = d.stats;
+  if (d.bdf) {
+    const OdeStatistics& b = d.bdf->statistics();
+    d.combined.steps += b.steps;
+    d.combined.rhs_evaluations += b.rhs_evaluations;
+    d.combined.jacobian_evaluations += b.jacobian_evaluations;
+    d.combined.backward_steps += b.backward_steps;
+    d.combined.peak_adjoint_bytes = std::max(d.combined.peak_adjoint_bytes, b.peak_adjoint_bytes);
+  }
+  return d.combined;
+}
 
 void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc, double* loss_time) {
   Impl& d = *impl_;
   if (!(in.h > kEmptySegment)) return;  // a zero lag that carries a derivative: no time passes
+  if (d.Stiff(in, *x)) {
+    d.Bdf().Advance(in, x, loss, auc, loss_time);
+    return;
+  }
   const int n = d.n;
   const bool with_loss = loss != nullptr && !in.continuous.empty();
   const bool with_auc = auc != nullptr && in.auc_key != 0;
@@ -309,6 +362,10 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
                                   Eigen::RowVectorXd* dloss, double* loss_time) {
   Impl& d = *impl_;
   if (!(in.h > kEmptySegment)) return;
+  if (d.Stiff(in, *x)) {
+    d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
+    return;
+  }
   const int n = d.n;
   const int k = static_cast<int>(s->cols());
   const bool with_loss = loss != nullptr && !in.continuous.empty();
