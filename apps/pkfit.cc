@@ -83,7 +83,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "gradient", po::value<std::string>()->default_value("auto"), "auto, forward, adjoint, fd or companion (tf<n>)")(
       "propagator", po::value<std::string>()->default_value("auto"),
       "exact (the Φ/Γ recursion, linear models), ode (CVODES, every model), rk (Dormand-Prince 5(4), "
-      "non-stiff models) or auto (exact when linear, else ode)")(
+      "stiff stretches by CVODES) or auto (exact when linear, else rk)")(
       "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
       "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(
       "checkpoint-steps", po::value<int>()->default_value(pk::OdeOptions().checkpoint_steps),

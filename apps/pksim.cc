@@ -33,7 +33,8 @@ namespace {
 const char* const kUsage =
     "Usage: pksim --model NAME (--data FILE | --dose AMT ...) [options]\n"
     "Simulates a dataset (NONMEM-style CSV) or a regimen given by flags: exactly for\n"
-    "linear models, with CVODES for nonlinear ones (or --propagator ode; rk: Dormand-Prince).\n"
+    "linear models, by Dormand-Prince for nonlinear ones (stiff stretches by CVODES; or\n"
+    "--propagator ode: CVODES throughout).\n"
     "Writes one CSV row per EVID 0/2 record (or requested time): ID,TIME,EVID,CP,\n"
     "the model's further outputs (e.g. EFFECT), A1..An.\n\n"
     "Examples:\n"
@@ -129,7 +130,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "summary-csv", po::value<std::string>(), "write the exposure summary as CSV")(
       "plot", po::value<std::string>(), "write concentration against time as SVG")(
       "propagator", po::value<std::string>()->default_value("auto"),
-      "exact (Φ/Γ, linear models), ode (CVODES, every model), rk (Dormand-Prince 5(4), non-stiff "
+      "exact (Φ/Γ, linear models), ode (CVODES, every model), rk (Dormand-Prince 5(4), stiff "
       "models) or auto")(
       "rtol", po::value<double>()->default_value(1e-8), "ODE propagator: relative tolerance")(
       "atol", po::value<double>()->default_value(1e-10), "ODE propagator: absolute tolerance")(

@@ -363,10 +363,13 @@ TEST_CASE("synthetic Michaelis-Menten data (bolus, then infusion) is recovered t
 
 TEST_CASE("ODE fits on several threads give the single-threaded results bit for bit", "[ode][fit][threads]") {
   // Each thread keeps its own recording of f and its own pool of CVODES adjoint memories; the kernels' shared
-  // operation table is made once. Forward sensitivities (LM) and the adjoint (BFGS) both run concurrently.
+  // operation table is made once. Forward sensitivities (LM) and the adjoint (BFGS) both run concurrently,
+  // through CVODES and through Dormand–Prince.
   for (const bool adjoint : {false, true}) {
-    INFO((adjoint ? "BFGS, adjoint" : "LM, forward sensitivities"));
+   for (const pk::Propagator propagator : {pk::Propagator::kOde, pk::Propagator::kRungeKutta}) {
+    INFO((adjoint ? "BFGS, adjoint" : "LM, forward sensitivities") << " through " << pk::ToString(propagator));
     pk::FitSubjectsRequest req;
+    req.objective.propagator = propagator;
     req.model = pk::MakeModel("1cmt_iv_mm");
     req.data = std::make_shared<pk::Dataset>(
         pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/mm_synthetic.csv"));
@@ -386,7 +389,7 @@ TEST_CASE("ODE fits on several threads give the single-threaded results bit for 
       INFO("ID " << one[s].id);
       REQUIRE(one[s].ok);
       REQUIRE(three[s].ok);
-      CHECK(one[s].summary.propagator == "ode");
+      CHECK(one[s].summary.propagator == pk::ToString(propagator));
       CHECK(one[s].summary.gradient.rfind(adjoint ? "adjoint" : "forward", 0) == 0);
       CHECK(one[s].summary.objective == three[s].summary.objective);
       CHECK(one[s].summary.evaluations == three[s].summary.evaluations);
@@ -397,6 +400,7 @@ TEST_CASE("ODE fits on several threads give the single-threaded results bit for 
       for (Eigen::Index i = 0; i < a.size(); ++i) differ += !(a(i) == b(i) || (std::isnan(a(i)) && std::isnan(b(i))));
       CHECK(differ == 0);
     }
+   }
   }
 }
 

@@ -271,16 +271,21 @@ echo "$msg" | grep -q "bad.csv:3:5: column DV: 'abc' is not a number" || fail "m
 [ $? -eq 2 ] || fail "the exact propagator with a nonlinear model should exit 2"
 grep -q "nonlinear" "$work/exact.err" || fail "no clear message for --propagator exact on a nonlinear model"
 
-# The ODE propagator: a nonlinear model, reported as such, all subjects converge.
+# A nonlinear model: auto takes the one-step integrator (rk), reported as such, and all subjects
+# converge; so they do through CVODES (ode).
 "$pkfit" --model 1cmt_iv_mm --data "$root/datasets/mm_synthetic.csv" -o "$work/mm" >"$work/mm.txt" ||
   fail "1cmt_iv_mm fit exited non-zero"
-[ "$(awk -F, 'NR>1 && $9==1 && $13=="ode"' "$work/mm/summary.csv" | wc -l)" -eq 6 ] ||
+[ "$(awk -F, 'NR>1 && $9==1 && $13=="rk"' "$work/mm/summary.csv" | wc -l)" -eq 6 ] ||
+  fail "all 6 MM fits should converge with the rk propagator (auto)"
+grep -q "propagator rk, gradient forward" "$work/mm.txt" || fail "pkfit does not report the rk propagator and route"
+"$pkfit" --model 1cmt_iv_mm --data "$root/datasets/mm_synthetic.csv" --propagator ode -o "$work/mm_ode" -q ||
+  fail "1cmt_iv_mm fit through CVODES exited non-zero"
+[ "$(awk -F, 'NR>1 && $9==1 && $13=="ode"' "$work/mm_ode/summary.csv" | wc -l)" -eq 6 ] ||
   fail "all 6 MM fits should converge with the ode propagator"
-grep -q "propagator ode, gradient forward" "$work/mm.txt" || fail "pkfit does not report the ODE propagator and route"
 # BFGS on the adjoint: the summary names that route, and the forward one that the SEs needed.
 "$pkfit" --model 1cmt_iv_mm --data "$root/datasets/mm_synthetic.csv" --subject 1 --optimizer bfgs --gradient adjoint \
   -o "$work/mm_bfgs" -q || fail "1cmt_iv_mm with bfgs and the adjoint failed"
-grep -q "^1,.*,adjoint (SE: forward),bfgs,.*,ode,0$" "$work/mm_bfgs/summary.csv" ||
+grep -q "^1,.*,adjoint (SE: forward),bfgs,.*,rk,0$" "$work/mm_bfgs/summary.csv" ||
   fail "summary does not report the adjoint route and the SE route"
 # A linear model through CVODES reaches the exact propagator's objective.
 "$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --subject 1 --propagator ode --rtol 1e-10 \

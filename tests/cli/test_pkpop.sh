@@ -39,8 +39,8 @@ grep -q "^OMEGA(V),0.02,,,1,0$" "$work/theo/population_estimates.csv" || fail "O
 
 # A model file's own η and covariates (NONMEM's phenobarbital example, models/pheno_pop.pkm): the
 # η keep the file's names and Ω starts from its $OMEGA. Two evaluations only: the whole fit runs
-# on CVODES (exp(η) is not a linear coefficient) and takes a minute; the library's tests check its
-# objective against NONMEM's.
+# on the ODE propagator (exp(η) is not a linear coefficient) and takes 12 s; the library's tests
+# check its objective against NONMEM's.
 "$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --max-evaluations 2 \
   --no-covariance -q -o "$work/pheno_file" 2>"$work/pheno_file.err"
 [ $? -eq 1 ] || fail "a fit stopped at its evaluation limit should exit 1: $(cat "$work/pheno_file.err")"

@@ -5,9 +5,10 @@
 //          every model, linear or not
 //   rk     a one-step Runge–Kutta method, Dormand–Prince 5(4) with error control and dense
 //          output, with the same tolerances: restarts at doses cost one step, not a multistep
-//          start-up. Non-stiff systems. Gradients by forward sensitivities or by the discrete
-//          adjoint of its steps (continuous records: forward sensitivities)
-//   auto   exact for linear models, ode otherwise
+//          start-up. A stiff stretch (h·‖f_x‖∞ > 1000) is handed to CVODES. Gradients by
+//          forward sensitivities or by the discrete adjoint of its steps (continuous records:
+//          forward sensitivities)
+//   auto   exact for linear models, rk otherwise
 #ifndef PK_PROPAGATOR_H_
 #define PK_PROPAGATOR_H_
 

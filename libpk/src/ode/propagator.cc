@@ -28,7 +28,7 @@ Propagator ResolvePropagator(const Model& model, Propagator requested) {
                                    " is nonlinear: the exact (Φ/Γ) propagator needs a linear model; use "
                                    "--propagator ode");
   }
-  if (requested == Propagator::kAuto) return model.is_linear() ? Propagator::kExact : Propagator::kOde;
+  if (requested == Propagator::kAuto) return model.is_linear() ? Propagator::kExact : Propagator::kRungeKutta;
   return requested;
 }
 
