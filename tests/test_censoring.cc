@@ -192,7 +192,7 @@ TEST_CASE("censored samples: every route's gradient against differences, on ever
   }
 }
 
-TEST_CASE("a censored sample far inside its limit weighs as nothing; far outside, as its value would", "[censoring]") {
+TEST_CASE("a censored sample far inside its limit weighs as nothing, far outside, as its value would", "[censoring]") {
   // The same subject three ways: the 4 h sample as a value 2.9, censored below a limit of
   // 1e3 (certainly below: probability 1), and censored below -1e3... which is impossible,
   // so instead censored above -1e3 (certainly above). Both certain cases add nothing to V,

@@ -106,7 +106,7 @@ TEST_CASE("SS with ALAG advances to the right point of the cycle", "[events][ss]
   CheckSame(ss, longr, 1e-9);
 }
 
-TEST_CASE("SS=2 adds the steady state to the current state; SS=1 resets it", "[events][ss]") {
+TEST_CASE("SS=2 adds the steady state to the current state, SS=1 resets it", "[events][ss]") {
   const pk::ParameterValues p{{"CL", 3}, {"V", 30}};
   const auto only_ss = SimulateText("1cmt_iv", "ID,TIME,AMT,II,SS,EVID\n1,10,100,12,1,1\n1,15,0,0,0,0\n", p);
   const auto single = SimulateText("1cmt_iv", "ID,TIME,AMT,EVID\n1,0,50,1\n1,15,0,0\n", p);

@@ -404,7 +404,7 @@ TEST_CASE("ODE fits on several threads give the single-threaded results bit for 
   }
 }
 
-TEST_CASE("effect compartment: DVID selects the output; concentration and effect are fitted together",
+TEST_CASE("effect compartment: DVID selects the output, concentration and effect are fitted together",
           "[ode][fit][emax]") {
   const auto model = pk::MakeModel("1cmt_iv_emax");
   const pk::ParameterValues truth = {{"CL", 4},   {"V", 25},    {"KE0", 0.7}, {"E0", 8},
@@ -423,7 +423,7 @@ TEST_CASE("effect compartment: DVID selects the output; concentration and effect
   oo.ode.relative_tolerance = 1e-11;
   oo.ode.absolute_tolerance = 1e-13;
   const pk::Objective objective(model, data, 0, oo);
-  CHECK(objective.propagator() == pk::Propagator::kOde);
+  CHECK(objective.propagator() == pk::Propagator::kRungeKutta);  // auto's choice for a nonlinear model
   CHECK(objective.sample_outputs() == std::vector<int>({1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2}));
   std::vector<pk::ParameterSpec> specs;
   for (const auto& kv : truth) {
@@ -449,7 +449,7 @@ TEST_CASE("effect compartment: DVID selects the output; concentration and effect
   }
 }
 
-TEST_CASE("the exact propagator refuses nonlinear models; solver failures are reported, not thrown",
+TEST_CASE("the exact propagator refuses nonlinear models, solver failures are reported, not thrown",
           "[ode][errors]") {
   const auto model = pk::MakeModel("1cmt_iv_mm");
   auto data = Parse("ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,2,0,0,2\n1,50,0,0,1\n");
@@ -469,12 +469,22 @@ TEST_CASE("the exact propagator refuses nonlinear models; solver failures are re
   }
 
   pk::ObjectiveOptions few;
+  few.propagator = pk::Propagator::kOde;
   few.ode.max_steps = 3;  // far too few: CVODES stops with "too much work"
   const pk::Objective obj(model, data, 0, few);
   for (auto route : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint, pk::GradientRoute::kFiniteDifference}) {
     const auto ev = obj.Evaluate(obj.DefaultValues(), {0, 1, 2}, pk::Objective::Need::kGradient, route);
     CHECK_FALSE(ev.ok);
     CHECK(ev.message.find("mxstep") != std::string::npos);
+  }
+  // Dormand–Prince's own limit, on a short non-stiff segment.
+  pk::ObjectiveOptions few_rk = few;
+  few_rk.propagator = pk::Propagator::kRungeKutta;
+  const pk::Objective short_rk(model, Parse("ID,TIME,AMT,EVID,DV\n1,0,100,1,.\n1,2,0,0,2\n"), 0, few_rk);
+  for (auto route : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint}) {
+    const auto ev = short_rk.Evaluate(short_rk.DefaultValues(), {0, 1, 2}, pk::Objective::Need::kGradient, route);
+    CHECK_FALSE(ev.ok);
+    CHECK(ev.message.find("too much work: more than 3 Dormand–Prince steps") != std::string::npos);
   }
 
   // A right-hand side that turns non-finite ends the evaluation with a reason.
@@ -483,10 +493,17 @@ TEST_CASE("the exact propagator refuses nonlinear models; solver failures are re
   spec.compartments = {"CENTRAL"};
   spec.parameters = {{"K", 30}};
   const auto blowup = pk::MakeOdeModel(spec, Blowup());
-  const pk::Objective bo(blowup, data, 0, pk::ObjectiveOptions());
+  pk::ObjectiveOptions cvodes;
+  cvodes.propagator = pk::Propagator::kOde;
+  const pk::Objective bo(blowup, data, 0, cvodes);
   const auto ev = bo.Evaluate(bo.DefaultValues(), {0}, pk::Objective::Need::kJacobian);
   CHECK_FALSE(ev.ok);
   CHECK(ev.message.find("ODE solver failed") != std::string::npos);
+  // Through auto (Dormand–Prince, or CVODES for a stretch it finds stiff): a failure with a reason.
+  const pk::Objective bo_auto(blowup, data, 0, pk::ObjectiveOptions());
+  const auto ev_auto = bo_auto.Evaluate(bo_auto.DefaultValues(), {0}, pk::Objective::Need::kJacobian);
+  CHECK_FALSE(ev_auto.ok);
+  CHECK_FALSE(ev_auto.message.empty());
 }
 
 // Two models of the same sizes: a right-hand side that differs only in its functor's constant.

@@ -68,7 +68,7 @@ TEST_CASE("optional columns take NM-TRAN defaults", "[reader]") {
   CHECK(d.ColumnNumber("dv") == 3);
 }
 
-TEST_CASE("subjects split on ID changes; comments, blank lines, quotes and CRLF are handled", "[reader]") {
+TEST_CASE("subjects split on ID changes, comments, blank lines, quotes and CRLF are handled", "[reader]") {
   const pk::Dataset d = pk::ParseDataset(
       "# a comment\r\n\"ID\",TIME,AMT,EVID,MDV\r\n1,0,10,1,1\r\n\r\n1,1,0,0,0\r\n2,0,10,1,1\r\n1,0,5,1,1\r\n", "x.csv");
   REQUIRE(d.subjects.size() == 3);
@@ -194,7 +194,7 @@ TEST_CASE("model-dependent errors are raised when a dataset meets a model", "[re
   CHECK_THROWS_WITH(pk::MakeModel("4cmt"), Catch::Contains("unknown model '4cmt'"));
 }
 
-TEST_CASE("ADDL doses after the last record are dropped; absurd counts are errors, not exhaustion", "[reader]") {
+TEST_CASE("ADDL doses after the last record are dropped, absurd counts are errors, not exhaustion", "[reader]") {
   // A billion implied doses every 24 h: only those up to the last record (48 h) exist.
   const pk::ParameterValues values = {{"KA", 1.2}, {"CL", 3}, {"V", 30}};
   const auto model = pk::MakeModel("1cmt_oral");

@@ -54,6 +54,11 @@ struct StoredSteps {
 // reaches about 3.3 along the negative axis, so stability alone would take some 300 steps, however
 // smooth the solution; BDF takes the segment in tens. (‖f_x‖∞ bounds the spectral radius.)
 constexpr double kStiffness = 1000;
+// Steps a segment may take before it counts as stiff after all (the test above reads the segment's
+// start only; a Michaelis–Menten system stiffens as the drug clears): it is then done again from its
+// start by BDF. Non-stiff PK segments take tens of steps.
+constexpr long kStiffBudget = 1000;
+struct StiffSegment {};  // thrown by the stepping loops when the budget is spent
 
 }  // namespace
 
@@ -95,9 +100,8 @@ struct RkSolver::Impl {
   std::unique_ptr<CvodesSolver> bdf;
   mutable OdeStatistics combined;  // stats plus the fallback's, for statistics()
   bool Stiff(const SegmentInput& in, const Eigen::VectorXd& x0) {
-    const double norm = sys.StateJacobian(x0, in.theta).cwiseAbs().rowwise().sum().maxCoeff();
-    ++stats.jacobian_evaluations;
-    return in.h * norm > kStiffness;
+    const double norm = sys.StateJacobian(x0, in.theta).cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>();
+    return std::isfinite(norm) && in.h * norm > kStiffness;  // a non-finite f_x: Dormand–Prince may still pass
   }
   CvodesSolver& Bdf() {
     if (!bdf) bdf.reset(new CvodesSolver(sys, opt));
@@ -140,8 +144,9 @@ struct RkSolver::Impl {
       ++stats.steps;
       if (++count > opt.max_steps) {
         throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
-                               " Dormand–Prince steps between two events (a stiff system? use --propagator ode)");
+                               " Dormand–Prince steps between two events");
       }
+      if (count > kStiffBudget) throw StiffSegment();
     }
     if (steps) {
       steps->in = in;
@@ -223,9 +228,13 @@ struct RkSolver::Impl {
         }
         if (++steps > opt.max_steps) {
           throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
-                                 " Dormand–Prince steps between two events (a stiff system? use --propagator ode)");
+                                 " Dormand–Prince steps between two events");
         }
+        if (steps > kStiffBudget) throw StiffSegment();
       }
+    } catch (const StiffSegment&) {
+      last.at_end = false;
+      throw;
     } catch (const NumericalFailure&) {
       last.at_end = false;
       throw;
@@ -261,7 +270,14 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   } else if (d.Stiff(in, *x)) {
     steps.cvodes = d.Bdf().StoreSegment(in, x);
   } else {
-    d.FixedEndSteps(in, x, &steps);
+    const Eigen::VectorXd x0 = *x;
+    try {
+      d.FixedEndSteps(in, x, &steps);
+    } catch (const StiffSegment&) {
+      *x = x0;
+      steps = StoredSteps();
+      steps.cvodes = d.Bdf().StoreSegment(in, x);
+    }
   }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
@@ -293,7 +309,12 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
   // The forward steps again from the segment's start (replay mode took these very steps), then back.
   StoredSteps steps;
   Eigen::VectorXd x = x0;
-  impl_->FixedEndSteps(in, &x, &steps);
+  try {
+    impl_->FixedEndSteps(in, &x, &steps);
+  } catch (const StiffSegment&) {  // as the forward pass found it
+    impl_->Bdf().AdjointSegment(in, x0, scales, lambda_end, lambda_start, q);
+    return;
+  }
   impl_->Backward(steps, lambda_end, lambda_start, q);
 }
 RkSolver::~RkSolver() = default;
@@ -307,7 +328,7 @@ const OdeStatistics& RkSolver::statistics() const {
     d.combined.rhs_evaluations += b.rhs_evaluations;
     d.combined.jacobian_evaluations += b.jacobian_evaluations;
     d.combined.backward_steps += b.backward_steps;
-    d.combined.peak_adjoint_bytes = std::max(d.combined.peak_adjoint_bytes, b.peak_adjoint_bytes);
+    d.combined.peak_adjoint_bytes += b.peak_adjoint_bytes;  // both tapes are held together
   }
   return d.combined;
 }
@@ -339,12 +360,19 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
     }
     if (with_auc) dz(dz.size() - 1) = d.sys.Observe(in.auc_key, xs, in.theta);
   };
-  if (d.replay && !with_loss && !with_auc) {  // the steps an adjoint replays (see Impl::replay)
-    d.FixedEndSteps(in, x, nullptr);
+  const Eigen::VectorXd x0 = *x;
+  try {
+    if (d.replay && !with_loss && !with_auc) {  // the steps an adjoint replays (see Impl::replay)
+      d.FixedEndSteps(in, x, nullptr);
+      return;
+    }
+    const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
+    d.Integrate(rhs, in.h, continues, &z);
+  } catch (const StiffSegment&) {
+    *x = x0;
+    d.Bdf().Advance(in, x, loss, auc, loss_time);
     return;
   }
-  const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
-  d.Integrate(rhs, in.h, continues, &z);
   *x = z.head(n);
   if (with_loss) {
     *loss += z(n);
@@ -400,7 +428,13 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
     }
   };
   const bool continues = !with_loss && d.last.Continues(in, z, k);
-  d.Integrate(rhs, in.h, continues, &z);
+  try {
+    d.Integrate(rhs, in.h, continues, &z);
+  } catch (const StiffSegment&) {
+    *x = z.head(n);  // unchanged: Integrate writes z only at the end
+    d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
+    return;
+  }
   *x = z.head(n);
   *s = Eigen::Map<const Eigen::MatrixXd>(z.data() + n, n, k);
   if (with_loss) {
