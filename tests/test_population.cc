@@ -652,7 +652,7 @@ CP = CENTRAL / V
 }
 
 TEST_CASE("η written in a model file give the catalogue's log-normal η objective", "[population][model-file]") {
-  // The file runs on CVODES (exp(η) is not a linear coefficient), the catalogue on Φ/Γ.
+  // The file runs on the ODE propagator (exp(η) is not a linear coefficient), the catalogue on Φ/Γ.
   const Case c = Cases().at("pheno_prop");
   const pk::PopulationProblem catalogue = Problem(c);
   const pk::PopulationProblem file = FileProblem(kLogNormalFile, "proportional", 1e-10);
@@ -744,7 +744,7 @@ TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVAR
   // NONMEM's SEs at its estimate (pheno_real.ext, row -1000000001; $COVARIANCE UNCONDITIONAL, its
   // default R⁻¹SR⁻¹): θ 2.10036e-4, 2.68952e-2, 8.37623e-2; ω² 1.34153e-2, 7.47651e-3; σ² 2.27940e-3,
   // so SE(σ) = SE(σ²)/(2σ). The covariance step at NONMEM's estimates (one evaluation, then the
-  // step) on CVODES, whose OFV carries about 1e-7 relative noise: about a minute on 2 threads.
+  // step) on the ODE propagator (auto: Dormand–Prince), whose OFV carries about 1e-7 relative noise.
   std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
   std::stringstream text;
   text << in.rdbuf();

@@ -160,7 +160,7 @@ int Exercise(const std::string& seed_text, int variants, unsigned seed, int* sim
   std::mt19937 rng(seed);
   const auto model = pk::MakeModel("1cmt_oral");
   const pk::ParameterValues values = {{"KA", 1.2}, {"CL", 3}, {"V", 30}};
-  // Every tenth accepted variant is simulated through CVODES, with a nonlinear model.
+  // Every tenth accepted variant is simulated through the ODE propagator, with a nonlinear model.
   const auto ode_model = pk::MakeModel("1cmt_oral_mm");
   const pk::ParameterValues ode_values = {{"KA", 1.2}, {"VMAX", 30}, {"KM", 2}, {"V", 30}};
   int parsed = 0, failures = 0;

@@ -61,8 +61,8 @@ enum class Weighting { kUniform, kInverseDvSquared, kInverseDv, kColumn };
 enum class GradientRoute {
   kAuto,              ///< forward when a Jacobian is needed; else the adjoint (exact), or forward
                       ///< sensitivities up to kOdeAdjointThreshold parameters and the adjoint beyond (ode)
-  kForward,           ///< sensitivities: block exponentials (exact) or CVODES forward sensitivities (ode)
-  kAdjoint,           ///< discrete adjoint (exact) or CVODES adjoint (ode): gradient only, one backward
+  kForward,           ///< sensitivities: block exponentials (exact), or forward sensitivities (ode, rk)
+  kAdjoint,           ///< discrete adjoint (exact, rk) or CVODES's adjoint (ode): gradient only, one backward
                       ///< pass whatever the parameter count
   kFiniteDifference,  ///< central differences
   kCompanion,         ///< tf<n> models: two companion filters give every ∂y/∂a_i, ∂y/∂b_i
@@ -89,7 +89,7 @@ struct ObjectiveOptions {
   /// rtol^(1/3), which balances the solver's noise (≈ rtol/step) against the
   /// truncation error (≈ step²).
   double fd_relative_step = 0;
-  Propagator propagator = Propagator::kAuto;  ///< exact (Φ/Γ, linear models) or ode (CVODES)
+  Propagator propagator = Propagator::kAuto;  ///< exact (Φ/Γ, linear models), ode (CVODES) or rk
   OdeOptions ode;                             ///< tolerances etc. of the ODE propagator
   /// Linear models, exact propagator: evaluate the loss and its derivatives in
   /// eigen-coordinates (Φ = V e^{Λh} V⁻¹) when A(θ) has real eigenvalues and a

@@ -5,9 +5,9 @@
 // tape (pk::TapeScalar) and swept forward for f_x and f_θ and backward for the
 // adjoint's λᵀf_x and λᵀf_θ; g_x and g_θ come from forward mode (pk::Dual).
 // The input u is the vector of infusion rates into each compartment and adds
-// to f; boluses are jumps of x. Such a model is propagated by CVODES (the ODE
-// propagator, docs/ode_routes.md); linear catalogue models can use the same
-// propagator.
+// to f; boluses are jumps of x. Such a model is propagated by the ODE propagator
+// (Dormand–Prince or CVODES, docs/ode_routes.md); linear catalogue models can use
+// the same propagator.
 //
 //   struct OneCmtIvMm {  // Michaelis–Menten elimination; θ = (VMAX, KM, V)
 //     template <typename T>

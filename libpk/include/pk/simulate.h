@@ -10,8 +10,8 @@
 //
 // Linear models are propagated exactly by default, x ← Φ(h)x + Γ(h)u between
 // event and output times, with Φ and Γ cached per distinct interval. Nonlinear
-// models (and linear ones on request) are integrated by CVODES, restarted at
-// every discontinuity. Either way AUC is an extra integral state, not a
+// models (and linear ones on request) are integrated by Dormand–Prince (rk, stiff
+// stretches by CVODES) or by CVODES (ode), restarted at every discontinuity. Either way AUC is an extra integral state, not a
 // trapezoid sum.
 #ifndef PK_SIMULATE_H_
 #define PK_SIMULATE_H_

@@ -1,5 +1,6 @@
 // The ODE propagator (not installed): the EventEngine visitor that integrates
-// with CVODES between events, for either scalar type of the engine.
+// between events with a SegmentSolver (CVODES, or Dormand–Prince), for either
+// scalar type of the engine.
 //
 // On T = double it propagates x only. On T = Dual (P directions, the free
 // parameters) it can also propagate the forward sensitivity S = ∂x/∂p
