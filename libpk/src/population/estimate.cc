@@ -6,8 +6,8 @@
 // asked, it is central differences of the OFV with every subject's search started from the
 // centre's modes, so that the differences see the smooth objective and not the inner
 // iteration's path (NONMEM differences its outer objective). The modes are found to
-// ‖Δη‖∞ < 1e-10 on the exact propagator (100·rtol on the ODE propagator), which keeps the differences' noise
-// near 1e-6 there.
+// ‖Δη‖∞ < 1e-10 on the exact propagator (100·rtol on the ODE propagator), which keeps the
+// differences' noise near 1e-6 there.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -217,10 +217,10 @@ Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing
   return g;
 }
 
-// kAuto: the implicit gradient for FOCE and FOCEI on the exact propagator. On the ODE propagator (measured on CVODES), the second
-// derivatives it differences from the forward sensitivities carry their error (about 1e-5
-// relative, whatever rtol) divided by the step, which leaves it 1e-4–1e-3 from the OFV's own
-// differences; there the OFV is differenced until exact second-order sensitivities exist.
+// kAuto: the implicit gradient for FOCE and FOCEI on the exact propagator. On the ODE propagator
+// (measured on CVODES), the second derivatives it differences from the forward sensitivities carry
+// their error (about 1e-5 relative, whatever rtol) divided by the step, which leaves it 1e-4–1e-3
+// from the OFV's own differences; there the OFV is differenced until exact second-order sensitivities exist.
 bool UsesImplicitGradient(const PopulationProblem& problem, const PopulationOptions& o) {
   if (o.gradient != PopulationGradient::kAuto) return o.gradient == PopulationGradient::kImplicit;
   return o.method != PopulationMethod::kLaplace &&
