@@ -571,6 +571,21 @@ $OUTPUT
 CP = CENTRAL / V
 )";
 
+// k = CL/V + η_k: a sum of c·θa/θb terms, so the file stays linear (Φ/Γ) with its η bound.
+const char* kAdditiveEtaFile = R"($PROBLEM pheno_additive_eta  one compartment, an additive η on k
+$PARAM
+CL = 0.0066
+V  = 1.35
+$OMEGA
+ETA_K ~ 1e-6
+$CMT
+CENTRAL dose central
+$ODE
+d/dt(CENTRAL) = -(CL / V + ETA_K) * CENTRAL
+$OUTPUT
+CP = CENTRAL / V
+)";
+
 pk::PopulationProblem FileProblem(const std::string& text, const std::string& error, double rtol,
                                   std::vector<std::string> etas = {}) {
   const auto model = pk::ParseModel(text, "test.pkm", pk::RandomEffects::kParameters);
@@ -616,20 +631,7 @@ TEST_CASE("a model file's η bind as parameters, and an individual model keeps t
 TEST_CASE("a model file's η has no CV%, and a data column may not hold it", "[population][model-file]") {
   // Its transform is the file's own expression, so 100·√(exp(ω²) − 1) would be a guess. The model
   // keeps k = CL/V + η_k on Φ/Γ; everything fixed, the summary is formed at the initial values.
-  const char* text = R"($PROBLEM additive_eta
-$PARAM
-CL = 0.0066
-V  = 1.35
-$OMEGA
-ETA_K ~ 1e-6
-$CMT
-CENTRAL dose central
-$ODE
-d/dt(CENTRAL) = -(CL / V + ETA_K) * CENTRAL
-$OUTPUT
-CP = CENTRAL / V
-)";
-  const pk::PopulationProblem problem = FileProblem(text, "proportional", 1e-8);
+  const pk::PopulationProblem problem = FileProblem(kAdditiveEtaFile, "proportional", 1e-8);
   pk::PopulationOptions options;
   options.covariance = false;
   options.structure.theta_fixed = {true, true};
@@ -646,7 +648,7 @@ CP = CENTRAL / V
   auto data = std::make_shared<pk::Dataset>(pk::ParseDataset("ID,TIME,AMT,DV,ETA_K\n1,0,10,0,0\n1,1,0,5,0\n", "eta.csv"));
   pk::ObjectiveOptions o;
   o.error_model = pk::MakeResidualError("proportional");
-  CHECK_THROWS_WITH(pk::PopulationProblem(pk::ParseModel(text, "t.pkm", pk::RandomEffects::kParameters), data,
+  CHECK_THROWS_WITH(pk::PopulationProblem(pk::ParseModel(kAdditiveEtaFile, "t.pkm", pk::RandomEffects::kParameters), data,
                                           {"ETA_K"}, o),
                     Catch::Contains("eta.csv:1:5: the column ETA_K would hold the random effect ETA_K"));
 }
@@ -714,20 +716,7 @@ TEST_CASE("the outer gradient holds for a model file's additive η on the exact 
           "[population][model-file]") {
   // k_i = CL/V + η_k: a sum of c·θa/θb terms, so the file stays linear (Φ/Γ) with its η bound,
   // and the implicit gradient takes the additive η path (∂φ/∂η = 1).
-  const char* text = R"($PROBLEM pheno_additive_eta  one compartment, an additive η on k
-$PARAM
-CL = 0.0066
-V  = 1.35
-$OMEGA
-ETA_K ~ 1e-6
-$CMT
-CENTRAL dose central
-$ODE
-d/dt(CENTRAL) = -(CL / V + ETA_K) * CENTRAL
-$OUTPUT
-CP = CENTRAL / V
-)";
-  const pk::PopulationProblem problem = FileProblem(text, "proportional", 1e-8);
+  const pk::PopulationProblem problem = FileProblem(kAdditiveEtaFile, "proportional", 1e-8);
   REQUIRE(problem.model().is_linear());
   pk::PopulationParameters p;
   p.theta = Eigen::Vector2d(0.0066, 1.35);

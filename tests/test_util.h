@@ -63,6 +63,24 @@ inline const std::vector<Scenario>& OdeScenarios() {
   return s;
 }
 
+/// Values away from `obj`'s defaults (model parameter i scaled by 1 + 0.05·i), with the scenario's
+/// modifiers at their values; every model parameter and modifier free.
+inline void ScenarioValues(const pk::Objective& obj, const Scenario& sc, Eigen::VectorXd* values,
+                           std::vector<int>* free) {
+  *values = obj.DefaultValues();
+  free->clear();
+  for (int i = 0; i < obj.model().num_parameters(); ++i) {
+    (*values)(i) *= 1.0 + 0.05 * i;
+    free->push_back(i);
+  }
+  for (size_t e = 0; e < sc.extra_free.size(); ++e) {
+    const int i = obj.ParameterIndex(sc.extra_free[e]);
+    REQUIRE(i >= 0);
+    (*values)(i) = sc.extra_values[e];
+    free->push_back(i);
+  }
+}
+
 /// The scenario's dose rows merged by time with nine samples (doses first at equal times).
 inline std::shared_ptr<pk::Dataset> ScenarioData(const Scenario& sc) {
   std::vector<std::pair<double, std::string>> rows;

@@ -109,6 +109,23 @@ struct RkSolver::Impl {
     return *bdf;
   }
 
+  // Replay mode's stepping of a values-only segment (into *steps when given): false, with x as it
+  // was, when the segment is stiff at its start or spends the step budget, and BDF must take it.
+  // The same segment always gives the same answer, so the tape and its replay agree.
+  bool ReplaySteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps) {
+    if (Stiff(in, *x)) return false;
+    start_of_segment = *x;
+    try {
+      FixedEndSteps(in, x, steps);
+    } catch (const StiffSegment&) {
+      *x = start_of_segment;
+      if (steps) *steps = StoredSteps();
+      return false;
+    }
+    return true;
+  }
+  Eigen::VectorXd start_of_segment;  // ReplaySteps's copy of x
+
   // Values only, replay mode: x ← x(h) by controlled steps whose last one ends at h, each accepted
   // step's start and length into *steps when given. The same x and `in` give the same steps.
   void FixedEndSteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps) {
@@ -267,17 +284,8 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   StoredSteps steps;
   if (!(in.h > kEmptySegment)) {
     steps.in = in;  // no steps: the backward pass passes λ through
-  } else if (d.Stiff(in, *x)) {
+  } else if (!d.ReplaySteps(in, x, &steps)) {
     steps.cvodes = d.Bdf().StoreSegment(in, x);
-  } else {
-    const Eigen::VectorXd x0 = *x;
-    try {
-      d.FixedEndSteps(in, x, &steps);
-    } catch (const StiffSegment&) {
-      *x = x0;
-      steps = StoredSteps();
-      steps.cvodes = d.Bdf().StoreSegment(in, x);
-    }
   }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
@@ -302,16 +310,10 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
     *q = Eigen::RowVectorXd::Zero(in.dtheta.cols());
     return;
   }
-  if (impl_->Stiff(in, x0)) {
-    impl_->Bdf().AdjointSegment(in, x0, scales, lambda_end, lambda_start, q);
-    return;
-  }
   // The forward steps again from the segment's start (replay mode took these very steps), then back.
   StoredSteps steps;
   Eigen::VectorXd x = x0;
-  try {
-    impl_->FixedEndSteps(in, &x, &steps);
-  } catch (const StiffSegment&) {  // as the forward pass found it
+  if (!impl_->ReplaySteps(in, &x, &steps)) {  // BDF's segment, as the forward pass found it
     impl_->Bdf().AdjointSegment(in, x0, scales, lambda_end, lambda_start, q);
     return;
   }
@@ -336,13 +338,17 @@ const OdeStatistics& RkSolver::statistics() const {
 void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss, double* auc, double* loss_time) {
   Impl& d = *impl_;
   if (!(in.h > kEmptySegment)) return;  // a zero lag that carries a derivative: no time passes
+  const int n = d.n;
+  const bool with_loss = loss != nullptr && !in.continuous.empty();
+  const bool with_auc = auc != nullptr && in.auc_key != 0;
+  if (d.replay && !with_loss && !with_auc) {  // the steps an adjoint replays (see Impl::replay)
+    if (!d.ReplaySteps(in, x, nullptr)) d.Bdf().Advance(in, x);
+    return;
+  }
   if (d.Stiff(in, *x)) {
     d.Bdf().Advance(in, x, loss, auc, loss_time);
     return;
   }
-  const int n = d.n;
-  const bool with_loss = loss != nullptr && !in.continuous.empty();
-  const bool with_auc = auc != nullptr && in.auc_key != 0;
   // The state: x, then the continuous loss and ∫∂L/∂t, then ∫ y_auc dt.
   State z = State::Zero(n + (with_loss ? 2 : 0) + (with_auc ? 1 : 0));
   z.head(n) = *x;
@@ -360,16 +366,10 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
     }
     if (with_auc) dz(dz.size() - 1) = d.sys.Observe(in.auc_key, xs, in.theta);
   };
-  const Eigen::VectorXd x0 = *x;
+  const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
   try {
-    if (d.replay && !with_loss && !with_auc) {  // the steps an adjoint replays (see Impl::replay)
-      d.FixedEndSteps(in, x, nullptr);
-      return;
-    }
-    const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
     d.Integrate(rhs, in.h, continues, &z);
-  } catch (const StiffSegment&) {
-    *x = x0;
+  } catch (const StiffSegment&) {  // x is as it was: Integrate writes z only at its end
     d.Bdf().Advance(in, x, loss, auc, loss_time);
     return;
   }
