@@ -612,7 +612,7 @@ TEST_CASE("a model file's η bind as parameters, and an individual model keeps t
   CHECK_FALSE(bound->is_eta(0));
   CHECK(bound->declarations().parameters[3].variance == 0.03);
   CHECK_FALSE(bound->must_be_positive(2));  // η takes either sign
-  CHECK_FALSE(bound->is_linear());          // exp(η) is not a c·θa/θb coefficient
+  CHECK(bound->is_linear());                // −CL/V with CL = TVCL·exp(η): a derived coefficient on Φ/Γ
   const auto individual = pk::ParseModel(kLogNormalFile, "test.pkm");
   CHECK(individual->num_parameters() == 2);
   CHECK(individual->is_linear());  // η folded to 0: CL = TVCL

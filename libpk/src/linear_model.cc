@@ -26,16 +26,28 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
                                                           int transfer_function_order,
                                                           InitialStructure initial_structure,
                                                           ModelDeclarations declarations,
-                                                          std::vector<std::string> signed_parameters) {
+                                                          std::vector<std::string> signed_parameters,
+                                                          DerivedCoefficients derived) {
   const int n = static_cast<int>(compartments.size()), m = static_cast<int>(parameters.size());
+  const int indexed = m + derived.count;  // a term indexes [θ; ψ]
   auto bad = [&](const std::string& what) { throw std::logic_error("model " + name + ": " + what); };
   if (static_cast<int>(output_terms.size()) != n) bad("one output row per compartment is needed");
   if (defaults.size() != m) bad("one default per parameter is needed");
   if (central < 1 || central > n || default_dose < 1 || default_dose > n) bad("central or dose compartment out of range");
   auto check = [&](const LinearTerm& t) {
     if (t.row < 0 || t.row >= n || t.col < 0 || t.col >= n) bad("term outside the state");
-    if (t.numerator >= m || t.denominator >= m || t.numerator < -1 || t.denominator < -1) bad("term parameter out of range");
+    if (t.numerator >= indexed || t.denominator >= indexed || t.numerator < -1 || t.denominator < -1) {
+      bad("term parameter out of range");
+    }
   };
+  if (derived.count < 0 || (derived.count > 0 && (!derived.evaluate || static_cast<int>(derived.reads.size()) != derived.count))) {
+    bad("derived coefficients need a function and the parameters each reads");
+  }
+  for (const auto& reads : derived.reads) {
+    for (int j : reads) {
+      if (j < 0 || j >= m) bad("a derived coefficient reads a parameter out of range");
+    }
+  }
   for (const LinearTerm& t : system_terms) check(t);
   for (const auto& row : output_terms) {
     for (const LinearTerm& t : row) check(t);
@@ -50,6 +62,7 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
   if (transfer_function_order > 0) model->set_signed_parameters(model->parameter_names());
   if (!signed_parameters.empty()) model->set_signed_parameters(signed_parameters);
   model->set_declarations(std::move(declarations));
+  model->derived_ = std::move(derived);
   return model;
 }
 

@@ -19,7 +19,9 @@
 #ifndef PK_LINEAR_MODEL_H_
 #define PK_LINEAR_MODEL_H_
 
+#include <functional>
 #include <memory>
+#include <type_traits>
 #include <utility>
 #include <string>
 #include <vector>
@@ -48,6 +50,18 @@ struct LinearTerm {
   int denominator = -1;
 };
 
+/// Coefficients ψ(θ) that A(θ) and C(θ) read beside θ, for entries that are not c·θa/θb: a model
+/// file's −CL/V with CL = TVCL·WT·exp(η_CL), for example. In a LinearTerm, a numerator or
+/// denominator m + k (m: the number of parameters) stands for ψ_k. The derivatives of ψ come from
+/// automatic differentiation of the model file's expressions, so A's and C's stay exact.
+struct DerivedCoefficients {
+  int count = 0;
+  /// ψ(θ), and ∂ψ/∂θ (count × m) when `jacobian` is not null.
+  std::function<void(const Eigen::VectorXd& theta, Eigen::VectorXd* psi, Eigen::MatrixXd* jacobian)> evaluate;
+  /// The parameters each ψ_k reads, whatever θ is (a derivative that vanishes at one θ may not at another).
+  std::vector<std::vector<int>> reads;
+};
+
 class LinearModel final : public Model {
  public:
   bool is_linear() const override { return true; }
@@ -66,9 +80,16 @@ class LinearModel final : public Model {
                                                       int transfer_function_order = 0,
                                                       InitialStructure initial_structure = {},
                                                       ModelDeclarations declarations = {},
-                                                      std::vector<std::string> signed_parameters = {});
+                                                      std::vector<std::string> signed_parameters = {},
+                                                      DerivedCoefficients derived = {});
 
   const std::vector<LinearTerm>& system_terms() const { return a_terms_; }
+  /// ψ(θ) when terms read derived coefficients (count 0 otherwise).
+  const DerivedCoefficients& derived_coefficients() const { return derived_; }
+  /// [θ; ψ(θ)], what the terms index, for any scalar type: ψ's derivatives follow θ's by the chain
+  /// rule. θ itself when the model has no derived coefficients.
+  template <typename T>
+  Eigen::Matrix<T, Eigen::Dynamic, 1> ExtendedParameters(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const;
   /// The terms of the output row C_c(θ) of compartment `cmt` (1-based).
   const std::vector<LinearTerm>& output_terms(int cmt) const { return c_terms_[cmt - 1]; }
 
@@ -88,11 +109,8 @@ class LinearModel final : public Model {
   template <typename T>
   Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> SystemMatrix(
       const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
-    const int n = num_compartments();
-    Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> a =
-        Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>::Zero(n, n);
-    for (const LinearTerm& t : a_terms_) a(t.row, t.col) += TermValue<T>(t, theta);
-    return a;
+    if (derived_.count > 0) return SystemMatrixOf<T>(ExtendedParameters<T>(theta));
+    return SystemMatrixOf<T>(theta);
   }
 
   /// ⟨G, A(θ)⟩ = Σ_ik G_ik A_ik(θ), for any scalar type. Its derivative with
@@ -100,11 +118,8 @@ class LinearModel final : public Model {
   /// n×n matrix per parameter set into the gradient for every θ_j.
   template <typename T>
   T ContractSystemMatrix(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta, const Eigen::MatrixXd& g) const {
-    T sum(0.0);
-    for (const LinearTerm& t : a_terms_) {
-      if (g(t.row, t.col) != 0) sum += TermValue<T>(t, theta) * g(t.row, t.col);
-    }
-    return sum;
+    if (derived_.count > 0) return ContractOf<T>(ExtendedParameters<T>(theta), g);
+    return ContractOf<T>(theta, g);
   }
 
   /// The output row C(θ) for an observation in compartment `cmt` (1-based). For
@@ -113,10 +128,8 @@ class LinearModel final : public Model {
   template <typename T>
   Eigen::Matrix<T, 1, Eigen::Dynamic> OutputRow(int cmt,
                                                 const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
-    Eigen::Matrix<T, 1, Eigen::Dynamic> c =
-        Eigen::Matrix<T, 1, Eigen::Dynamic>::Zero(num_compartments());
-    for (const LinearTerm& t : c_terms_[cmt - 1]) c(t.col) += TermValue<T>(t, theta);
-    return c;
+    if (derived_.count > 0) return OutputRowOf<T>(cmt, ExtendedParameters<T>(theta));
+    return OutputRowOf<T>(cmt, theta);
   }
 
  private:
@@ -125,10 +138,66 @@ class LinearModel final : public Model {
               std::vector<std::string> parameters, Eigen::VectorXd defaults, int central, int default_dose,
               std::vector<LinearTerm> a_terms, std::vector<std::vector<LinearTerm>> c_terms, int tf_order);
 
+  static double ScalarValue(double x) { return x; }
+  template <typename T>
+  static double ScalarValue(const T& x) {
+    return x.value();
+  }
+
+  // The three above on what the terms index: [θ; ψ], or θ.
+  template <typename T>
+  Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> SystemMatrixOf(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
+    const int n = num_compartments();
+    Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> a =
+        Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>::Zero(n, n);
+    for (const LinearTerm& t : a_terms_) a(t.row, t.col) += TermValue<T>(t, theta);
+    return a;
+  }
+  template <typename T>
+  T ContractOf(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta, const Eigen::MatrixXd& g) const {
+    T sum(0.0);
+    for (const LinearTerm& t : a_terms_) {
+      if (g(t.row, t.col) != 0) sum += TermValue<T>(t, theta) * g(t.row, t.col);
+    }
+    return sum;
+  }
+  template <typename T>
+  Eigen::Matrix<T, 1, Eigen::Dynamic> OutputRowOf(int cmt, const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
+    Eigen::Matrix<T, 1, Eigen::Dynamic> c = Eigen::Matrix<T, 1, Eigen::Dynamic>::Zero(num_compartments());
+    for (const LinearTerm& t : c_terms_[cmt - 1]) c(t.col) += TermValue<T>(t, theta);
+    return c;
+  }
+
   std::vector<LinearTerm> a_terms_;
   std::vector<std::vector<LinearTerm>> c_terms_;
   int tf_order_ = 0;
+  DerivedCoefficients derived_;
 };
+
+template <typename T>
+Eigen::Matrix<T, Eigen::Dynamic, 1> LinearModel::ExtendedParameters(
+    const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
+  if (derived_.count == 0) return theta;
+  const Eigen::Index m = num_parameters();
+  Eigen::VectorXd values(m);
+  for (Eigen::Index i = 0; i < m; ++i) values(i) = ScalarValue(theta(i));
+  Eigen::VectorXd psi;
+  Eigen::MatrixXd jacobian;
+  derived_.evaluate(values, &psi, std::is_same<T, double>::value ? nullptr : &jacobian);
+  Eigen::Matrix<T, Eigen::Dynamic, 1> extended(m + derived_.count);
+  extended.head(m) = theta.head(m);
+  for (int k = 0; k < derived_.count; ++k) {
+    T v(psi(k));
+    if constexpr (!std::is_same<T, double>::value) {
+      // ψ_k + Σ_j ∂ψ_k/∂θ_j (θ_j − value(θ_j)): ψ_k's value with θ's derivatives chained through.
+      for (const int j : derived_.reads[static_cast<size_t>(k)]) {
+        if (jacobian(k, j) != 0) v += jacobian(k, j) * (theta(j) - T(values(j)));
+      }
+    }
+    extended(m + k) = v;
+  }
+  return extended;
+}
 
 /// Assembles a LinearModel from its compartment graph. Indices are 0-based.
 class LinearModelBuilder {

@@ -95,7 +95,7 @@ class Modal final : public ModalEvaluator {
         s.theta[i] = from_data[i] ? subject.sets[k](i) : values(i);
         finite = finite && std::isfinite(s.theta[i]);
       }
-      if (!finite) return false;
+      if (!finite || !Extend(&s)) return false;
       s.active.resize(free.size());
       size_t num_active = 0;
       for (size_t a = 0; a < free.size(); ++a) {
@@ -117,14 +117,14 @@ class Modal final : public ModalEvaluator {
         for (size_t ti = 0; ti < terms.size(); ++ti) {
           const LinearTerm& t = terms[ti];
           if (t.numerator == t.denominator) continue;  // θ_j/θ_j is constant
-          for (const int j : {t.numerator, t.denominator}) {
-            if (j < 0 || act_of_[j] < 0) continue;
+          for (const int j : TermReads(t)) {
+            if (act_of_[j] < 0) continue;
             s.da.push_back({t.row, t.col, act_of_[j], 0.0, s.active[act_of_[j]].second, static_cast<int>(ti), j});
           }
         }
         s.da_active = s.active;
       }
-      for (DTerm& d : s.da) d.d = TermPartial(terms[d.term], s.theta, d.j);
+      for (DTerm& d : s.da) d.d = TermDerivative(s, terms[d.term], d.j);
       s.uhat.resize(sched_->inputs.size());
       s.uhat_ready.assign(sched_->inputs.size(), 0);
       s.steps.resize(sched_->steps.size());
@@ -322,7 +322,8 @@ class Modal final : public ModalEvaluator {
     Mat df, dg;  // f[λ_i, λ_k] and f[λ_i, λ_k, 0], the Daleckii–Krein weights
   };
   struct Set {
-    std::vector<double> theta;
+    std::vector<double> theta;  // [θ; ψ] (linear_model.h)
+    Eigen::MatrixXd jac;        // ∂ψ/∂θ
     std::vector<std::pair<int, int>> active;
     Vec lambda;
     Mat v, w;
@@ -336,6 +337,50 @@ class Modal final : public ModalEvaluator {
     std::vector<StepCache> steps;  // per EventSchedule::steps entry
     size_t last_output = 0;        // GetOutput's last answer
   };
+
+  // s.theta = [θ; ψ(θ)] and s.jac = ∂ψ/∂θ when the terms read derived coefficients (linear_model.h).
+  bool Extend(Set* s) const {
+    const DerivedCoefficients& derived = model_.derived_coefficients();
+    if (derived.count == 0) return true;
+    const int m = model_.num_parameters();
+    const Eigen::Map<const Eigen::VectorXd> theta(s->theta.data(), m);
+    Eigen::VectorXd psi;
+    derived.evaluate(theta, &psi, &s->jac);
+    if (!psi.allFinite() || !s->jac.allFinite()) return false;
+    s->theta.insert(s->theta.end(), psi.data(), psi.data() + psi.size());
+    return true;
+  }
+
+  // The parameters a term depends on: its θ, or what its ψ reads (no repeats).
+  std::vector<int> TermReads(const LinearTerm& t) const {
+    const int m = model_.num_parameters();
+    std::vector<int> reads;
+    for (const int i : {t.numerator, t.denominator}) {
+      if (i < 0) continue;
+      if (i < m) {
+        reads.push_back(i);
+      } else {
+        const std::vector<int>& r = model_.derived_coefficients().reads[static_cast<size_t>(i - m)];
+        reads.insert(reads.end(), r.begin(), r.end());
+      }
+    }
+    std::sort(reads.begin(), reads.end());
+    reads.erase(std::unique(reads.begin(), reads.end()), reads.end());
+    return reads;
+  }
+
+  // ∂(term)/∂θ_j, through ψ by the chain rule when the term reads it.
+  double TermDerivative(const Set& s, const LinearTerm& t, int j) const {
+    const int m = model_.num_parameters();
+    if (t.numerator < m && t.denominator < m) return TermPartial(t, s.theta, j);
+    double d = 0;
+    for (const int i : {t.numerator, t.denominator}) {
+      if (i < 0) continue;
+      const double di = i < m ? (i == j ? 1.0 : 0.0) : s.jac(i - m, j);
+      if (di != 0) d += TermPartial(t, s.theta, i) * di;
+    }
+    return d;
+  }
 
   // Eigendecomposition by compartment structure (modal_detail::Decompose).
   bool Decompose(const Mat& a, Set* s) const {
@@ -393,10 +438,11 @@ class Modal final : public ModalEvaluator {
     const auto value = [&](int i) { return s.theta[i]; };
     for (const LinearTerm& t : model_.output_terms(cmt)) {
       c(t.col) += LinearModel::TermValue<double>(t, value);
+      const std::vector<int> reads = TermReads(t);
       for (size_t act = 0; act < s.active.size(); ++act) {
         const int j = s.active[act].first;
-        if (t.numerator == j || t.denominator == j) {
-          o.dc.push_back({0, t.col, static_cast<int>(act), TermPartial(t, s.theta, j), s.active[act].second});
+        if (std::find(reads.begin(), reads.end(), j) != reads.end()) {
+          o.dc.push_back({0, t.col, static_cast<int>(act), TermDerivative(s, t, j), s.active[act].second});
         }
       }
     }

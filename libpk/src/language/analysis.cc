@@ -632,18 +632,172 @@ class Analyser {
       out_.declarations.why_not_linear = "it has more than one output";
       return;
     }
+    bool monomials = true;
+    for (int c = 0; c < n() && monomials; ++c) {
+      monomials = Terms(out_.rhs[static_cast<size_t>(c)], c, "d/dt(" + out_.compartments[static_cast<size_t>(c)] + ")",
+                        &out_.a_terms);
+    }
+    monomials = monomials && Terms(out_.outputs[0], 0, "output " + out_.output_names[0], &out_.c_terms);
+    if (monomials) {
+      out_.linear = true;
+      return;
+    }
+    out_.a_terms.clear();
+    out_.c_terms.clear();
+    DetectLinearCoefficients();
+  }
+
+  // --- linear structure with coefficients that are any expression of the parameters ----------
+  // Node k as Σ_s coef[s] · x_s with one coefficient node (reading no amount) per state, or `free`
+  // when k reads no amount at all. False, with `why`, when k is not linear and homogeneous in the
+  // amounts. Coefficient nodes are new nodes of the graph; they become the derived coefficients ψ.
+  struct LinearForm {
+    bool free = false;
+    std::map<int, int> coef;
+  };
+  bool IsZero(int k) const {
+    const Node& node = g_[static_cast<size_t>(k)];
+    return node.op == Op::kConstant && node.value == 0;
+  }
+  int Derived(Op op, int a, int b, const Node& at, int c = -1) {
+    // 1·x, x·1 and x/1 are x; −c is a constant: parameters then stay terms of their own.
+    const auto one = [&](int i) { return i >= 0 && g_[static_cast<size_t>(i)].op == Op::kConstant && g_[static_cast<size_t>(i)].value == 1; };
+    if ((op == Op::kMul && one(a)) ) return b;
+    if ((op == Op::kMul || op == Op::kDiv) && one(b)) return a;
+    if (op == Op::kNeg && g_[static_cast<size_t>(a)].op == Op::kConstant) return Constant(-g_[static_cast<size_t>(a)].value, at);
+    Node node;
+    node.op = op;
+    node.a = a;
+    node.b = b;
+    node.c = c;
+    node.line = at.line;
+    node.column = at.column;
+    return NewNode(node);
+  }
+  bool Linearize(int k, LinearForm* form, std::string* why) {
+    const auto memo = linearized_.find(k);
+    if (memo != linearized_.end()) {
+      *form = memo->second;
+      return true;
+    }
+    if (!LinearizeNode(k, form, why)) return false;
+    linearized_[k] = *form;
+    return true;
+  }
+  // A sum or difference of two forms (kAdd, kSub), or a choice between them (kSelect with `cond`).
+  bool Combine(Op op, const LinearForm& a, const LinearForm& b, const Node& at, int cond, LinearForm* f,
+               std::string* why) {
+    if (a.free || b.free) {
+      *why = "has a term without an amount (a zero-order input)";
+      return false;
+    }
+    std::map<int, int> all = a.coef;
+    all.insert(b.coef.begin(), b.coef.end());
+    for (const auto& kv : all) {
+      const auto ia = a.coef.find(kv.first), ib = b.coef.find(kv.first);
+      const int ca = ia == a.coef.end() ? Constant(0, at) : ia->second;
+      const int cb = ib == b.coef.end() ? Constant(0, at) : ib->second;
+      f->coef[kv.first] = op == Op::kSelect ? Derived(op, cond, ca, at, cb) : Derived(op, ca, cb, at);
+    }
+    return true;
+  }
+  bool LinearizeNode(int k, LinearForm* f, std::string* why) {
+    const Node node = g_[static_cast<size_t>(k)];  // a copy: new nodes may move the graph
+    if (StateRead(k) < 0) {
+      f->free = true;
+      return true;
+    }
+    LinearForm a, b;
+    const auto side = [&](int i, LinearForm* form) {
+      if (IsZero(i)) return true;  // an empty form
+      return Linearize(i, form, why);
+    };
+    switch (node.op) {
+      case Op::kInput: f->coef[node.input] = Constant(1, node); return true;
+      case Op::kNeg:
+        if (!Linearize(node.a, &a, why)) return false;
+        for (const auto& kv : a.coef) f->coef[kv.first] = Derived(Op::kNeg, kv.second, -1, node);
+        return true;
+      case Op::kAdd:
+      case Op::kSub:
+        return side(node.a, &a) && side(node.b, &b) && Combine(node.op, a, b, node, -1, f, why);
+      case Op::kSelect:
+        if (StateRead(node.a) >= 0) break;
+        return side(node.b, &a) && side(node.c, &b) && Combine(Op::kSelect, a, b, node, node.a, f, why);
+      case Op::kMul:
+      case Op::kDiv: {
+        const bool amount_right = StateRead(node.b) >= 0;
+        if (amount_right && (node.op == Op::kDiv || StateRead(node.a) >= 0)) break;
+        const int factor = amount_right ? node.a : node.b;
+        if (!Linearize(amount_right ? node.b : node.a, &a, why)) return false;
+        for (const auto& kv : a.coef) f->coef[kv.first] = Derived(node.op, kv.second, factor, node);
+        return true;
+      }
+      default: break;
+    }
+    *why = "is not linear in the amounts";
+    return false;
+  }
+
+  // The terms of a row from a linear form: a constant, a parameter, or a derived coefficient ψ_k.
+  void FormTerms(const LinearForm& form, int row, std::vector<LinearTerm>* terms) {
+    const int m = static_cast<int>(out_.parameters.size());
+    for (const auto& kv : form.coef) {
+      const Node& c = g_[static_cast<size_t>(kv.second)];
+      if (c.op == Op::kConstant && c.value == 0) continue;
+      LinearTerm t;
+      t.row = row;
+      t.col = kv.first;
+      if (c.op == Op::kConstant) {
+        t.sign = c.value;
+      } else if (c.op == Op::kInput) {
+        t.numerator = c.input - n();
+      } else {
+        t.numerator = m + static_cast<int>(out_.derived_roots.size());
+        out_.derived_roots.push_back(kv.second);
+        out_.derived_reads.push_back(ParametersRead(kv.second));
+      }
+      terms->push_back(t);
+    }
+  }
+
+  // The model parameters node k reads, in order.
+  std::vector<int> ParametersRead(int k) const {
+    std::vector<char> seen(g_.size(), 0);
+    std::vector<int> stack{k}, reads;
+    while (!stack.empty()) {
+      const int i = stack.back();
+      stack.pop_back();
+      if (i < 0 || seen[static_cast<size_t>(i)]) continue;
+      seen[static_cast<size_t>(i)] = 1;
+      const Node& node = g_[static_cast<size_t>(i)];
+      if (node.op == Op::kInput && node.input >= n()) reads.push_back(node.input - n());
+      stack.insert(stack.end(), {node.a, node.b, node.c});
+    }
+    std::sort(reads.begin(), reads.end());
+    return reads;
+  }
+
+  void DetectLinearCoefficients() {
+    std::string why;
+    std::vector<LinearForm> rows(static_cast<size_t>(n()));
     for (int c = 0; c < n(); ++c) {
-      if (!Terms(out_.rhs[static_cast<size_t>(c)], c, "d/dt(" + out_.compartments[static_cast<size_t>(c)] + ")",
-                 &out_.a_terms)) {
-        out_.a_terms.clear();
+      if (!Linearize(out_.rhs[static_cast<size_t>(c)], &rows[static_cast<size_t>(c)], &why) ||
+          rows[static_cast<size_t>(c)].free) {
+        if (why.empty()) why = "has no amount in it (a zero-order input)";
+        out_.declarations.why_not_linear = "d/dt(" + out_.compartments[static_cast<size_t>(c)] + ") " + why;
         return;
       }
     }
-    if (!Terms(out_.outputs[0], 0, "output " + out_.output_names[0], &out_.c_terms)) {
-      out_.a_terms.clear();
-      out_.c_terms.clear();
+    LinearForm output;
+    if (!Linearize(out_.outputs[0], &output, &why) || output.free) {
+      if (why.empty()) why = "reads no amount";
+      out_.declarations.why_not_linear = "output " + out_.output_names[0] + " " + why;
       return;
     }
+    for (int c = 0; c < n(); ++c) FormTerms(rows[static_cast<size_t>(c)], c, &out_.a_terms);
+    FormTerms(output, 0, &out_.c_terms);
+    out_.declarations.why_not_linear.clear();
     out_.linear = true;
   }
 
@@ -658,6 +812,7 @@ class Analyser {
   std::vector<bool> used_, eta_used_;
   std::vector<int> state_read_;                              // per node: StateRead, -2 not yet known
   std::map<int, std::pair<bool, Polynomial>> expanded_;      // per node: Expand
+  std::map<int, LinearForm> linearized_;                     // per node: Linearize
 };
 
 }  // namespace

@@ -33,12 +33,16 @@ struct CompiledModel {
   std::vector<int> outputs;  // root of each output (DVID 1, 2, …)
   std::vector<std::string> pk_names;  // the $PK definitions, in file order
   std::vector<int> pk_roots;          // and their roots (they read no state)
-  /// When dx/dt = A(θ)x with every entry of A a sum of c·θ_a/θ_b, and one output y = C(θ)x of the
-  /// same form: the terms for LinearModel::FromTerms. Otherwise `linear` is false and
-  /// declarations.why_not_linear says why (the model runs on the ODE propagator).
+  /// When dx/dt = A(θ)x and there is one output y = C(θ)x: the terms for LinearModel::FromTerms.
+  /// An entry c·θ_a/θ_b is a term of its own; any other (−CL/V with CL = TVCL·WT·exp(η), say) reads
+  /// a derived coefficient: term index m + k stands for the node derived_roots[k], which reads the
+  /// parameters derived_reads[k] and no amount (pk::DerivedCoefficients). Otherwise `linear` is
+  /// false and declarations.why_not_linear says why (the model runs on an ODE propagator).
   bool linear = false;
   std::vector<LinearTerm> a_terms;
   std::vector<LinearTerm> c_terms;
+  std::vector<int> derived_roots;
+  std::vector<std::vector<int>> derived_reads;
 };
 
 /// Checks `text` and binds its names; `bind_etas` makes each η a model parameter

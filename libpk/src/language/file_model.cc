@@ -1,6 +1,7 @@
 // pk::Model from a model file: a LinearModel when the analysis finds the structure the exact
 // propagator needs, otherwise an OdeModel that evaluates the expression graph on the AD types.
 #include <fstream>
+#include <memory>
 #include <sstream>
 #include <utility>
 
@@ -57,6 +58,38 @@ ModelDeclarations WithPkValues(const CompiledModel& m, int n) {
   return declarations;
 }
 
+// ψ(θ) from the coefficient nodes, with its Jacobian by forward-mode AD (pk::Dual).
+DerivedCoefficients Coefficients(const CompiledModel& m, int n) {
+  DerivedCoefficients derived;
+  derived.count = static_cast<int>(m.derived_roots.size());
+  if (derived.count == 0) return derived;
+  derived.reads = m.derived_reads;
+  const auto program = std::make_shared<const Program>(m.graph, m.derived_roots, n);
+  derived.evaluate = [program, n](const Eigen::VectorXd& theta, Eigen::VectorXd* psi, Eigen::MatrixXd* jacobian) {
+    const int p = static_cast<int>(theta.size());
+    psi->resize(program->num_roots());
+    thread_local std::vector<double> zeros;  // ψ reads no amount (checked)
+    zeros.assign(static_cast<size_t>(n), 0.0);
+    if (jacobian == nullptr) {
+      program->Run<double>(zeros.data(), theta.data(), psi->data(), &Slots<double>());
+      return;
+    }
+    thread_local std::vector<Dual> seeded, out, dual_zeros;
+    seeded.resize(static_cast<size_t>(p));
+    for (int j = 0; j < p; ++j) seeded[static_cast<size_t>(j)] = Dual(theta(j), p, j);
+    dual_zeros.assign(static_cast<size_t>(n), Dual(0.0));
+    out.resize(static_cast<size_t>(program->num_roots()));
+    program->Run<Dual>(dual_zeros.data(), seeded.data(), out.data(), &Slots<Dual>());
+    jacobian->setZero(program->num_roots(), p);
+    for (int k = 0; k < program->num_roots(); ++k) {
+      const Dual& v = out[static_cast<size_t>(k)];
+      (*psi)(k) = v.value();
+      if (v.derivatives().size() == p) jacobian->row(k) = v.derivatives().transpose();
+    }
+  };
+  return derived;
+}
+
 std::shared_ptr<const Model> Build(const CompiledModel& m) {
   const ModelText& t = m.text;
   const int n = static_cast<int>(m.compartments.size());
@@ -75,7 +108,7 @@ std::shared_ptr<const Model> Build(const CompiledModel& m) {
     }
     return LinearModel::FromTerms(t.name, t.description, m.compartments, m.parameters, m.defaults, m.central,
                                   m.default_dose, m.a_terms, rows, 0, InitialStructure(), declarations,
-                                  m.signed_parameters);
+                                  m.signed_parameters, Coefficients(m, n));
   }
   OdeModelSpec spec;
   spec.name = t.name;

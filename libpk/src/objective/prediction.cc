@@ -193,8 +193,9 @@ bool Predict(const ObjectiveState& d, const Eigen::VectorXd& values, const FreeP
   const bool events_depend = EventsDepend(d, free);
   try {
     bool done = false;
+    // Covariates hold NaN in `values` when a data column supplies them: Reset checks the values used.
     if (!IntegratesOde(d.propagator) && d.linear && d.options.modal_propagation && !events_depend &&
-        ModalRoute(route) && values.head(d.model->num_parameters()).allFinite()) {
+        ModalRoute(route)) {
       done = PredictModal(d, values, free, need, route, out, &ev->predictions);
       ev->modal = done;
     }
