@@ -289,11 +289,13 @@ pk::Dataset SimulatedBolus(int subjects) {
   return pk::ParseDataset(text, "bolus120.csv");
 }
 
-void PopulationCase(const char* name, std::shared_ptr<const pk::Dataset> data,
-                    const pk::PopulationParameters& start) {
+pk::PopulationProblem BolusProblem(std::shared_ptr<const pk::Dataset> data) {
   pk::ObjectiveOptions o;
   o.error_model = pk::MakeResidualError("proportional");
-  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv"), std::move(data), {"CL", "V"}, o);
+  return pk::PopulationProblem(pk::MakeModel("1cmt_iv"), std::move(data), {"CL", "V"}, o);
+}
+
+void PopulationCase(const char* name, const pk::PopulationProblem& problem, const pk::PopulationParameters& start) {
   pk::PopulationOptions options;
   options.covariance = false;
   pk::PopulationOptions fd = options, two = options;
@@ -330,10 +332,18 @@ void PopulationEstimation(const std::string& data_dir) {
   start.sigma.resize(1);
   start.theta << 0.005, 1.0;
   start.sigma << 0.2;
-  PopulationCase("phenobarbital", std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv")),
-                 start);
+  const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
+  PopulationCase("phenobarbital", BolusProblem(pheno), start);
+  // NONMEM's own phenobarbital model from its model file: CL and V per kg, V larger at Apgar < 5.
+  // Its coefficients are expressions (derived coefficients), still on Φ/Γ.
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  const auto file = pk::LoadModelFile(data_dir + "/../models/pheno_pop.pkm", pk::RandomEffects::kParameters);
+  pk::PopulationParameters file_start = start;
+  file_start.theta = Eigen::Vector3d(0.005, 1.0, 0.1);
+  PopulationCase("pheno_pop.pkm", pk::PopulationProblem(file, pheno, {"ETA_CL", "ETA_V"}, o), file_start);
   start.theta << 3, 15;
-  PopulationCase("bolus 120x19", std::make_shared<pk::Dataset>(SimulatedBolus(120)), start);
+  PopulationCase("bolus 120x19", BolusProblem(std::make_shared<pk::Dataset>(SimulatedBolus(120))), start);
 }
 }  // namespace
 
