@@ -158,6 +158,13 @@ std::string EtaLabel(const std::string& eta_name) {
   return eta_name.rfind("ETA", 0) == 0 ? eta_name : "ETA_" + eta_name;
 }
 
+std::string Quote(const std::string& s) {
+  if (s.find_first_of(",\"\r\n") == std::string::npos) return s;
+  std::string out = "\"";
+  for (char c : s) out += c == '"' ? std::string("\"\"") : std::string(1, c);
+  return out + "\"";
+}
+
 std::string Today() {
   const std::time_t now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
   std::tm utc{};

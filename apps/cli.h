@@ -60,6 +60,9 @@ std::string Today();
 /// An η's column label: ETA_CL for the log-normal η on CL; a model file's η keeps its own name
 /// when that already starts with ETA (ETA_CL, not ETA_ETA_CL).
 std::string EtaLabel(const std::string& eta_name);
+/// A CSV text field, quoted (RFC 4180) when it holds a comma, a quote or a line end: a covariance's
+/// name OMEGA(V,CL) is one field.
+std::string Quote(const std::string& s);
 
 }  // namespace cli
 }  // namespace pk

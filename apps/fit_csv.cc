@@ -3,19 +3,13 @@
 #include <cmath>
 #include <sstream>
 
+#include "cli.h"
 #include "pk/output.h"
 
 namespace pk {
 namespace cli {
 
 std::string Csv(double v) { return std::isfinite(v) ? FormatNumber(v) : ""; }
-
-std::string Quote(const std::string& s) {
-  if (s.find_first_of(",\"\n") == std::string::npos) return s;
-  std::string out = "\"";
-  for (char c : s) out += c == '"' ? std::string("\"\"") : std::string(1, c);
-  return out + "\"";
-}
 
 std::string FitStatus(const SubjectFit& f) {
   if (!f.ok) return "failed";

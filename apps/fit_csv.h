@@ -14,8 +14,6 @@ namespace cli {
 
 /// A number as CSV writes it: all its digits, empty when not finite.
 std::string Csv(double v);
-/// A text field, quoted when it holds a comma, a quote or a line end.
-std::string Quote(const std::string& s);
 /// "converged", "not converged", "failed" or "unbounded".
 std::string FitStatus(const SubjectFit& f);
 

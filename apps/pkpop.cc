@@ -146,7 +146,7 @@ pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lis
   }
   s->theta_fixed.assign(problem.theta_names().size(), false);
   s->sigma_fixed.assign(problem.sigma_names().size(), false);
-  s->omega_block_fixed.assign(s->omega_blocks.size(), false);
+  if (s->omega_block_fixed.size() != s->omega_blocks.size()) s->omega_block_fixed.assign(s->omega_blocks.size(), false);
   for (const std::string& name : SplitCommas(a.fix)) {
     const std::string u = Upper(name);
     if (u.rfind("OMEGA(", 0) == 0 && u.back() == ')') {
@@ -161,13 +161,21 @@ pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lis
       s->sigma_fixed[static_cast<size_t>(Required(problem.sigma_names(), name, "--fix"))] = true;
     }
   }
+  // Covariances between η of different blocks (a file's $OMEGA block that --block splits) are 0.
+  std::vector<int> block_of;
+  for (size_t b = 0; b < s->omega_blocks.size(); ++b) block_of.insert(block_of.end(), static_cast<size_t>(s->omega_blocks[b]), static_cast<int>(b));
+  for (Eigen::Index r = 0; r < p.omega.rows(); ++r) {
+    for (Eigen::Index c = 0; c < p.omega.cols(); ++c) {
+      if (block_of[static_cast<size_t>(r)] != block_of[static_cast<size_t>(c)]) p.omega(r, c) = 0;
+    }
+  }
   return p;
 }
 
 std::string EstimatesCsv(const pk::PopulationSummary& fit) {
   std::string out = "PARAMETER,ESTIMATE,SE,RSE_PCT,FIXED,AT_BOUNDARY\n";
   for (const auto& e : fit.estimates) {
-    out += e.name + "," + pk::FormatNumber(e.estimate) + "," + (std::isfinite(e.se) ? pk::FormatNumber(e.se) : "") +
+    out += pk::cli::Quote(e.name) + "," + pk::FormatNumber(e.estimate) + "," + (std::isfinite(e.se) ? pk::FormatNumber(e.se) : "") +
            "," + (std::isfinite(e.rse_pct) ? pk::FormatNumber(e.rse_pct) : "") + "," + (e.fixed ? "1" : "0") + "," +
            (e.at_boundary ? "1" : "0") + "\n";
   }
@@ -214,7 +222,7 @@ std::string SubjectsCsv(const pk::PopulationProblem& problem, const pk::Populati
 
 std::string IterationsCsv(const pk::PopulationSummary& fit) {
   std::string out = "EVALUATION,OFV,GRADIENT_NORM";
-  for (const auto& e : fit.estimates) out += "," + e.name;
+  for (const auto& e : fit.estimates) out += "," + pk::cli::Quote(e.name);
   out += "\n";
   for (const auto& it : fit.history) {
     out += std::to_string(it.evaluation) + "," + pk::FormatNumber(it.ofv) + "," + pk::FormatNumber(it.gradient_norm);
@@ -230,10 +238,10 @@ std::string CovarianceCsv(const pk::PopulationSummary& fit) {
     if (!e.fixed) names.push_back(e.name);
   }
   std::string out = "PARAMETER";
-  for (const auto& n : names) out += "," + n;
+  for (const auto& n : names) out += "," + pk::cli::Quote(n);
   out += "\n";
   for (Eigen::Index r = 0; r < fit.covariance.rows(); ++r) {
-    out += names[static_cast<size_t>(r)];
+    out += pk::cli::Quote(names[static_cast<size_t>(r)]);
     for (Eigen::Index c = 0; c < fit.covariance.cols(); ++c) out += "," + pk::FormatNumber(fit.covariance(r, c));
     out += "\n";
   }
@@ -304,7 +312,12 @@ int Main(int argc, char** argv, const Process& process) {
   options.distribution = process.distribution;
   options.max_iterations = vm["max-evaluations"].as<int>();
   options.covariance = !vm.count("no-covariance");
-  Blocks(problem.eta_names(), a.block, &options.structure);
+  // --block replaces the blocks a model file's $OMEGA declares (its FIX flags go with them).
+  if (a.block.empty()) {
+    options.structure = problem.DeclaredStructure();
+  } else {
+    Blocks(problem.eta_names(), a.block, &options.structure);
+  }
   const pk::PopulationParameters initial = Initial(problem, a, &options.structure);
   const bool quiet = vm.count("quiet") > 0 || process.rank > 0;  // process 0 alone speaks and writes
   if (!quiet) {

@@ -254,6 +254,14 @@ TEST_CASE("model files: each kind of error names the file, line and column and w
       {"log of a non-positive constant", Replace(10, "K = CL / V * log(0)"), "log of 0", 10, 14},
       {"random effect never used", Replace(5, "V = 30\n$OMEGA\nETA_V ~ 0.1\n$PARAM"), "random effect ETA_V is never used", 7, 1},
       {"variance not positive", Replace(5, "V = 30\n$OMEGA\nETA_V ~ 0\n$PARAM"), "the variance ω² of ETA_V must be positive", 7, 1},
+      {"a block with the wrong number of values", Replace(5, "V = 30\n$OMEGA\nETA_V + ETA_K ~ c(0.1, 0.01)\n$PARAM"),
+       "a block of 2 random effects needs 3 values (the lower triangle by rows", 7, 1},
+      {"a block that is not positive definite", Replace(5, "V = 30\n$OMEGA\nETA_V + ETA_K ~ c(0.1, 0.5, 0.1)\n$PARAM"),
+       "the block of ETA_V, ETA_K is not positive definite", 7, 1},
+      {"a block without its values", Replace(5, "V = 30\n$OMEGA\nETA_V + ETA_K ~ 0.1\n$PARAM"),
+       "expected the block's values", 7, 17},
+      {"a word after a variance", Replace(5, "V = 30\n$OMEGA\nETA_V ~ 0.1 FIXD\n$PARAM"),
+       "expected FIX or the end of the line, found 'FIXD'", 7, 13},
       {"a σ name taken", Replace(5, "V = 30\nSIGMA_ADD = 1"), "SIGMA_ADD is the name of a residual-error σ", 6, 1},
   };
   int checked = 0;

@@ -712,6 +712,50 @@ TEST_CASE("phenobarbital with weight and Apgar covariates reproduces NONMEM's FO
   individual(18, 1.0, 1.0 + p.theta(2));
 }
 
+TEST_CASE("a model file's $OMEGA block gives Ω's structure, covariances and FIX", "[population][model-file]") {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
+  REQUIRE(in.good());
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string original = text.str();
+  const auto with = [&](const std::string& omega) {
+    std::string s = original;
+    const size_t a = s.find("ETA_CL ~ 0.05\n"), b = s.find("ETA_V  ~ 0.05\n");
+    REQUIRE(a != std::string::npos);
+    REQUIRE(b != std::string::npos);
+    s.erase(b, 14);
+    s.replace(a, 14, omega + "\n");
+    return s;
+  };
+  // Diagonal, as shipped: two blocks of one, nothing fixed.
+  const pk::PopulationProblem diagonal = FileProblem(original, "proportional", 1e-8);
+  CHECK(diagonal.DeclaredStructure().omega_blocks == std::vector<int>{1, 1});
+  CHECK(diagonal.DeclaredStructure().omega_block_fixed == std::vector<bool>{false, false});
+  // NONMEM's BLOCK(2) 0.05 0.01 0.04: one block, the covariance in Ω's start.
+  const pk::PopulationProblem block = FileProblem(with("ETA_CL + ETA_V ~ c(0.05, 0.01, 0.04)"), "proportional", 1e-8);
+  REQUIRE(block.eta_names() == std::vector<std::string>{"ETA_CL", "ETA_V"});
+  CHECK(block.DeclaredStructure().omega_blocks == std::vector<int>{2});
+  CHECK(block.DeclaredStructure().omega_block_fixed == std::vector<bool>{false});
+  const Eigen::MatrixXd omega = block.DefaultParameters().omega;
+  CHECK(omega(0, 0) == 0.05);
+  CHECK(omega(1, 0) == 0.01);
+  CHECK(omega(0, 1) == 0.01);
+  CHECK(omega(1, 1) == 0.04);
+  // FIX holds the block; a fit keeps it exactly and estimates the rest.
+  const pk::PopulationProblem fixed =
+      FileProblem(with("ETA_CL + ETA_V ~ c(0.03, 0.005, 0.03) FIX"), "proportional", 1e-8);
+  pk::PopulationOptions options;
+  options.structure = fixed.DeclaredStructure();
+  CHECK(options.structure.omega_block_fixed == std::vector<bool>{true});
+  options.covariance = false;
+  options.max_iterations = 6;
+  const pk::PopulationSummary fit = pk::FitPopulation(fixed, fixed.DefaultParameters(), options);
+  CHECK(fit.parameters.omega(0, 0) == 0.03);
+  CHECK(fit.parameters.omega(1, 0) == 0.005);
+  CHECK(fit.parameters.omega(1, 1) == 0.03);
+  CHECK(fit.parameters.theta(0) != fixed.DefaultParameters().theta(0));
+}
+
 TEST_CASE("the outer gradient holds for a model file's additive η on the exact propagator",
           "[population][model-file]") {
   // k_i = CL/V + η_k: a sum of c·θa/θb terms, so the file stays linear (Φ/Γ) with its η bound,

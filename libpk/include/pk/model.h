@@ -55,6 +55,14 @@ struct DeclaredParameter {
 
 /// What a model file (pk/model_file.h) declares beyond names and defaults. Catalogue models
 /// declare nothing: every vector is empty.
+/// One block of a model file's $OMEGA (a single η is a block of one): its η in order, Ω's
+/// initial values over them, and whether the block is fixed (FIX).
+struct OmegaBlockDeclaration {
+  std::vector<std::string> etas;
+  Eigen::MatrixXd omega;
+  bool fixed = false;
+};
+
 struct ModelDeclarations {
   std::string source;  ///< the model file
   /// Per model parameter, in order: its bounds, unit and whether it is a covariate (the initial
@@ -72,6 +80,9 @@ struct ModelDeclarations {
   /// record's parameter set holds them). Empty, and pk_values empty, for the catalogue.
   std::vector<std::string> pk_definitions;
   std::function<Eigen::VectorXd(const Eigen::VectorXd& parameters)> pk_values;
+  /// The file's $OMEGA, block by block in η order (empty for the catalogue). pkpop estimates each
+  /// block of more than one η with its covariances, and keeps a FIX block at its values.
+  std::vector<OmegaBlockDeclaration> omega_blocks;
 };
 
 class Model {

@@ -104,7 +104,14 @@ class PopulationProblem {
   /// (pk/initial_estimates.h) for a model that declares the structure they need, else the
   /// model's defaults; Ω = 0.1·I; σ from the pooled observations.
   PopulationParameters DefaultParameters() const;
+  /// Ω's structure as a model file's $OMEGA declares it: a block per $OMEGA line of more than one
+  /// η (its η must be consecutive in eta_names()), blocks of one for the other η, and FIX lines
+  /// fixed; θ and σ not fixed. For a catalogue model every η is a block of one. Throws
+  /// pk::InputError when a declared block's η are not all in eta_names() or not consecutive there.
+  PopulationStructure DeclaredStructure() const;
 
+  /// Internal: the position of a model file's η in eta_names() (-1 when absent).
+  int EtaPosition(const std::string& name) const;
   /// Internal: the per-subject machinery.
   struct Impl;
   const Impl& impl() const { return *impl_; }

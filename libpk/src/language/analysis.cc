@@ -6,6 +6,8 @@
 #include <map>
 #include <utility>
 
+#include <Eigen/Cholesky>
+
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/output.h"
@@ -132,6 +134,7 @@ class Analyser {
       Declare(e.name, SymbolKind::kEta, static_cast<int>(i), e.at);
       if (bind_etas_) DeclareEtaParameter(e);
     }
+    for (const OmegaLine& line : t.omega) DeclareOmegaBlock(line);
     for (size_t i = 0; i < t.definitions.size(); ++i) {
       const Definition& d = t.definitions[i];
       if (!ModifierName(d.name).first.empty()) {
@@ -148,6 +151,27 @@ class Analyser {
     def_state_.assign(t.definitions.size(), 0);
     used_.assign(out_.parameters.size(), false);
     eta_used_.assign(t.etas.size(), false);
+  }
+
+  // Ω's block over one $OMEGA line's η: symmetric from its lower triangle, positive definite.
+  void DeclareOmegaBlock(const OmegaLine& line) {
+    const ModelText& t = out_.text;
+    const auto n = static_cast<Eigen::Index>(line.etas.size());
+    OmegaBlockDeclaration block;
+    block.omega.resize(n, n);
+    size_t k = 0;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      block.etas.push_back(t.etas[static_cast<size_t>(line.etas[static_cast<size_t>(i)])].name);
+      for (Eigen::Index j = 0; j <= i; ++j) block.omega(i, j) = block.omega(j, i) = line.lower[k++];
+    }
+    block.fixed = line.fixed;
+    if (!block.omega.allFinite() || block.omega.llt().info() != Eigen::Success) {
+      std::string names;
+      for (const std::string& e : block.etas) names += (names.empty() ? "" : ", ") + e;
+      Fail(line.at, "the block of " + names + " is not positive definite: a covariance is larger than the "
+                    "variances allow (|ω_ij| < √(ω²_i ω²_j) at least)");
+    }
+    out_.declarations.omega_blocks.push_back(std::move(block));
   }
 
   // A population model's η: a parameter of either sign, 0 unless the population fit binds it.

@@ -42,6 +42,15 @@ struct EtaDecl {
   Place at;
 };
 
+/// One $OMEGA line: its η (indices into ModelText::etas, consecutive) and Ω's block over them,
+/// the lower triangle by rows as NONMEM's BLOCK(n) gives it (one value for a single η).
+struct OmegaLine {
+  std::vector<int> etas;
+  std::vector<double> lower;
+  bool fixed = false;
+  Place at;
+};
+
 struct CompartmentDecl {
   std::string name;
   bool dose = false;
@@ -86,6 +95,7 @@ struct ModelText {
   std::vector<ParameterDecl> parameters;
   std::vector<CovariateDecl> covariates;
   std::vector<EtaDecl> etas;
+  std::vector<OmegaLine> omega;
   std::vector<CompartmentDecl> compartments;
   std::vector<Definition> definitions;
   std::vector<Derivative> derivatives;

@@ -182,13 +182,51 @@ class Parser {
   }
 
   // NAME ~ variance
+  // NAME ~ ω² [FIX]   or   NAME + NAME … ~ c(ω²₁, ω₂₁, ω²₂, …) [FIX]: a block, its lower triangle
+  // by rows as in NONMEM's $OMEGA BLOCK(n) (nlmixr2 writes the same with c(); block() is accepted too).
   void EtaLine() {
-    EtaDecl e;
-    e.at = {Peek().line, Peek().column};
-    e.name = Name("a random effect's name");
-    Expect("~", "'~' and its variance ω²");
-    e.variance = SignedNumber("the variance ω²");
-    m_->etas.push_back(std::move(e));
+    OmegaLine line;
+    line.at = {Peek().line, Peek().column};
+    do {
+      EtaDecl e;
+      e.at = {Peek().line, Peek().column};
+      e.name = Name("a random effect's name");
+      line.etas.push_back(static_cast<int>(m_->etas.size()));
+      m_->etas.push_back(std::move(e));
+    } while (Accept("+"));
+    const size_t n = line.etas.size();
+    Expect("~", n == 1 ? "'~' and its variance ω²" : "'~' and the block's values, c(…)");
+    const bool list = Peek().kind == Kind::kIdentifier && IsPunct("(", 1) &&
+                      (ToLower(Peek().text) == "c" || ToLower(Peek().text) == "block");
+    if (list) {
+      pos_ += 2;
+      do {
+        line.lower.push_back(SignedNumber("a value of Ω's block"));
+      } while (Accept(","));
+      Expect(")", "')' after the block's values");
+    } else {
+      if (n > 1) Fail(Peek(), "expected the block's values, c(ω²₁, ω₂₁, ω²₂, …), found " + Describe(Peek()));
+      line.lower.push_back(SignedNumber("the variance ω²"));
+    }
+    if (line.lower.size() != n * (n + 1) / 2) {
+      Token at;
+      at.line = line.at.line;
+      at.column = line.at.column;
+      Fail(at, "a block of " + std::to_string(n) + " random effects needs " + std::to_string(n * (n + 1) / 2) +
+               " values (the lower triangle by rows, as NONMEM's BLOCK(" + std::to_string(n) + ")), not " +
+               std::to_string(line.lower.size()));
+    }
+    if (Peek().kind == Kind::kIdentifier) {
+      const Token word = Next();
+      if (ToUpper(word.text) != "FIX" && ToUpper(word.text) != "FIXED") {
+        Fail(word, "expected FIX or the end of the line, found " + Describe(word));
+      }
+      line.fixed = true;
+    }
+    for (size_t i = 0; i < n; ++i) {
+      m_->etas[static_cast<size_t>(line.etas[i])].variance = line.lower[(i + 1) * (i + 2) / 2 - 1];
+    }
+    m_->omega.push_back(std::move(line));
   }
 
   // NAME [dose] [central]

@@ -175,6 +175,46 @@ const Model& PopulationProblem::model() const { return *impl_->model; }
 const Dataset& PopulationProblem::data() const { return *impl_->data; }
 const ObjectiveOptions& PopulationProblem::options() const { return impl_->options; }
 
+int PopulationProblem::EtaPosition(const std::string& name) const {
+  const std::vector<std::string>& etas = impl_->eta_names;
+  for (size_t k = 0; k < etas.size(); ++k) {
+    if (etas[k] == name && !impl_->eta_log_normal[k]) return static_cast<int>(k);
+  }
+  return -1;
+}
+
+PopulationStructure PopulationProblem::DeclaredStructure() const {
+  const Impl& d = *impl_;
+  PopulationStructure s;
+  std::vector<int> size(d.eta_names.size(), 1);  // per η: the size of the block it starts, 0 inside one
+  std::vector<char> fixed(d.eta_names.size(), 0);
+  for (const OmegaBlockDeclaration& b : d.model->declarations().omega_blocks) {
+    std::vector<int> at;
+    for (const std::string& e : b.etas) at.push_back(EtaPosition(e));
+    const bool all = std::all_of(at.begin(), at.end(), [](int k) { return k >= 0; });
+    if (!all && b.etas.size() > 1) {
+      throw InputError(d.model->declarations().source, 0, 0,
+                       "$OMEGA: the block of " + b.etas.front() + "… needs each of its random effects in the population model");
+    }
+    for (size_t k = 1; k < at.size(); ++k) {
+      if (at[k] != at[0] + static_cast<int>(k)) {
+        throw InputError(d.model->declarations().source, 0, 0,
+                         "$OMEGA: the random effects of the block of " + b.etas.front() + "… must be consecutive among the η");
+      }
+    }
+    if (!all) continue;
+    size[static_cast<size_t>(at[0])] = static_cast<int>(at.size());
+    for (size_t k = 1; k < at.size(); ++k) size[static_cast<size_t>(at[k])] = 0;
+    fixed[static_cast<size_t>(at[0])] = b.fixed;
+  }
+  for (size_t k = 0; k < size.size(); ++k) {
+    if (size[k] == 0) continue;
+    s.omega_blocks.push_back(size[k]);
+    s.omega_block_fixed.push_back(fixed[k] != 0);
+  }
+  return s;
+}
+
 PopulationParameters PopulationProblem::DefaultParameters() const {
   const Impl& d = *impl_;
   PopulationParameters p;
@@ -205,6 +245,14 @@ PopulationParameters PopulationProblem::DefaultParameters() const {
     if (d.eta_log_normal[mm]) continue;
     const int i = d.model->ParameterIndex(d.eta_names[mm]);
     p.omega(m, m) = d.model->declarations().parameters[static_cast<size_t>(i)].variance;
+  }
+  for (const OmegaBlockDeclaration& b : d.model->declarations().omega_blocks) {  // and covariances
+    for (size_t i = 0; i < b.etas.size(); ++i) {
+      for (size_t j = 0; j < i; ++j) {
+        const int a = EtaPosition(b.etas[i]), c = EtaPosition(b.etas[j]);
+        if (a >= 0 && c >= 0) p.omega(a, c) = p.omega(c, a) = b.omega(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j));
+      }
+    }
   }
   Eigen::VectorXd pooled(d.num_observations);
   Eigen::Index at = 0;
