@@ -183,13 +183,15 @@ std::string EstimatesCsv(const pk::PopulationSummary& fit) {
   return out;
 }
 
-std::string SdtabCsv(const pk::PopulationSummary& fit) {
-  std::string out = "ID,TIME,DVID,DV,PRED,IPRED,RES,WRES,CWRES,IWRES\n";
+// With censored samples (M3) a CENS column follows, and their residuals are empty.
+std::string SdtabCsv(const pk::PopulationSummary& fit, bool censoring) {
+  std::string out = std::string("ID,TIME,DVID,DV,PRED,IPRED,RES,WRES,CWRES,IWRES") + (censoring ? ",CENS\n" : "\n");
   for (const auto& r : fit.rows) {
     for (double v : {r.id, r.time, static_cast<double>(r.dvid), r.dv, r.pred, r.ipred, r.res, r.wres, r.cwres}) {
       out += (std::isfinite(v) ? pk::FormatNumber(v) : "") + ",";
     }
-    out += (std::isfinite(r.iwres) ? pk::FormatNumber(r.iwres) : "") + "\n";
+    out += (std::isfinite(r.iwres) ? pk::FormatNumber(r.iwres) : "");
+    out += censoring ? "," + std::to_string(r.censored) + "\n" : "\n";
   }
   return out;
 }
@@ -254,7 +256,7 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
   pk::RemoveStaleTemporaries(dir);
   pk::BeginOutputSet(dir);
   std::vector<std::pair<std::string, std::string>> files = {
-      {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit)},
+      {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit, problem.num_censored() > 0)},
       {"subjects.csv", SubjectsCsv(problem, fit)},     {"iterations.csv", IterationsCsv(fit)},
       {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()}};
   const auto report = pk::cli::PopulationReport(problem, fit, context);

@@ -63,6 +63,7 @@ std::string Gof(const std::vector<double>& x, const std::vector<double>& y, bool
 void GoodnessOfFit(const PopulationSummary& fit, list* svgs, Files* files) {
   std::map<std::string, std::vector<double>> c;
   for (const PopulationRow& r : fit.rows) {
+    if (r.censored != 0) continue;  // DV is a limit (M3), not a value to plot against a prediction
     for (const auto& [name, v] : std::map<std::string, double>{{"DV", r.dv}, {"PRED", r.pred}, {"IPRED", r.ipred},
                                                                 {"TIME", r.time}, {"CWRES", r.cwres}, {"IWRES", r.iwres}}) {
       c[name].push_back(v);
@@ -136,7 +137,9 @@ list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
     if (it == subjects.end()) continue;
     const int index = static_cast<int>(it - subjects.begin());
     PlotSeries dv{"DV", {}, {}, true};
-    for (const PopulationRow* r : rows[s.id]) dv.x.push_back(r->time), dv.y.push_back(r->dv);
+    for (const PopulationRow* r : rows[s.id]) {
+      if (r->censored == 0) dv.x.push_back(r->time), dv.y.push_back(r->dv);
+    }
     PlotSeries ipred = Curve(problem, index, s.parameters, "IPRED"), pred = Curve(problem, index, fit.parameters.theta, "PRED");
     dv.colour = kObserved, ipred.colour = kIpred, pred.colour = kPred;
     panels.push_back(object{{"caption", Text("ID " + FormatNumber(s.id))},

@@ -9,6 +9,7 @@
 #include <random>
 #include <sstream>
 #include <thread>
+#include <tuple>
 
 #include "pk/catalogue.h"
 #include "pk/error.h"
@@ -17,8 +18,10 @@
 #include "pk/population.h"
 #include "pk/residual_error.h"
 #include "pk/simulate.h"
+#include "population/conditional.h"
 #include "population/engine.h"
 #include "population/packing.h"
+#include "population/problem_impl.h"
 #include "test_util.h"
 
 namespace {
@@ -133,6 +136,88 @@ TEST_CASE("population OFV equals the R reference for FOCE, FOCEI and Laplace", "
       }
     }
   }
+}
+
+TEST_CASE("censored samples (M3): Laplace's OFV equals the R reference, and FOCE refuses them", "[population]") {
+  // tests/reference/make_population_m3_reference.R: theophylline with the 27 samples below 2 mg/L
+  // censored (CENS=1, DV=2), l_i(η) with −2 log Φ((2 − f)/√V) for each, Laplace with its exact
+  // Hessian; additive, and combined error (V depends on f, so z does too).
+  const Table reference = ReadTable("population_m3_reference.csv");
+  Case c = Cases().at("theo_add");
+  c.data = "theophylline_blq";
+  int compared = 0;
+  for (const auto& [name, error, sigma] : {std::make_tuple("blq_add", "additive", std::vector<double>{0.7}),
+                                           std::make_tuple("blq_comb", "combined", std::vector<double>{0.3, 0.1})}) {
+    INFO(name);
+    c.error = error;
+    c.sigma = sigma;
+    const pk::PopulationProblem problem = Problem(c);
+    REQUIRE(problem.num_censored() == 27);
+    const pk::PopulationEvaluation ev = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kLaplace);
+    REQUIRE(ev.ok);
+    for (const auto& row : reference) {
+      if (row.at("case") != name) continue;
+      if (row.at("ID") == "all") {
+        CHECK(std::abs(ev.ofv - std::stod(row.at("ofv_i"))) < 1e-6);
+        ++compared;
+        continue;
+      }
+      const double id = std::stod(row.at("ID"));
+      const auto it = std::find_if(ev.subjects.begin(), ev.subjects.end(), [&](const auto& x) { return x.id == id; });
+      REQUIRE(it != ev.subjects.end());
+      INFO("subject " << id);
+      CHECK(std::abs(it->ofv - std::stod(row.at("ofv_i"))) < 1e-7);
+    }
+    for (pk::PopulationMethod m : {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
+      CHECK_THROWS_WITH(pk::EvaluatePopulation(problem, Parameters(c), m), Catch::Contains("needs --method laplace"));
+    }
+  }
+  CHECK(compared == 2);
+}
+
+TEST_CASE("censored samples (M3): a Laplace fit, its residuals and the gradient of l", "[population]") {
+  Case c = Cases().at("theo_add");
+  c.data = "theophylline_blq";
+  const pk::PopulationProblem problem = Problem(c);
+  // ∇l at a point away from the mode against central differences of l, with the censored terms.
+  const auto& subject = problem.impl().subjects[1];  // ID 2: three censored samples
+  REQUIRE((subject.censoring.array() != 0).count() == 3);
+  const pk::internal::PopulationPoint point =
+      pk::internal::PopulationPoint::Make(Parameters(c), *problem.options().error_model, pk::PopulationMethod::kLaplace);
+  const Eigen::Vector3d eta(0.2, -0.1, 0.05);
+  pk::internal::Conditional at;
+  std::string why;
+  REQUIRE(pk::internal::EvaluateConditional(subject, point, eta, nullptr, true, &at, &why));
+  for (int k = 0; k < 3; ++k) {
+    const double h = 1e-5;
+    pk::internal::Conditional plus, minus;
+    Eigen::Vector3d e = eta;
+    e(k) += h;
+    REQUIRE(pk::internal::EvaluateConditional(subject, point, e, nullptr, false, &plus, &why));
+    e(k) = eta(k) - h;
+    REQUIRE(pk::internal::EvaluateConditional(subject, point, e, nullptr, false, &minus, &why));
+    CHECK(at.gradient(k) == Approx((plus.l - minus.l) / (2 * h)).epsilon(1e-7));
+  }
+  // A fit: censored rows carry CENS and no residuals; the others have them all.
+  pk::PopulationOptions options;
+  options.method = pk::PopulationMethod::kLaplace;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, Parameters(c), options);
+  REQUIRE(fit.converged);
+  int censored = 0;
+  for (const pk::PopulationRow& r : fit.rows) {
+    if (r.censored != 0) {
+      ++censored;
+      CHECK(std::isnan(r.cwres));
+      CHECK(std::isnan(r.iwres));
+      CHECK(std::isnan(r.res));
+    } else {
+      CHECK(std::isfinite(r.cwres));
+      CHECK(std::isfinite(r.iwres));
+    }
+  }
+  CHECK(censored == 27);
+  CHECK(fit.ofv < pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kLaplace).ofv);
 }
 
 TEST_CASE("Laplace approaches the exact marginal likelihood as data become rich", "[population]") {

@@ -82,6 +82,15 @@ done
 [ $? -eq 2 ] && grep -q "'ETA_KA' is not an estimable parameter or a random effect" "$work/bad_eta.err" ||
   fail "an unknown η: $(cat "$work/bad_eta.err")"
 
+# Censored samples (CENS=1, DV the limit: Beal's M3) under Laplace: sdtab gains CENS, and a censored
+# row has no residuals.
+"$pkpop" --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --error additive --method laplace \
+  --no-covariance -q -o "$work/blq" || fail "the M3 Laplace fit exited non-zero"
+head -1 "$work/blq/sdtab.csv" | grep -qx "ID,TIME,DVID,DV,PRED,IPRED,RES,WRES,CWRES,IWRES,CENS" ||
+  fail "sdtab.csv without CENS: $(head -1 "$work/blq/sdtab.csv")"
+[ "$(awk -F, '$11 == 1 && $7 == "" && $9 == "" && $10 == ""' "$work/blq/sdtab.csv" | wc -l)" -eq 27 ] ||
+  fail "the 27 censored rows should have CENS=1 and empty RES, CWRES and IWRES"
+
 # Input errors exit with 2 and say what is wrong.
 expect_error() {  # expected message, then arguments
   local msg=$1; shift
@@ -98,6 +107,8 @@ expect_error "--block CL,V: the η must be consecutive" --model 1cmt_oral --data
   --eta CL,KA,V --block CL,V
 expect_error "--omega: unknown name 'KA'" "${pheno[@]}" --omega KA=0.1
 expect_error "--model and --data are required" --model 1cmt_iv
+expect_error "27 censored samples (CENS): their likelihood (Beal's M3) needs --method laplace" \
+  --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --error additive
 expect_error "initial Ω block of CL is not positive definite" "${pheno[@]}" --block CL,V --omega CL:V=1
 
 [ $failures -eq 0 ] && echo "pkpop CLI: all checks passed"

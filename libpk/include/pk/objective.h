@@ -97,6 +97,10 @@ struct ObjectiveOptions {
   /// instead of a matrix exponential. Otherwise, or when false, the Padé
   /// exponentials are used. Both are exact; they agree to rounding (docs/gradients.md).
   bool modal_propagation = true;
+  /// Least squares only: take censored samples (CENS ≠ 0) as samples, with DV their limit,
+  /// instead of refusing them. For a caller that forms its own likelihood from the predictions
+  /// and censoring() (the population methods' M3); a fit by least squares must not set it.
+  bool keep_censored = false;
 
   bool IsValid(std::string* error) const;
 };

@@ -83,7 +83,7 @@ struct PopulationStructure {
 class PopulationProblem {
  public:
   /// Throws pk::InputError for an unknown η name, a covariate given an η, a dataset the model
-  /// cannot take, least squares as the error model, or censored samples (not yet supported).
+  /// cannot take, or least squares as the error model.
   PopulationProblem(std::shared_ptr<const Model> model, std::shared_ptr<const Dataset> data,
                     std::vector<std::string> etas, const ObjectiveOptions& options);
   ~PopulationProblem();
@@ -97,6 +97,9 @@ class PopulationProblem {
   const std::vector<std::string>& sigma_names() const;
   int num_subjects() const;
   int num_observations() const;
+  /// Samples censored by a CENS column (below or above DV, the limit). Their likelihood is Beal's
+  /// M3, −2 log Φ(CENS·(DV − f)/√V) in OFV_i, which only the Laplace method takes (as in NONMEM).
+  int num_censored() const;
   const Model& model() const;
   const Dataset& data() const;
   const ObjectiveOptions& options() const;
@@ -193,6 +196,9 @@ struct PopulationRow {
   double wres = 0;   ///< FO weighted residual, C₀^(−½)(y − PRED), C₀ = G₀ΩG₀ᵀ + V₀ at η = 0
   double cwres = 0;  ///< conditional (Hooker 2007): C^(−½)(y − f(η̂) + Gη̂), C = GΩGᵀ + V (V at η̂; at η = 0 for FOCE)
   double iwres = 0;  ///< (y − IPRED)/√V at η̂
+  /// CENS: 1 when the value lies below DV (BLQ), -1 above, 0 for a value. A censored row's
+  /// RES, WRES, CWRES and IWRES are NaN: DV is a limit, not an observation.
+  int censored = 0;
 };
 
 /// The objective at fixed parameters, with every subject's mode.

@@ -128,7 +128,7 @@ void BindSamples(ObjectiveState* d, const std::vector<LogNormalPrior>& priors) {
     if (!r.IsSample()) continue;
     CheckOutputCmt(*d, ode_model, r, dvid_col);
     const bool continuous = cont_col >= 0 && r.extra[cont_col] == 1;
-    const int censored = CheckedCensoring(*d->data, r, cens_col, d->likelihood());
+    const int censored = CheckedCensoring(*d->data, r, cens_col, d->likelihood() || d->options.keep_censored);
     if (continuous) CheckContinuous(*d, r, censored);
     const double w = Weight(*d, r, weight_col);
     if (continuous) {

@@ -8,6 +8,7 @@
 
 #include <Eigen/Cholesky>
 
+#include "censoring.h"
 #include "pk/error.h"
 
 namespace pk {
@@ -44,6 +45,21 @@ bool Variances(const SubjectModel& s, const PopulationPoint& p, const Eigen::Vec
   }
   (void)s;
   return true;
+}
+
+// M3's terms in ∇l and in the scoring matrix. With z = s(y − f)/√V and the inverse Mills ratio
+// m = φ(z)/Φ(z): ∂z/∂η = −s g/√V − z v/(2V), ∇(−2 log Φ(z)) = −2m ∂z/∂η, and since
+// d²(−2 log Φ)/dz² = 2(m² + zm) > 0, ½ of its Gauss–Newton part is (m² + zm) ∂z ∂zᵀ.
+void AddCensoredDerivatives(const SubjectModel& s, const Eigen::ArrayXd& r, const Eigen::ArrayXd& w, Conditional* c) {
+  for (Eigen::Index j = 0; j < r.size(); ++j) {
+    if (s.censoring(j) == 0) continue;
+    const double sign = s.censoring(j), root_w = std::sqrt(w(j)), z = sign * r(j) * root_w;
+    double log_cdf = 0, mills = 0;
+    LogNormalCdf(z, &log_cdf, &mills);
+    const Eigen::VectorXd dz = -sign * root_w * c->g.row(j).transpose() - 0.5 * z * w(j) * c->dv.row(j).transpose();
+    c->gradient -= 2 * mills * dz;
+    c->h += (mills * mills + z * mills) * dz * dz.transpose();
+  }
 }
 
 }  // namespace
@@ -109,7 +125,17 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
     return false;
   }
   const Eigen::ArrayXd r = (s.y - c->f).array(), w = c->variance.array().inverse();
-  c->l = (r * r * w).sum() + c->variance.array().log().sum() + eta.dot(p.omega_inverse * eta);
+  // A censored sample's term is M3's −2 log Φ(z), z = CENS·(y − f)/√V, not the normal one.
+  const bool censored = s.censoring.size() == n && (s.censoring.array() != 0).any();
+  const Eigen::ArrayXd keep =
+      censored ? Eigen::ArrayXd((s.censoring.array() == 0).cast<double>()) : Eigen::ArrayXd::Ones(n);
+  c->l = (keep * (r * r * w + c->variance.array().log())).sum() + eta.dot(p.omega_inverse * eta);
+  for (Eigen::Index j = 0; censored && j < n; ++j) {
+    if (s.censoring(j) == 0) continue;
+    double log_cdf = 0, mills = 0;
+    LogNormalCdf(s.censoring(j) * r(j) * std::sqrt(w(j)), &log_cdf, &mills);
+    c->l -= 2 * log_cdf;
+  }
   if (!std::isfinite(c->l)) {
     *why = "the conditional objective is not finite";
     return false;
@@ -125,11 +151,12 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
   c->g = logs ? Eigen::MatrixXd(c->yhat.cwiseInverse().asDiagonal() * gy) : gy;
   c->dv = dv_dyhat.asDiagonal() * gy;
   c->gradient = 2 * p.omega_inverse * eta;
-  c->gradient -= 2 * c->g.transpose() * (r * w).matrix();
-  c->gradient += c->dv.transpose() * (w - r * r * w * w).matrix();
+  c->gradient -= 2 * c->g.transpose() * (keep * r * w).matrix();
+  c->gradient += c->dv.transpose() * (keep * (w - r * r * w * w)).matrix();
   c->h = p.omega_inverse;
-  c->h += c->g.transpose() * w.matrix().asDiagonal() * c->g;
-  c->h += 0.5 * c->dv.transpose() * (w * w).matrix().asDiagonal() * c->dv;
+  c->h += c->g.transpose() * (keep * w).matrix().asDiagonal() * c->g;
+  c->h += 0.5 * c->dv.transpose() * (keep * w * w).matrix().asDiagonal() * c->dv;
+  if (censored) AddCensoredDerivatives(s, r, w, c);
   return true;
 }
 

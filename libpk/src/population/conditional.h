@@ -32,6 +32,9 @@ struct SubjectModel {
   /// φ = η, a model file's η parameter, which the file's own expressions transform.
   std::vector<bool> eta_log;
   std::vector<int> eta_free;  ///< objective position of each η's φ (the free list)
+  /// Per sample: CENS (0 a value; 1 below DV, the limit; -1 above). A censored sample adds
+  /// −2 log Φ(CENS·(y − f)/√V) to l(η) (Beal's M3).
+  Eigen::VectorXi censoring;
   /// ‖Δη‖∞ at which the mode counts as found: 1e-10 where the predictions are exact to rounding
   /// (Φ/Γ); on the ODE propagator l and ∇l carry the solver's error (about rtol relative), below
   /// which Newton's steps only wander, so 100·rtol there.

@@ -6,7 +6,8 @@
 //   CWRES = C^(−½)(y − f(η̂) + Gη̂),      C = GΩGᵀ + diag V       (at η̂; Hooker et al.,
 //                                                                 Pharm Res 2007;24:2187-2197)
 // with f on the error model's scale (log ŷ for the exponential error) and C^(−½) the symmetric
-// inverse square root. Shrinkage (Savic & Karlsson, AAPS J 2009;11:558-569) uses the sample SD
+// inverse square root. A censored sample (M3) is a limit, not a value: its RES, WRES, CWRES and
+// IWRES are NaN, and C is formed over the values alone. Shrinkage (Savic & Karlsson, AAPS J 2009;11:558-569) uses the sample SD
 // (n − 1) over the subjects whose mode was found, as PsN and Xpose compute it.
 #include <cmath>
 
@@ -37,20 +38,40 @@ double SampleSd(const std::vector<double>& v) {
   return std::sqrt(ss / static_cast<double>(v.size() - 1));
 }
 
+// C^(−½)(y − f + Gη) over the samples that are values (censored ones are limits: NaN there).
+Eigen::VectorXd WeightedResiduals(const SubjectModel& s, const Conditional& c, const Eigen::MatrixXd& omega,
+                                  const Eigen::VectorXd& eta) {
+  const Eigen::Index n = s.y.size();
+  std::vector<Eigen::Index> values;
+  for (Eigen::Index j = 0; j < n; ++j) {
+    if (s.censoring.size() != n || s.censoring(j) == 0) values.push_back(j);
+  }
+  const auto m = static_cast<Eigen::Index>(values.size());
+  Eigen::MatrixXd g(m, omega.rows());
+  Eigen::VectorXd r(m), v(m);
+  for (Eigen::Index k = 0; k < m; ++k) {
+    const Eigen::Index j = values[static_cast<size_t>(k)];
+    g.row(k) = c.g.row(j);
+    r(k) = s.y(j) - c.f(j) + c.g.row(j).dot(eta);
+    v(k) = c.variance(j);
+  }
+  const Eigen::VectorXd w = Whiten(g * omega * g.transpose() + Eigen::MatrixXd(v.asDiagonal()), r);
+  Eigen::VectorXd out = Eigen::VectorXd::Constant(n, std::numeric_limits<double>::quiet_NaN());
+  for (Eigen::Index k = 0; k < m; ++k) out(values[static_cast<size_t>(k)]) = w(k);
+  return out;
+}
+
 void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eigen::MatrixXd& omega, double id,
                  const SubjectMode& m, std::vector<PopulationRow>* rows, std::vector<double>* iwres) {
   Conditional c0;
   std::string why;
-  const bool have0 = EvaluateConditional(s, point, Eigen::VectorXd::Zero(omega.rows()), nullptr, true, &c0, &why);
+  const Eigen::VectorXd zero = Eigen::VectorXd::Zero(omega.rows());
+  const bool have0 = EvaluateConditional(s, point, zero, nullptr, true, &c0, &why);
   const Conditional& c = m.at_mode;
   const Eigen::Index n = s.y.size();
-  Eigen::VectorXd wres = Eigen::VectorXd::Constant(n, std::numeric_limits<double>::quiet_NaN());
-  if (have0) {
-    const Eigen::MatrixXd c0m = c0.g * omega * c0.g.transpose() + Eigen::MatrixXd(c0.variance.asDiagonal());
-    wres = Whiten(c0m, s.y - c0.f);
-  }
-  const Eigen::MatrixXd cm = c.g * omega * c.g.transpose() + Eigen::MatrixXd(c.variance.asDiagonal());
-  const Eigen::VectorXd cwres = Whiten(cm, s.y - c.f + c.g * m.eta);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const Eigen::VectorXd wres = have0 ? WeightedResiduals(s, c0, omega, zero) : Eigen::VectorXd::Constant(n, nan);
+  const Eigen::VectorXd cwres = WeightedResiduals(s, c, omega, m.eta);
   const std::vector<double> times = s.objective->sample_times();
   const std::vector<int> outputs = s.objective->sample_outputs();
   std::vector<double> dsigma(static_cast<size_t>(std::max<Eigen::Index>(point.sigma.size(), 1)));
@@ -60,15 +81,16 @@ void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eige
     r.time = times[static_cast<size_t>(j)];
     r.dv = s.objective->observations()(j);
     r.dvid = outputs[static_cast<size_t>(j)];
-    r.pred = have0 ? c0.yhat(j) : std::numeric_limits<double>::quiet_NaN();
+    r.censored = s.censoring.size() == n ? s.censoring(j) : 0;
+    r.pred = have0 ? c0.yhat(j) : nan;
     r.ipred = c.yhat(j);
-    r.res = have0 ? s.y(j) - c0.f(j) : std::numeric_limits<double>::quiet_NaN();
+    r.res = have0 && r.censored == 0 ? s.y(j) - c0.f(j) : nan;
     r.wres = wres(j);
     r.cwres = cwres(j);
     double v = 0, dv = 0;
     point.error->Variance(c.yhat(j), point.sigma.data(), &v, &dv, dsigma.data());
-    r.iwres = (s.y(j) - c.f(j)) / std::sqrt(v);
-    iwres->push_back(r.iwres);
+    r.iwres = r.censored == 0 ? (s.y(j) - c.f(j)) / std::sqrt(v) : nan;
+    if (r.censored == 0) iwres->push_back(r.iwres);  // ε-shrinkage over values only
     rows->push_back(r);
   }
 }

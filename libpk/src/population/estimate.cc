@@ -25,6 +25,7 @@ namespace pk {
 namespace internal {
 
 void CheckSizes(const PopulationProblem& problem, const PopulationParameters& p);
+void CheckMethod(const PopulationProblem& problem, PopulationMethod method);
 
 PopulationEngine::PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads,
                                    std::shared_ptr<const SubjectDistribution> distribution)
@@ -313,6 +314,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   std::string why;
   if (!options.IsValid(&why)) throw InputError("population options: " + why);
   internal::CheckSizes(problem, initial);
+  internal::CheckMethod(problem, options.method);
   const internal::Packing packing(problem, options.structure, initial);
   internal::PopulationEngine engine(problem, options.method, options.threads, options.distribution);
   PopulationSummary summary;

@@ -141,6 +141,7 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
   ls.error_model = LeastSquares();
   ls.weighting = Weighting::kUniform;
   ls.gradient = GradientRoute::kForward;
+  ls.keep_censored = true;  // M3: the conditional objective forms their likelihood
   const bool logs = options.error_model->log_transformed();
   const bool ode = IntegratesOde(ResolvePropagator(*d.model, options.propagator));
   for (int i = 0; i < static_cast<int>(d.data->subjects.size()); ++i) {
@@ -158,6 +159,8 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
       s.step_tolerance = std::max(1e-10, 100 * options.ode.relative_tolerance);
       s.relative_noise = std::max(1e-10, 10 * options.ode.relative_tolerance);
     }
+    s.censoring = s.objective->censoring();
+    d.num_censored += s.objective->num_censored();
     d.num_observations += static_cast<int>(s.y.size());
     d.subjects.push_back(std::move(s));
   }
@@ -167,6 +170,7 @@ PopulationProblem::~PopulationProblem() = default;
 PopulationProblem::PopulationProblem(PopulationProblem&&) noexcept = default;
 
 const std::vector<std::string>& PopulationProblem::theta_names() const { return impl_->theta_names; }
+int PopulationProblem::num_censored() const { return impl_->num_censored; }
 const std::vector<std::string>& PopulationProblem::eta_names() const { return impl_->eta_names; }
 const std::vector<std::string>& PopulationProblem::sigma_names() const { return impl_->sigma_names; }
 int PopulationProblem::num_subjects() const { return static_cast<int>(impl_->subjects.size()); }
@@ -300,11 +304,21 @@ void CheckSizes(const PopulationProblem& problem, const PopulationParameters& p)
   }
 }
 
+/// Throws pk::InputError when censored samples meet a method other than Laplace.
+void CheckMethod(const PopulationProblem& problem, PopulationMethod method) {
+  if (problem.num_censored() > 0 && method != PopulationMethod::kLaplace) {
+    throw InputError("the data have " + std::to_string(problem.num_censored()) +
+                     " censored samples (CENS): their likelihood (Beal's M3) needs --method laplace, as NONMEM "
+                     "requires LAPLACIAN for it; or give them MDV=1 to leave them out (M1)");
+  }
+}
+
 }  // namespace internal
 
 PopulationEvaluation EvaluatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
                                         PopulationMethod method, int threads) {
   internal::CheckSizes(problem, parameters);
+  internal::CheckMethod(problem, method);
   const auto& d = problem.impl();
   const internal::PopulationPoint point =
       internal::PopulationPoint::Make(parameters, *d.options.error_model, method);

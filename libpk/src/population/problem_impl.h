@@ -21,6 +21,7 @@ struct PopulationProblem::Impl {
   std::vector<bool> eta_log_normal;
   std::vector<internal::SubjectModel> subjects;
   int num_observations = 0;
+  int num_censored = 0;  ///< samples with CENS ≠ 0 (Beal's M3; Laplace only)
 };
 
 }  // namespace pk
