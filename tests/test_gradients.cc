@@ -4,6 +4,7 @@
 #include <catch2/catch.hpp>
 
 #include "pk/catalogue.h"
+#include "pk/model_file.h"
 #include "pk/objective.h"
 #include "test_util.h"
 
@@ -173,4 +174,100 @@ TEST_CASE("companion route refuses what it cannot differentiate", "[gradient][co
   const auto lag = tf.Evaluate(tf.DefaultValues(), {0, tf.ParameterIndex("F1")}, pk::Objective::Need::kGradient,
                                pk::GradientRoute::kCompanion);
   CHECK(!lag.ok);
+}
+
+namespace {
+
+// ∂ŷ/∂p by the forward route (the least-squares residual Jacobian is −∂ŷ/∂p).
+Eigen::MatrixXd PredictionJacobian(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free) {
+  const auto ev = obj.Evaluate(values, free, pk::Objective::Need::kJacobian, pk::GradientRoute::kForward);
+  REQUIRE(ev.ok);
+  return -ev.jacobian.topRows(ev.predictions.size());
+}
+
+// ∂²ŷ/∂p_a∂p_b (column b of ∂J/∂p_a) by central differences of the exact Jacobian at h and h/2,
+// Richardson-extrapolated: error O(h⁴).
+Eigen::MatrixXd JacobianDifferences(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free,
+                                    int a) {
+  Eigen::MatrixXd d[2];
+  for (int level = 0; level < 2; ++level) {
+    const double h = 1e-3 * std::max(std::abs(values(free[static_cast<size_t>(a)])), 0.1) / (1 << level);
+    Eigen::VectorXd plus = values, minus = values;
+    plus(free[static_cast<size_t>(a)]) += h;
+    minus(free[static_cast<size_t>(a)]) -= h;
+    d[level] = (PredictionJacobian(obj, plus, free) - PredictionJacobian(obj, minus, free)) / (2 * h);
+  }
+  return (4 * d[1] - d[0]) / 3;
+}
+
+// A model file with η in its rates (bound as parameters): derived coefficients −CL/V, 1/V.
+const char* const kEtaRates =
+    "$PROBLEM eta_rates  one compartment, oral, log-normal η on CL and V\n"
+    "$PARAM\nTVKA = 1.2\nTVCL = 3\nTVV = 30\n"
+    "$OMEGA\nETA_CL ~ 0.1\nETA_V ~ 0.1\n"
+    "$CMT\nDEPOT dose\nCENTRAL central\n"
+    "$PK\nCL = TVCL * exp(ETA_CL)\nV = TVV * exp(ETA_V)\n"
+    "$ODE\nd/dt(DEPOT) = -TVKA * DEPOT\nd/dt(CENTRAL) = TVKA * DEPOT - CL / V * CENTRAL\n"
+    "$OUTPUT\nCP = CENTRAL / V\n";
+
+}  // namespace
+
+TEST_CASE("exact second derivatives of the predictions agree with differences of the exact Jacobian",
+          "[gradient][second-order]") {
+  std::vector<std::pair<std::string, std::shared_ptr<const pk::Model>>> models;
+  for (const char* name : {"1cmt_iv", "1cmt_oral", "2cmt_oral", "3cmt_iv"}) models.emplace_back(name, pk::MakeModel(name));
+  models.emplace_back("eta_rates.pkm", pk::ParseModel(kEtaRates, "eta_rates.pkm", pk::RandomEffects::kParameters));
+  int compared = 0;
+  for (const auto& [name, model] : models) {
+    for (const Scenario& sc : Scenarios()) {
+      if (!sc.extra_free.empty()) continue;  // F, ALAG, R and D move events: no second order
+      INFO(name << " / " << sc.name);
+      const pk::Objective obj(model, pk_test::ScenarioData(sc), 0, pk::ObjectiveOptions());
+      Eigen::VectorXd values;
+      std::vector<int> free;
+      pk_test::ScenarioValues(obj, sc, &values, &free);
+      for (int i : free) {
+        if (model->is_eta(i)) values(i) = i % 2 ? 0.15 : -0.2;
+      }
+      std::vector<std::pair<int, int>> pairs;
+      const int p = static_cast<int>(free.size());
+      for (int a = 0; a < p; ++a) {
+        for (int b = a; b < p; ++b) pairs.emplace_back(a, b);
+      }
+      std::vector<Eigen::VectorXd> second;
+      std::string why;
+      REQUIRE(obj.SecondDerivatives(values, free, pairs, &second, &why));
+      REQUIRE(second.size() == pairs.size());
+      std::vector<Eigen::MatrixXd> fd;
+      for (int a = 0; a < p; ++a) fd.push_back(JacobianDifferences(obj, values, free, a));
+      for (size_t k = 0; k < pairs.size(); ++k) {
+        const auto [a, b] = pairs[k];
+        const Eigen::VectorXd want = fd[static_cast<size_t>(a)].col(b), other = fd[static_cast<size_t>(b)].col(a);
+        const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-12);
+        INFO("pair " << a << "," << b << "\nexact " << second[k].transpose() << "\nfd    " << want.transpose());
+        CHECK((second[k] - want).cwiseAbs().maxCoeff() / scale < 1e-7);
+        CHECK((second[k] - other).cwiseAbs().maxCoeff() / scale < 1e-7);  // symmetric
+        ++compared;
+      }
+    }
+  }
+  CHECK(compared > 100);
+}
+
+TEST_CASE("exact second derivatives refuse what they cannot differentiate", "[gradient][second-order]") {
+  const Scenario& lag = Scenarios()[7];
+  REQUIRE(std::string(lag.name) == "lag");
+  const pk::Objective obj(pk::MakeModel("1cmt_oral"), pk_test::ScenarioData(lag), 0, pk::ObjectiveOptions());
+  Eigen::VectorXd values;
+  std::vector<int> free;
+  pk_test::ScenarioValues(obj, lag, &values, &free);
+  std::vector<Eigen::VectorXd> second;
+  std::string why;
+  CHECK_FALSE(obj.SecondDerivatives(values, free, {{0, 0}}, &second, &why));  // ALAG1 is free
+  CHECK_THAT(why, Catch::Contains("model parameters only"));
+  pk::ObjectiveOptions ode;
+  ode.propagator = pk::Propagator::kOde;
+  const pk::Objective on_ode(pk::MakeModel("1cmt_oral"), pk_test::ScenarioData(lag), 0, ode);
+  CHECK_FALSE(on_ode.SecondDerivatives(values, {0, 1}, {{0, 1}}, &second, &why));
+  CHECK_THAT(why, Catch::Contains("exact propagator"));
 }

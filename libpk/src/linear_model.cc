@@ -40,7 +40,8 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
       bad("term parameter out of range");
     }
   };
-  if (derived.count < 0 || (derived.count > 0 && (!derived.evaluate || static_cast<int>(derived.reads.size()) != derived.count))) {
+  if (derived.count < 0 || (derived.count > 0 && (!derived.evaluate || !derived.evaluate_second ||
+                                                   static_cast<int>(derived.reads.size()) != derived.count))) {
     bad("derived coefficients need a function and the parameters each reads");
   }
   for (const auto& reads : derived.reads) {

@@ -60,6 +60,11 @@ struct DerivedCoefficients {
   std::function<void(const Eigen::VectorXd& theta, Eigen::VectorXd* psi, Eigen::MatrixXd* jacobian)> evaluate;
   /// The parameters each ψ_k reads, whatever θ is (a derivative that vanishes at one θ may not at another).
   std::vector<std::vector<int>> reads;
+  /// Along two directions u and v of θ: ψ, ∂ψ·u, ∂ψ·v and ∂²ψ[u, v] (the second-order
+  /// sensitivities need the last). Every output is resized here.
+  std::function<void(const Eigen::VectorXd& theta, const Eigen::VectorXd& u, const Eigen::VectorXd& v,
+                     Eigen::VectorXd* psi, Eigen::VectorXd* psi_u, Eigen::VectorXd* psi_v, Eigen::VectorXd* psi_uv)>
+      evaluate_second;
 };
 
 class LinearModel final : public Model {

@@ -41,6 +41,7 @@
 
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -198,6 +199,15 @@ class Objective {
   /// The same with an explicit route (overriding options().gradient).
   Evaluation Evaluate(const Eigen::VectorXd& values, const std::vector<int>& free, Need need,
                       GradientRoute route) const;
+
+  /// Exact second derivatives of the predictions: (*second)[i] = ∂²ŷ/∂p_a∂p_b over the samples
+  /// for pairs[i] = (a, b), positions in `free`. A linear model on the exact propagator, and model
+  /// parameters only (none of F, ALAG, R, D or σ): the state's second derivatives run through the
+  /// block-triangular exponential as the first ones do (docs/gradients.md). False, with `why`,
+  /// otherwise (the ODE routes have no second order) or on numerical failure.
+  bool SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
+                         const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
+                         std::string* why) const;
 
   /// Throws pk::InputError (file, line, column) when a dose needs a modifier
   /// these values do not supply or supply out of range (R<n>, D<n>, F<n>, ALAG<n>).

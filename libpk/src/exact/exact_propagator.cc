@@ -9,7 +9,7 @@ namespace internal {
 
 ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eigen::VectorXd>& sets,
                                  bool track_auc)
-    : model_(model), n_(model.num_compartments()), track_auc_(track_auc) {
+    : n_(model.num_compartments()), track_auc_(track_auc) {
   const int big_n = n_ + (track_auc ? 1 : 0);
   cache_.resize(sets.size());
   for (size_t s = 0; s < sets.size(); ++s) {
@@ -22,6 +22,15 @@ ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eig
     cache_[s].reset(new Discretization(a, n_));
   }
   x_ = Eigen::VectorXd::Zero(big_n);
+}
+
+ExactPropagator::ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in)
+    : n_(matrices.empty() ? n_in : static_cast<int>(matrices.front().rows())), track_auc_(false) {
+  for (const Eigen::MatrixXd& a : matrices) {
+    if (!a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
+    cache_.emplace_back(new Discretization(a, n_in));
+  }
+  x_ = Eigen::VectorXd::Zero(n_);
 }
 
 void ExactPropagator::Advance(double h, const Eigen::VectorXd& rate, int set) {
@@ -72,7 +81,9 @@ void ExactPropagator::SteadyInfusion(const Eigen::VectorXd& rate, int set, bool 
   if (!(lu.rcond() > 1e-13)) {
     throw NumericalFailure("no steady state for a constant infusion: some compartment has no elimination");
   }
-  const Eigen::VectorXd z = lu.solve(-rate);
+  Eigen::VectorXd u = Eigen::VectorXd::Zero(n_);  // the rates enter the first states
+  u.head(rate.size()) = rate;
+  const Eigen::VectorXd z = lu.solve(-u);
   if (add) {
     x_.head(n_) += z;
   } else {

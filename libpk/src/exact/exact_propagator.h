@@ -30,6 +30,10 @@ class ExactPropagator {
  public:
   /// `sets` are full ParameterLayout vectors; only the model part is used here.
   ExactPropagator(const LinearModel& model, const std::vector<Eigen::VectorXd>& sets, bool track_auc);
+  /// An augmented linear system, given by its matrix per set: rates and doses enter its first
+  /// `n_in` states (the model's amounts); a reset clears every state, and a steady state solves for
+  /// all of them (the second-order sensitivities of exact/second_order.h propagate this way).
+  ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in);
 
   // The EventEngine visitor interface (see events.h).
   void Advance(double h, const Eigen::VectorXd& rate, int set);
@@ -50,8 +54,7 @@ class ExactPropagator {
     return cache_[set]->Get(h, !rate.isZero(0.0));
   }
 
-  const LinearModel& model_;
-  const int n_;
+  const int n_;  // the states a reset clears and a steady state solves for
   const bool track_auc_;
   std::vector<std::unique_ptr<Discretization>> cache_;
   Eigen::VectorXd x_;

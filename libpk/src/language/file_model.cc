@@ -5,6 +5,7 @@
 #include <sstream>
 #include <utility>
 
+#include "hyper_dual_number.h"
 #include "language/analysis.h"
 #include "language/expression.h"
 #include "pk/error.h"
@@ -85,6 +86,23 @@ DerivedCoefficients Coefficients(const CompiledModel& m, int n) {
       const Dual& v = out[static_cast<size_t>(k)];
       (*psi)(k) = v.value();
       if (v.derivatives().size() == p) jacobian->row(k) = v.derivatives().transpose();
+    }
+  };
+  derived.evaluate_second = [program, n](const Eigen::VectorXd& theta, const Eigen::VectorXd& u,
+                                         const Eigen::VectorXd& v, Eigen::VectorXd* psi, Eigen::VectorXd* psi_u,
+                                         Eigen::VectorXd* psi_v, Eigen::VectorXd* psi_uv) {
+    using internal::HyperDualNumber;
+    const Eigen::Index p = theta.size(), q = program->num_roots();
+    thread_local std::vector<HyperDualNumber> seeded, out, zeros;
+    seeded.resize(static_cast<size_t>(p));
+    for (Eigen::Index j = 0; j < p; ++j) seeded[static_cast<size_t>(j)] = HyperDualNumber(theta(j), u(j), v(j), 0);
+    zeros.assign(static_cast<size_t>(n), HyperDualNumber(0.0));
+    out.resize(static_cast<size_t>(q));
+    program->Run<HyperDualNumber>(zeros.data(), seeded.data(), out.data(), &Slots<HyperDualNumber>());
+    psi->resize(q), psi_u->resize(q), psi_v->resize(q), psi_uv->resize(q);
+    for (Eigen::Index k = 0; k < q; ++k) {
+      const HyperDualNumber& x = out[static_cast<size_t>(k)];
+      (*psi)(k) = x.value(), (*psi_u)(k) = x.e1(), (*psi_v)(k) = x.e2(), (*psi_uv)(k) = x.e12();
     }
   };
   return derived;

@@ -87,21 +87,6 @@ bool PredictModal(const ObjectiveState& d, const Eigen::VectorXd& values, const 
   return true;
 }
 
-// Each parameter set with the free layout parameters seeded as dual numbers (those a data
-// column supplies stay constant).
-std::vector<DualVector> DualSets(const PreparedSubject& s, int layout_size, const FreeParameters& free) {
-  const int pm = free.num_model();
-  const std::vector<int>& model_free = free.model();
-  std::vector<DualVector> sets(s.sets.size());
-  for (size_t k = 0; k < s.sets.size(); ++k) {
-    sets[k].resize(layout_size);
-    for (int i = 0; i < layout_size; ++i) sets[k](i) = Dual(s.sets[k](i));
-    for (int a = 0; a < pm; ++a) {
-      if (!s.from_data[k][model_free[a]]) sets[k](model_free[a]) = Dual(s.sets[k](model_free[a]), pm, a);
-    }
-  }
-  return sets;
-}
 
 // tf<n> models: the two companion filters give ∂ŷ/∂a_i and ∂ŷ/∂b_i (layout entries 0..2n−1).
 void PredictCompanion(const ObjectiveState& d, const PreparedSubject& s, const FreeParameters& free,
@@ -187,6 +172,22 @@ bool Failed(const std::string& why, Objective::Evaluation* ev) {
 }
 
 }  // namespace
+
+// Each parameter set with the free layout parameters seeded as dual numbers (those a data
+// column supplies stay constant).
+std::vector<DualVector> DualSets(const PreparedSubject& s, int layout_size, const FreeParameters& free) {
+  const int pm = free.num_model();
+  const std::vector<int>& model_free = free.model();
+  std::vector<DualVector> sets(s.sets.size());
+  for (size_t k = 0; k < s.sets.size(); ++k) {
+    sets[k].resize(layout_size);
+    for (int i = 0; i < layout_size; ++i) sets[k](i) = Dual(s.sets[k](i));
+    for (int a = 0; a < pm; ++a) {
+      if (!s.from_data[k][model_free[a]]) sets[k](model_free[a]) = Dual(s.sets[k](model_free[a]), pm, a);
+    }
+  }
+  return sets;
+}
 
 bool Predict(const ObjectiveState& d, const Eigen::VectorXd& values, const FreeParameters& free,
              Objective::Need need, GradientRoute route, Prediction* out, Objective::Evaluation* ev) {

@@ -53,6 +53,10 @@ struct Prediction {
                      Objective::Evaluation* ev);
 };
 
+/// Each parameter set with the free model parameters seeded as pk::Dual derivatives (those a
+/// data column supplies stay constant).
+std::vector<DualVector> DualSets(const PreparedSubject& s, int layout_size, const FreeParameters& free);
+
 /// ŷ into ev->predictions (emptied on failure, with ev->ok false and the message), and what
 /// `route` needs for derivatives into `out`. Sets ev->modal and ev->ode_statistics.
 bool Predict(const ObjectiveState& d, const Eigen::VectorXd& values, const FreeParameters& free,

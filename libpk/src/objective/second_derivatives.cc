@@ -1,0 +1,50 @@
+// Objective::SecondDerivatives: exact ∂²ŷ/∂p_a∂p_b on the exact propagator (exact/second_order.h).
+#include "exact/second_order.h"
+#include "numerical_failure.h"
+#include "objective/prediction.h"
+#include "pk/objective.h"
+
+namespace pk {
+
+bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
+                                  const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
+                                  std::string* why) const {
+  const internal::ObjectiveState& d = *impl_;
+  if (d.linear == nullptr || IntegratesOde(d.propagator)) {
+    *why = "exact second derivatives need a linear model on the exact propagator";
+    return false;
+  }
+  const int m = d.model->num_parameters();
+  for (const int i : free) {
+    if (i < 0 || i >= m) {
+      *why = "exact second derivatives are taken in model parameters only (not F, ALAG, R, D or σ)";
+      return false;
+    }
+  }
+  for (const auto& ab : pairs) {
+    const int p = static_cast<int>(free.size());
+    if (ab.first < 0 || ab.first >= p || ab.second < 0 || ab.second >= p) {
+      *why = "a pair names a position outside the free list";
+      return false;
+    }
+  }
+  const internal::FreeParameters fp(free, d.L());
+  internal::PreparedSubject s = d.prepared;
+  internal::RebindParameters(d.layout, values.head(d.L()), &s);
+  try {
+    internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.L(), fp), fp.num_model(), pairs,
+                                       second);
+  } catch (const internal::NumericalFailure& e) {
+    *why = e.what();
+    return false;
+  }
+  for (const Eigen::VectorXd& v : *second) {
+    if (!v.allFinite()) {
+      *why = "a second derivative is not finite";
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace pk
