@@ -1,10 +1,16 @@
 #include "second_order.h"
 
+#include <algorithm>
+#include <cmath>
 #include <map>
+
+#include <unsupported/Eigen/MatrixFunctions>
 
 #include "../hyper_dual_number.h"
 #include "exact_propagator.h"
 #include "exact_routes.h"
+#include "modal.h"
+#include "modal_evaluator.h"
 
 namespace pk {
 namespace internal {
@@ -124,12 +130,264 @@ class SecondOrderVisitor {
   std::map<std::pair<int, int>, Parts> outputs_;  // (set, cmt) → C and its derivatives
 };
 
+// ---------------------------------------------------------------------------
+// In eigen-coordinates. When A = VΛW (W = V⁻¹) is real and well conditioned (modal.h), the four
+// blocks of e^{Mh} come from the Daleckii–Krein formula one order up: for φ = exp(h·) (Φ) and
+// φ = f[·, 0] (Γ), with B_k = W A_k V and the divided differences φ[λ_i, λ_j], φ[λ_i, λ_m, λ_j],
+//   ∂φ(A)/∂p_k      = V (φ[λ_i, λ_j] ∘ B_k) W,
+//   ∂²φ(A)/∂p_k∂p_l = V (φ[λ_i, λ_j] ∘ B_kl + Σ_m φ[λ_i, λ_m, λ_j] ((B_k)_im (B_l)_mj + (B_l)_im (B_k)_mj)) W.
+// The decomposition and the divided differences of each step serve every pair, and a step costs
+// O(n³) arithmetic instead of an exponential of M (4n states). Steady states keep the M path.
+
+// f[a, b, c] for f(x) = e^{hx}: shifted by the largest point (f[a, b, c] = e^{hc₀} f[a − c₀, b − c₀,
+// c − c₀]), which puts a 0 among the points and keeps every exponential at most 1.
+double DividedExp3General(double a, double b, double c, double h) {
+  double x[3] = {a, b, c};
+  std::sort(x, x + 3);
+  const double top = x[2], p = x[0] - top, q = x[1] - top;
+  return std::exp(h * top) * DividedExp3(p, q, std::exp(h * p), std::exp(h * q), h);
+}
+
+// f[a, b, c, 0]: close points (all within 0.5/h) from the exponential of the bidiagonal matrix
+// whose top-right entry it is (Opitz); otherwise the recurrence on the two farthest points.
+double DividedExp4(double a, double b, double c, double h) {
+  const double x[4] = {a, b, c, 0.0};
+  const double lo = *std::min_element(x, x + 4), hi = *std::max_element(x, x + 4);
+  if ((hi - lo) * h < 0.5) {
+    Eigen::Matrix4d j = Eigen::Matrix4d::Zero();
+    for (int i = 0; i < 4; ++i) j(i, i) = h * x[i];
+    for (int i = 0; i < 3; ++i) j(i, i + 1) = h;
+    return j.exp()(0, 3);
+  }
+  int u = 0, v = 1;
+  for (int i = 0; i < 4; ++i) {
+    for (int k = i + 1; k < 4; ++k) {
+      if (std::fabs(x[i] - x[k]) > std::fabs(x[u] - x[v])) u = i, v = k;
+    }
+  }
+  double without_u[3], without_v[3];
+  for (int i = 0, a_at = 0, b_at = 0; i < 4; ++i) {
+    if (i != u) without_u[a_at++] = x[i];
+    if (i != v) without_v[b_at++] = x[i];
+  }
+  const double fu = DividedExp3General(without_v[0], without_v[1], without_v[2], h);  // holds x[u]
+  const double fv = DividedExp3General(without_u[0], without_u[1], without_u[2], h);  // holds x[v]
+  return (fu - fv) / (x[u] - x[v]);
+}
+
+// Up to 6 states on the stack: a step allocates nothing.
+using SVec = modal_detail::SmallVec;
+using SMat = modal_detail::SmallMat;
+constexpr int kMaxModalStates = 6;
+
+// A decomposition of one set's A and its steps' divided differences, shared by every pair.
+struct ModalSet {
+  SVec lambda;
+  SMat v, w;
+  struct Step {
+    SVec e, g0;                   // e^{λh}, f[λ, 0]
+    SMat d1, g1;                  // f[λ_i, λ_j], f[λ_i, λ_j, 0]
+    std::vector<double> d2, g2;   // f[λ_i, λ_m, λ_j], f[λ_i, λ_m, λ_j, 0] at (i·n + m)·n + j
+    bool input = false;           // whether g0, g1 and g2 are there
+  };
+  std::vector<std::pair<double, Step>> steps;
+
+  const Step& Get(double h, bool input) {
+    for (auto& s : steps) {
+      if (s.first == h && (s.second.input || !input)) return s.second;
+    }
+    const auto n = lambda.size();
+    Step st;
+    st.e = (lambda * h).array().exp();
+    st.d1.resize(n, n);
+    st.d2.resize(static_cast<size_t>(n * n * n));
+    for (Eigen::Index i = 0; i < n; ++i) {
+      for (Eigen::Index j = 0; j < n; ++j) {
+        st.d1(i, j) = DividedExp2(lambda(i), lambda(j), st.e(i), st.e(j), h);
+        for (Eigen::Index m = 0; m < n; ++m) {
+          st.d2[static_cast<size_t>((i * n + m) * n + j)] = DividedExp3General(lambda(i), lambda(m), lambda(j), h);
+        }
+      }
+    }
+    if (input) {
+      st.input = true;
+      st.g0.resize(n);
+      st.g1.resize(n, n);
+      st.g2.resize(st.d2.size());
+      for (Eigen::Index i = 0; i < n; ++i) {
+        st.g0(i) = DividedExp2(lambda(i), 0, st.e(i), 1, h);
+        for (Eigen::Index j = 0; j < n; ++j) {
+          st.g1(i, j) = DividedExp3(lambda(i), lambda(j), st.e(i), st.e(j), h);
+          for (Eigen::Index m = 0; m < n; ++m) {
+            st.g2[static_cast<size_t>((i * n + m) * n + j)] = DividedExp4(lambda(i), lambda(m), lambda(j), h);
+          }
+        }
+      }
+    }
+    // Replace an entry of the same h without the input parts rather than keep both.
+    for (auto& s : steps) {
+      if (s.first == h) {
+        s.second = std::move(st);
+        return s.second;
+      }
+    }
+    steps.emplace_back(h, std::move(st));
+    return steps.back().second;
+  }
+};
+
+// (D ∘ B_kl) + Σ_m D2_imj ((B_k)_im (B_l)_mj + (B_l)_im (B_k)_mj): the second-order block.
+SMat SecondBlock(const SMat& d1, const std::vector<double>& d2, const SMat& bk, const SMat& bl, const SMat& bkl) {
+  const auto n = bk.rows();
+  SMat out = d1.cwiseProduct(bkl);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    for (Eigen::Index j = 0; j < n; ++j) {
+      double sum = 0;
+      for (Eigen::Index m = 0; m < n; ++m) {
+        sum += d2[static_cast<size_t>((i * n + m) * n + j)] * (bk(i, m) * bl(m, j) + bl(i, m) * bk(m, j));
+      }
+      out(i, j) += sum;
+    }
+  }
+  return out;
+}
+
+// The event engine's visitor for one pair in eigen-coordinates (no steady states). The state
+// stays in the model's coordinates (parameter sets may change between steps); a step moves it to
+// the set's eigen-coordinates and back.
+class ModalSecondOrderVisitor {
+ public:
+  ModalSecondOrderVisitor(const LinearModel& model, const PreparedSubject& s, const std::vector<DualVector>& sets,
+                          int num_free, int k, int l, std::vector<ModalSet>* modal, Eigen::VectorXd* out)
+      : model_(model), s_(s), n_(model.num_compartments()), modal_(modal), out_(out) {
+    for (size_t i = 0; i < sets.size(); ++i) {
+      extended_.push_back(Extended(model, sets[i], num_free, k, l));
+      const Parts a = Sum(model.system_terms(), extended_.back(), n_, n_);
+      const ModalSet& m = (*modal)[i];
+      PerSet p;
+      p.bk = m.w * SMat(a.dk) * m.v, p.bl = m.w * SMat(a.dl) * m.v, p.bkl = m.w * SMat(a.dkl) * m.v;
+      per_set_.push_back(std::move(p));
+    }
+    x_ = sk_ = sl_ = w_ = SVec::Zero(n_);
+    int count = 0;
+    sample_ = SampleIndex(s, &count);
+    out->setZero(count);
+  }
+  void Advance(double h, const Eigen::VectorXd& u, int set) {
+    ModalSet& m = (*modal_)[static_cast<size_t>(set)];
+    const bool input = !u.isZero(0.0);
+    const Blocks& b = GetBlocks(set, h, input);
+    const SVec x = m.w * x_, sk = m.w * sk_, sl = m.w * sl_, w = m.w * w_;
+    SVec nx = b.e.cwiseProduct(x);
+    SVec nsk = b.e.cwiseProduct(sk) + b.pk * x;
+    SVec nsl = b.e.cwiseProduct(sl) + b.pl * x;
+    SVec nw = b.e.cwiseProduct(w) + b.pl * sk + b.pk * sl + b.pkl * x;
+    if (input) {
+      const SVec uh = m.w * SVec(u.head(n_));
+      nx += b.g0.cwiseProduct(uh);
+      nsk += b.gk * uh;
+      nsl += b.gl * uh;
+      nw += b.gkl * uh;
+    }
+    x_ = m.v * nx, sk_ = m.v * nsk, sl_ = m.v * nsl, w_ = m.v * nw;
+  }
+  void Bolus(int cmt, double amount, int) { x_(cmt) += amount; }
+  void Reset() { x_.setZero(), sk_.setZero(), sl_.setZero(), w_.setZero(); }
+  void SteadyState(const SteadyStateCycle<double>&, int, bool) { throw NumericalFailure("steady state"); }
+  void SteadyInfusion(const Eigen::VectorXd&, int, bool) { throw NumericalFailure("steady state"); }
+  void DoseEntered(double, int) {}
+  void RecordDone(int r, int set) {
+    const int k = sample_[static_cast<size_t>(r)];
+    if (k < 0) return;
+    const int cmt = s_.cmt[static_cast<size_t>(r)] + 1;
+    auto it = outputs_.find({set, cmt});
+    if (it == outputs_.end()) {
+      it = outputs_.emplace(std::make_pair(set, cmt), Sum(model_.output_terms(cmt), extended_[static_cast<size_t>(set)], 1, n_))
+               .first;
+    }
+    const Parts& c = it->second;
+    (*out_)(k) = c.value.row(0).dot(w_) + c.dk.row(0).dot(sl_) + c.dl.row(0).dot(sk_) + c.dkl.row(0).dot(x_);
+  }
+
+ private:
+  // One step's blocks in eigen-coordinates for this pair: e^{Λh}, D₁∘B_k, D₁∘B_l and the second-order
+  // block, and with input their Γ counterparts.
+  struct Blocks {
+    double h = 0;
+    bool input = false;
+    SVec e, g0;
+    SMat pk, pl, pkl, gk, gl, gkl;
+  };
+  struct PerSet {
+    SMat bk, bl, bkl;  // W A_k V, W A_l V, W A_kl V
+    std::vector<Blocks> steps;
+  };
+
+  const Blocks& GetBlocks(int set, double h, bool input) {
+    PerSet& p = per_set_[static_cast<size_t>(set)];
+    for (const Blocks& b : p.steps) {
+      if (b.h == h && (b.input || !input)) return b;
+    }
+    const ModalSet::Step& st = (*modal_)[static_cast<size_t>(set)].Get(h, input);
+    Blocks b;
+    b.h = h;
+    b.input = input;
+    b.e = st.e;
+    b.pk = st.d1.cwiseProduct(p.bk), b.pl = st.d1.cwiseProduct(p.bl), b.pkl = SecondBlock(st.d1, st.d2, p.bk, p.bl, p.bkl);
+    if (input) {
+      b.g0 = st.g0;
+      b.gk = st.g1.cwiseProduct(p.bk), b.gl = st.g1.cwiseProduct(p.bl), b.gkl = SecondBlock(st.g1, st.g2, p.bk, p.bl, p.bkl);
+    }
+    p.steps.push_back(std::move(b));
+    return p.steps.back();
+  }
+
+  const LinearModel& model_;
+  const PreparedSubject& s_;
+  const int n_;
+  std::vector<ModalSet>* modal_;
+  Eigen::VectorXd* out_;
+  std::vector<std::vector<HD>> extended_;
+  std::vector<PerSet> per_set_;
+  SVec x_, sk_, sl_, w_;
+  std::vector<int> sample_;
+  std::map<std::pair<int, int>, Parts> outputs_;
+};
+
+// The sets' decompositions, or false when one is unsuitable, A is larger than the stack matrices,
+// or the subject has a steady state.
+bool Decompositions(const LinearModel& model, const PreparedSubject& subject, const std::vector<DualVector>& sets,
+                    std::vector<ModalSet>* modal) {
+  if (model.num_compartments() > kMaxModalStates) return false;
+  for (const Record& r : subject.records()) {
+    if (r.ss != 0) return false;
+  }
+  for (const DualVector& set : sets) {
+    ModalSet m;
+    const SMat a = model.SystemMatrix<double>(Values(set, model.num_parameters()));
+    if (!a.allFinite() || !modal_detail::Decompose(a, &m.lambda, &m.v, &m.w)) return false;
+    modal->push_back(std::move(m));
+  }
+  return true;
+}
+
 }  // namespace
 
 void SecondOrderSensitivities(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
                               const std::vector<DualVector>& sets, int num_free,
-                              const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* out) {
+                              const std::vector<std::pair<int, int>>& pairs, bool eigen_coordinates,
+                              std::vector<Eigen::VectorXd>* out) {
   out->assign(pairs.size(), Eigen::VectorXd());
+  std::vector<ModalSet> modal;
+  if (eigen_coordinates && Decompositions(model, subject, sets, &modal)) {
+    for (size_t i = 0; i < pairs.size(); ++i) {
+      ModalSecondOrderVisitor visitor(model, subject, sets, num_free, pairs[i].first, pairs[i].second, &modal,
+                                      &(*out)[i]);
+      EventEngine<double, ModalSecondOrderVisitor> engine(subject, layout, subject.sets, &visitor);
+      engine.Run();
+    }
+    return;
+  }
   for (size_t i = 0; i < pairs.size(); ++i) {
     SecondOrderVisitor visitor(model, subject, sets, num_free, pairs[i].first, pairs[i].second, &(*out)[i]);
     EventEngine<double, SecondOrderVisitor> engine(subject, layout, subject.sets, &visitor);

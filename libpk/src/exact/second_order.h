@@ -41,11 +41,15 @@ namespace pk {
 namespace internal {
 
 /// (*out)[i] = ∂²ŷ/∂p_k∂p_l over the samples, in record order, for pairs[i] = (k, l) (indices
-/// into the free parameters, which `sets` seed as pk::Dual derivatives). Throws NumericalFailure on
-/// numerical trouble. The events must not depend on p.
+/// into the free parameters, which `sets` seed as pk::Dual derivatives). With
+/// `eigen_coordinates`, subjects without steady states whose A is real-diagonalisable and well
+/// conditioned (modal.h) take the Daleckii–Krein form of M's exponential (second_order.cc);
+/// the others, and all without it, take e^{Mh} itself. Throws NumericalFailure on numerical
+/// trouble. The events must not depend on p.
 void SecondOrderSensitivities(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
                               const std::vector<DualVector>& sets, int num_free,
-                              const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* out);
+                              const std::vector<std::pair<int, int>>& pairs, bool eigen_coordinates,
+                              std::vector<Eigen::VectorXd>* out);
 
 }  // namespace internal
 }  // namespace pk

@@ -33,7 +33,7 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
   internal::RebindParameters(d.layout, values.head(d.L()), &s);
   try {
     internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.L(), fp), fp.num_model(), pairs,
-                                       second);
+                                       d.options.modal_propagation, second);
   } catch (const internal::NumericalFailure& e) {
     *why = e.what();
     return false;

@@ -9,9 +9,9 @@
 // replaced by its second-order Taylor model about φ̂ = φ(η̂), which has the same value, gradient
 // and Hessian there, and l and L are evaluated on HyperDual in z = (η, x): ∇²l and ∇L are then
 // exact given ŷ's first and second derivatives. The first derivatives J = ∂ŷ/∂φ are the exact
-// forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are central differences of J,
-// Richardson-extrapolated (error ~1e-10 relative on the exact propagator): the one place a finite
-// difference of the predictions remains (and the variance's second derivatives, below).
+// forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are exact too on Φ/Γ: the
+// second-order sensitivities of exact/second_order.h. On the ODE propagator (where the implicit
+// gradient is not the default) they are central differences of J, Richardson-extrapolated.
 // The residual variance v(ŷ, σ) enters by its own second-order Taylor model, its second
 // derivatives differences of its exact first ones.
 #include "population/outer_gradient.h"
@@ -44,10 +44,37 @@ bool Sensitivities(const SubjectModel& s, const Eigen::VectorXd& phi, Eigen::Vec
   return true;
 }
 
-// T[j](k, l) = ∂²ŷ_j/∂φ_k∂φ_l for k or l η'd (others 0). The step is relative to φ_k, or for
-// a file's η parameter (φ = η, near 0) to the η's prior scale 1/√(Ω⁻¹)_mm.
-bool SecondOrder(const SubjectModel& s, const PopulationPoint& point, const Eigen::VectorXd& phi,
-                 std::vector<Eigen::MatrixXd>* t, std::string* why) {
+// T[j](k, l) = ∂²ŷ_j/∂φ_k∂φ_l for k or l η'd (others 0), exact: the block-triangular exponential
+// of the second-order sensitivities (Objective::SecondDerivatives). False when the subject's
+// route has none (the ODE propagator), with `why`.
+bool ExactSecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<Eigen::MatrixXd>* t,
+                      std::string* why) {
+  const auto p = static_cast<int>(s.phi_index.size());
+  std::vector<bool> etad(static_cast<size_t>(p), false);
+  for (int k : s.eta_phi) etad[static_cast<size_t>(k)] = true;
+  std::vector<std::pair<int, int>> pairs;
+  for (int k : s.eta_phi) {
+    for (int l = 0; l < p; ++l) {
+      if (!etad[static_cast<size_t>(l)] || l >= k) pairs.emplace_back(k, l);  // a pair of η'd φ once
+    }
+  }
+  std::vector<Eigen::VectorXd> second;
+  if (!s.objective->SecondDerivatives(phi, s.phi_index, pairs, &second, why)) return false;
+  const Eigen::Index n = second.empty() ? 0 : second.front().size();
+  t->assign(static_cast<size_t>(n), Eigen::MatrixXd::Zero(p, p));
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const auto [k, l] = pairs[i];
+    for (Eigen::Index j = 0; j < n; ++j) (*t)[static_cast<size_t>(j)](k, l) = (*t)[static_cast<size_t>(j)](l, k) = second[i](j);
+  }
+  return true;
+}
+
+// T as above by Richardson-extrapolated central differences of the exact first-order
+// sensitivities, where no exact second order exists (the ODE propagator, whose implicit gradient
+// is not the default). The step is relative to φ_k, or for a file's η parameter (φ = η, near 0) to
+// the η's prior scale 1/√(Ω⁻¹)_mm.
+bool SecondOrderByDifferences(const SubjectModel& s, const PopulationPoint& point, const Eigen::VectorXd& phi,
+                              std::vector<Eigen::MatrixXd>* t, std::string* why) {
   const auto p = static_cast<Eigen::Index>(s.phi_index.size());
   Eigen::VectorXd y;
   Eigen::MatrixXd jp, jm, d[2];
@@ -163,7 +190,11 @@ struct Expansion {
 bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta, bool foce, Expansion* e,
             std::string* why) {
   e->phi0 = IndividualValues(s, p, eta);
-  if (!Sensitivities(s, e->phi0, &e->y0, &e->j0, why) || !SecondOrder(s, p, e->phi0, &e->t, why)) return false;
+  if (!Sensitivities(s, e->phi0, &e->y0, &e->j0, why)) return false;
+  std::string no_exact;
+  if (!ExactSecondOrder(s, e->phi0, &e->t, &no_exact) && !SecondOrderByDifferences(s, p, e->phi0, &e->t, why)) {
+    return false;
+  }
   e->phi00 = IndividualValues(s, p, Eigen::VectorXd::Zero(eta.size()));
   if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) return false;
   const auto np = static_cast<Eigen::Index>(s.phi_index.size());
