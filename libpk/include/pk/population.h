@@ -129,8 +129,9 @@ enum class PopulationGradient {
   /// and on the ODE propagator, whose sensitivities are not yet accurate enough to difference.
   kAuto,
   /// By the implicit function theorem on each subject's conditional mode (Almquist et al. 2015):
-  /// exact first-order sensitivities of the predictions; their second derivatives in the η'd
-  /// parameters are Richardson-extrapolated differences of the exact first ones. FOCE and FOCEI.
+  /// exact first- and second-order sensitivities of the predictions on Φ/Γ (on the ODE
+  /// propagator the second order is Richardson-extrapolated differences of the exact first).
+  /// FOCE and FOCEI.
   kImplicit,
   /// Central differences of the OFV, the subjects' searches started from the centre's modes
   /// (what NONMEM does). Any method; the check on the others.
