@@ -841,6 +841,36 @@ TEST_CASE("a model file's $OMEGA block gives Ω's structure, covariances and FIX
   CHECK(fit.parameters.theta(0) != fixed.DefaultParameters().theta(0));
 }
 
+TEST_CASE("a model file's θ bounds hold in a population fit, as NONMEM's $THETA (low, init, up)",
+          "[population][model-file]") {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
+  REQUIRE(in.good());
+  std::stringstream text;
+  text << in.rdbuf();
+  std::string bounded = text.str();
+  const std::string apgv = "APGV = 0.1  (-0.99, 5)";
+  const size_t at = bounded.find(apgv);
+  REQUIRE(at != std::string::npos);
+  // The unbounded optimum is APGV = 0.159 (NONMEM's 0.15892): an upper bound of 0.12 binds.
+  bounded.replace(at, apgv.size(), "APGV = 0.05  (-0.99, 0.12)");
+  const pk::PopulationProblem problem = FileProblem(bounded, "proportional", 1e-8);
+  pk::PopulationOptions options;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, problem.DefaultParameters(), options);
+  INFO(fit.message);
+  const double estimate = fit.parameters.theta(2);
+  CHECK(estimate < 0.12);
+  CHECK(estimate > 0.119);
+  CHECK(fit.estimates[2].name == "APGV");
+  CHECK(fit.estimates[2].at_boundary);
+  CHECK_FALSE(fit.estimates[0].at_boundary);
+  CHECK(fit.ofv > 586.27605628 + 1e-3);  // constrained: above NONMEM's unconstrained optimum
+  // A start outside the bounds is refused, naming them.
+  pk::PopulationParameters outside = problem.DefaultParameters();
+  outside.theta(2) = 0.2;
+  CHECK_THROWS_WITH(pk::FitPopulation(problem, outside, options), Catch::Contains("strictly within its bounds"));
+}
+
 TEST_CASE("the outer gradient holds for a model file's additive η on the exact propagator",
           "[population][model-file]") {
   // k_i = CL/V + η_k: a sum of c·θa/θb terms, so the file stays linear (Φ/Γ) with its η bound,

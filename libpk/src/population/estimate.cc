@@ -351,6 +351,10 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
     e.fixed = packing.natural_fixed()[k];
     summary.estimates.push_back(e);
   }
+  for (size_t k = 0; k < static_cast<size_t>(summary.parameters.theta.size()); ++k) {
+    PopulationEstimate& e = summary.estimates[k];  // the θ come first
+    e.at_boundary = !e.fixed && packing.NearThetaBound(k, e.estimate);
+  }
   const std::vector<int>& variances = packing.variance_positions();
   for (size_t m = 0; m < variances.size(); ++m) {
     auto& e = summary.estimates[static_cast<size_t>(variances[m])];

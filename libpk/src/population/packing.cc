@@ -39,6 +39,18 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
     if (!std::isfinite(v) || (theta_log_.back() && !(v > 0))) {
       throw InputError("the initial " + d.theta_names[k] + " must be positive, got " + Num(v));
     }
+    const auto& declared = d.model->declarations().parameters;
+    const size_t i = static_cast<size_t>(d.theta_model_index[k]);
+    theta_lower_.push_back(i < declared.size() ? declared[i].lower : -HUGE_VAL);
+    theta_upper_.push_back(i < declared.size() ? declared[i].upper : HUGE_VAL);
+    if (theta_log_.back() && !(theta_lower_.back() > 0)) {
+      // A positive parameter bounded below by 0 (or not at all): log θ, or the logit on (0, hi).
+      theta_lower_.back() = std::isfinite(theta_upper_.back()) ? 0.0 : -HUGE_VAL;
+    }
+    if (!(v > theta_lower_.back() && v < theta_upper_.back())) {
+      throw InputError("the initial " + d.theta_names[k] + " (" + Num(v) + ") must lie strictly within its bounds (" +
+                       Num(theta_lower_.back()) + ", " + Num(theta_upper_.back()) + ") from the model file");
+    }
     names_.push_back(d.theta_names[k]);
     fixed_.push_back(theta_fixed_[k]);
     size_ += theta_fixed_[k] ? 0 : 1;
@@ -74,12 +86,27 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
   }
 }
 
+bool Packing::NearThetaBound(size_t k, double theta) const {
+  const double lo = theta_lower_[k], hi = theta_upper_[k];
+  if (theta_log_[k] && lo == 0 && !std::isfinite(hi)) return false;  // only positivity: not a bound
+  const double tol = std::isfinite(lo) && std::isfinite(hi) ? 1e-3 * (hi - lo) : 1e-3 * std::max(std::fabs(theta), 1e-8);
+  return (std::isfinite(lo) && theta - lo <= tol) || (std::isfinite(hi) && hi - theta <= tol);
+}
+
+double Packing::XOf(size_t k, double theta) const {
+  const double lo = theta_lower_[k], hi = theta_upper_[k];
+  if (std::isfinite(lo) && std::isfinite(hi)) return std::log((theta - lo) / (hi - theta));
+  if (std::isfinite(lo)) return std::log(theta - lo);
+  if (std::isfinite(hi)) return std::log(hi - theta);
+  return theta_log_[k] ? std::log(theta) : theta;
+}
+
 Eigen::VectorXd Packing::Pack(const PopulationParameters& p) const {
   Eigen::VectorXd x(size_);
   int at = 0;
   for (size_t k = 0; k < theta_fixed_.size(); ++k) {
     const double v = p.theta(static_cast<Eigen::Index>(k));
-    if (!theta_fixed_[k]) x(at++) = theta_log_[k] ? std::log(v) : v;
+    if (!theta_fixed_[k]) x(at++) = XOf(k, v);
   }
   for (const Block& b : blocks_) {
     if (b.fixed) continue;
@@ -98,7 +125,7 @@ PopulationParameters Packing::Unpack(const Eigen::VectorXd& x) const {
   PopulationParameters p = initial_;
   int at = 0;
   for (size_t k = 0; k < theta_fixed_.size(); ++k) {
-    if (!theta_fixed_[k]) p.theta(static_cast<Eigen::Index>(k)) = theta_log_[k] ? std::exp(x(at++)) : x(at++);
+    if (!theta_fixed_[k]) p.theta(static_cast<Eigen::Index>(k)) = ThetaOf(k, x(at++), [](double c) { return c; });
   }
   for (const Block& b : blocks_) {
     if (b.fixed) continue;

@@ -2,7 +2,9 @@
 // optimiser moves, and the natural-scale values (θ, Ω's elements, σ) the tables and the
 // covariance step use.
 //
-//   x = [ log θ_k (θ_k > 0) or θ_k (a signed parameter), for each estimated θ;
+//   x = [ for each estimated θ: log θ_k (θ_k > 0) or θ_k (a signed parameter); within a model
+//         file's bounds (lo, hi), log((θ − lo)/(hi − θ)), or log(θ − lo) or log(hi − θ) with one
+//         bound (NONMEM's $THETA (low, init, up): the search never leaves them);
 //         for each estimated Ω block, its Cholesky factor L (Ω = LLᵀ) by rows:
 //         log L_kk on the diagonal, L_kl below it;
 //         log σ_j, for each estimated σ ]
@@ -11,6 +13,7 @@
 #ifndef PK_SRC_POPULATION_PACKING_H_
 #define PK_SRC_POPULATION_PACKING_H_
 
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -39,6 +42,9 @@ class Packing {
   const std::vector<bool>& natural_fixed() const { return fixed_; }
   Eigen::VectorXd Natural(const PopulationParameters& p) const;
   PopulationParameters FromNatural(const Eigen::VectorXd& z) const;
+  /// Whether θ_k lies within 1e-3 of the width of its bounds (or, with one bound, 1e-3 relative)
+  /// of a model file's bound: NONMEM's "estimate near its boundary".
+  bool NearThetaBound(size_t k, double theta) const;
   /// Positions (in natural order) of the variances ω_kk, for boundary checks.
   std::vector<int> variance_positions() const;
 
@@ -52,7 +58,7 @@ class Packing {
     theta->clear();
     for (size_t k = 0; k < theta_fixed_.size(); ++k) {
       const double v = initial_.theta(static_cast<Eigen::Index>(k));
-      theta->push_back(theta_fixed_[k] ? constant(v) : theta_log_[k] ? exp(x[at++]) : x[at++]);
+      theta->push_back(theta_fixed_[k] ? constant(v) : ThetaOf(k, x[at++], constant));
     }
     const auto q = static_cast<size_t>(initial_.omega.rows());
     l->assign(q, std::vector<T>(q, constant(0.0)));
@@ -72,12 +78,26 @@ class Packing {
   }
 
  private:
+  // θ_k from its x (the transform above), on any scalar type.
+  template <typename T, typename Constant>
+  T ThetaOf(size_t k, const T& x, const Constant& constant) const {
+    const double lo = theta_lower_[k], hi = theta_upper_[k];
+    if (std::isfinite(lo) && std::isfinite(hi)) {
+      return constant(lo) + (constant(1.0) / (constant(1.0) + exp(-x))) * (hi - lo);
+    }
+    if (std::isfinite(lo)) return constant(lo) + exp(x);
+    if (std::isfinite(hi)) return constant(hi) - exp(x);
+    return theta_log_[k] ? exp(x) : x;
+  }
+  double XOf(size_t k, double theta) const;
+
   struct Block {
     int first = 0, size = 1;
     bool fixed = false;
   };
   PopulationParameters initial_;
   std::vector<bool> theta_fixed_, sigma_fixed_, theta_log_;
+  std::vector<double> theta_lower_, theta_upper_;  // a model file's declared bounds (±∞: none)
   std::vector<Block> blocks_;
   std::vector<std::string> names_;
   std::vector<bool> fixed_;
