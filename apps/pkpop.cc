@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <sstream>
 #include <string>
@@ -196,6 +197,28 @@ std::string SdtabCsv(const pk::PopulationSummary& fit, bool censoring) {
   return out;
 }
 
+// Xpose's patab: per sample row, the subject's η̂ and its individual parameters. For a model file
+// these are its $PK definitions at the row's record (a time-varying covariate changes them); for a
+// catalogue model, the subject's parameters.
+std::string PatabCsv(const pk::PopulationProblem& problem, const pk::PopulationSummary& fit) {
+  const std::vector<std::string>& defined = problem.model().declarations().pk_definitions;
+  std::string out = "ID,TIME";
+  for (const auto& n : problem.eta_names()) out += "," + pk::cli::EtaLabel(n);
+  for (const auto& n : defined.empty() ? problem.theta_names() : defined) out += "," + n;
+  out += "\n";
+  std::map<double, const pk::PopulationSubject*> subjects;
+  for (const auto& s : fit.subjects) subjects[s.id] = &s;
+  for (const auto& r : fit.rows) {
+    const pk::PopulationSubject& s = *subjects.at(r.id);
+    out += pk::FormatNumber(r.id) + "," + pk::FormatNumber(r.time);
+    for (Eigen::Index k = 0; k < s.eta.size(); ++k) out += "," + pk::FormatNumber(s.eta(k));
+    const Eigen::VectorXd& values = defined.empty() ? s.parameters : r.definitions;
+    for (Eigen::Index k = 0; k < values.size(); ++k) out += "," + pk::FormatNumber(values(k));
+    out += "\n";
+  }
+  return out;
+}
+
 std::string SubjectsCsv(const pk::PopulationProblem& problem, const pk::PopulationSummary& fit) {
   std::string out = "ID,OK,OFV";
   for (const auto& n : problem.eta_names()) out += "," + pk::cli::EtaLabel(n);
@@ -257,6 +280,7 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
   pk::BeginOutputSet(dir);
   std::vector<std::pair<std::string, std::string>> files = {
       {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit, problem.num_censored() > 0)},
+      {"patab.csv", PatabCsv(problem, fit)},
       {"subjects.csv", SubjectsCsv(problem, fit)},     {"iterations.csv", IterationsCsv(fit)},
       {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()}};
   const auto report = pk::cli::PopulationReport(problem, fit, context);
@@ -339,7 +363,7 @@ int Main(int argc, char** argv, const Process& process) {
   if (process.rank == 0) WriteOutputs(dir, problem, fit, context);
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
-              << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, subjects.csv, iterations.csv, "
+              << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "
                  "covariance.csv, report.txt)\n";
   }
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";

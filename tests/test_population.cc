@@ -841,6 +841,45 @@ TEST_CASE("a model file's $OMEGA block gives Ω's structure, covariances and FIX
   CHECK(fit.parameters.theta(0) != fixed.DefaultParameters().theta(0));
 }
 
+TEST_CASE("a model file's $PK definitions per sample row follow a time-varying covariate", "[population][model-file]") {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
+  REQUIRE(in.good());
+  std::stringstream text;
+  text << in.rdbuf();
+  // Subject 1 gains weight after its first sample: CL = TVCL·WT·exp(η) changes with it.
+  auto data = Data("phenobarbital");
+  const int wt = data->ExtraColumn("WT");
+  REQUIRE(wt >= 0);
+  auto& records = data->subjects[0].records;
+  int samples = 0;
+  for (auto& r : records) {
+    if (samples > 0) r.extra[static_cast<size_t>(wt)] = 2.0;
+    if (r.IsSample()) ++samples;
+  }
+  REQUIRE(samples == 2);
+  const auto model = pk::ParseModel(text.str(), "pheno_pop.pkm", pk::RandomEffects::kParameters);
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  const pk::PopulationProblem problem(model, data, {"ETA_CL", "ETA_V"}, o);
+  pk::PopulationOptions options;
+  options.covariance = false;
+  options.max_iterations = 2;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, problem.DefaultParameters(), options);
+  std::vector<const pk::PopulationRow*> rows;
+  for (const auto& r : fit.rows) {
+    if (r.id == 1) rows.push_back(&r);
+  }
+  REQUIRE(rows.size() == 2);
+  const pk::PopulationSubject& s = fit.subjects[0];
+  REQUIRE(s.id == 1);
+  const double tvcl = fit.parameters.theta(0);
+  for (size_t j = 0; j < 2; ++j) {
+    const double weight = j == 0 ? 1.4 : 2.0;  // ID 1 weighs 1.4 kg in the data
+    REQUIRE(rows[j]->definitions.size() == 3);
+    CHECK(rows[j]->definitions(1) == Approx(tvcl * weight * std::exp(s.eta(0))).epsilon(1e-13));
+  }
+}
+
 TEST_CASE("a model file's θ bounds hold in a population fit, as NONMEM's $THETA (low, init, up)",
           "[population][model-file]") {
   std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");

@@ -54,6 +54,10 @@ awk -F, 'NR == 2 { if ($7 != 0.05 && $7 !~ /^0.0500000000/) exit 1 }' "$work/phe
 head -1 "$work/pheno_file/subjects.csv" | grep -qx "ID,OK,OFV,ETA_CL,ETA_V,TVCL,TVV,APGV,FAPG,CL,V,MESSAGE" ||
   fail "subjects.csv lacks the file's \$PK definitions: $(head -1 "$work/pheno_file/subjects.csv")"
 head -1 "$work/pheno_file/subjects.csv" | grep -q "^ID,OK,OFV,ETA_CL,ETA_V," || fail "subjects.csv η columns"
+head -1 "$work/pheno_file/patab.csv" | grep -qx "ID,TIME,ETA_CL,ETA_V,FAPG,CL,V" ||
+  fail "patab.csv: $(head -1 "$work/pheno_file/patab.csv")"
+[ "$(($(wc -l <"$work/pheno_file/patab.csv")))" -eq "$(($(wc -l <"$work/pheno_file/sdtab.csv")))" ] ||
+  fail "patab.csv and sdtab.csv should have a row per sample each"
 # $OMEGA blocks: "ETA_CL + ETA_V ~ c(ω²_CL, ω_V,CL, ω²_V)" is NONMEM's BLOCK(2), estimated with its
 # covariance from the file's values; with FIX the whole block stays there.
 sed 's/^ETA_CL ~ 0.05$/ETA_CL + ETA_V ~ c(0.05, 0.01, 0.05)/; /^ETA_V  ~ 0.05$/d' \

@@ -200,6 +200,9 @@ struct PopulationRow {
   /// CENS: 1 when the value lies below DV (BLQ), -1 above, 0 for a value. A censored row's
   /// RES, WRES, CWRES and IWRES are NaN: DV is a limit, not an observation.
   int censored = 0;
+  /// A model file's $PK definitions (ModelDeclarations::pk_definitions: CL, V, …) at η̂ and this
+  /// record's covariates, as NONMEM's $TABLE lists them per row; empty for a catalogue model.
+  Eigen::VectorXd definitions;
 };
 
 /// The objective at fixed parameters, with every subject's mode.

@@ -74,6 +74,9 @@ void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eige
   const Eigen::VectorXd cwres = WeightedResiduals(s, c, omega, m.eta);
   const std::vector<double> times = s.objective->sample_times();
   const std::vector<int> outputs = s.objective->sample_outputs();
+  const std::vector<int> records = s.objective->sample_records();
+  const ModelDeclarations& declared = s.objective->model().declarations();
+  const Eigen::VectorXd phi = IndividualValues(s, point, m.eta);
   std::vector<double> dsigma(static_cast<size_t>(std::max<Eigen::Index>(point.sigma.size(), 1)));
   for (Eigen::Index j = 0; j < n; ++j) {
     PopulationRow r;
@@ -91,6 +94,7 @@ void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eige
     point.error->Variance(c.yhat(j), point.sigma.data(), &v, &dv, dsigma.data());
     r.iwres = r.censored == 0 ? (s.y(j) - c.f(j)) / std::sqrt(v) : nan;
     if (r.censored == 0) iwres->push_back(r.iwres);  // ε-shrinkage over values only
+    if (declared.pk_values) r.definitions = declared.pk_values(s.objective->RecordParameters(phi, records[static_cast<size_t>(j)]));
     rows->push_back(r);
   }
 }
