@@ -139,11 +139,13 @@ pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lis
   for (const auto& [name, value] : pk::cli::ParseAssignments(SplitCommas(a.sigma), "--sigma")) {
     p.sigma(Required(problem.sigma_names(), name, "--sigma")) = value;
   }
+  std::vector<std::pair<int, int>> given;  // covariances from --omega A:B
   for (const auto& [name, value] : pk::cli::ParseAssignments(SplitCommas(a.omega), "--omega")) {
     const size_t colon = name.find(':');
     const int r = Required(problem.eta_names(), name.substr(0, colon), "--omega");
     const int c = colon == std::string::npos ? r : Required(problem.eta_names(), name.substr(colon + 1), "--omega");
     p.omega(r, c) = p.omega(c, r) = value;
+    if (r != c) given.emplace_back(r, c);
   }
   s->theta_fixed.assign(problem.theta_names().size(), false);
   s->sigma_fixed.assign(problem.sigma_names().size(), false);
@@ -162,9 +164,18 @@ pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lis
       s->sigma_fixed[static_cast<size_t>(Required(problem.sigma_names(), name, "--fix"))] = true;
     }
   }
-  // Covariances between η of different blocks (a file's $OMEGA block that --block splits) are 0.
+  // Covariances between η of different blocks: an error when --omega gave one, else 0 (a file's
+  // $OMEGA block that --block splits).
   std::vector<int> block_of;
-  for (size_t b = 0; b < s->omega_blocks.size(); ++b) block_of.insert(block_of.end(), static_cast<size_t>(s->omega_blocks[b]), static_cast<int>(b));
+  for (size_t b = 0; b < s->omega_blocks.size(); ++b) {
+    block_of.insert(block_of.end(), static_cast<size_t>(s->omega_blocks[b]), static_cast<int>(b));
+  }
+  for (const auto& [r, c] : given) {
+    if (block_of[static_cast<size_t>(r)] != block_of[static_cast<size_t>(c)]) {
+      throw pk::InputError("--omega " + problem.eta_names()[static_cast<size_t>(r)] + ":" +
+                           problem.eta_names()[static_cast<size_t>(c)] + ": the two η are not in one Ω block (--block)");
+    }
+  }
   for (Eigen::Index r = 0; r < p.omega.rows(); ++r) {
     for (Eigen::Index c = 0; c < p.omega.cols(); ++c) {
       if (block_of[static_cast<size_t>(r)] != block_of[static_cast<size_t>(c)]) p.omega(r, c) = 0;
@@ -206,14 +217,17 @@ std::string PatabCsv(const pk::PopulationProblem& problem, const pk::PopulationS
   for (const auto& n : problem.eta_names()) out += "," + pk::cli::EtaLabel(n);
   for (const auto& n : defined.empty() ? problem.theta_names() : defined) out += "," + n;
   out += "\n";
-  std::map<double, const pk::PopulationSubject*> subjects;
-  for (const auto& s : fit.subjects) subjects[s.id] = &s;
+  const auto number = [](double v) { return std::isfinite(v) ? pk::FormatNumber(v) : std::string(); };
+  // Rows come subject by subject in the subjects' order (an ID that comes back is another subject).
+  size_t at = 0;
   for (const auto& r : fit.rows) {
-    const pk::PopulationSubject& s = *subjects.at(r.id);
-    out += pk::FormatNumber(r.id) + "," + pk::FormatNumber(r.time);
-    for (Eigen::Index k = 0; k < s.eta.size(); ++k) out += "," + pk::FormatNumber(s.eta(k));
+    while (at < fit.subjects.size() && (!fit.subjects[at].ok || fit.subjects[at].id != r.id)) ++at;
+    if (at == fit.subjects.size()) break;
+    const pk::PopulationSubject& s = fit.subjects[at];
+    out += number(r.id) + "," + number(r.time);
+    for (Eigen::Index k = 0; k < s.eta.size(); ++k) out += "," + number(s.eta(k));
     const Eigen::VectorXd& values = defined.empty() ? s.parameters : r.definitions;
-    for (Eigen::Index k = 0; k < values.size(); ++k) out += "," + pk::FormatNumber(values(k));
+    for (Eigen::Index k = 0; k < values.size(); ++k) out += "," + number(values(k));
     out += "\n";
   }
   return out;

@@ -826,6 +826,16 @@ TEST_CASE("a model file's $OMEGA block gives Ω's structure, covariances and FIX
   CHECK(omega(1, 0) == 0.01);
   CHECK(omega(0, 1) == 0.01);
   CHECK(omega(1, 1) == 0.04);
+  {  // A library fit without a structure takes the file's: the covariance is estimated.
+    pk::PopulationOptions plain;
+    plain.covariance = false;
+    plain.max_iterations = 4;
+    const pk::PopulationSummary fit = pk::FitPopulation(block, block.DefaultParameters(), plain);
+    REQUIRE(fit.estimates.size() == 7);
+    CHECK(fit.estimates[4].name == "OMEGA(ETA_V,ETA_CL)");
+    CHECK_FALSE(fit.estimates[4].fixed);
+    CHECK(fit.parameters.omega(1, 0) != 0.01);
+  }
   // FIX holds the block; a fit keeps it exactly and estimates the rest.
   const pk::PopulationProblem fixed =
       FileProblem(with("ETA_CL + ETA_V ~ c(0.03, 0.005, 0.03) FIX"), "proportional", 1e-8);

@@ -84,7 +84,11 @@ inline HyperDualNumber pow(const HyperDualNumber& x, double p) {
   const double d2f = p == 0 || p == 1 ? 0 : p * (p - 1) * std::pow(v, p - 2);
   return x.Apply(f, df, d2f);
 }
-inline HyperDualNumber pow(const HyperDualNumber& x, const HyperDualNumber& y) { return exp(y * log(x)); }
+inline HyperDualNumber pow(const HyperDualNumber& x, const HyperDualNumber& y) {
+  // A constant exponent, or a base of 0 (where log x is −∞): as pow(x, c), as pk::Dual does.
+  if ((y.e1() == 0 && y.e2() == 0 && y.e12() == 0) || x.value() == 0) return pow(x, y.value());
+  return exp(y * log(x));
+}
 
 }  // namespace internal
 }  // namespace pk

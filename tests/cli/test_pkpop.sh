@@ -113,6 +113,7 @@ expect_error "--omega: unknown name 'KA'" "${pheno[@]}" --omega KA=0.1
 expect_error "--model and --data are required" --model 1cmt_iv
 expect_error "27 censored samples (CENS): their likelihood (Beal's M3) needs --method laplace" \
   --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --error additive
+expect_error "--omega CL:V: the two η are not in one Ω block" "${pheno[@]}" --omega CL:V=0.01
 expect_error "initial Ω block of CL is not positive definite" "${pheno[@]}" --block CL,V --omega CL:V=1
 
 [ $failures -eq 0 ] && echo "pkpop CLI: all checks passed"

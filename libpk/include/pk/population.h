@@ -73,7 +73,9 @@ struct PopulationParameters {
 struct PopulationStructure {
   std::vector<bool> theta_fixed;  ///< per θ; empty: none fixed
   std::vector<bool> sigma_fixed;  ///< per σ; empty: none fixed
-  /// The size of each Ω block, in η order (summing to the number of η); empty: diagonal.
+  /// The size of each Ω block, in η order (summing to the number of η). Empty, with
+  /// omega_block_fixed empty too: PopulationProblem::DeclaredStructure(), the model file's $OMEGA
+  /// blocks and FIX (diagonal for a catalogue model).
   std::vector<int> omega_blocks;
   std::vector<bool> omega_block_fixed;  ///< per block; empty: none fixed
 };
@@ -224,7 +226,9 @@ struct PopulationEstimate {
   double se = std::numeric_limits<double>::quiet_NaN();
   double rse_pct = std::numeric_limits<double>::quiet_NaN();
   bool fixed = false;
-  bool at_boundary = false;  ///< an estimated Ω variance below 1e-6
+  /// An estimated Ω variance below 1e-6, or a θ near a model file's bound (within 1e-3 of the
+  /// bounds' width; with one bound, 1e-3 relative).
+  bool at_boundary = false;
   /// For Ω's variance of a log-normal parameter's η: the between-subject CV%, 100·√(exp(ω²) − 1).
   double cv_pct = std::numeric_limits<double>::quiet_NaN();
 };

@@ -157,7 +157,8 @@ double DividedExp4(double a, double b, double c, double h) {
     Eigen::Matrix4d j = Eigen::Matrix4d::Zero();
     for (int i = 0; i < 4; ++i) j(i, i) = h * x[i];
     for (int i = 0; i < 3; ++i) j(i, i + 1) = h;
-    return j.exp()(0, 3);
+    const Eigen::Matrix4d e = j.exp();  // evaluated here: exp() returns an expression of j
+    return e(0, 3);
   }
   int u = 0, v = 1;
   for (int i = 0; i < 4; ++i) {
@@ -252,47 +253,55 @@ SMat SecondBlock(const SMat& d1, const std::vector<double>& d2, const SMat& bk, 
   return out;
 }
 
-// The event engine's visitor for one pair in eigen-coordinates (no steady states). The state
+// The event engine's visitor for every pair at once in eigen-coordinates (no steady states): the
+// state is x, the first-order s_j for every free parameter (each pair reads two of them) and w for
+// each pair, so one walk of the schedule serves all pairs and each s_j is stepped once. The state
 // stays in the model's coordinates (parameter sets may change between steps); a step moves it to
 // the set's eigen-coordinates and back.
 class ModalSecondOrderVisitor {
  public:
   ModalSecondOrderVisitor(const LinearModel& model, const PreparedSubject& s, const std::vector<DualVector>& sets,
-                          int num_free, int k, int l, std::vector<ModalSet>* modal, Eigen::VectorXd* out)
-      : model_(model), s_(s), n_(model.num_compartments()), modal_(modal), out_(out) {
-    for (size_t i = 0; i < sets.size(); ++i) {
-      extended_.push_back(Extended(model, sets[i], num_free, k, l));
-      const Parts a = Sum(model.system_terms(), extended_.back(), n_, n_);
-      const ModalSet& m = (*modal)[i];
-      PerSet p;
-      p.bk = m.w * SMat(a.dk) * m.v, p.bl = m.w * SMat(a.dl) * m.v, p.bkl = m.w * SMat(a.dkl) * m.v;
-      per_set_.push_back(std::move(p));
-    }
-    x_ = sk_ = sl_ = w_ = SVec::Zero(n_);
+                          int num_free, const std::vector<std::pair<int, int>>& pairs, std::vector<ModalSet>* modal,
+                          std::vector<Eigen::VectorXd>* out)
+      : model_(model), s_(s), n_(model.num_compartments()), p_(num_free), pairs_(pairs), modal_(modal), out_(out) {
+    for (size_t i = 0; i < sets.size(); ++i) per_set_.push_back(MakeSet(sets[i], (*modal)[i]));
+    x_ = SVec::Zero(n_);
+    first_.assign(static_cast<size_t>(p_), x_);
+    second_.assign(pairs.size(), x_);
     int count = 0;
     sample_ = SampleIndex(s, &count);
-    out->setZero(count);
+    for (Eigen::VectorXd& o : *out) o.setZero(count);
   }
   void Advance(double h, const Eigen::VectorXd& u, int set) {
-    ModalSet& m = (*modal_)[static_cast<size_t>(set)];
+    const ModalSet& m = (*modal_)[static_cast<size_t>(set)];
     const bool input = !u.isZero(0.0);
     const Blocks& b = GetBlocks(set, h, input);
-    const SVec x = m.w * x_, sk = m.w * sk_, sl = m.w * sl_, w = m.w * w_;
-    SVec nx = b.e.cwiseProduct(x);
-    SVec nsk = b.e.cwiseProduct(sk) + b.pk * x;
-    SVec nsl = b.e.cwiseProduct(sl) + b.pl * x;
-    SVec nw = b.e.cwiseProduct(w) + b.pl * sk + b.pk * sl + b.pkl * x;
-    if (input) {
-      const SVec uh = m.w * SVec(u.head(n_));
-      nx += b.g0.cwiseProduct(uh);
-      nsk += b.gk * uh;
-      nsl += b.gl * uh;
-      nw += b.gkl * uh;
+    const SVec x = m.w * x_;
+    first_hat_.resize(first_.size());
+    for (size_t j = 0; j < first_.size(); ++j) first_hat_[j] = m.w * first_[j];
+    const SVec uh = input ? SVec(m.w * SVec(u.head(n_))) : SVec();
+    for (size_t q = 0; q < pairs_.size(); ++q) {
+      const auto [k, l] = pairs_[q];
+      SVec w = b.e.cwiseProduct(m.w * second_[q]) + b.first[static_cast<size_t>(l)] * first_hat_[static_cast<size_t>(k)] +
+               b.first[static_cast<size_t>(k)] * first_hat_[static_cast<size_t>(l)] + b.second[q] * x;
+      if (input) w += b.second_input[q] * uh;
+      second_[q] = m.v * w;
     }
-    x_ = m.v * nx, sk_ = m.v * nsk, sl_ = m.v * nsl, w_ = m.v * nw;
+    for (size_t j = 0; j < first_.size(); ++j) {
+      SVec sj = b.e.cwiseProduct(first_hat_[j]) + b.first[j] * x;
+      if (input) sj += b.first_input[j] * uh;
+      first_[j] = m.v * sj;
+    }
+    SVec nx = b.e.cwiseProduct(x);
+    if (input) nx += b.g0.cwiseProduct(uh);
+    x_ = m.v * nx;
   }
   void Bolus(int cmt, double amount, int) { x_(cmt) += amount; }
-  void Reset() { x_.setZero(), sk_.setZero(), sl_.setZero(), w_.setZero(); }
+  void Reset() {
+    x_.setZero();
+    for (SVec& v : first_) v.setZero();
+    for (SVec& v : second_) v.setZero();
+  }
   void SteadyState(const SteadyStateCycle<double>&, int, bool) { throw NumericalFailure("steady state"); }
   void SteadyInfusion(const Eigen::VectorXd&, int, bool) { throw NumericalFailure("steady state"); }
   void DoseEntered(double, int) {}
@@ -300,28 +309,50 @@ class ModalSecondOrderVisitor {
     const int k = sample_[static_cast<size_t>(r)];
     if (k < 0) return;
     const int cmt = s_.cmt[static_cast<size_t>(r)] + 1;
-    auto it = outputs_.find({set, cmt});
-    if (it == outputs_.end()) {
-      it = outputs_.emplace(std::make_pair(set, cmt), Sum(model_.output_terms(cmt), extended_[static_cast<size_t>(set)], 1, n_))
-               .first;
+    PerSet& p = per_set_[static_cast<size_t>(set)];
+    auto it = p.outputs.find(cmt);
+    if (it == p.outputs.end()) {
+      std::vector<Parts> c;
+      for (const std::vector<HD>& e : p.extended) c.push_back(Sum(model_.output_terms(cmt), e, 1, n_));
+      it = p.outputs.emplace(cmt, std::move(c)).first;
     }
-    const Parts& c = it->second;
-    (*out_)(k) = c.value.row(0).dot(w_) + c.dk.row(0).dot(sl_) + c.dl.row(0).dot(sk_) + c.dkl.row(0).dot(x_);
+    for (size_t q = 0; q < pairs_.size(); ++q) {
+      const Parts& c = it->second[q];
+      const auto [a, b] = pairs_[q];
+      (*out_)[q](k) = c.value.row(0).dot(second_[q]) + c.dk.row(0).dot(first_[static_cast<size_t>(b)]) +
+                      c.dl.row(0).dot(first_[static_cast<size_t>(a)]) + c.dkl.row(0).dot(x_);
+    }
   }
 
  private:
-  // One step's blocks in eigen-coordinates for this pair: e^{Λh}, D₁∘B_k, D₁∘B_l and the second-order
-  // block, and with input their Γ counterparts.
+  // One step's blocks in eigen-coordinates: e^{Λh}, D₁∘B_j per parameter, the second-order block per
+  // pair, and with input their Γ counterparts.
   struct Blocks {
     double h = 0;
     bool input = false;
     SVec e, g0;
-    SMat pk, pl, pkl, gk, gl, gkl;
+    std::vector<SMat> first, second, first_input, second_input;
   };
   struct PerSet {
-    SMat bk, bl, bkl;  // W A_k V, W A_l V, W A_kl V
+    std::vector<std::vector<HD>> extended;  // per pair: [θ; ψ] along its k and l
+    std::vector<SMat> b1;                   // per parameter: W A_j V
+    std::vector<SMat> b2;                   // per pair: W A_kl V
     std::vector<Blocks> steps;
+    std::map<int, std::vector<Parts>> outputs;  // per output compartment, per pair: C and its derivatives
   };
+
+  PerSet MakeSet(const DualVector& set, const ModalSet& m) const {
+    PerSet p;
+    p.b1.assign(static_cast<size_t>(p_), SMat::Zero(n_, n_));
+    for (const auto& [k, l] : pairs_) {
+      p.extended.push_back(Extended(model_, set, p_, k, l));
+      const Parts a = Sum(model_.system_terms(), p.extended.back(), n_, n_);
+      p.b1[static_cast<size_t>(k)] = m.w * SMat(a.dk) * m.v;  // the pairs cover every parameter
+      p.b1[static_cast<size_t>(l)] = m.w * SMat(a.dl) * m.v;
+      p.b2.push_back(m.w * SMat(a.dkl) * m.v);
+    }
+    return p;
+  }
 
   const Blocks& GetBlocks(int set, double h, bool input) {
     PerSet& p = per_set_[static_cast<size_t>(set)];
@@ -333,10 +364,19 @@ class ModalSecondOrderVisitor {
     b.h = h;
     b.input = input;
     b.e = st.e;
-    b.pk = st.d1.cwiseProduct(p.bk), b.pl = st.d1.cwiseProduct(p.bl), b.pkl = SecondBlock(st.d1, st.d2, p.bk, p.bl, p.bkl);
+    for (const SMat& bj : p.b1) b.first.push_back(st.d1.cwiseProduct(bj));
+    for (size_t q = 0; q < pairs_.size(); ++q) {
+      const auto [k, l] = pairs_[q];
+      b.second.push_back(SecondBlock(st.d1, st.d2, p.b1[static_cast<size_t>(k)], p.b1[static_cast<size_t>(l)], p.b2[q]));
+    }
     if (input) {
       b.g0 = st.g0;
-      b.gk = st.g1.cwiseProduct(p.bk), b.gl = st.g1.cwiseProduct(p.bl), b.gkl = SecondBlock(st.g1, st.g2, p.bk, p.bl, p.bkl);
+      for (const SMat& bj : p.b1) b.first_input.push_back(st.g1.cwiseProduct(bj));
+      for (size_t q = 0; q < pairs_.size(); ++q) {
+        const auto [k, l] = pairs_[q];
+        b.second_input.push_back(
+            SecondBlock(st.g1, st.g2, p.b1[static_cast<size_t>(k)], p.b1[static_cast<size_t>(l)], p.b2[q]));
+      }
     }
     p.steps.push_back(std::move(b));
     return p.steps.back();
@@ -344,14 +384,14 @@ class ModalSecondOrderVisitor {
 
   const LinearModel& model_;
   const PreparedSubject& s_;
-  const int n_;
+  const int n_, p_;
+  const std::vector<std::pair<int, int>>& pairs_;
   std::vector<ModalSet>* modal_;
-  Eigen::VectorXd* out_;
-  std::vector<std::vector<HD>> extended_;
+  std::vector<Eigen::VectorXd>* out_;
   std::vector<PerSet> per_set_;
-  SVec x_, sk_, sl_, w_;
+  SVec x_;
+  std::vector<SVec> first_, second_, first_hat_;
   std::vector<int> sample_;
-  std::map<std::pair<int, int>, Parts> outputs_;
 };
 
 // The sets' decompositions, or false when one is unsuitable, A is larger than the stack matrices,
@@ -380,12 +420,9 @@ void SecondOrderSensitivities(const LinearModel& model, const ParameterLayout& l
   out->assign(pairs.size(), Eigen::VectorXd());
   std::vector<ModalSet> modal;
   if (eigen_coordinates && Decompositions(model, subject, sets, &modal)) {
-    for (size_t i = 0; i < pairs.size(); ++i) {
-      ModalSecondOrderVisitor visitor(model, subject, sets, num_free, pairs[i].first, pairs[i].second, &modal,
-                                      &(*out)[i]);
-      EventEngine<double, ModalSecondOrderVisitor> engine(subject, layout, subject.sets, &visitor);
-      engine.Run();
-    }
+    ModalSecondOrderVisitor visitor(model, subject, sets, num_free, pairs, &modal, out);
+    EventEngine<double, ModalSecondOrderVisitor> engine(subject, layout, subject.sets, &visitor);
+    engine.Run();
     return;
   }
   for (size_t i = 0; i < pairs.size(); ++i) {

@@ -309,7 +309,14 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
 }  // namespace internal
 
 PopulationSummary FitPopulation(const PopulationProblem& problem, const PopulationParameters& initial,
-                                const PopulationOptions& options) {
+                                const PopulationOptions& given) {
+  // No Ω structure given: the model file's $OMEGA blocks and FIX (diagonal for a catalogue model).
+  PopulationOptions options = given;
+  if (options.structure.omega_blocks.empty() && options.structure.omega_block_fixed.empty()) {
+    const PopulationStructure declared = problem.DeclaredStructure();
+    options.structure.omega_blocks = declared.omega_blocks;
+    options.structure.omega_block_fixed = declared.omega_block_fixed;
+  }
   const auto start = std::chrono::steady_clock::now();
   std::string why;
   if (!options.IsValid(&why)) throw InputError("population options: " + why);

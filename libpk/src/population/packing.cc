@@ -47,7 +47,7 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
       // A positive parameter bounded below by 0 (or not at all): log θ, or the logit on (0, hi).
       theta_lower_.back() = std::isfinite(theta_upper_.back()) ? 0.0 : -HUGE_VAL;
     }
-    if (!(v > theta_lower_.back() && v < theta_upper_.back())) {
+    if (!theta_fixed_[k] && !(v > theta_lower_.back() && v < theta_upper_.back())) {
       throw InputError("the initial " + d.theta_names[k] + " (" + Num(v) + ") must lie strictly within its bounds (" +
                        Num(theta_lower_.back()) + ", " + Num(theta_upper_.back()) + ") from the model file");
     }
@@ -88,7 +88,6 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
 
 bool Packing::NearThetaBound(size_t k, double theta) const {
   const double lo = theta_lower_[k], hi = theta_upper_[k];
-  if (theta_log_[k] && lo == 0 && !std::isfinite(hi)) return false;  // only positivity: not a bound
   const double tol = std::isfinite(lo) && std::isfinite(hi) ? 1e-3 * (hi - lo) : 1e-3 * std::max(std::fabs(theta), 1e-8);
   return (std::isfinite(lo) && theta - lo <= tol) || (std::isfinite(hi) && hi - theta <= tol);
 }
