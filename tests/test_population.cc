@@ -153,6 +153,19 @@ TEST_CASE("censored samples (M3): Laplace's OFV equals the R reference, and FOCE
     c.sigma = sigma;
     const pk::PopulationProblem problem = Problem(c);
     REQUIRE(problem.num_censored() == 27);
+    {  // σ's start pools the values only: a censored DV is a limit.
+      const pk::Dataset& data = problem.data();
+      const int cens = data.ExtraColumn("CENS");
+      std::vector<double> values;
+      for (const auto& subject : data.subjects) {
+        for (const auto& r : subject.records) {
+          if (r.IsSample() && r.extra[static_cast<size_t>(cens)] == 0) values.push_back(r.dv);
+        }
+      }
+      REQUIRE(values.size() + 27 == static_cast<size_t>(problem.num_observations()));
+      const Eigen::VectorXd pooled = Eigen::Map<const Eigen::VectorXd>(values.data(), static_cast<Eigen::Index>(values.size()));
+      CHECK(problem.DefaultParameters().sigma(0) == problem.options().error_model->DefaultSigma(0, pooled));
+    }
     const pk::PopulationEvaluation ev = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kLaplace);
     REQUIRE(ev.ok);
     for (const auto& row : reference) {

@@ -258,11 +258,14 @@ PopulationParameters PopulationProblem::DefaultParameters() const {
       }
     }
   }
-  Eigen::VectorXd pooled(d.num_observations);
+  // The observed values pooled (a censored sample's DV is its limit, not a value).
+  Eigen::VectorXd pooled(d.num_observations - d.num_censored);
   Eigen::Index at = 0;
   for (const auto& s : d.subjects) {
-    pooled.segment(at, s.y.size()) = s.objective->observations();
-    at += s.y.size();
+    const Eigen::VectorXd& y = s.objective->observations();
+    for (Eigen::Index j = 0; j < y.size(); ++j) {
+      if (s.censoring.size() != y.size() || s.censoring(j) == 0) pooled(at++) = y(j);
+    }
   }
   p.sigma.resize(static_cast<Eigen::Index>(d.sigma_names.size()));
   for (Eigen::Index j = 0; j < p.sigma.size(); ++j) {
