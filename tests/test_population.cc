@@ -970,6 +970,11 @@ TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVAR
   REQUIRE(fit.estimates.size() == 6);
   const double sigma = fit.estimates[5].estimate;
   const double nonmem[6] = {2.10036e-4, 2.68952e-2, 8.37623e-2, 1.34153e-2, 7.47651e-3, 2.27940e-3 / (2 * sigma)};
+  // The report also gives σ as NONMEM's $SIGMA, a variance with SE(σ²) = 2σ·SE(σ).
+  char variance[96];
+  std::snprintf(variance, sizeof variance, "SIGMA_PROP²       %12.6g%12.4g", sigma * sigma, 2 * sigma * fit.estimates[5].se);
+  CHECK_THAT(fit.FullReport(), Catch::Contains(variance));
+  CHECK(std::abs(2 * sigma * fit.estimates[5].se / 2.27940e-3 - 1) < 0.02);
   for (int k = 0; k < 6; ++k) {
     INFO(fit.estimates[static_cast<size_t>(k)].name << ": " << fit.estimates[static_cast<size_t>(k)].se);
     CHECK(std::abs(fit.estimates[static_cast<size_t>(k)].se / nonmem[k] - 1) < 0.02);

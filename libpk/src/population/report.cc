@@ -44,6 +44,15 @@ std::string PopulationSummary::FullReport() const {
     if (e.at_boundary) out << "  (near a boundary)";
     out << "\n";
   }
+  // NONMEM's $SIGMA holds variances: σ² with SE(σ²) = 2σ·SE(σ) (the sandwich transforms exactly by
+  // the Jacobian at the optimum), RSE doubled.
+  for (const PopulationEstimate& e : estimates) {
+    if (e.name.rfind("SIGMA_", 0) != 0) continue;
+    std::string name = e.name + "²";
+    name.resize(std::max<size_t>(name.size(), 19), ' ');
+    out << "  " << name << Cell(e.estimate * e.estimate, "%.6g", 12) << Cell(2 * e.estimate * e.se, "%.4g", 12)
+        << Cell(2 * e.rse_pct, "%.1f", 10) << "  (as NONMEM's $SIGMA, a variance)\n";
+  }
   if (!covariance_message.empty()) out << "  no standard errors: " << covariance_message << "\n";
   if (covariance.size()) {
     out << "  covariance: sandwich R⁻¹SR⁻¹ (NONMEM's default); condition number "
