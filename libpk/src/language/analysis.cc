@@ -685,10 +685,14 @@ class Analyser {
   }
   int Derived(Op op, int a, int b, const Node& at, int c = -1) {
     // 1·x, x·1 and x/1 are x; −c is a constant: parameters then stay terms of their own.
-    const auto one = [&](int i) { return i >= 0 && g_[static_cast<size_t>(i)].op == Op::kConstant && g_[static_cast<size_t>(i)].value == 1; };
-    if ((op == Op::kMul && one(a)) ) return b;
+    const auto one = [&](int i) {
+      return i >= 0 && g_[static_cast<size_t>(i)].op == Op::kConstant && g_[static_cast<size_t>(i)].value == 1;
+    };
+    if (op == Op::kMul && one(a)) return b;
     if ((op == Op::kMul || op == Op::kDiv) && one(b)) return a;
-    if (op == Op::kNeg && g_[static_cast<size_t>(a)].op == Op::kConstant) return Constant(-g_[static_cast<size_t>(a)].value, at);
+    if (op == Op::kNeg && g_[static_cast<size_t>(a)].op == Op::kConstant) {
+      return Constant(-g_[static_cast<size_t>(a)].value, at);
+    }
     Node node;
     node.op = op;
     node.a = a;
