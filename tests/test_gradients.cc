@@ -3,6 +3,7 @@
 
 #include <catch2/catch.hpp>
 
+#include "hyper_dual_number.h"
 #include "pk/catalogue.h"
 #include "pk/model_file.h"
 #include "pk/objective.h"
@@ -274,4 +275,27 @@ TEST_CASE("exact second derivatives refuse what they cannot differentiate", "[gr
   const pk::Objective on_ode(pk::MakeModel("1cmt_oral"), pk_test::ScenarioData(lag), 0, ode);
   CHECK_FALSE(on_ode.SecondDerivatives(values, {0, 1}, {{0, 1}}, &second, &why));
   CHECK_THAT(why, Catch::Contains("exact propagator"));
+}
+
+TEST_CASE("hyper-dual numbers give a function's value, two directional derivatives and the mixed one", "[second-order]") {
+  using pk::internal::HyperDualNumber;
+  // f(x, y) = x^y · log(x) / sqrt(x + y) + exp(-x y), along u = (1, 0.5) (ε₁) and v = (0.3, -2) (ε₂).
+  const auto f = [](auto x, auto y) { return pow(x, y) * log(x) / sqrt(x + y) + exp(-(x * y)); };
+  const double x0 = 1.7, y0 = 0.6, u[2] = {1, 0.5}, v[2] = {0.3, -2};
+  const HyperDualNumber r = f(HyperDualNumber(x0, u[0], v[0], 0), HyperDualNumber(y0, u[1], v[1], 0));
+  const auto g = [&](double s, double t) {
+    using std::exp, std::log, std::pow, std::sqrt;
+    return f(x0 + s * u[0] + t * v[0], y0 + s * u[1] + t * v[1]);
+  };
+  const double h = 1e-4;
+  CHECK(r.value() == Approx(g(0, 0)).epsilon(1e-15));
+  CHECK(r.e1() == Approx((g(h, 0) - g(-h, 0)) / (2 * h)).epsilon(1e-7));
+  CHECK(r.e2() == Approx((g(0, h) - g(0, -h)) / (2 * h)).epsilon(1e-7));
+  CHECK(r.e12() == Approx((g(h, h) - g(h, -h) - g(-h, h) + g(-h, -h)) / (4 * h * h)).epsilon(1e-6));
+  // A base of 0 with a moving exponent: x^y = 0 near y = 2, its derivatives in x are those of x².
+  const HyperDualNumber z = pow(HyperDualNumber(0.0, 1, 1, 0), HyperDualNumber(2.0, 0.5, 0, 0));
+  CHECK(z.value() == 0);
+  CHECK(z.e1() == 0);
+  CHECK(z.e12() == 2);  // ∂²(x²)/∂x² · u_x v_x
+  CHECK(std::isfinite(z.e2()));
 }

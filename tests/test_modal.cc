@@ -126,6 +126,30 @@ TEST_CASE("divided differences of exp match the exponential of a bidiagonal matr
   }
 }
 
+TEST_CASE("three- and four-point divided differences of exp match the bidiagonal exponential", "[modal][second-order]") {
+  // f[a, b, c] and f[a, b, c, 0] of f(λ) = e^{λh}, which the second-order sensitivities take in
+  // eigen-coordinates: the first row of exp(h J), J bidiagonal with the points on its diagonal.
+  const std::vector<double> points = {0.0, -1e-9, -1e-4, -0.05, -0.35, -0.351, -1.0, -1.0 + 1e-7, -7.0, -40.0, 0.02};
+  for (double h : {0.01, 1.0, 24.0}) {
+    for (double a : points) {
+      for (double b : points) {
+        for (double c : points) {
+          Eigen::Matrix4d j = Eigen::Matrix4d::Zero();
+          j(0, 0) = a, j(1, 1) = b, j(2, 2) = c;
+          j(0, 1) = j(1, 2) = j(2, 3) = 1;
+          const Eigen::Matrix4d e = (j * h).exp();
+          Eigen::Matrix3d j3 = j.topLeftCorner(3, 3);
+          const Eigen::Matrix3d e3 = (j3 * h).exp();
+          const double margin = 1e-15 * e.cwiseAbs().maxCoeff(), margin3 = 1e-15 * e3.cwiseAbs().maxCoeff();
+          INFO("h " << h << " a " << a << " b " << b << " c " << c);
+          CHECK(pk::internal::DividedExp3General(a, b, c, h) == Approx(e3(0, 2)).epsilon(1e-11).margin(margin3));
+          CHECK(pk::internal::DividedExp4(a, b, c, h) == Approx(e(0, 3)).epsilon(1e-10).margin(margin));
+        }
+      }
+    }
+  }
+}
+
 TEST_CASE("modal and Padé paths agree on every linear model and event scenario", "[modal]") {
   const auto model_name = GENERATE(as<std::string>{}, "1cmt_iv", "1cmt_oral", "2cmt_iv", "2cmt_oral", "3cmt_iv",
                                    "3cmt_oral");

@@ -699,6 +699,15 @@ pk::PopulationProblem FileProblem(const std::string& text, const std::string& er
   return pk::PopulationProblem(model, Data("phenobarbital"), etas, o);
 }
 
+// NONMEM's phenobarbital example as shipped (models/pheno_pop.pkm).
+std::string PhenoFileText() {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
+  REQUIRE(in.good());
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
 }  // namespace
 
 TEST_CASE("a model file's η bind as parameters, and an individual model keeps them at 0", "[population][model-file]") {
@@ -779,11 +788,8 @@ TEST_CASE("phenobarbital with weight and Apgar covariates reproduces NONMEM's FO
   // OFV 586.27605628188053, and the individual OFVs 5.9473520242962552 (ID 1) and
   // 5.6639479151436394 (ID 57). The .ext rounds the estimates to 6 digits, which moves the OFV by
   // about 1e-5. NONMEM's SIGMA(1,1) is σ², libpk's σ_prop its root.
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
-  REQUIRE(in.good());
-  std::stringstream text;
-  text << in.rdbuf();
-  const pk::PopulationProblem problem = FileProblem(text.str(), "proportional", 1e-10);
+  const std::string text = PhenoFileText();
+  const pk::PopulationProblem problem = FileProblem(text, "proportional", 1e-10);
   REQUIRE(problem.theta_names() == std::vector<std::string>{"TVCL", "TVV", "APGV"});
   pk::PopulationParameters p;
   p.theta = Eigen::Vector3d(4.69555e-03, 9.84258e-01, 1.58920e-01);
@@ -811,11 +817,8 @@ TEST_CASE("phenobarbital with weight and Apgar covariates reproduces NONMEM's FO
 }
 
 TEST_CASE("a model file's $OMEGA block gives Ω's structure, covariances and FIX", "[population][model-file]") {
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
-  REQUIRE(in.good());
-  std::stringstream text;
-  text << in.rdbuf();
-  const std::string original = text.str();
+  const std::string text = PhenoFileText();
+  const std::string original = text;
   const auto with = [&](const std::string& omega) {
     std::string s = original;
     const size_t a = s.find("ETA_CL ~ 0.05\n"), b = s.find("ETA_V  ~ 0.05\n");
@@ -865,10 +868,7 @@ TEST_CASE("a model file's $OMEGA block gives Ω's structure, covariances and FIX
 }
 
 TEST_CASE("a model file's $PK definitions per sample row follow a time-varying covariate", "[population][model-file]") {
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
-  REQUIRE(in.good());
-  std::stringstream text;
-  text << in.rdbuf();
+  const std::string text = PhenoFileText();
   // Subject 1 gains weight after its first sample: CL = TVCL·WT·exp(η) changes with it.
   auto data = Data("phenobarbital");
   const int wt = data->ExtraColumn("WT");
@@ -880,7 +880,7 @@ TEST_CASE("a model file's $PK definitions per sample row follow a time-varying c
     if (r.IsSample()) ++samples;
   }
   REQUIRE(samples == 2);
-  const auto model = pk::ParseModel(text.str(), "pheno_pop.pkm", pk::RandomEffects::kParameters);
+  const auto model = pk::ParseModel(text, "pheno_pop.pkm", pk::RandomEffects::kParameters);
   pk::ObjectiveOptions o;
   o.error_model = pk::MakeResidualError("proportional");
   const pk::PopulationProblem problem(model, data, {"ETA_CL", "ETA_V"}, o);
@@ -905,11 +905,8 @@ TEST_CASE("a model file's $PK definitions per sample row follow a time-varying c
 
 TEST_CASE("a model file's θ bounds hold in a population fit, as NONMEM's $THETA (low, init, up)",
           "[population][model-file]") {
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
-  REQUIRE(in.good());
-  std::stringstream text;
-  text << in.rdbuf();
-  std::string bounded = text.str();
+  const std::string text = PhenoFileText();
+  std::string bounded = text;
   const std::string apgv = "APGV = 0.1  (-0.99, 5)";
   const size_t at = bounded.find(apgv);
   REQUIRE(at != std::string::npos);
@@ -955,10 +952,8 @@ TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVAR
   // default R⁻¹SR⁻¹): θ 2.10036e-4, 2.68952e-2, 8.37623e-2; ω² 1.34153e-2, 7.47651e-3; σ² 2.27940e-3,
   // so SE(σ) = SE(σ²)/(2σ). The covariance step at NONMEM's estimates (one evaluation, then the
   // step) on the ODE propagator (auto: Dormand–Prince), whose OFV carries about 1e-7 relative noise.
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
-  std::stringstream text;
-  text << in.rdbuf();
-  const pk::PopulationProblem problem = FileProblem(text.str(), "proportional", 1e-8);
+  const std::string text = PhenoFileText();
+  const pk::PopulationProblem problem = FileProblem(text, "proportional", 1e-8);
   pk::PopulationParameters p;
   p.theta = Eigen::Vector3d(4.69555e-03, 9.84258e-01, 1.58920e-01);
   p.omega = Diagonal({2.93508e-02, 2.79060e-02});

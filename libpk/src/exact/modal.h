@@ -141,6 +141,10 @@ inline double DividedExp2(double a, double b, double ea, double eb, double h) {
   return std::fabs(d) * h >= 0.1 ? (ea - eb) / d : DividedExp2Close(a, b, ea, eb, h);
 }
 double DividedExp3(double a, double b, double ea, double eb, double h);
+/// f[a, b, c] and f[a, b, c, 0], for the second-order sensitivities in eigen-coordinates
+/// (second_order.cc).
+double DividedExp3General(double a, double b, double c, double h);
+double DividedExp4(double a, double b, double c, double h);
 
 }  // namespace internal
 }  // namespace pk

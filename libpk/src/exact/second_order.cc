@@ -4,8 +4,6 @@
 #include <cmath>
 #include <map>
 
-#include <unsupported/Eigen/MatrixFunctions>
-
 #include "../hyper_dual_number.h"
 #include "exact_propagator.h"
 #include "exact_routes.h"
@@ -138,43 +136,6 @@ class SecondOrderVisitor {
 //   ∂²φ(A)/∂p_k∂p_l = V (φ[λ_i, λ_j] ∘ B_kl + Σ_m φ[λ_i, λ_m, λ_j] ((B_k)_im (B_l)_mj + (B_l)_im (B_k)_mj)) W.
 // The decomposition and the divided differences of each step serve every pair, and a step costs
 // O(n³) arithmetic instead of an exponential of M (4n states). Steady states keep the M path.
-
-// f[a, b, c] for f(x) = e^{hx}: shifted by the largest point (f[a, b, c] = e^{hc₀} f[a − c₀, b − c₀,
-// c − c₀]), which puts a 0 among the points and keeps every exponential at most 1.
-double DividedExp3General(double a, double b, double c, double h) {
-  double x[3] = {a, b, c};
-  std::sort(x, x + 3);
-  const double top = x[2], p = x[0] - top, q = x[1] - top;
-  return std::exp(h * top) * DividedExp3(p, q, std::exp(h * p), std::exp(h * q), h);
-}
-
-// f[a, b, c, 0]: close points (all within 0.5/h) from the exponential of the bidiagonal matrix
-// whose top-right entry it is (Opitz); otherwise the recurrence on the two farthest points.
-double DividedExp4(double a, double b, double c, double h) {
-  const double x[4] = {a, b, c, 0.0};
-  const double lo = *std::min_element(x, x + 4), hi = *std::max_element(x, x + 4);
-  if ((hi - lo) * h < 0.5) {
-    Eigen::Matrix4d j = Eigen::Matrix4d::Zero();
-    for (int i = 0; i < 4; ++i) j(i, i) = h * x[i];
-    for (int i = 0; i < 3; ++i) j(i, i + 1) = h;
-    const Eigen::Matrix4d e = j.exp();  // evaluated here: exp() returns an expression of j
-    return e(0, 3);
-  }
-  int u = 0, v = 1;
-  for (int i = 0; i < 4; ++i) {
-    for (int k = i + 1; k < 4; ++k) {
-      if (std::fabs(x[i] - x[k]) > std::fabs(x[u] - x[v])) u = i, v = k;
-    }
-  }
-  double without_u[3], without_v[3];
-  for (int i = 0, a_at = 0, b_at = 0; i < 4; ++i) {
-    if (i != u) without_u[a_at++] = x[i];
-    if (i != v) without_v[b_at++] = x[i];
-  }
-  const double fu = DividedExp3General(without_v[0], without_v[1], without_v[2], h);  // holds x[u]
-  const double fv = DividedExp3General(without_u[0], without_u[1], without_u[2], h);  // holds x[v]
-  return (fu - fv) / (x[u] - x[v]);
-}
 
 // Up to 6 states on the stack: a step allocates nothing.
 using SVec = modal_detail::SmallVec;
