@@ -189,7 +189,7 @@ TEST_CASE("modal path: steps that are multiples of shorter ones take their expon
   const auto model = pk::MakeModel(model_name);
   const pk::ParameterLayout layout(*model);
   const auto prepared = pk::internal::PrepareSubject(*model, layout, *data, 0, layout.Defaults(), false);
-  const pk::internal::EventSchedule sched = pk::internal::RecordSchedule(layout, prepared, model->num_parameters());
+  const pk::internal::EventSchedule sched = pk::internal::RecordSchedule(layout, prepared);
   REQUIRE(sched.step_powers.size() == sched.steps.size());
   int derived = 0;
   for (size_t j = 0; j < sched.steps.size(); ++j) {

@@ -8,6 +8,7 @@
 #include <map>
 #include <sstream>
 
+#include "events.h"
 #include "pk/catalogue.h"
 #include "pk/error.h"
 #include "pk/fit_subjects.h"
@@ -243,7 +244,12 @@ TEST_CASE("model files: each kind of error names the file, line and column and w
       {"a parameter that must be positive", Replace(4, "CL = -3"), "CL must be positive", 4, 1},
       {"if without else", Replace(10, "if (CL > 2) {\n  K = CL / V\n}"), "K is assigned when the condition holds but not otherwise (add an else)", 10, 1},
       {"modifier of a missing compartment", Replace(5, "V = 30\nF3 = 0.5"), "F3 modifies compartment 3, but the model has 2 compartments", 6, 1},
-      {"expression for a dose modifier", Replace(10, "K = CL / V\nALAG1 = 0.5 * K"), "ALAG1 is a dose modifier", 11, 1},
+      {"a dose modifier computed outside $PK", Replace(13, "d/dt(CENTRAL) = KA * DEPOT - K * CENTRAL\nALAG1 = 0.5 * K"),
+       "ALAG1 is a dose modifier: compute it in $PK", 14, 1},
+      {"a computed modifier of a missing compartment", Replace(10, "K = CL / V\nF3 = 0.5"),
+       "F3 modifies compartment 3, but the model has 2 compartments", 11, 1},
+      {"a modifier both declared and computed", Replace(5, "V = 30\nF1 = 0.5\n$PK\nF1 = 0.9 * KA / 1.5"),
+       "F1 is declared twice", 8, 1},
       {"unknown error model", std::string(kBase) + "$ERROR\nCP ~ lognormal\n", "$ERROR: unknown error model 'lognormal'", 17, 1},
       {"error for an unknown output", std::string(kBase) + "$ERROR\nCC ~ additive\n", "CC is not an output", 17, 1},
       {"wrong number of σ", std::string(kBase) + "$ERROR\nCP ~ combined(0.1)\n", "combined takes 2 σ", 17, 1},
@@ -492,6 +498,121 @@ TEST_CASE("model files: linear models whose coefficients are expressions run on 
         CHECK(MaxRel(got.gradient, fd) < 1e-6);
       }
     }
+  }
+}
+
+namespace {
+
+// 1cmt oral whose F1, ALAG1, D1 and X0_2 are computed in $PK from parameters and a time-varying weight.
+const char* const kComputedModifiers =
+    "$PROBLEM modifiers  1cmt oral with computed F1, ALAG1, D1 and X0_2\n"
+    "$PARAM\nKA = 1.2\nCL = 3\nV = 30\nFPOP = 0.7 (0, 1)\nTLAG = 0.4\nTVD = 1.5\nA0 = 5\n"
+    "$COVARIATE\nWT kg\n"
+    "$CMT\nDEPOT dose\nCENTRAL central\n"
+    "$PK\nF1 = FPOP * (WT / 70)^0.25\nALAG1 = TLAG * WT / 70\nD1 = TVD * sqrt(WT / 70)\nX0_2 = A0 * WT / 70\n"
+    "$ODE\nd/dt(DEPOT) = -KA * DEPOT\nd/dt(CENTRAL) = KA * DEPOT - CL / V * CENTRAL\n"
+    "$OUTPUT\nCP = CENTRAL / V\n";
+
+// Rows TIME, AMT, RATE, CMT, II, ADDL, WT (DV follows from the time); the weight changes at t = 12.
+const double kModifierRows[][7] = {
+    {0, 100, 0, 1, 0, 0, 60},   {0.5, 0, 0, 2, 0, 0, 60},  {1, 0, 0, 2, 0, 0, 60},   {3, 0, 0, 2, 0, 0, 60},
+    {8, 0, 0, 2, 0, 0, 60},     {12, 100, -2, 1, 0, 0, 75}, {12.5, 0, 0, 2, 0, 0, 75}, {13.5, 0, 0, 2, 0, 0, 75},
+    {16, 0, 0, 2, 0, 0, 75},    {24, 50, 0, 1, 6, 2, 80},  {25, 0, 0, 2, 0, 0, 80},   {31, 0, 0, 2, 0, 0, 80},
+    {40, 0, 0, 2, 0, 0, 80}};
+
+// The dataset with WT (for the file) or with the modifiers' values as columns (for the catalogue).
+std::shared_ptr<pk::Dataset> ModifierData(bool columns) {
+  const double fpop = 0.7, tlag = 0.4, tvd = 1.5, a0 = 5;
+  std::ostringstream out;
+  out.precision(17);
+  out << "ID,TIME,AMT,RATE,CMT,II,ADDL,DV," << (columns ? "F1,ALAG1,D1,X0_2" : "WT") << "\n";
+  for (const auto& r : kModifierRows) {
+    out << "1," << r[0] << "," << r[1] << "," << r[2] << "," << r[3] << "," << r[4] << "," << r[5] << ","
+        << (r[1] > 0 ? std::string(".") : std::to_string(1 + 0.1 * r[0])) << ",";
+    const double w = r[6] / 70;
+    if (columns) {
+      out << fpop * std::pow(w, 0.25) << "," << tlag * w << "," << tvd * std::sqrt(w) << "," << a0 * w << "\n";
+    } else {
+      out << r[6] << "\n";
+    }
+  }
+  return std::make_shared<pk::Dataset>(pk::ParseDataset(out.str(), columns ? "columns.csv" : "wt.csv"));
+}
+
+}  // namespace
+
+TEST_CASE("model files: dose modifiers computed in $PK follow covariates, with exact gradients", "[model_file][gradient]") {
+  const auto model = pk::ParseModel(kComputedModifiers, "modifiers.pkm");
+  REQUIRE(model->is_linear());
+  CHECK(model->declarations().computed_modifiers.names == std::vector<std::string>{"F1", "ALAG1", "D1", "X0_2"});
+  pk::ObjectiveOptions options;
+  options.error_model = pk::MakeResidualError("proportional");
+  const pk::Objective file(model, ModifierData(false), 0, options);
+  const pk::Objective catalogue(pk::MakeModel("1cmt_oral"), ModifierData(true), 0, options);
+  Eigen::VectorXd values = file.DefaultValues(), cvalues = catalogue.DefaultValues();
+  for (const char* name : {"KA", "CL", "V"}) cvalues(catalogue.ParameterIndex(name)) = values(file.ParameterIndex(name));
+  std::vector<int> structural, cstructural, all;
+  for (const char* name : {"KA", "CL", "V"}) {
+    structural.push_back(file.ParameterIndex(name));
+    cstructural.push_back(catalogue.ParameterIndex(name));
+  }
+  for (const char* name : {"KA", "CL", "V", "FPOP", "TLAG", "TVD", "A0"}) all.push_back(file.ParameterIndex(name));
+  for (int k : file.sigma_indices()) all.push_back(k);
+  // The same predictions as the catalogue given the modifiers' values as data columns.
+  const auto want = catalogue.Evaluate(cvalues, cstructural, pk::Objective::Need::kGradient);
+  REQUIRE(want.ok);
+  for (pk::GradientRoute r : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint}) {
+    const auto got = file.Evaluate(values, structural, pk::Objective::Need::kGradient, r);
+    REQUIRE(got.ok);
+    INFO(pk::ToString(r) << "\nfile " << got.predictions.transpose() << "\ncatalogue " << want.predictions.transpose());
+    CHECK(MaxRel(got.predictions, want.predictions) < 1e-12);
+    CHECK(MaxRel(got.gradient, want.gradient) < 1e-10);
+  }
+  // Derivatives through the modifiers: every route against central differences, and the exact
+  // routes against the same equations on CVODES.
+  const Eigen::VectorXd fd = pk_test::CentralDifferences(file, values, all);
+  pk::ObjectiveOptions ode = options;
+  ode.propagator = pk::Propagator::kOde;
+  ode.ode.relative_tolerance = 1e-12;
+  ode.ode.absolute_tolerance = 1e-14;
+  const pk::Objective reference(model, ModifierData(false), 0, ode);
+  for (pk::GradientRoute r : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint}) {
+    for (const pk::Objective* o : {&file, &reference}) {
+      const auto got = o->Evaluate(values, all, pk::Objective::Need::kGradient, r);
+      REQUIRE(got.ok);
+      INFO(pk::ToString(r) << " " << got.propagator << "\n" << got.gradient.transpose() << "\nfd " << fd.transpose());
+      CHECK(MaxRel(got.gradient, fd) < 1e-6);
+      CHECK(pk_test::RelDiff(got.value, file.Evaluate(values, {}, pk::Objective::Need::kValue).value) < 1e-9);
+    }
+  }
+  // A cached event schedule (eigen-coordinates, TLAG not free) follows a change of what ALAG1 reads.
+  Eigen::VectorXd moved = values;
+  moved(file.ParameterIndex("TLAG")) = 0.9;
+  const auto before = file.Evaluate(values, structural, pk::Objective::Need::kGradient);
+  const auto after = file.Evaluate(moved, structural, pk::Objective::Need::kGradient);
+  const auto fresh = pk::Objective(model, ModifierData(false), 0, options).Evaluate(moved, structural, pk::Objective::Need::kGradient);
+  REQUIRE(after.ok);
+  CHECK(after.modal);
+  CHECK(MaxRel(after.predictions, fresh.predictions) < 1e-14);
+  CHECK(MaxRel(after.predictions, before.predictions) > 1e-3);
+}
+
+TEST_CASE("model files: a computed dose modifier cannot be given, fixed or read from the data", "[model_file]") {
+  const auto model = pk::ParseModel(kComputedModifiers, "modifiers.pkm");
+  const pk::ParameterLayout layout(*model);
+  CHECK(layout.is_computed(layout.Index("ALAG1")));
+  CHECK_FALSE(layout.is_computed(layout.Index("ALAG2")));
+  CHECK_THROWS_WITH(layout.Resolve({{"F1", 0.5}}), Catch::Contains("F1 is computed in $PK of model modifiers"));
+  // A data column of that name would be ignored: refused at the header.
+  const auto data = ModifierData(true);
+  try {
+    pk::internal::CheckColumns(*model, *data, true);
+    FAIL("no error");
+  } catch (const pk::InputError& e) {
+    CHECK(e.file() == "columns.csv");
+    CHECK(e.line() == 1);
+    CHECK(e.column() == data->ColumnNumber("F1"));
+    CHECK_THAT(e.message(), Catch::Contains("the data column F1 cannot set it"));
   }
 }
 

@@ -51,6 +51,7 @@ void RebindParameters(const ParameterLayout& layout, const Eigen::VectorXd& base
         data_flags[i] = 1;
       }
     }
+    layout.ComputeModifiers(&v);  // F1 = … in a model file's $PK: from this record's parameters
     // Unused modifiers (R, D of compartments nobody infuses into) are NaN: NaN matches NaN here.
     if (s->sets.empty() || !SameValues(s->sets.back(), v) || s->from_data.back() != data_flags) {
       s->sets.push_back(v);
@@ -104,7 +105,13 @@ void CheckPositive(const Model& model, const ParameterLayout& layout, const Prep
 }  // namespace
 
 void CheckColumns(const Model& model, const Dataset& data, bool fitting) {
+  const ParameterLayout layout(model);
   for (const std::string& column : data.extra_columns) {
+    try {
+      layout.CheckNotComputed(column, "the data column " + column);
+    } catch (const InputError& e) {
+      throw InputError(data.source, data.header_line, data.ColumnNumber(column), e.message());
+    }
     if (!model.IsFormerName(column)) continue;
     throw InputError(data.source, data.header_line, data.ColumnNumber(column),
                      "column " + column + ": " + model.UnknownParameter(column, model.parameter_names()) +
@@ -123,7 +130,9 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
   s.data = &data;
   s.subject = subject;
   s.column_of_parameter.resize(layout.size());
-  for (int i = 0; i < layout.size(); ++i) s.column_of_parameter[i] = data.ExtraColumn(layout.name(i));
+  for (int i = 0; i < layout.size(); ++i) {
+    s.column_of_parameter[i] = layout.is_computed(i) ? -1 : data.ExtraColumn(layout.name(i));
+  }
   RebindParameters(layout, base, &s);
 
   const std::vector<Record>& records = s.records();

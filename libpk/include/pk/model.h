@@ -15,6 +15,8 @@
 
 #include <Eigen/Core>
 
+#include "pk/dual.h"
+
 namespace pk {
 
 /// The structure that the data-driven starting values (pk/initial_estimates.h) rely on, as a
@@ -63,6 +65,20 @@ struct OmegaBlockDeclaration {
   bool fixed = false;
 };
 
+/// Dose modifiers a model computes from its parameters: a model file's `F1 = …` or
+/// `ALAG1 = TLAG * exp(ETA_LAG)` in $PK, so that a modifier follows covariates and random effects
+/// like any individual parameter. Each record's modifiers come from that record's model parameters
+/// (covariates included); on pk::Dual their derivatives follow θ's by the chain rule. A computed
+/// modifier cannot be given (--param, a data column), fixed or estimated.
+struct ComputedModifiers {
+  std::vector<std::string> names;       ///< F1, ALAG2, X0_1, … (pk/parameters.h), in order
+  std::vector<std::vector<int>> reads;  ///< the model parameters each reads
+  /// Their values from a full model parameter vector θ (one record's set), into `values`.
+  std::function<void(const double* theta, double* values)> evaluate;
+  std::function<void(const Dual* theta, Dual* values)> evaluate_dual;
+  bool empty() const { return names.empty(); }
+};
+
 struct ModelDeclarations {
   std::string source;  ///< the model file
   /// Per model parameter, in order: its bounds, unit and whether it is a covariate (the initial
@@ -70,6 +86,8 @@ struct ModelDeclarations {
   std::vector<DeclaredParameter> parameters;
   /// Dose modifiers the file estimates (F1, ALAG2, …: names of pk/parameters.h), with their starts.
   std::vector<DeclaredParameter> modifiers;
+  /// Dose modifiers the file computes in $PK (empty for the catalogue).
+  ComputedModifiers computed_modifiers;
   /// The residual-error model the file gives its outputs ("" when none), and initial σ values.
   std::string error_model;
   std::vector<double> sigma;

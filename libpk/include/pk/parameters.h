@@ -14,6 +14,10 @@
 //            record (like NONMEM's A_0(n)); a reset (EVID 3/4, SS=1) empties it
 //
 // The layout is θ followed by F1..Fn, ALAG1..ALAGn, R1..Rn, D1..Dn, X0_1..X0_n.
+//
+// A model file may instead compute a modifier in $PK (`F1 = FPOP * (WT/70)^0.25`,
+// pk::ComputedModifiers): its entry then always holds the value computed from the same vector's
+// model parameters, and it cannot be given, fixed or estimated.
 #ifndef PK_PARAMETERS_H_
 #define PK_PARAMETERS_H_
 
@@ -23,6 +27,7 @@
 
 #include <Eigen/Core>
 
+#include "pk/dual.h"
 #include "pk/model.h"
 
 namespace pk {
@@ -50,6 +55,18 @@ class ParameterLayout {
   int Duration(int cmt) const { return num_model_ + 3 * n_ + cmt; }
   int InitialState(int cmt) const { return num_model_ + 4 * n_ + cmt; }
 
+  /// Whether entry i is a modifier the model computes (ComputedModifiers).
+  bool is_computed(int i) const { return i >= 0 && i < size() && computed_flag_[static_cast<size_t>(i)] != 0; }
+  /// The model parameters some computed modifier reads (sorted; empty without computed modifiers).
+  const std::vector<int>& computed_reads() const { return computed_reads_; }
+  /// Sets the computed modifiers of a full layout vector `p` from its model parameters (nothing
+  /// to do without computed modifiers). On pk::Dual, their derivatives follow the parameters'.
+  void ComputeModifiers(Eigen::VectorXd* p) const;
+  void ComputeModifiers(Eigen::Matrix<Dual, Eigen::Dynamic, 1>* p) const;
+  /// Throws pk::InputError when `name` is a computed modifier; `what` says how it was given
+  /// ("a data column", …) and completes "…, so WHAT cannot set it".
+  void CheckNotComputed(const std::string& name, const std::string& what) const;
+
   /// Model defaults, F=1, ALAG=0, X0=0, and NaN (unset) for R and D.
   Eigen::VectorXd Defaults() const;
   /// Defaults overridden by `values`; throws pk::InputError for an unknown name,
@@ -62,6 +79,9 @@ class ParameterLayout {
   int n_;
   std::vector<std::string> names_;
   Eigen::VectorXd defaults_;
+  std::vector<int> computed_;  // layout indices of the computed modifiers, in ComputedModifiers order
+  std::vector<char> computed_flag_;
+  std::vector<int> computed_reads_;
 };
 
 }  // namespace pk

@@ -11,17 +11,21 @@
 #include "pk/fit_subjects.h"
 #include "pk/ode_model.h"
 #include "pk/output.h"
+#include "pk/parameters.h"
 
 namespace pk {
 namespace {
 
 // Every name of `settings` must be one of the objective's parameters.
+// A modifier the model computes in $PK cannot be set.
 void CheckNames(const Objective& probe, const ParameterSettings& settings) {
+  const ParameterLayout layout(probe.model());
   for (const ParameterValues* group : {&settings.initial, &settings.fixed, &settings.lower, &settings.upper}) {
     for (const auto& kv : *group) {
       if (probe.ParameterIndex(kv.first) < 0) {
         throw InputError(probe.model().UnknownParameter(kv.first, probe.parameter_names()));
       }
+      layout.CheckNotComputed(kv.first, "a value, bound or --fix given for it");
     }
   }
 }

@@ -86,8 +86,7 @@ class ScheduleRecorder {
 
 }  // namespace
 
-EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubject& subject,
-                             int num_model_parameters) {
+EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubject& subject) {
   EventSchedule out;
   ScheduleRecorder recorder(subject, &out);
   EventEngine<double, ScheduleRecorder> engine(subject, layout, subject.sets, &recorder);
@@ -115,9 +114,7 @@ EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubjec
       }
     }
   }
-  const int tail = layout.size() - num_model_parameters;
-  out.key = subject.sets.empty() ? Eigen::VectorXd() : Eigen::VectorXd(subject.sets[0].tail(tail));
-  return out;
+  return out;  // the caller sets the key (ObjectiveState::ScheduleKey)
 }
 
 // ---------------------------------------------------------------------------

@@ -97,11 +97,11 @@ struct EventSchedule {
   int num_samples = 0;
   /// Only advances, boluses, samples and resets (no steady states).
   bool simple = true;
-  Eigen::VectorXd key;  ///< the layout values it was recorded with (entries from num_parameters() on)
+  Eigen::VectorXd key;  ///< what it was recorded at (ObjectiveState::ScheduleKey: the modifiers, and what a computed one reads)
 };
 
 /// Runs the event engine once on `subject` (already bound to its values).
-EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubject& subject, int num_model_parameters);
+EventSchedule RecordSchedule(const ParameterLayout& layout, const PreparedSubject& subject);
 
 /// Evaluates ŷ, and ∂ŷ/∂p or the adjoint gradient, by modal propagation.
 class ModalEvaluator {

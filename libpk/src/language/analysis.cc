@@ -137,10 +137,8 @@ class Analyser {
     for (const OmegaLine& line : t.omega) DeclareOmegaBlock(line);
     for (size_t i = 0; i < t.definitions.size(); ++i) {
       const Definition& d = t.definitions[i];
-      if (!ModifierName(d.name).first.empty()) {
-        Fail(d.at, d.name + " is a dose modifier: declare it in $PARAM (estimated, or given by --param or a column); "
-                            "an expression for it is not supported");
-      }
+      const auto mod = ModifierName(d.name);
+      if (!mod.first.empty()) DeclareComputedModifier(d, mod.second, static_cast<int>(i));
       Declare(d.name, SymbolKind::kDefinition, static_cast<int>(i), d.at);
     }
     for (size_t i = 0; i < t.outputs.size(); ++i) {
@@ -151,6 +149,20 @@ class Analyser {
     def_state_.assign(t.definitions.size(), 0);
     used_.assign(out_.parameters.size(), false);
     eta_used_.assign(t.etas.size(), false);
+  }
+
+  // F1 = …, ALAG2 = …: a dose modifier computed in $PK from individual parameters (it may not read
+  // an amount, and it modifies a compartment that exists). Expressions may read it as a definition.
+  void DeclareComputedModifier(const Definition& d, int cmt, int index) {
+    if (!d.in_pk) {
+      Fail(d.at, d.name + " is a dose modifier: compute it in $PK, where individual parameters are defined (the "
+                          "event engine applies it to doses, before any amount exists)");
+    }
+    if (cmt > n()) {
+      Fail(d.at, d.name + " modifies compartment " + std::to_string(cmt) + ", but the model has " +
+                     std::to_string(n()) + " compartment" + (n() > 1 ? "s" : ""));
+    }
+    modifier_definitions_.push_back(index);
   }
 
   // Ω's block over one $OMEGA line's η: symmetric from its lower triangle, positive definite.
@@ -433,6 +445,12 @@ class Analyser {
                                       "define it in $ODE");
       }
       const std::string& name = t.definitions[d].name;
+      if (std::find(modifier_definitions_.begin(), modifier_definitions_.end(), static_cast<int>(d)) !=
+          modifier_definitions_.end()) {
+        out_.modifier_names.push_back(name);
+        out_.modifier_roots.push_back(r);
+        out_.modifier_reads.push_back(ParametersRead(r));
+      }
       if (t.definitions[d].in_pk && std::find(out_.pk_names.begin(), out_.pk_names.end(), name) == out_.pk_names.end()) {
         out_.pk_names.push_back(name);
         out_.pk_roots.push_back(r);
@@ -456,6 +474,7 @@ class Analyser {
     std::vector<char> seen(g_.size(), 0);
     for (int r : out_.rhs) MarkUsed(r, &seen);
     for (int r : out_.outputs) MarkUsed(r, &seen);
+    for (int r : out_.modifier_roots) MarkUsed(r, &seen);
     for (const ParameterDecl& p : t.parameters) {
       const Symbol& s = symbols_.at(p.name);
       if (s.kind == SymbolKind::kParameter && !used_[static_cast<size_t>(s.index)]) {
@@ -837,6 +856,7 @@ class Analyser {
   std::vector<double> defaults_;
   std::map<int, int> input_node_;
   std::vector<int> resolved_def_, def_state_, stack_;
+  std::vector<int> modifier_definitions_;  // definitions that compute a dose modifier (F1 = … in $PK)
   std::vector<bool> used_, eta_used_;
   std::vector<int> state_read_;                              // per node: StateRead, -2 not yet known
   std::map<int, std::pair<bool, Polynomial>> expanded_;      // per node: Expand

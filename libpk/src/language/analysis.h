@@ -33,6 +33,10 @@ struct CompiledModel {
   std::vector<int> outputs;  // root of each output (DVID 1, 2, …)
   std::vector<std::string> pk_names;  // the $PK definitions, in file order
   std::vector<int> pk_roots;          // and their roots (they read no state)
+  /// Dose modifiers computed in $PK (F1 = …): names, roots (amount-free) and the model parameters each reads.
+  std::vector<std::string> modifier_names;
+  std::vector<int> modifier_roots;
+  std::vector<std::vector<int>> modifier_reads;
   /// When dx/dt = A(θ)x and there is one output y = C(θ)x: the terms for LinearModel::FromTerms.
   /// An entry c·θ_a/θ_b is a term of its own; any other (−CL/V with CL = TVCL·WT·exp(η), say) reads
   /// a derived coefficient: term index m + k stands for the node derived_roots[k], which reads the

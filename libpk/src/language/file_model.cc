@@ -59,6 +59,27 @@ ModelDeclarations WithPkValues(const CompiledModel& m, int n) {
   return declarations;
 }
 
+// F1 = …, ALAG2 = … of $PK: one program over the modifiers' roots, on double and on pk::Dual.
+ComputedModifiers Modifiers(const CompiledModel& m, int n) {
+  ComputedModifiers out;
+  if (m.modifier_roots.empty()) return out;
+  out.names = m.modifier_names;
+  out.reads = m.modifier_reads;
+  const auto program = std::make_shared<const Program>(m.graph, m.modifier_roots, n);
+  // The modifiers read no amount (checked: they are $PK definitions).
+  out.evaluate = [program, n](const double* theta, double* values) {
+    thread_local std::vector<double> zeros;
+    zeros.assign(static_cast<size_t>(n), 0.0);
+    program->Run<double>(zeros.data(), theta, values, &Slots<double>());
+  };
+  out.evaluate_dual = [program, n](const Dual* theta, Dual* values) {
+    thread_local std::vector<Dual> zeros;
+    zeros.assign(static_cast<size_t>(n), Dual(0.0));
+    program->Run<Dual>(zeros.data(), theta, values, &Slots<Dual>());
+  };
+  return out;
+}
+
 // ψ(θ) from the coefficient nodes, with its Jacobian by forward-mode AD (pk::Dual).
 DerivedCoefficients Coefficients(const CompiledModel& m, int n) {
   DerivedCoefficients derived;
@@ -111,7 +132,8 @@ DerivedCoefficients Coefficients(const CompiledModel& m, int n) {
 std::shared_ptr<const Model> Build(const CompiledModel& m) {
   const ModelText& t = m.text;
   const int n = static_cast<int>(m.compartments.size());
-  const ModelDeclarations declarations = WithPkValues(m, n);
+  ModelDeclarations declarations = WithPkValues(m, n);
+  declarations.computed_modifiers = Modifiers(m, n);
   if (m.linear) {
     // Observations in the central compartment measure the output; in another, its amount.
     std::vector<std::vector<LinearTerm>> rows(static_cast<size_t>(n));

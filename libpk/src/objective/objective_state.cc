@@ -47,18 +47,39 @@ void ObjectiveState::Sigmas(const Eigen::VectorXd& values, double* out) const {
   for (size_t j = 0; j < sigma.size(); ++j) out[j] = values(sigma[j]);
 }
 
-std::shared_ptr<const EventSchedule> ObjectiveState::Schedule(const Eigen::VectorXd& values) const {
+Eigen::VectorXd ObjectiveState::ScheduleKey(const Eigen::VectorXd& values) const {
+  // The schedule depends on the modifiers, and on the parameters a modifier computed in $PK reads.
   const int m = model->num_parameters();
-  const auto key = values.segment(m, L() - m);
+  const std::vector<int>& reads = layout.computed_reads();
+  Eigen::VectorXd key(L() - m + static_cast<Eigen::Index>(reads.size()));
+  key.head(L() - m) = values.segment(m, L() - m);
+  for (size_t k = 0; k < reads.size(); ++k) key(L() - m + static_cast<Eigen::Index>(k)) = values(reads[k]);
+  return key;
+}
+
+bool ObjectiveState::ScheduleFits(const EventSchedule& schedule, const Eigen::VectorXd& values) const {
+  const int m = model->num_parameters();
+  const std::vector<int>& reads = layout.computed_reads();
+  const Eigen::VectorXd& key = schedule.key;
+  if (key.size() != L() - m + static_cast<Eigen::Index>(reads.size())) return false;
+  if (!SameValues(key.head(L() - m), values.segment(m, L() - m))) return false;
+  for (size_t k = 0; k < reads.size(); ++k) {
+    const double a = key(L() - m + static_cast<Eigen::Index>(k)), b = values(reads[k]);
+    if (!(a == b || (std::isnan(a) && std::isnan(b)))) return false;
+  }
+  return true;
+}
+
+std::shared_ptr<const EventSchedule> ObjectiveState::Schedule(const Eigen::VectorXd& values) const {
   {
     std::lock_guard<std::mutex> lock(schedule_mutex);
     // Unused modifiers are NaN: NaN matches NaN.
-    if (schedule && SameValues(schedule->key, key)) return schedule;
+    if (schedule && ScheduleFits(*schedule, values)) return schedule;
   }
   PreparedSubject s = prepared;
   RebindParameters(layout, values.head(L()), &s);
-  auto made = std::make_shared<EventSchedule>(RecordSchedule(layout, s, m));
-  made->key = key;
+  auto made = std::make_shared<EventSchedule>(RecordSchedule(layout, s));
+  made->key = ScheduleKey(values);
   std::lock_guard<std::mutex> lock(schedule_mutex);
   schedule = made;
   return made;
@@ -80,8 +101,7 @@ ModalEvaluator* ObjectiveState::Modal(const Eigen::VectorXd& values, const std::
   }
   lease->owner = this;
   ModalWork& w = *lease->work;
-  const int m = model->num_parameters();
-  if (!w.schedule || !SameValues(w.schedule->key, values.segment(m, L() - m))) w.schedule = Schedule(values);
+  if (!w.schedule || !ScheduleFits(*w.schedule, values)) w.schedule = Schedule(values);
   if (!w.evaluator->Reset(*w.schedule, values, prepared, model_free)) return nullptr;
   return w.evaluator.get();
 }

@@ -84,6 +84,10 @@ struct ObjectiveState {
   /// σ values at `values` (one per error-model σ), in `out`.
   void Sigmas(const Eigen::VectorXd& values, double* out) const;
   std::shared_ptr<const EventSchedule> Schedule(const Eigen::VectorXd& values) const;
+  /// What a schedule depends on: the modifiers, then the parameters a computed modifier reads.
+  Eigen::VectorXd ScheduleKey(const Eigen::VectorXd& values) const;
+  /// Whether `schedule` was recorded at values with the same key (NaN matches NaN).
+  bool ScheduleFits(const EventSchedule& schedule, const Eigen::VectorXd& values) const;
   /// The modal evaluator at `values`, leased into `lease` (null when some set's A is unsuitable;
   /// see exact/modal.h). Its schedule is re-recorded only when the dose modifiers' values changed.
   ModalEvaluator* Modal(const Eigen::VectorXd& values, const std::vector<int>& model_free, ModalLease* lease) const;

@@ -60,8 +60,11 @@ bool ModalRoute(GradientRoute route) {
 
 // Dose modifiers move event times and amounts; model parameters do not.
 bool EventsDepend(const ObjectiveState& d, const FreeParameters& free) {
+  const std::vector<int>& computed = d.layout.computed_reads();  // F1 = … in $PK reads them
   bool depend = false;
-  for (int i : free.model()) depend = depend || i >= d.model->num_parameters();
+  for (int i : free.model()) {
+    depend = depend || i >= d.model->num_parameters() || std::binary_search(computed.begin(), computed.end(), i);
+  }
   return depend;
 }
 
@@ -147,16 +150,16 @@ void PredictRoute(const ObjectiveState& d, const Eigen::VectorXd& values, const 
   if (route == GradientRoute::kCompanion) {
     PredictCompanion(d, s, free, &yhat, &out->jacobian);
   } else if (ode && route == GradientRoute::kForward && pm > 0) {
-    OdeForwardSensitivities(d.ode, s, DualSets(s, d.L(), free), pm, &yhat, &out->jacobian, &out->continuous_loss,
+    OdeForwardSensitivities(d.ode, s, DualSets(s, d.layout, free), pm, &yhat, &out->jacobian, &out->continuous_loss,
                             &out->continuous_gradient, &ev->ode_statistics);
   } else if (ode && route == GradientRoute::kAdjoint && pm > 0) {
-    out->ode_adjoint.reset(new OdeAdjoint(d.ode, s, DualSets(s, d.L(), free), pm));
+    out->ode_adjoint.reset(new OdeAdjoint(d.ode, s, DualSets(s, d.layout, free), pm));
     out->ode_adjoint->Forward(&yhat, &out->continuous_loss);
   } else if (route == GradientRoute::kForward && pm > 0) {
-    ForwardSensitivities(*d.linear, d.layout, s, DualSets(s, d.L(), free), pm, events_depend, &yhat,
+    ForwardSensitivities(*d.linear, d.layout, s, DualSets(s, d.layout, free), pm, events_depend, &yhat,
                          &out->jacobian);
   } else if (route == GradientRoute::kAdjoint && pm > 0) {
-    out->adjoint.reset(new DiscreteAdjoint(*d.linear, d.layout, s, DualSets(s, d.L(), free), pm, events_depend));
+    out->adjoint.reset(new DiscreteAdjoint(*d.linear, d.layout, s, DualSets(s, d.layout, free), pm, events_depend));
     out->adjoint->Forward(&yhat);
   } else {
     PredictAt(d, values, &yhat, &out->continuous_loss, &ev->ode_statistics);
@@ -174,8 +177,9 @@ bool Failed(const std::string& why, Objective::Evaluation* ev) {
 }  // namespace
 
 // Each parameter set with the free layout parameters seeded as dual numbers (those a data
-// column supplies stay constant).
-std::vector<DualVector> DualSets(const PreparedSubject& s, int layout_size, const FreeParameters& free) {
+// column supplies stay constant), and the computed modifiers computed from them.
+std::vector<DualVector> DualSets(const PreparedSubject& s, const ParameterLayout& layout, const FreeParameters& free) {
+  const int layout_size = layout.size();
   const int pm = free.num_model();
   const std::vector<int>& model_free = free.model();
   std::vector<DualVector> sets(s.sets.size());
@@ -185,6 +189,7 @@ std::vector<DualVector> DualSets(const PreparedSubject& s, int layout_size, cons
     for (int a = 0; a < pm; ++a) {
       if (!s.from_data[k][model_free[a]]) sets[k](model_free[a]) = Dual(s.sets[k](model_free[a]), pm, a);
     }
+    layout.ComputeModifiers(&sets[k]);
   }
   return sets;
 }

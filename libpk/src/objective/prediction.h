@@ -54,8 +54,8 @@ struct Prediction {
 };
 
 /// Each parameter set with the free model parameters seeded as pk::Dual derivatives (those a
-/// data column supplies stay constant).
-std::vector<DualVector> DualSets(const PreparedSubject& s, int layout_size, const FreeParameters& free);
+/// data column supplies stay constant), and the modifiers the model computes computed from them.
+std::vector<DualVector> DualSets(const PreparedSubject& s, const ParameterLayout& layout, const FreeParameters& free);
 
 /// ŷ into ev->predictions (emptied on failure, with ev->ok false and the message), and what
 /// `route` needs for derivatives into `out`. Sets ev->modal and ev->ode_statistics.

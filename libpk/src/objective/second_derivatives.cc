@@ -1,4 +1,6 @@
 // Objective::SecondDerivatives: exact ∂²ŷ/∂p_a∂p_b on the exact propagator (exact/second_order.h).
+#include <algorithm>
+
 #include "exact/second_order.h"
 #include "numerical_failure.h"
 #include "objective/prediction.h"
@@ -21,6 +23,14 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
       return false;
     }
   }
+  for (const int i : free) {
+    const std::vector<int>& computed = d.layout.computed_reads();
+    if (std::binary_search(computed.begin(), computed.end(), i)) {
+      *why = "exact second derivatives do not follow a computed dose modifier (" + d.layout.name(i) +
+             " is read by F, ALAG, R, D or X0 in $PK)";
+      return false;
+    }
+  }
   for (const auto& ab : pairs) {
     const int p = static_cast<int>(free.size());
     if (ab.first < 0 || ab.first >= p || ab.second < 0 || ab.second >= p) {
@@ -32,7 +42,7 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
   internal::PreparedSubject s = d.prepared;
   internal::RebindParameters(d.layout, values.head(d.L()), &s);
   try {
-    internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.L(), fp), fp.num_model(), pairs,
+    internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.layout, fp), fp.num_model(), pairs,
                                        d.options.modal_propagation, second);
   } catch (const internal::NumericalFailure& e) {
     *why = e.what();

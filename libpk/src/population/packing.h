@@ -54,6 +54,7 @@ class Packing {
   template <typename T, typename Constant>
   void UnpackAs(const std::vector<T>& x, const Constant& constant, std::vector<T>* theta, std::vector<T>* sigma,
                 std::vector<std::vector<T>>* l) const {
+    using std::exp;  // pk::exp(Dual) would hide it for T = double
     size_t at = 0;
     theta->clear();
     for (size_t k = 0; k < theta_fixed_.size(); ++k) {
@@ -81,6 +82,7 @@ class Packing {
   // θ_k from its x (the transform above), on any scalar type.
   template <typename T, typename Constant>
   T ThetaOf(size_t k, const T& x, const Constant& constant) const {
+    using std::exp;  // pk::exp(Dual) would hide it for T = double
     const double lo = theta_lower_[k], hi = theta_upper_[k];
     if (std::isfinite(lo) && std::isfinite(hi)) {
       return constant(lo) + (constant(1.0) / (constant(1.0) + exp(-x))) * (hi - lo);
