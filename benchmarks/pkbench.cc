@@ -23,7 +23,7 @@
 // their ratios are medians over the rounds (see Interleaved()).
 //
 //   pkbench [--only N] [--min-time SECONDS] [--quick] [--datasets DIR]
-//   pkbench --count closed|loss|forward|adjoint CALLS
+//   pkbench --count closed|loss|forward|adjoint|population CALLS
 //
 // --count repeats one call of section 1, untimed, for instruction counts:
 //   valgrind --tool=callgrind pkbench --count adjoint 1000
@@ -365,6 +365,19 @@ int main(int argc, char** argv) {
   using Need = pk::Objective::Need;
   using Route = pk::GradientRoute;
 
+  if (count_case == "population") {
+    // Phenobarbital's FOCEI fit of section 8, repeated untimed: perf record pkbench --count population 50
+    const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
+    const pk::PopulationProblem problem = BolusProblem(pheno);
+    pk::PopulationParameters start;
+    start.theta = Eigen::Vector2d(0.005, 1.0);
+    start.omega = 0.1 * Eigen::MatrixXd::Identity(2, 2);
+    start.sigma = Eigen::VectorXd::Constant(1, 0.2);
+    pk::PopulationOptions options;
+    options.covariance = false;
+    for (long k = 0; k < count_calls; ++k) g_sink = pk::FitPopulation(problem, start, options).ofv;
+    return 0;
+  }
   // ---- 1. 2cmt_oral, 12 samples.
   if (only == 0 || only == 1 || !count_case.empty()) {
     const pk::Objective obj(pk::MakeModel("2cmt_oral"), OneDose("1", 100), 0, pk::ObjectiveOptions());

@@ -1,10 +1,11 @@
-// A second-order forward-mode scalar (not installed): a value with its gradient and Hessian in
-// d variables. The exact outer gradient (outer_gradient.cc) evaluates the conditional objective
-// on it to get ∇l, ∇²l and ∇L in one pass over a subject's samples.
+// A second-order forward-mode scalar (not installed): a value with its gradient in d variables
+// z and the rows of its Hessian that belong to the first q of them. The exact outer gradient
+// (outer_gradient.cc) evaluates the conditional objective on it over z = (η, x) and needs ∇l, ∇L
+// and only the η rows of ∇²l (∇²_ηη l and ∇²_ηx l): q × d second derivatives, not d × d.
 //
 // pk::Dual carries first derivatives only, and nesting it is not supported, so this small type
-// carries the second-order terms explicitly:
-//   (ab)'' = a''b + ab'' + a'b'ᵀ + b'a'ᵀ,   φ(a)'' = φ'(a) a'' + φ''(a) a'a'ᵀ.
+// carries the second-order terms explicitly (rows a < q, columns b < d):
+//   (ab)_ab = a_ab b + a b_ab + a_a b_b + b_a a_b,   φ(a)_ab = φ'(a) a_ab + φ''(a) a_a a_b.
 #ifndef PK_SRC_POPULATION_HYPER_DUAL_H_
 #define PK_SRC_POPULATION_HYPER_DUAL_H_
 
@@ -15,28 +16,37 @@
 namespace pk {
 namespace internal {
 
-/// MaxD bounds the number of variables at compile time, which keeps the gradient and Hessian on
+/// The derivatives a HyperDual carries: first derivatives in d variables, second derivatives in
+/// the first q of them (with every variable).
+struct HyperDualShape {
+  int q = 0;
+  int d = 0;
+};
+
+/// MaxQ and MaxD bound q and d at compile time, which keeps the gradient and the Hessian's rows on
 /// the stack (no allocation per operation); Eigen::Dynamic allows any number, on the heap.
-template <int MaxD>
+template <int MaxQ, int MaxD>
 class HyperDualT {
  public:
   using Vector = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, MaxD, 1>;
-  using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, MaxD, MaxD>;
+  using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, MaxQ, MaxD>;
   using HyperDual = HyperDualT;
 
   HyperDualT() = default;
-  /// A constant in d variables.
-  HyperDualT(double v, int d) : v_(v), g_(Vector::Zero(d)), h_(Matrix::Zero(d, d)) {}
-  /// Variable i of d.
-  static HyperDual Variable(double v, int d, int i) {
-    HyperDual x(v, d);
+  /// A constant.
+  HyperDualT(double v, HyperDualShape s) : v_(v), g_(Vector::Zero(s.d)), h_(Matrix::Zero(s.q, s.d)) {}
+  /// Variable i.
+  static HyperDual Variable(double v, HyperDualShape s, int i) {
+    HyperDual x(v, s);
     x.g_(i) = 1;
     return x;
   }
 
   double value() const { return v_; }
   const Vector& gradient() const { return g_; }
+  /// ∂²/∂z_a∂z_b for a < q (rows) and every b (columns).
   const Matrix& hessian() const { return h_; }
+  HyperDualShape shape() const { return {static_cast<int>(h_.rows()), static_cast<int>(g_.size())}; }
 
   HyperDual& operator+=(const HyperDual& o) {
     v_ += o.v_;
@@ -51,7 +61,8 @@ class HyperDualT {
     return *this;
   }
   HyperDual& operator*=(const HyperDual& o) {
-    h_ = h_ * o.v_ + o.h_ * v_ + g_ * o.g_.transpose() + o.g_ * g_.transpose();
+    const Eigen::Index q = h_.rows();
+    h_ = h_ * o.v_ + o.h_ * v_ + g_.head(q) * o.g_.transpose() + o.g_.head(q) * g_.transpose();
     g_ = g_ * o.v_ + o.g_ * v_;
     v_ *= o.v_;
     return *this;
@@ -73,7 +84,7 @@ class HyperDualT {
     HyperDual r;
     r.v_ = f;
     r.g_ = df * a.g_;
-    r.h_ = df * a.h_ + d2f * a.g_ * a.g_.transpose();
+    r.h_ = df * a.h_ + d2f * a.g_.head(a.h_.rows()) * a.g_.transpose();
     return r;
   }
   static HyperDual Reciprocal(const HyperDual& a) {
@@ -87,25 +98,25 @@ class HyperDualT {
   Matrix h_;
 };
 
-template <int D> HyperDualT<D> operator+(HyperDualT<D> a, const HyperDualT<D>& b) { return a += b; }
-template <int D> HyperDualT<D> operator-(HyperDualT<D> a, const HyperDualT<D>& b) { return a -= b; }
-template <int D> HyperDualT<D> operator*(HyperDualT<D> a, const HyperDualT<D>& b) { return a *= b; }
-template <int D> HyperDualT<D> operator/(HyperDualT<D> a, const HyperDualT<D>& b) { return a /= b; }
-template <int D> HyperDualT<D> operator*(HyperDualT<D> a, double c) { return a *= c; }
-template <int D> HyperDualT<D> operator*(double c, HyperDualT<D> a) { return a *= c; }
-template <int D> HyperDualT<D> operator+(HyperDualT<D> a, double c) { return a += c; }
-template <int D> HyperDualT<D> operator-(HyperDualT<D> a) { return a *= -1.0; }
-template <int D> HyperDualT<D> exp(const HyperDualT<D>& a) {
+template <int Q, int D> HyperDualT<Q, D> operator+(HyperDualT<Q, D> a, const HyperDualT<Q, D>& b) { return a += b; }
+template <int Q, int D> HyperDualT<Q, D> operator-(HyperDualT<Q, D> a, const HyperDualT<Q, D>& b) { return a -= b; }
+template <int Q, int D> HyperDualT<Q, D> operator*(HyperDualT<Q, D> a, const HyperDualT<Q, D>& b) { return a *= b; }
+template <int Q, int D> HyperDualT<Q, D> operator/(HyperDualT<Q, D> a, const HyperDualT<Q, D>& b) { return a /= b; }
+template <int Q, int D> HyperDualT<Q, D> operator*(HyperDualT<Q, D> a, double c) { return a *= c; }
+template <int Q, int D> HyperDualT<Q, D> operator*(double c, HyperDualT<Q, D> a) { return a *= c; }
+template <int Q, int D> HyperDualT<Q, D> operator+(HyperDualT<Q, D> a, double c) { return a += c; }
+template <int Q, int D> HyperDualT<Q, D> operator-(HyperDualT<Q, D> a) { return a *= -1.0; }
+template <int Q, int D> HyperDualT<Q, D> exp(const HyperDualT<Q, D>& a) {
   const double e = std::exp(a.value());
-  return HyperDualT<D>::Apply(a, e, e, e);
+  return HyperDualT<Q, D>::Apply(a, e, e, e);
 }
-template <int D> HyperDualT<D> log(const HyperDualT<D>& a) {
+template <int Q, int D> HyperDualT<Q, D> log(const HyperDualT<Q, D>& a) {
   const double x = a.value();
-  return HyperDualT<D>::Apply(a, std::log(x), 1 / x, -1 / (x * x));
+  return HyperDualT<Q, D>::Apply(a, std::log(x), 1 / x, -1 / (x * x));
 }
-template <int D> HyperDualT<D> sqrt(const HyperDualT<D>& a) {
+template <int Q, int D> HyperDualT<Q, D> sqrt(const HyperDualT<Q, D>& a) {
   const double s = std::sqrt(a.value());
-  return HyperDualT<D>::Apply(a, s, 0.5 / s, -0.25 / (s * a.value()));
+  return HyperDualT<Q, D>::Apply(a, s, 0.5 / s, -0.25 / (s * a.value()));
 }
 
 }  // namespace internal

@@ -7,8 +7,8 @@
 //
 // H contains ∂f/∂η, so these need second derivatives of the predictions ŷ(φ). The subject's ŷ is
 // replaced by its second-order Taylor model about φ̂ = φ(η̂), which has the same value, gradient
-// and Hessian there, and l and L are evaluated on HyperDual in z = (η, x): ∇²l and ∇L are then
-// exact given ŷ's first and second derivatives. The first derivatives J = ∂ŷ/∂φ are the exact
+// and Hessian there, and l and L are evaluated on HyperDual in z = (η, x): ∇L and the η rows of
+// ∇²l (all the formula needs) are then exact given ŷ's first and second derivatives. The first derivatives J = ∂ŷ/∂φ are the exact
 // forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are exact too on Φ/Γ: the
 // second-order sensitivities of exact/second_order.h. On the ODE propagator (where the implicit
 // gradient is not the default) they are central differences of J, Richardson-extrapolated.
@@ -149,7 +149,7 @@ VarianceTaylor Variance(const ResidualErrorModel& error, double yhat, const Eige
 template <class HD>
 bool LogDet(std::vector<std::vector<HD>> a, HD* out) {
   const size_t q = a.size();
-  *out = HD(0, static_cast<int>(a.empty() ? 0 : a[0][0].gradient().size()));
+  *out = HD(0, a.empty() ? HyperDualShape() : a[0][0].shape());
   for (size_t k = 0; k < q; ++k) {
     for (size_t j = 0; j < k; ++j) a[k][k] -= a[k][j] * a[k][j];
     if (!(a[k][k].value() > 0)) return false;
@@ -165,7 +165,7 @@ bool LogDet(std::vector<std::vector<HD>> a, HD* out) {
 
 // The inverse of a lower-triangular matrix.
 template <class HD>
-std::vector<std::vector<HD>> LowerInverse(const std::vector<std::vector<HD>>& l, int d) {
+std::vector<std::vector<HD>> LowerInverse(const std::vector<std::vector<HD>>& l, HyperDualShape d) {
   using HDMatrix = std::vector<std::vector<HD>>;
   const size_t q = l.size();
   HDMatrix inv(q, std::vector<HD>(q, HD(0, d)));
@@ -205,7 +205,7 @@ bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::Vector
 // The parameters as functions of z = (η, x), and their offsets from the expansion point.
 template <class HD>
 struct Variables {
-  int d = 0;
+  HyperDualShape d;  // second derivatives in η only (the rows of ∇²l the gradient needs)
   std::vector<HD> eta, theta, sigma, phi, dphi, dphi00, dsigma;
   std::vector<std::vector<HD>> lo;  // Ω's Cholesky factor
 };
@@ -214,7 +214,8 @@ template <class HD>
 Variables<HD> MakeVariables(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
                             const Eigen::VectorXd& x, const Eigen::VectorXd& eta, const Expansion& e) {
   Variables<HD> v;
-  const auto q = static_cast<int>(eta.size()), m = static_cast<int>(x.size()), d = q + m;
+  const auto q = static_cast<int>(eta.size()), m = static_cast<int>(x.size());
+  const HyperDualShape d{q, q + m};
   v.d = d;
   std::vector<HD> xs;
   for (int i = 0; i < q; ++i) v.eta.push_back(HD::Variable(eta(i), d, i));
@@ -308,6 +309,8 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
   const HD w = HD::Reciprocal(var);
   *l += r * r * w + log(var);
   std::vector<HD> g, dv;
+  g.reserve(static_cast<size_t>(q));
+  dv.reserve(static_cast<size_t>(q));
   for (int i = 0; i < q; ++i) {
     const int k = s.eta_phi[static_cast<size_t>(i)];
     HD slope(e.j0(j, k), v.d);
@@ -360,10 +363,12 @@ bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& 
 bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
                           const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
                           std::string* why) {
-  // The scalar's derivatives over z = (η, x) live on the stack up to 16 variables (2 η and 6
-  // population parameters make 8), on the heap beyond.
-  if (mode.eta.size() + x.size() <= 16) return GradientOn<HyperDualT<16>>(s, p, packing, x, mode, gradient, why);
-  return GradientOn<HyperDualT<Eigen::Dynamic>>(s, p, packing, x, mode, gradient, why);
+  // The scalar's derivatives over z = (η, x) live on the stack up to 4 η and 16 variables (2 η and
+  // 6 population parameters make 8), on the heap beyond.
+  if (mode.eta.size() <= 4 && mode.eta.size() + x.size() <= 16) {
+    return GradientOn<HyperDualT<4, 16>>(s, p, packing, x, mode, gradient, why);
+  }
+  return GradientOn<HyperDualT<Eigen::Dynamic, Eigen::Dynamic>>(s, p, packing, x, mode, gradient, why);
 }
 
 }  // namespace internal
