@@ -200,6 +200,12 @@ class Objective {
   Evaluation Evaluate(const Eigen::VectorXd& values, const std::vector<int>& free, Need need,
                       GradientRoute route) const;
 
+  /// The predictions ŷ at `values` and, when `jacobian` is not null, ∂ŷ/∂p (samples × free, by
+  /// forward sensitivities; zero columns for σ), without the loss: what a population engine needs
+  /// of a subject at each step of its conditional problem. False with `why` on numerical failure.
+  bool Sensitivities(const Eigen::VectorXd& values, const std::vector<int>& free, Eigen::VectorXd* predictions,
+                     Eigen::MatrixXd* jacobian, std::string* why) const;
+
   /// Exact second derivatives of the predictions: (*second)[i] = ∂²ŷ/∂p_a∂p_b over the samples
   /// for pairs[i] = (a, b), positions in `free`. A linear model on the exact propagator, and model
   /// parameters only (none of F, ALAG, R, D or σ): the state's second derivatives run through the

@@ -342,6 +342,30 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   return ev;
 }
 
+bool Objective::Sensitivities(const Eigen::VectorXd& values, const std::vector<int>& free,
+                              Eigen::VectorXd* predictions, Eigen::MatrixXd* jacobian, std::string* why) const {
+  const internal::ObjectiveState& d = *impl_;
+  const internal::FreeParameters fp(free, d.L());
+  const Need need = jacobian ? Need::kJacobian : Need::kValue;
+  const GradientRoute route = jacobian ? GradientRoute::kForward : GradientRoute::kAuto;
+  Evaluation ev;
+  internal::Prediction pred;
+  if (!internal::Predict(d, values, fp, need, route, &pred, &ev)) {
+    *why = ev.message;
+    return false;
+  }
+  *predictions = std::move(ev.predictions);
+  if (!jacobian) return true;
+  const Eigen::Index n = predictions->size();
+  if (fp.all_model()) {
+    *jacobian = pred.jacobian.topRows(n);
+    return true;
+  }
+  jacobian->setZero(n, static_cast<Eigen::Index>(free.size()));
+  for (int a = 0; a < fp.num_model(); ++a) jacobian->col(fp.Position(a)) = pred.jacobian.col(a).head(n);
+  return true;
+}
+
 Eigen::VectorXd Objective::ScaledResiduals(const Eigen::VectorXd& values, const Eigen::VectorXd& predictions) const {
   const internal::ObjectiveState& d = *impl_;
   const Eigen::VectorXd r = d.y - predictions;

@@ -102,16 +102,10 @@ void DescribeIndividual(const SubjectModel& s, const PopulationPoint& p, const E
 bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
                          const Eigen::VectorXd* fixed_variance, bool derivatives, Conditional* c, std::string* why) {
   const Eigen::VectorXd phi = IndividualValues(s, p, eta);
-  const Objective::Evaluation ev =
-      s.objective->Evaluate(phi, s.eta_free, derivatives ? Objective::Need::kJacobian : Objective::Need::kValue,
-                            GradientRoute::kForward);
-  if (!ev.ok) {
-    *why = ev.message;
-    return false;
-  }
+  // ∂ŷ/∂φ of the η'd parameters, into c->g (scaled to ∂f/∂η below).
+  if (!s.objective->Sensitivities(phi, s.eta_free, &c->yhat, derivatives ? &c->g : nullptr, why)) return false;
   const Eigen::Index n = s.y.size(), q = eta.size();
   const bool logs = p.error->log_transformed();
-  c->yhat = ev.predictions;
   if (logs && (c->yhat.array() <= 0).any()) {
     *why = "a prediction is not positive, and the exponential error takes its logarithm";
     return false;
@@ -141,15 +135,13 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
     return false;
   }
   if (!derivatives) return true;
-  // ∂ŷ/∂η_m = ∂ŷ/∂φ_m · φ_m for φ_m = θ·e^η, ∂ŷ/∂φ_m for φ_m = η; the objective's residual
-  // Jacobian is −∂ŷ/∂φ.
-  Eigen::MatrixXd gy = -ev.jacobian.topRows(n);
+  // ∂ŷ/∂η_m = ∂ŷ/∂φ_m · φ_m for φ_m = θ·e^η, ∂ŷ/∂φ_m for φ_m = η.
   for (Eigen::Index m = 0; m < q; ++m) {
     const auto mm = static_cast<size_t>(m);
-    if (s.eta_log[mm]) gy.col(m) *= phi(s.eta_free[mm]);
+    if (s.eta_log[mm]) c->g.col(m) *= phi(s.eta_free[mm]);
   }
-  c->g = logs ? Eigen::MatrixXd(c->yhat.cwiseInverse().asDiagonal() * gy) : gy;
-  c->dv = dv_dyhat.asDiagonal() * gy;
+  c->dv.noalias() = dv_dyhat.asDiagonal() * c->g;  // from ∂ŷ/∂η
+  if (logs) c->g = c->yhat.cwiseInverse().asDiagonal() * c->g;
   c->gradient = 2 * p.omega_inverse * eta;
   c->gradient -= 2 * c->g.transpose() * (keep * r * w).matrix();
   c->gradient += c->dv.transpose() * (keep * (w - r * r * w * w)).matrix();

@@ -33,15 +33,7 @@ constexpr double kPhiStep = 1e-3;  // relative step in φ for T (Richardson with
 // ŷ and J = ∂ŷ/∂φ over every φ (the θ, then a model file's η parameters) at φ.
 bool Sensitivities(const SubjectModel& s, const Eigen::VectorXd& phi, Eigen::VectorXd* yhat, Eigen::MatrixXd* j,
                    std::string* why) {
-  const Objective::Evaluation ev =
-      s.objective->Evaluate(phi, s.phi_index, Objective::Need::kJacobian, GradientRoute::kForward);
-  if (!ev.ok) {
-    *why = ev.message;
-    return false;
-  }
-  *yhat = ev.predictions;
-  *j = -ev.jacobian.topRows(ev.predictions.size());
-  return true;
+  return s.objective->Sensitivities(phi, s.phi_index, yhat, j, why);
 }
 
 // T[j](k, l) = ∂²ŷ_j/∂φ_k∂φ_l for k or l η'd (others 0), exact: the block-triangular exponential
