@@ -225,6 +225,7 @@ class ModalSecondOrderVisitor {
                           int num_free, const std::vector<std::pair<int, int>>& pairs, std::vector<ModalSet>* modal,
                           std::vector<Eigen::VectorXd>* out)
       : model_(model), s_(s), n_(model.num_compartments()), p_(num_free), pairs_(pairs), modal_(modal), out_(out) {
+    per_set_.reserve(sets.size());
     for (size_t i = 0; i < sets.size(); ++i) per_set_.push_back(MakeSet(sets[i], (*modal)[i]));
     x_ = SVec::Zero(n_);
     first_.assign(static_cast<size_t>(p_), x_);
@@ -305,6 +306,8 @@ class ModalSecondOrderVisitor {
   PerSet MakeSet(const DualVector& set, const ModalSet& m) const {
     PerSet p;
     p.b1.assign(static_cast<size_t>(p_), SMat::Zero(n_, n_));
+    p.extended.reserve(pairs_.size());
+    p.b2.reserve(pairs_.size());
     for (const auto& [k, l] : pairs_) {
       p.extended.push_back(Extended(model_, set, p_, k, l));
       const Parts a = Sum(model_.system_terms(), p.extended.back(), n_, n_);
@@ -325,6 +328,9 @@ class ModalSecondOrderVisitor {
     b.h = h;
     b.input = input;
     b.e = st.e;
+    // Reserved: a subject's few steps are built at every evaluation, and regrowth copies 6×6 blocks.
+    b.first.reserve(p.b1.size());
+    b.second.reserve(pairs_.size());
     for (const SMat& bj : p.b1) b.first.push_back(st.d1.cwiseProduct(bj));
     for (size_t q = 0; q < pairs_.size(); ++q) {
       const auto [k, l] = pairs_[q];
@@ -332,6 +338,8 @@ class ModalSecondOrderVisitor {
     }
     if (input) {
       b.g0 = st.g0;
+      b.first_input.reserve(p.b1.size());
+      b.second_input.reserve(pairs_.size());
       for (const SMat& bj : p.b1) b.first_input.push_back(st.g1.cwiseProduct(bj));
       for (size_t q = 0; q < pairs_.size(); ++q) {
         const auto [k, l] = pairs_[q];
