@@ -29,12 +29,13 @@ bool LogDet(const Eigen::MatrixXd& m, double* out) {
 }
 
 // The residual variances at the predictions, and ∂V/∂ŷ.
-bool Variances(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& yhat, Eigen::VectorXd* v,
-               Eigen::VectorXd* dv_dyhat, std::string* why) {
+bool Variances(const PopulationPoint& p, const Eigen::VectorXd& yhat, Eigen::VectorXd* v, Eigen::VectorXd* dv_dyhat,
+               std::string* why) {
   const Eigen::Index n = yhat.size();
   v->resize(n);
   dv_dyhat->resize(n);
-  std::vector<double> dsigma(static_cast<size_t>(std::max<Eigen::Index>(p.sigma.size(), 1)));
+  thread_local std::vector<double> dsigma;
+  dsigma.resize(static_cast<size_t>(std::max<Eigen::Index>(p.sigma.size(), 1)));
   for (Eigen::Index j = 0; j < n; ++j) {
     p.error->Variance(yhat(j), p.sigma.data(), &(*v)(j), &(*dv_dyhat)(j), dsigma.data());
     if (!((*v)(j) > 0) || !std::isfinite((*v)(j))) {
@@ -43,8 +44,20 @@ bool Variances(const SubjectModel& s, const PopulationPoint& p, const Eigen::Vec
       return false;
     }
   }
-  (void)s;
   return true;
+}
+
+// EvaluateConditional's working vectors, kept per thread: it runs thousands of times a fit on a
+// few samples each, where allocating them would cost more than the arithmetic.
+struct ConditionalScratch {
+  Eigen::VectorXd phi, dv_dyhat;
+  Eigen::ArrayXd r, w, keep, weight;
+  Eigen::MatrixXd scaled;  // rows of ∂f/∂η or ∂V/∂η times a sample's √weight
+};
+
+ConditionalScratch& Scratch() {
+  thread_local ConditionalScratch scratch;
+  return scratch;
 }
 
 // M3's terms in ∇l and in the scoring matrix. With z = s(y − f)/√V and the inverse Mills ratio
@@ -80,13 +93,20 @@ PopulationPoint PopulationPoint::Make(const PopulationParameters& pp, const Resi
 }
 
 Eigen::VectorXd IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta) {
-  Eigen::VectorXd v = s.base;
+  Eigen::VectorXd v;
+  IndividualValues(s, p, eta, &v);
+  return v;
+}
+
+void IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                      Eigen::VectorXd* out) {
+  Eigen::VectorXd& v = *out;
+  v = s.base;
   for (size_t k = 0; k < s.theta_index.size(); ++k) v(s.theta_index[k]) = p.theta(static_cast<Eigen::Index>(k));
   for (size_t m = 0; m < s.eta_free.size(); ++m) {
     const double e = eta(static_cast<Eigen::Index>(m));
     v(s.eta_free[m]) = s.eta_log[m] ? v(s.eta_free[m]) * std::exp(e) : e;
   }
-  return v;
 }
 
 void DescribeIndividual(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
@@ -101,28 +121,37 @@ void DescribeIndividual(const SubjectModel& s, const PopulationPoint& p, const E
 
 bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
                          const Eigen::VectorXd* fixed_variance, bool derivatives, Conditional* c, std::string* why) {
-  const Eigen::VectorXd phi = IndividualValues(s, p, eta);
+  ConditionalScratch& sc = Scratch();
+  IndividualValues(s, p, eta, &sc.phi);
   // ∂ŷ/∂φ of the η'd parameters, into c->g (scaled to ∂f/∂η below).
-  if (!s.objective->Sensitivities(phi, s.eta_free, &c->yhat, derivatives ? &c->g : nullptr, why)) return false;
+  if (!s.objective->Sensitivities(sc.phi, s.eta_free, &c->yhat, derivatives ? &c->g : nullptr, why)) return false;
   const Eigen::Index n = s.y.size(), q = eta.size();
   const bool logs = p.error->log_transformed();
   if (logs && (c->yhat.array() <= 0).any()) {
     *why = "a prediction is not positive, and the exponential error takes its logarithm";
     return false;
   }
-  c->f = logs ? Eigen::VectorXd(c->yhat.array().log()) : c->yhat;
-  Eigen::VectorXd dv_dyhat;
+  if (logs) {
+    c->f = c->yhat.array().log();
+  } else {
+    c->f = c->yhat;
+  }
   if (fixed_variance) {
     c->variance = *fixed_variance;
-    dv_dyhat = Eigen::VectorXd::Zero(n);
-  } else if (!Variances(s, p, c->yhat, &c->variance, &dv_dyhat, why)) {
+    sc.dv_dyhat.setZero(n);
+  } else if (!Variances(p, c->yhat, &c->variance, &sc.dv_dyhat, why)) {
     return false;
   }
-  const Eigen::ArrayXd r = (s.y - c->f).array(), w = c->variance.array().inverse();
+  sc.r = (s.y - c->f).array();
+  sc.w = c->variance.array().inverse();
   // A censored sample's term is M3's −2 log Φ(z), z = CENS·(y − f)/√V, not the normal one.
   const bool censored = s.censoring.size() == n && (s.censoring.array() != 0).any();
-  const Eigen::ArrayXd keep =
-      censored ? Eigen::ArrayXd((s.censoring.array() == 0).cast<double>()) : Eigen::ArrayXd::Ones(n);
+  if (censored) {
+    sc.keep = (s.censoring.array() == 0).cast<double>();
+  } else {
+    sc.keep.setOnes(n);
+  }
+  const Eigen::ArrayXd &r = sc.r, &w = sc.w, &keep = sc.keep;
   c->l = (keep * (r * r * w + c->variance.array().log())).sum() + eta.dot(p.omega_inverse * eta);
   for (Eigen::Index j = 0; censored && j < n; ++j) {
     if (s.censoring(j) == 0) continue;
@@ -138,16 +167,23 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
   // ∂ŷ/∂η_m = ∂ŷ/∂φ_m · φ_m for φ_m = θ·e^η, ∂ŷ/∂φ_m for φ_m = η.
   for (Eigen::Index m = 0; m < q; ++m) {
     const auto mm = static_cast<size_t>(m);
-    if (s.eta_log[mm]) c->g.col(m) *= phi(s.eta_free[mm]);
+    if (s.eta_log[mm]) c->g.col(m) *= sc.phi(s.eta_free[mm]);
   }
-  c->dv.noalias() = dv_dyhat.asDiagonal() * c->g;  // from ∂ŷ/∂η
+  c->dv.noalias() = sc.dv_dyhat.asDiagonal() * c->g;  // from ∂ŷ/∂η
   if (logs) c->g = c->yhat.cwiseInverse().asDiagonal() * c->g;
-  c->gradient = 2 * p.omega_inverse * eta;
-  c->gradient -= 2 * c->g.transpose() * (keep * r * w).matrix();
-  c->gradient += c->dv.transpose() * (keep * (w - r * r * w * w)).matrix();
+  c->gradient.noalias() = 2 * p.omega_inverse * eta;
+  sc.weight = keep * r * w;
+  c->gradient.noalias() -= 2 * c->g.transpose() * sc.weight.matrix();
+  sc.weight = keep * (w - r * r * w * w);
+  c->gradient.noalias() += c->dv.transpose() * sc.weight.matrix();
+  // H = Ω⁻¹ + Gᵀ diag(w) G + ½ Vᵀ diag(w²) V, each as a product of the scaled rows with themselves.
   c->h = p.omega_inverse;
-  c->h += c->g.transpose() * (keep * w).matrix().asDiagonal() * c->g;
-  c->h += 0.5 * c->dv.transpose() * (keep * w * w).matrix().asDiagonal() * c->dv;
+  sc.weight = (keep * w).sqrt();
+  sc.scaled = sc.weight.matrix().asDiagonal() * c->g;
+  c->h.noalias() += sc.scaled.transpose() * sc.scaled;
+  sc.weight = (0.5 * keep).sqrt() * w;
+  sc.scaled = sc.weight.matrix().asDiagonal() * c->dv;
+  c->h.noalias() += sc.scaled.transpose() * sc.scaled;
   if (censored) AddCensoredDerivatives(s, r, w, c);
   return true;
 }

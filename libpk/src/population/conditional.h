@@ -73,6 +73,9 @@ struct Conditional {
 
 /// The individual parameters φ at η.
 Eigen::VectorXd IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta);
+/// The same into `out` (its storage reused).
+void IndividualValues(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                      Eigen::VectorXd* out);
 
 /// PopulationSubject::parameters and ::definitions at η.
 void DescribeIndividual(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
