@@ -61,8 +61,17 @@ class HyperDualT {
     return *this;
   }
   HyperDual& operator*=(const HyperDual& o) {
-    const Eigen::Index q = h_.rows();
-    h_ = h_ * o.v_ + o.h_ * v_ + g_.head(q) * o.g_.transpose() + o.g_.head(q) * g_.transpose();
+    // Written out over raw storage: as an Eigen expression each outer product becomes a temporary
+    // of the maximum size, and the dynamic-size loops cost several times the arithmetic.
+    const Eigen::Index q = h_.rows(), d = h_.cols();
+    double* h = h_.data();
+    const double *oh = o.h_.data(), *g = g_.data(), *og = o.g_.data();
+    const double v = v_, ov = o.v_;
+    for (Eigen::Index b = 0; b < d; ++b) {
+      for (Eigen::Index a = 0; a < q; ++a) {
+        h[b * q + a] = h[b * q + a] * ov + oh[b * q + a] * v + g[a] * og[b] + og[a] * g[b];
+      }
+    }
     g_ = g_ * o.v_ + o.g_ * v_;
     v_ *= o.v_;
     return *this;
@@ -84,7 +93,13 @@ class HyperDualT {
     HyperDual r;
     r.v_ = f;
     r.g_ = df * a.g_;
-    r.h_ = df * a.h_ + d2f * a.g_.head(a.h_.rows()) * a.g_.transpose();
+    const Eigen::Index q = a.h_.rows(), d = a.h_.cols();
+    r.h_.resize(q, d);
+    double* h = r.h_.data();
+    const double *ah = a.h_.data(), *g = a.g_.data();
+    for (Eigen::Index b = 0; b < d; ++b) {
+      for (Eigen::Index i = 0; i < q; ++i) h[b * q + i] = df * ah[b * q + i] + d2f * g[i] * g[b];
+    }
     return r;
   }
   static HyperDual Reciprocal(const HyperDual& a) {
