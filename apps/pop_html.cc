@@ -202,6 +202,7 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   page["gradient"] = fit.gradient;
   list notes;
   if (!fit.covariance_message.empty()) notes.push_back(Text("No standard errors: " + fit.covariance_message));
+  for (const std::string& w : fit.CovarianceWarnings()) notes.push_back(Text("Covariance step: " + w + "."));
   for (const PopulationSubject& s : fit.subjects) {
     if (!s.ok) notes.push_back(Text("Subject " + FormatNumber(s.id) + ": " + s.message));
   }

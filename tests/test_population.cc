@@ -1012,3 +1012,27 @@ TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVAR
     CHECK(std::abs(fit.estimates[static_cast<size_t>(k)].se / nonmem[k] - 1) < 0.02);
   }
 }
+
+TEST_CASE("the covariance step flags correlations above 0.95 and a condition number above 1000", "[population]") {
+  pk::PopulationSummary s;
+  for (const char* name : {"CL", "V", "KA", "OMEGA(ETA_CL)"}) {
+    pk::PopulationEstimate e;
+    e.name = name;
+    e.fixed = std::string(name) == "KA";  // not in the covariance
+    s.estimates.push_back(e);
+  }
+  CHECK(s.CovarianceWarnings().empty());  // no covariance step
+  s.correlation = Eigen::Matrix3d::Identity();
+  s.correlation(0, 2) = s.correlation(2, 0) = -0.97;
+  s.correlation(0, 1) = s.correlation(1, 0) = 0.95;  // not above
+  s.condition_number = 80;
+  std::vector<std::string> w = s.CovarianceWarnings();
+  REQUIRE(w.size() == 1);
+  CHECK_THAT(w[0], Catch::StartsWith("CL and OMEGA(ETA_CL) are correlated -0.970"));
+  s.condition_number = 2562;
+  w = s.CovarianceWarnings();
+  REQUIRE(w.size() == 2);
+  CHECK_THAT(w[1], Catch::Contains("condition number 2562 exceeds 1000"));
+  s.covariance = Eigen::Matrix3d::Identity();
+  CHECK_THAT(s.FullReport(), Catch::Contains("warning: CL and OMEGA(ETA_CL) are correlated"));
+}

@@ -271,6 +271,11 @@ struct PopulationSummary {
   std::vector<PopulationIteration> history;
   int failed_subjects = 0;
 
+  /// What the covariance step flags, one sentence each: every pair of estimates whose correlation
+  /// exceeds 0.95 in absolute value (the data hardly separate them), and a condition number above
+  /// 1000 (the rule of thumb NONMEM users apply to the eigenvalue ratio). Empty without SEs.
+  std::vector<std::string> CovarianceWarnings() const;
+
   std::string BriefReport() const;
   std::string FullReport() const;
 };

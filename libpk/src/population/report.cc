@@ -21,6 +21,30 @@ std::string MethodName(PopulationMethod m) {
 
 }  // namespace
 
+std::vector<std::string> PopulationSummary::CovarianceWarnings() const {
+  constexpr double kHighCorrelation = 0.95, kHighCondition = 1000;
+  std::vector<std::string> out;
+  if (correlation.size() == 0) return out;
+  std::vector<std::string> names;  // the estimated ones, the correlation matrix's order
+  for (const PopulationEstimate& e : estimates) {
+    if (!e.fixed) names.push_back(e.name);
+  }
+  if (static_cast<Eigen::Index>(names.size()) != correlation.rows()) return out;
+  for (Eigen::Index a = 0; a < correlation.rows(); ++a) {
+    for (Eigen::Index b = 0; b < a; ++b) {
+      const double r = correlation(a, b);
+      if (!(std::abs(r) > kHighCorrelation)) continue;
+      out.push_back(names[static_cast<size_t>(b)] + " and " + names[static_cast<size_t>(a)] + " are correlated " +
+                    internal::Num(r, "%.3f") + " (|r| > 0.95): the data hardly separate them");
+    }
+  }
+  if (condition_number > kHighCondition) {
+    out.push_back("the condition number " + internal::Num(condition_number, "%.4g") +
+                  " exceeds 1000: the estimates are ill-determined in some direction");
+  }
+  return out;
+}
+
 std::string PopulationSummary::BriefReport() const {
   std::ostringstream out;
   out << MethodName(method) << ": OFV " << internal::Num(ofv, "%.6f") << " (initial "
@@ -57,6 +81,7 @@ std::string PopulationSummary::FullReport() const {
   if (covariance.size()) {
     out << "  covariance: sandwich R⁻¹SR⁻¹ (NONMEM's default); condition number "
         << internal::Num(condition_number, "%.4g") << "\n";
+    for (const std::string& w : CovarianceWarnings()) out << "  warning: " << w << "\n";
   }
   out << "\n  shrinkage (SD form; variance form in parentheses)\n";
   for (Eigen::Index k = 0; k < eta_shrinkage_sd.size(); ++k) {
