@@ -128,8 +128,8 @@ pk::FitSubjectsRequest BaseRequest(const po::variables_map& vm, const Lists& a) 
   if (vm.count("error")) {
     req.objective.error_model =
         pk::cli::Parsed("--error", [&] { return pk::MakeResidualError(vm["error"].as<std::string>()); });
-  } else if (!req.model->declarations().error_model.empty()) {  // the model file's $ERROR
-    req.objective.error_model = pk::MakeResidualError(req.model->declarations().error_model);
+  } else if (auto declared = pk::DeclaredErrorModel(*req.model)) {  // the model file's $ERROR
+    req.objective.error_model = std::move(declared);
   }
   req.priors = ParsePriors(a.priors);
   req.fit.starts = vm["starts"].as<int>();
@@ -246,7 +246,7 @@ void FillContext(const po::variables_map& vm, const pk::FitSubjectsRequest& req,
   c->axis = ParseAxis(vm);
   c->multi_exponential = req.model->is_linear() && req.model->num_compartments() > 1;
   const pk::ResidualErrorModel& error = *req.objective.error_model;
-  c->method = (error.is_likelihood() ? "maximum likelihood, " + std::string(error.name()) + " error"
+  c->method = (error.is_likelihood() ? "maximum likelihood, " + pk::DescribeErrorModel(error) + " error"
                                      : "least squares, " + vm["weighting"].as<std::string>() + " weights") +
               "; optimizer " + req.fit.optimizer + ", " + std::to_string(req.fit.starts) + " start" +
               (req.fit.starts > 1 ? "s" : "") + "; parameters on the " + (req.fit.log_scale ? "log" : "natural") +

@@ -337,10 +337,12 @@ int Main(int argc, char** argv, const Process& process) {
       pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(a.ignore, a.accept)));
   pk::ObjectiveOptions objective;
   objective.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
-  const std::string error = vm.count("error") ? vm["error"].as<std::string>()
-                            : model->declarations().error_model.empty() ? "combined"
-                                                                        : model->declarations().error_model;
-  objective.error_model = pk::cli::Parsed("--error", [&] { return pk::MakeResidualError(error); });
+  // --error, else the model file's $ERROR (one model, or one per output), else combined.
+  objective.error_model = pk::DeclaredErrorModel(*model);
+  if (vm.count("error") || !objective.error_model) {
+    const std::string error = vm.count("error") ? vm["error"].as<std::string>() : "combined";
+    objective.error_model = pk::cli::Parsed("--error", [&] { return pk::MakeResidualError(error); });
+  }
   std::vector<std::string> etas = SplitCommas(a.eta);
   if (etas.empty()) etas = DefaultEtas(*model);
   const pk::PopulationProblem problem(model, data, etas, objective);
@@ -371,7 +373,7 @@ int Main(int argc, char** argv, const Process& process) {
   const std::string dir = vm["output-dir"].as<std::string>();
   pk::cli::PopulationReportContext context;
   context.model = vm["model"].as<std::string>();
-  context.error = error;
+  context.error = pk::DescribeErrorModel(*objective.error_model);
   context.dataset_path = vm["data"].as<std::string>();
   for (int k = 0; k < argc; ++k) context.command_line += (k ? " " : "") + std::string(argv[k]);
   if (process.rank == 0) WriteOutputs(dir, problem, fit, context);

@@ -731,3 +731,104 @@ TEST_CASE("model files: declared bounds, modifiers, covariates and σ become the
     if (s.name == "SIGMA_ADD") CHECK(std::isnan(s.initial));
   }
 }
+
+namespace {
+
+std::string FileText(const std::string& name) {
+  std::ifstream in(ModelPath(name));
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+std::shared_ptr<pk::Dataset> EmaxData(const char* ignore = nullptr) {
+  pk::DatasetFilter filter;
+  if (ignore) filter.ignore = {ignore};
+  return std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/emax_synthetic.csv", filter));
+}
+
+}  // namespace
+
+TEST_CASE("per-output error models: each output's samples follow their own model and σ", "[model_file][error]") {
+  const auto model = pk::LoadModelFile(ModelPath("1cmt_iv_emax"));
+  const auto error = pk::MakePerOutputError({pk::MakeResidualError("proportional"), pk::MakeResidualError("additive")},
+                                            {"CP", "E"});
+  CHECK(error->sigma_names() == std::vector<std::string>{"SIGMA_PROP_CP", "SIGMA_ADD_E"});
+  CHECK(pk::DescribeErrorModel(*error) == "proportional (SIGMA_PROP_CP); additive (SIGMA_ADD_E)");
+  pk::ObjectiveOptions options;
+  options.error_model = error;
+  options.ode.relative_tolerance = 1e-12;
+  options.ode.absolute_tolerance = 1e-14;
+  pk::ObjectiveOptions prop = options, add = options;
+  prop.error_model = pk::MakeResidualError("proportional");
+  add.error_model = pk::MakeResidualError("additive");
+  for (int subject : {0, 3}) {
+    INFO("subject " << subject);
+    const pk::Objective both(model, EmaxData(), subject, options);
+    // The same samples split by DVID, each output with its own single model.
+    const pk::Objective cp(model, EmaxData("DVID.EQ.2"), subject, prop), e(model, EmaxData("DVID.EQ.1"), subject, add);
+    REQUIRE(both.num_samples() == cp.num_samples() + e.num_samples());
+    Eigen::VectorXd values = both.DefaultValues(), vcp = cp.DefaultValues(), ve = e.DefaultValues();
+    // Each σ starts from its own output's observations.
+    CHECK(values(both.ParameterIndex("SIGMA_ADD_E")) == ve(e.ParameterIndex("SIGMA_ADD")));
+    values(both.ParameterIndex("SIGMA_PROP_CP")) = vcp(cp.ParameterIndex("SIGMA_PROP")) = 0.15;
+    values(both.ParameterIndex("SIGMA_ADD_E")) = ve(e.ParameterIndex("SIGMA_ADD")) = 0.8;
+    const double v = both.Evaluate(values, {}, pk::Objective::Need::kValue).value;
+    const double split = cp.Evaluate(vcp, {}, pk::Objective::Need::kValue).value +
+                         e.Evaluate(ve, {}, pk::Objective::Need::kValue).value;
+    CHECK(pk_test::RelDiff(v, split) < 1e-9);
+    // Scaled residuals: (y − ŷ)/(σ_prop ŷ) for CP, (y − ŷ)/σ_add for E.
+    const auto ev = both.Evaluate(values, {}, pk::Objective::Need::kValue);
+    const Eigen::VectorXd scaled = both.ScaledResiduals(values, ev.predictions);
+    const std::vector<int> outputs = both.sample_outputs();
+    for (Eigen::Index k = 0; k < scaled.size(); ++k) {
+      const double yhat = ev.predictions(k), y = both.observations()(k);
+      const double want = outputs[static_cast<size_t>(k)] == 1 ? (y - yhat) / (0.15 * yhat) : (y - yhat) / 0.8;
+      CHECK(std::abs(scaled(k) - want) <= 1e-12 * std::max(1.0, std::abs(want)));
+    }
+    // Gradients through both σ and the model, every route against central differences.
+    std::vector<int> free;
+    for (int k = 0; k < model->num_parameters(); ++k) free.push_back(k);
+    for (int k : both.sigma_indices()) free.push_back(k);
+    const Eigen::VectorXd fd = pk_test::CentralDifferences(both, values, free);
+    for (pk::GradientRoute r : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint}) {
+      const auto g = both.Evaluate(values, free, pk::Objective::Need::kGradient, r);
+      REQUIRE(g.ok);
+      INFO(pk::ToString(r) << "\n" << g.gradient.transpose() << "\nfd " << fd.transpose());
+      CHECK(MaxRel(g.gradient, fd) < 1e-6);
+    }
+  }
+}
+
+TEST_CASE("per-output error models from a model file's $ERROR, with their initial σ", "[model_file][error]") {
+  const std::string base = FileText("1cmt_iv_emax");
+  const auto model = pk::ParseModel(base + "$ERROR\nCP ~ proportional(0.12)\nE ~ additive(0.9)\n", "emax.pkm");
+  const auto error = pk::DeclaredErrorModel(*model);
+  REQUIRE(error);
+  CHECK(error->num_outputs() == 2);
+  CHECK(error->sigma_names() == std::vector<std::string>{"SIGMA_PROP_CP", "SIGMA_ADD_E"});
+  CHECK(pk::DeclaredSigmas(*model, *error) == std::vector<double>{0.12, 0.9});
+  // Another error model in use: the file's σ do not apply.
+  CHECK(std::isnan(pk::DeclaredSigmas(*model, *pk::MakeResidualError("additive"))[0]));
+  // A fit starts from them.
+  pk::FitSubjectsRequest request;
+  request.model = model;
+  request.data = EmaxData();
+  request.objective.error_model = error;
+  const std::vector<pk::ParameterSpec> specs = pk::MakeParameterSpecs(request, pk::ParameterSettings());
+  std::map<std::string, double> start;
+  for (const pk::ParameterSpec& s : specs) start[s.name] = s.initial;
+  CHECK(start.at("SIGMA_PROP_CP") == 0.12);
+  CHECK(start.at("SIGMA_ADD_E") == 0.9);
+  // One line serves every output with one σ, as before.
+  const auto shared = pk::ParseModel(base + "$ERROR\nCP ~ proportional\n", "emax.pkm");
+  CHECK(pk::DeclaredErrorModel(*shared)->num_outputs() == 0);
+  // With a line per output, every output needs one.
+  try {
+    pk::ParseModel(base + "CE = EFFECT\n$ERROR\nCP ~ proportional\nE ~ additive\n", "emax3.pkm");
+    FAIL("no error");
+  } catch (const pk::InputError& e) {
+    CHECK(e.file() == "emax3.pkm");
+    CHECK_THAT(e.message(), Catch::Contains("but not CE"));
+  }
+}

@@ -88,9 +88,15 @@ struct ModelDeclarations {
   std::vector<DeclaredParameter> modifiers;
   /// Dose modifiers the file computes in $PK (empty for the catalogue).
   ComputedModifiers computed_modifiers;
-  /// The residual-error model the file gives its outputs ("" when none), and initial σ values.
+  /// The residual-error model the file gives its outputs ("" when none), and initial σ values
+  /// (empty when not given). With an error model per output (pk::DeclaredErrorModel), "per-output",
+  /// and the σ of every output in order when each gives them.
   std::string error_model;
   std::vector<double> sigma;
+  /// Per output, when the file gives each output its own error model: its name and σ (empty
+  /// when not given). Empty when one model serves every output.
+  std::vector<std::string> output_error_models;
+  std::vector<std::vector<double>> output_sigma;
   /// Why a model file that is not a LinearModel runs on the ODE propagator ("" otherwise).
   std::string why_not_linear;
   /// What the file's $PK defines (CL, V, FAPG, …: the individual parameters), in file order, and

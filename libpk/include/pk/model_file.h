@@ -32,6 +32,7 @@
 #include <string>
 
 #include "pk/model.h"
+#include "pk/residual_error.h"
 
 namespace pk {
 
@@ -53,6 +54,15 @@ std::shared_ptr<const Model> LoadModelFile(const std::string& path,
 /// The model in `text`; `source` names it in messages (a file name).
 std::shared_ptr<const Model> ParseModel(const std::string& text, const std::string& source,
                                         RandomEffects etas = RandomEffects::kZero);
+
+/// The residual-error model a model file's $ERROR gives, or null when it gives none: one $ERROR
+/// line serves every output with one set of σ; a line per output gives each output its own model
+/// and σ (pk::MakePerOutputError, σ named SIGMA_PROP_CP, …), as NONMEM's EPS per DVID.
+std::shared_ptr<const ResidualErrorModel> DeclaredErrorModel(const Model& model);
+
+/// The initial σ a model file's $ERROR gives for `in_use` (the error model a fit uses), one per
+/// in_use.sigma_names(): NaN where the file gives none, or when `in_use` is not the file's model.
+std::vector<double> DeclaredSigmas(const Model& model, const ResidualErrorModel& in_use);
 
 /// Why a model file that is not linear runs on the ODE propagator ("" for a linear one or a
 /// catalogue model), for a note to the user.

@@ -57,7 +57,41 @@ class ResidualErrorModel {
   /// The standard deviation √v for scaled residuals (IWRES); a model with one σ returns |σ| so
   /// that a σ of 1e-160 still divides.
   virtual double StandardDeviation(double yhat, const double* sigma) const;
+
+  /// The model that output `output` (1-based, a sample's DVID) follows, and where its σ start in
+  /// sigma_names(). A single model serves every output, its σ from 0; MakePerOutputError's
+  /// serves each output from its own. Callers pass `sigma + *first_sigma` to the component.
+  virtual const ResidualErrorModel& ForOutput(int output, int* first_sigma) const;
+  /// The number of outputs with a model of their own (0: one model for every output).
+  virtual int num_outputs() const { return 0; }
 };
+
+/// Each output its own error model and σ, as NONMEM's $ERROR with an EPS per DVID: output k
+/// (1-based) follows models[k-1], whose σ are named after the output (SIGMA_PROP_CP,
+/// SIGMA_ADD_E for outputs CP and E). Every model must be a likelihood (not least squares).
+/// Throws pk::InputError otherwise, or when the names and models differ in number.
+std::shared_ptr<const ResidualErrorModel> MakePerOutputError(
+    std::vector<std::shared_ptr<const ResidualErrorModel>> models, std::vector<std::string> output_names);
+
+/// The variance of output `output`'s compared quantity, with ∂v/∂ŷ and ∂v/∂σ over every σ of
+/// `error` (zero for the σ of other outputs): ResidualErrorModel::ForOutput applied.
+void OutputVariance(const ResidualErrorModel& error, int output, double yhat, const double* sigma, double* v,
+                    double* dv_dyhat, double* dv_dsigma);
+/// The standard deviation of output `output`'s compared quantity (IWRES's scale).
+double OutputStandardDeviation(const ResidualErrorModel& error, int output, double yhat, const double* sigma);
+/// The model's name for reports: "proportional", or per output "proportional (SIGMA_PROP_CP);
+/// additive (SIGMA_ADD_E)".
+std::string DescribeErrorModel(const ResidualErrorModel& error);
+
+/// Starting values of every σ of `error`: each output's from that output's observations
+/// (`outputs` gives the output of each observation; empty: all output 1).
+std::vector<double> DefaultSigmas(const ResidualErrorModel& error, const Eigen::VectorXd& observations,
+                                  const Eigen::VectorXi& outputs);
+/// Whether output `output` compares log y (its model's log_transformed()).
+inline bool OutputLogTransformed(const ResidualErrorModel& error, int output) {
+  int first = 0;
+  return error.ForOutput(output, &first).log_transformed();
+}
 
 /// The error model of this name (case-insensitive): "least-squares" (also "ls", "none"),
 /// "additive", "proportional", "combined", "exponential". Throws pk::InputError listing the
@@ -68,7 +102,8 @@ std::vector<std::string> ResidualErrorNames();
 /// Least squares, the default of ObjectiveOptions.
 std::shared_ptr<const ResidualErrorModel> LeastSquares();
 
-/// Whether `name` (canonical upper case) names a σ parameter of some registered error model.
+/// Whether `name` (canonical upper case) names a σ parameter of some registered error model, or
+/// (SIGMA_…_OUTPUT) of a per-output one.
 bool IsResidualErrorName(const std::string& name);
 
 }  // namespace pk

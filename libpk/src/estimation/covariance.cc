@@ -24,44 +24,71 @@ int SigmaOf(const Objective& objective, int i) {
   return it == sigma.end() ? -1 : static_cast<int>(it - sigma.begin());
 }
 
-// Whether parameter `i` is a σ gone to 0: below 1e-6 of the largest |DV| for a σ in the units of
-// DV, below 1e-6 for a relative one.
+// The largest |DV| of the samples σ_q's output measures (every sample for a single error model).
+double SigmaScale(const Objective& objective, int q) {
+  const ResidualErrorModel& error = objective.error_model();
+  const Eigen::VectorXd& y = objective.observations();
+  const std::vector<int> outputs = objective.sample_outputs();
+  double scale = 0;
+  for (Eigen::Index k = 0; k < y.size(); ++k) {
+    int first = 0;
+    const ResidualErrorModel& e = error.ForOutput(outputs[static_cast<size_t>(k)], &first);
+    if (q >= first && q < first + static_cast<int>(e.sigma_names().size())) scale = std::max(scale, std::fabs(y(k)));
+  }
+  return scale;
+}
+
+// Whether parameter `i` is a σ gone to 0: below 1e-6 of its output's largest |DV| for a σ in the
+// units of DV, below 1e-6 for a relative one.
 bool SigmaAtZero(const Objective& objective, const Eigen::VectorXd& values, int i) {
   const int q = i < 0 ? -1 : SigmaOf(objective, i);
   if (q < 0) return false;
   if (!objective.error_model().sigma_in_dv_units(q)) return std::fabs(values(i)) < kCollapse;
   if (objective.observations().size() == 0) return false;
-  return std::fabs(values(i)) < kCollapse * objective.observations().cwiseAbs().maxCoeff();
+  return std::fabs(values(i)) < kCollapse * SigmaScale(objective, q);
 }
 
-// What collapsed, or "" when nothing did. With one σ: that it fell to 0. With several: either all
-// fell, or some did and a sample predicted as 0 has only those in its variance (a combined
-// error's SIGMA_ADD alone may go to 0 at a finite likelihood: data with a constant CV, a boundary
-// estimate; a sample predicted as 0 then has a σ of 0). Sets `at` to that sample and `alone` to
-// the name of the σ that was all its variance.
+// The σ of each output's error model (one group for a single model), as positions among the σ.
+std::vector<std::vector<int>> SigmaGroups(const ResidualErrorModel& error) {
+  std::vector<std::vector<int>> groups;
+  for (int k = 1; k <= std::max(1, error.num_outputs()); ++k) {
+    int first = 0;
+    const ResidualErrorModel& e = error.ForOutput(k, &first);
+    groups.emplace_back();
+    for (int j = 0; j < static_cast<int>(e.sigma_names().size()); ++j) groups.back().push_back(first + j);
+  }
+  return groups;
+}
+
+// What collapsed, or "" when nothing did. When every σ of an output's error model fell to 0: that
+// they fell. Otherwise some did, and a sample predicted as 0 may have only those in its variance
+// (a combined error's SIGMA_ADD alone may go to 0 at a finite likelihood: data with a constant CV, a
+// boundary estimate; a sample predicted as 0 then has a σ of 0). Sets `at` to that sample and
+// `alone` to the name of the σ that was all its variance.
 std::string Collapse(const Objective& objective, const Eigen::VectorXd& values, const Eigen::VectorXd& yhat, int* at,
                      std::string* alone) {
   const std::vector<int> sigma = objective.sigma_indices();
   const Eigen::VectorXd& y = objective.observations();
-  const double scale = y.cwiseAbs().maxCoeff();
   const auto& names = objective.parameter_names();
   const auto of_dv = [&](int q, double v) {
-    return objective.error_model().sigma_in_dv_units(q) ? ", " + Num(v / scale, "%.2g") + " of the largest DV" : "";
+    return objective.error_model().sigma_in_dv_units(q)
+               ? ", " + Num(v / SigmaScale(objective, q), "%.2g") + " of the largest DV"
+               : "";
   };
-  std::vector<int> gone;
-  for (size_t q = 0; q < sigma.size(); ++q) {
-    if (SigmaAtZero(objective, values, sigma[q])) gone.push_back(static_cast<int>(q));
-  }
-  if (gone.empty()) return "";
-  if (sigma.size() == 1) {
-    const double v = std::fabs(values(sigma[0]));
-    return names[sigma[0]] + " fell to " + Num(v, "%.3g") + of_dv(0, v);
-  }
-  if (gone.size() == sigma.size()) {
+  std::vector<char> gone(sigma.size(), 0);
+  bool any = false;
+  for (size_t q = 0; q < sigma.size(); ++q) any |= (gone[q] = SigmaAtZero(objective, values, sigma[q]));
+  if (!any) return "";
+  for (const std::vector<int>& group : SigmaGroups(objective.error_model())) {
+    bool all = !group.empty();
+    for (int q : group) all = all && gone[static_cast<size_t>(q)];
+    if (!all) continue;
     std::string what;
-    for (size_t q = 0; q < sigma.size(); ++q) {
-      what += (q == 0 ? names[sigma[q]] + " fell to " : " and " + names[sigma[q]] + " to ") +
-              Num(std::fabs(values(sigma[q])), "%.3g");
+    for (size_t g = 0; g < group.size(); ++g) {
+      const int q = group[g];
+      const double v = std::fabs(values(sigma[static_cast<size_t>(q)]));
+      what += (g == 0 ? names[sigma[static_cast<size_t>(q)]] + " fell to " : " and " + names[sigma[static_cast<size_t>(q)]] + " to ") +
+              Num(v, "%.3g") + (group.size() == 1 ? of_dv(q, v) : "");
     }
     return what;
   }
@@ -69,19 +96,21 @@ std::string Collapse(const Objective& objective, const Eigen::VectorXd& values, 
   // has a σ of 0. (A censored sample predicted as 0 is not one: its probability goes to 1, not its
   // density to ∞.)
   std::vector<double> rest(sigma.size()), dv_dsigma(sigma.size());
-  for (size_t q = 0; q < sigma.size(); ++q) rest[q] = values(sigma[q]);
-  for (int q : gone) rest[static_cast<size_t>(q)] = 0;
-  double v0, dv0;
-  objective.error_model().Variance(0.0, rest.data(), &v0, &dv0, dv_dsigma.data());
-  if (v0 > 0) return "";
+  for (size_t q = 0; q < sigma.size(); ++q) rest[q] = gone[q] ? 0.0 : values(sigma[q]);
+  const std::vector<int> outputs = objective.sample_outputs();
   const double zero = kZeroPredictionLevel * yhat.cwiseAbs().maxCoeff();
   for (int k = 0; k < y.size() && *at < 0; ++k) {
-    if (std::fabs(yhat(k)) <= zero && objective.censoring()(k) == 0) *at = k;
+    if (!(std::fabs(yhat(k)) <= zero) || objective.censoring()(k) != 0) continue;
+    double v0, dv0;
+    OutputVariance(objective.error_model(), outputs[static_cast<size_t>(k)], 0.0, rest.data(), &v0, &dv0,
+                   dv_dsigma.data());
+    if (!(v0 > 0)) *at = k;
   }
   if (*at < 0) return "";
-  const int q = gone.front();
-  const double v = std::fabs(values(sigma[q]));
-  *alone = names[sigma[q]];
+  int q = 0;
+  while (!gone[static_cast<size_t>(q)]) ++q;
+  const double v = std::fabs(values(sigma[static_cast<size_t>(q)]));
+  *alone = names[sigma[static_cast<size_t>(q)]];
   return "the sample at TIME " + Num(objective.sample_times()[*at]) + " (DV " + Num(y(*at)) + ", prediction " +
          Num(yhat(*at), "%.3g") + ") has a σ of " + Num(v, "%.3g") + of_dv(q, v);
 }

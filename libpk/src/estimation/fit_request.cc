@@ -9,6 +9,7 @@
 #include "internal_text.h"
 #include "pk/error.h"
 #include "pk/fit_subjects.h"
+#include "pk/model_file.h"
 #include "pk/ode_model.h"
 #include "pk/output.h"
 #include "pk/parameters.h"
@@ -104,12 +105,11 @@ std::vector<ParameterSpec> MakeParameterSpecs(const FitSubjectsRequest& request,
     s->upper = m.upper;
   }
   const std::vector<int> sigmas = probe.sigma_indices();
+  // A model file's initial σ, when its error model is the one in use (NaN: the data's start).
+  const std::vector<double> declared_sigma = DeclaredSigmas(model, *request.objective.error_model);
   for (size_t j = 0; j < sigmas.size(); ++j) {
     ParameterSpec* s = add(probe.parameter_names()[sigmas[j]]);
-    // A model file's initial σ, when its error model is the one in use.
-    if (declared.sigma.size() == sigmas.size() && declared.error_model == request.objective.error_model->name()) {
-      s->initial = declared.sigma[j];
-    }
+    if (j < declared_sigma.size() && !std::isnan(declared_sigma[j])) s->initial = declared_sigma[j];
   }
   for (const auto& kv : settings.initial) add(internal::ToUpper(kv.first))->initial = kv.second;
   for (const auto& kv : settings.fixed) {

@@ -541,12 +541,30 @@ class Analyser {
       for (double s : e.sigma) {
         if (!(s > 0)) Fail(e.at, "$ERROR: an initial σ must be positive, not " + FormatNumber(s));
       }
-      if (!out_.declarations.error_model.empty() && out_.declarations.error_model != model->name()) {
-        Fail(e.at, "$ERROR: every output must have the same error model for now (" + out_.declarations.error_model +
-                       " above, " + e.model + " here)");
-      }
       out_.declarations.error_model = model->name();
       if (!e.sigma.empty()) out_.declarations.sigma = e.sigma;
+    }
+    if (seen.size() > 1) PerOutputErrors(seen);
+  }
+
+  // A line per output: each output its own model and σ, and then every output needs one.
+  void PerOutputErrors(const std::map<std::string, const ErrorDecl*>& seen) {
+    ModelDeclarations& d = out_.declarations;
+    bool all_sigma = true;
+    for (const std::string& output : out_.output_names) {
+      const auto it = seen.find(output);
+      if (it == seen.end()) {
+        Fail(out_.text.errors.front().at, "$ERROR gives outputs their own error models, but not " + output +
+                                              ": give every output a line (" + output + " ~ additive, …)");
+      }
+      d.output_error_models.push_back(it->second->model);
+      d.output_sigma.push_back(it->second->sigma);
+      all_sigma = all_sigma && !it->second->sigma.empty();
+    }
+    d.error_model = "per-output";
+    d.sigma.clear();
+    for (const auto& sigma : d.output_sigma) {
+      if (all_sigma) d.sigma.insert(d.sigma.end(), sigma.begin(), sigma.end());
     }
   }
 

@@ -1,5 +1,7 @@
 // pk::Model from a model file: a LinearModel when the analysis finds the structure the exact
 // propagator needs, otherwise an OdeModel that evaluates the expression graph on the AD types.
+#include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <memory>
 #include <sstream>
@@ -184,5 +186,36 @@ std::shared_ptr<const Model> LoadModelFile(const std::string& path, RandomEffect
 }
 
 std::string WhyNotLinear(const Model& model) { return model.declarations().why_not_linear; }
+
+std::vector<double> DeclaredSigmas(const Model& model, const ResidualErrorModel& in_use) {
+  const ModelDeclarations& d = model.declarations();
+  std::vector<double> out(in_use.sigma_names().size(), NAN);
+  if (d.error_model != in_use.name()) return out;
+  if (d.output_error_models.empty()) {
+    if (d.sigma.size() == out.size()) out = d.sigma;
+    return out;
+  }
+  for (int k = 1; k <= std::min<int>(in_use.num_outputs(), static_cast<int>(d.output_sigma.size())); ++k) {
+    int first = 0;
+    const ResidualErrorModel& e = in_use.ForOutput(k, &first);
+    const std::vector<double>& given = d.output_sigma[static_cast<size_t>(k - 1)];
+    if (given.size() != e.sigma_names().size() || e.name() != d.output_error_models[static_cast<size_t>(k - 1)]) continue;
+    for (size_t j = 0; j < given.size(); ++j) out[static_cast<size_t>(first) + j] = given[j];
+  }
+  return out;
+}
+
+std::shared_ptr<const ResidualErrorModel> DeclaredErrorModel(const Model& model) {
+  const ModelDeclarations& d = model.declarations();
+  if (d.output_error_models.empty()) return d.error_model.empty() ? nullptr : MakeResidualError(d.error_model);
+  std::vector<std::shared_ptr<const ResidualErrorModel>> models;
+  for (const std::string& name : d.output_error_models) models.push_back(MakeResidualError(name));
+  const auto* ode = dynamic_cast<const OdeModel*>(&model);
+  std::vector<std::string> outputs;
+  for (size_t k = 0; k < models.size(); ++k) {
+    outputs.push_back(ode ? ode->output_names()[k] : "Y" + std::to_string(k + 1));
+  }
+  return MakePerOutputError(std::move(models), std::move(outputs));
+}
 
 }  // namespace pk

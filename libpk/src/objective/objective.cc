@@ -115,7 +115,8 @@ Eigen::VectorXd Objective::DefaultValues() const {
   const internal::ObjectiveState& d = *impl_;
   Eigen::VectorXd v(d.names.size());
   v.head(d.L()) = d.layout.Defaults();
-  for (size_t j = 0; j < d.sigma.size(); ++j) v(d.sigma[j]) = d.error->DefaultSigma(static_cast<int>(j), d.y);
+  const std::vector<double> sigma = DefaultSigmas(*d.error, d.y, d.outputs);
+  for (size_t j = 0; j < d.sigma.size(); ++j) v(d.sigma[j]) = sigma[j];
   return v;
 }
 
@@ -303,7 +304,7 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
   Eigen::VectorXd& dl_dy = *pred.LossGradientStorage(&dl_dy_here);  // ∂ℓ/∂ŷ
   std::vector<double> sigma(d.sigma.size());
   d.Sigmas(values, sigma.data());
-  if (!internal::ComputeSampleLoss(*d.error, {&d.y, &d.w, &d.cens, &d.times}, sigma.data(), ev.predictions,
+  if (!internal::ComputeSampleLoss(*d.error, {&d.y, &d.w, &d.cens, &d.times, &d.outputs}, sigma.data(), ev.predictions,
                                    need == Need::kJacobian, &loss, &dl_dy, &ev.message)) {
     ev.ok = false;
     return ev;
@@ -374,10 +375,10 @@ Eigen::VectorXd Objective::ScaledResiduals(const Eigen::VectorXd& values, const 
   d.Sigmas(values, sigma.data());
   Eigen::VectorXd out(r.size());
   for (Eigen::Index k = 0; k < r.size(); ++k) {
-    const double sd = d.error->StandardDeviation(predictions(k), sigma.data());
+    const double sd = OutputStandardDeviation(*d.error, d.outputs(k), predictions(k), sigma.data());
     if (d.cens(k) != 0) {
       out(k) = std::numeric_limits<double>::quiet_NaN();
-    } else if (d.error->log_transformed()) {
+    } else if (OutputLogTransformed(*d.error, d.outputs(k))) {
       out(k) = (std::log(d.y(k)) - std::log(predictions(k))) / sd;
     } else {
       out(k) = r(k) / sd;

@@ -55,6 +55,7 @@ struct ObjectiveState {
   std::vector<int> sigma;          // the σ parameters' positions in `names`
   Eigen::VectorXd y, w;            // samples and least-squares weights
   Eigen::VectorXi cens;            // per sample: 0, or ±1 for a value beyond DV (CENS)
+  Eigen::VectorXi outputs;         // per sample: the output it measures (DVID of a nonlinear model, else 1)
   std::vector<double> times;
   Propagator propagator = Propagator::kExact;
   std::unique_ptr<OdeSystem> ode_system;

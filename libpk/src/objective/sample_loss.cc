@@ -1,5 +1,6 @@
 #include "objective/sample_loss.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -61,7 +62,7 @@ bool CensoredTerm(const SampleSet& samples, int k, int s, double y, double mu, b
 // of an oral dose). When the variance vanishes with the prediction (a proportional error alone), its
 // log-variance term would be rounding noise of about −70 that optimisers chase, so such a sample is
 // refused. Returns the level, or -1 when the variance does not vanish at ŷ = 0.
-double ZeroLevel(const ResidualErrorModel& error, const double* sigma, const Eigen::VectorXd& yhat, bool* relative) {
+double ZeroLevel(const ResidualErrorModel& error, const double* sigma, double largest, bool* relative) {
   const size_t ns = error.sigma_names().size();
   std::vector<double> dv_dsigma(ns);
   double v0, dv0;
@@ -70,32 +71,62 @@ double ZeroLevel(const ResidualErrorModel& error, const double* sigma, const Eig
   for (double d : dv_dsigma) vanishes = vanishes && d == 0;
   *relative = false;
   for (size_t j = 0; vanishes && j < ns; ++j) *relative = *relative || sigma[j] > 0;
-  return vanishes && yhat.size() ? kZeroPredictionLevel * yhat.cwiseAbs().maxCoeff() : -1.0;
+  return vanishes ? kZeroPredictionLevel * largest : -1.0;
+}
+
+// Each output's error model (one for all, or each its own: ResidualErrorModel::ForOutput), with
+// where its σ start and its zero level over the output's own predictions.
+struct OutputError {
+  const ResidualErrorModel* model = nullptr;
+  int first = 0;
+  double zero_level = -1;
+  bool relative = false;
+};
+
+std::vector<OutputError> OutputErrors(const ResidualErrorModel& error, const SampleSet& samples, const double* sigma,
+                                      const Eigen::VectorXd& yhat) {
+  const auto output = [&](Eigen::Index k) { return samples.outputs ? (*samples.outputs)(k) : 1; };
+  int outputs = 1;
+  for (Eigen::Index k = 0; k < yhat.size(); ++k) outputs = std::max(outputs, output(k));
+  std::vector<double> largest(static_cast<size_t>(outputs), 0.0);
+  for (Eigen::Index k = 0; k < yhat.size(); ++k) {
+    double& l = largest[static_cast<size_t>(output(k) - 1)];
+    l = std::max(l, std::fabs(yhat(k)));
+  }
+  std::vector<OutputError> out(static_cast<size_t>(outputs));
+  for (int o = 1; o <= outputs; ++o) {
+    OutputError& e = out[static_cast<size_t>(o - 1)];
+    e.model = &error.ForOutput(o, &e.first);
+    e.zero_level = ZeroLevel(*e.model, sigma + e.first, largest[static_cast<size_t>(o - 1)], &e.relative);
+  }
+  return out;
 }
 
 bool Likelihood(const ResidualErrorModel& error, const SampleSet& samples, const double* sigma,
                 const Eigen::VectorXd& yhat, SampleLoss* out, Eigen::VectorXd* dl_dy, std::string* why) {
   const Eigen::Index n = yhat.size();
   const int ns = static_cast<int>(error.sigma_names().size());
-  const bool log_scale = error.log_transformed();
   const Eigen::VectorXd& obs = *samples.y;
   const Eigen::VectorXi& cens = *samples.cens;
   out->r = obs - yhat;
   out->v.resize(n);
   out->dv_dy.resize(n);
-  out->dv_dsigma.resize(n, ns);
+  out->dv_dsigma.setZero(n, ns);
   out->dl_dv.resize(n);
   out->dmu_dy.setOnes(n);
   out->z.setZero(n);
-  bool relative = false;
-  const double zero_level = ZeroLevel(error, sigma, yhat, &relative);
+  const std::vector<OutputError> errors = OutputErrors(error, samples, sigma, yhat);
   std::vector<double> dv_dsigma(static_cast<size_t>(ns));
   for (Eigen::Index k = 0; k < n; ++k) {
+    const OutputError& e = errors[static_cast<size_t>(samples.outputs ? (*samples.outputs)(k) - 1 : 0)];
+    const bool log_scale = e.model->log_transformed();
     double v, dv;
-    error.Variance(yhat(k), sigma, &v, &dv, dv_dsigma.data());
+    e.model->Variance(yhat(k), sigma + e.first, &v, &dv, dv_dsigma.data());
     out->v(k) = v;
     out->dv_dy(k) = dv;
-    for (int q = 0; q < ns; ++q) out->dv_dsigma(k, q) = dv_dsigma[static_cast<size_t>(q)];
+    for (size_t q = 0; q < e.model->sigma_names().size(); ++q) {
+      out->dv_dsigma(k, e.first + static_cast<Eigen::Index>(q)) = dv_dsigma[q];
+    }
     // The compared quantities: y and μ = ŷ, or log y and μ = log ŷ.
     double y = obs(k), mu = yhat(k);
     if (log_scale) {
@@ -104,7 +135,7 @@ bool Likelihood(const ResidualErrorModel& error, const SampleSet& samples, const
       out->dmu_dy(k) = 1 / yhat(k);
       if (!(yhat(k) > 0) && !(cens(k) == 1)) {  // a sample censored below its limit is certain there
         return Fail(why, "the prediction of the sample at TIME " + At(samples, static_cast<int>(k)) + " is " +
-                             FormatNumber(yhat(k)) + ": the " + error.name() +
+                             FormatNumber(yhat(k)) + ": the " + e.model->name() +
                              " error model needs a positive prediction (give the sample MDV=1, or CENS=1 if it "
                              "lies below a limit)");
       }
@@ -113,13 +144,13 @@ bool Likelihood(const ResidualErrorModel& error, const SampleSet& samples, const
       if (!CensoredTerm(samples, static_cast<int>(k), s, y, mu, log_scale, yhat(k), out, dl_dy, why)) return false;
       continue;
     }
-    if (!(v > 0) || std::fabs(yhat(k)) <= zero_level) {
+    if (!(v > 0) || std::fabs(yhat(k)) <= e.zero_level) {
       std::ostringstream os;
       os << "the residual variance of the sample at TIME " << At(samples, static_cast<int>(k)) << " is zero: "
-         << (relative ? "its prediction is 0 and the " + std::string(error.name()) +
-                            " error's variance vanishes with it (give it MDV=1, or use a combined error with "
-                            "SIGMA_ADD fixed)"
-                      : std::string("a σ of 0"));
+         << (e.relative ? "its prediction is 0 and the " + std::string(e.model->name()) +
+                              " error's variance vanishes with it (give it MDV=1, or use a combined error with "
+                              "SIGMA_ADD fixed)"
+                        : std::string("a σ of 0"));
       return Fail(why, os.str());
     }
     // The exponential error's density of y is that of log y over y: the log y term keeps V

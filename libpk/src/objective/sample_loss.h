@@ -25,6 +25,7 @@ struct SampleSet {
   const Eigen::VectorXd* w = nullptr;     ///< least-squares weights
   const Eigen::VectorXi* cens = nullptr;  ///< 0, or ±1 beyond DV
   const std::vector<double>* times = nullptr;  ///< for messages
+  const Eigen::VectorXi* outputs = nullptr;    ///< the output each measures (its error model); null: all 1
 };
 
 struct SampleLoss {

@@ -118,7 +118,7 @@ void BindSamples(ObjectiveState* d, const std::vector<LogNormalPrior>& priors) {
     throw InputError(d->data->source, 0, 0, "no weight column '" + d->options.weight_column + "'");
   }
   std::vector<double> ys, ws;
-  std::vector<int> cs;
+  std::vector<int> cs, os;
   const std::vector<Record>& records = d->prepared.records();
   d->ode.key_of_record.assign(records.size(), 0);
   d->ode.sample_of_record.assign(records.size(), -1);
@@ -135,9 +135,18 @@ void BindSamples(ObjectiveState* d, const std::vector<LogNormalPrior>& priors) {
       AddContinuous(d, r, d->ode.key_of_record[ri], w);
       continue;
     }
-    if (d->error->log_transformed() && !(r.dv > 0)) {
+    // The output the sample measures, and its error model (each output its own, or one for all).
+    const int output = ode_model ? d->ode.key_of_record[ri] : 1;
+    int first_sigma = 0;
+    const ResidualErrorModel* error = d->error;
+    try {
+      error = &d->error->ForOutput(output, &first_sigma);
+    } catch (const InputError& e) {
+      throw InputError(d->data->source, r.line, dvid_col >= 0 ? d->data->ColumnNumber("DVID") : 0, e.message());
+    }
+    if (error->log_transformed() && !(r.dv > 0)) {
       throw InputError(d->data->source, r.line, d->data->ColumnNumber("DV"),
-                       std::string("the ") + d->error->name() +
+                       std::string("the ") + error->name() +
                            " error model compares log DV with log PRED, so DV must be > 0, not " + FormatNumber(r.dv) +
                            (censored != 0 ? " (a censored sample's limit)" : "") +
                            "; give a sample below the limit of quantification CENS=1 and DV = the limit, or MDV=1");
@@ -146,12 +155,14 @@ void BindSamples(ObjectiveState* d, const std::vector<LogNormalPrior>& priors) {
     ys.push_back(r.dv);
     ws.push_back(w);
     cs.push_back(censored);
+    os.push_back(output);
     d->times.push_back(r.time);
   }
   d->ode.num_samples = static_cast<int>(ys.size());
   d->y = Eigen::Map<Eigen::VectorXd>(ys.data(), static_cast<Eigen::Index>(ys.size()));
   d->w = Eigen::Map<Eigen::VectorXd>(ws.data(), static_cast<Eigen::Index>(ws.size()));
   d->cens = Eigen::Map<Eigen::VectorXi>(cs.data(), static_cast<Eigen::Index>(cs.size()));
+  d->outputs = Eigen::Map<Eigen::VectorXi>(os.data(), static_cast<Eigen::Index>(os.size()));
   BindPriors(d, priors);
 }
 

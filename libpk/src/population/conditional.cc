@@ -20,6 +20,7 @@ constexpr int kScoringIterations = 20;     // or after this many iterations (sco
 constexpr double kHessianStep = 1e-3;      // central-difference step in η for ½∇²l
 constexpr int kMaxIterations = 200;
 constexpr double kMaxStep = 1;          // the largest change of one η in one iteration
+constexpr int kBlindSteps = 3;          // full steps below l's resolution, at most, per mode search
 
 bool LogDet(const Eigen::MatrixXd& m, double* out) {
   Eigen::LLT<Eigen::MatrixXd> llt(m);
@@ -29,15 +30,15 @@ bool LogDet(const Eigen::MatrixXd& m, double* out) {
 }
 
 // The residual variances at the predictions, and ∂V/∂ŷ.
-bool Variances(const PopulationPoint& p, const Eigen::VectorXd& yhat, Eigen::VectorXd* v, Eigen::VectorXd* dv_dyhat,
-               std::string* why) {
+bool Variances(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& yhat, Eigen::VectorXd* v,
+               Eigen::VectorXd* dv_dyhat, std::string* why) {
   const Eigen::Index n = yhat.size();
   v->resize(n);
   dv_dyhat->resize(n);
   thread_local std::vector<double> dsigma;
   dsigma.resize(static_cast<size_t>(std::max<Eigen::Index>(p.sigma.size(), 1)));
   for (Eigen::Index j = 0; j < n; ++j) {
-    p.error->Variance(yhat(j), p.sigma.data(), &(*v)(j), &(*dv_dyhat)(j), dsigma.data());
+    OutputVariance(*p.error, s.outputs(j), yhat(j), p.sigma.data(), &(*v)(j), &(*dv_dyhat)(j), dsigma.data());
     if (!((*v)(j) > 0) || !std::isfinite((*v)(j))) {
       *why = "the residual variance of sample " + std::to_string(j + 1) + " is not positive (prediction " +
              std::to_string(yhat(j)) + ")";
@@ -126,20 +127,20 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
   // ∂ŷ/∂φ of the η'd parameters, into c->g (scaled to ∂f/∂η below).
   if (!s.objective->Sensitivities(sc.phi, s.eta_free, &c->yhat, derivatives ? &c->g : nullptr, why)) return false;
   const Eigen::Index n = s.y.size(), q = eta.size();
-  const bool logs = p.error->log_transformed();
-  if (logs && (c->yhat.array() <= 0).any()) {
+  // The exponential error (of every output, or of some) compares log ŷ.
+  if (s.any_logs && (s.logs && c->yhat.array() <= 0).any()) {
     *why = "a prediction is not positive, and the exponential error takes its logarithm";
     return false;
   }
-  if (logs) {
-    c->f = c->yhat.array().log();
+  if (s.any_logs) {
+    c->f = s.logs.select(c->yhat.array().log(), c->yhat.array()).matrix();
   } else {
     c->f = c->yhat;
   }
   if (fixed_variance) {
     c->variance = *fixed_variance;
     sc.dv_dyhat.setZero(n);
-  } else if (!Variances(p, c->yhat, &c->variance, &sc.dv_dyhat, why)) {
+  } else if (!Variances(s, p, c->yhat, &c->variance, &sc.dv_dyhat, why)) {
     return false;
   }
   sc.r = (s.y - c->f).array();
@@ -170,7 +171,7 @@ bool EvaluateConditional(const SubjectModel& s, const PopulationPoint& p, const 
     if (s.eta_log[mm]) c->g.col(m) *= sc.phi(s.eta_free[mm]);
   }
   c->dv.noalias() = sc.dv_dyhat.asDiagonal() * c->g;  // from ∂ŷ/∂η
-  if (logs) c->g = c->yhat.cwiseInverse().asDiagonal() * c->g;
+  if (s.any_logs) c->g = s.logs.select(c->yhat.array().inverse(), 1.0).matrix().asDiagonal() * c->g;
   c->gradient.noalias() = 2 * p.omega_inverse * eta;
   sc.weight = keep * r * w;
   c->gradient.noalias() -= 2 * c->g.transpose() * sc.weight.matrix();
@@ -266,6 +267,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     if (!start.any() || !EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) return mode;
   }
   bool newton = false, converged = false;
+  int blind_steps = 0;  // full steps taken where l cannot resolve the decrease (below)
   const Eigen::VectorXd scale = p.omega_inverse.diagonal().cwiseSqrt();
   double previous = 0;  // the last step's length
   Eigen::MatrixXd half_hessian;
@@ -287,6 +289,18 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     }
     if (!LineSearch(s, p, fv, step, &mode.eta, &c)) {
       const double predicted = -c.gradient.dot(step), noise = s.relative_noise * (double(s.y.size()) + std::abs(c.l));
+      if (predicted < noise && blind_steps < kBlindSteps) {
+        // l cannot resolve a decrease this small, but ∇l, exact, still points to the mode: take the
+        // full step. Stopping here would leave η̂ off by about √(noise/H), and OFV_i (whose log det H
+        // is not stationary at the mode) off by as much.
+        ++blind_steps;
+        const Eigen::VectorXd next = mode.eta + step;
+        if (next != mode.eta && EvaluateConditional(s, p, next, fv, true, &c, &mode.message)) {
+          mode.eta = next;
+          continue;
+        }
+        if (!EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) return mode;
+      }
       if ((length < std::max(1e-7, 10 * s.step_tolerance) && newton) || predicted < noise) {
         converged = true;  // rounding or the solver's error: l cannot decrease further
         break;

@@ -35,6 +35,11 @@ struct SubjectModel {
   /// Per sample: CENS (0 a value; 1 below DV, the limit; -1 above). A censored sample adds
   /// −2 log Φ(CENS·(y − f)/√V) to l(η) (Beal's M3).
   Eigen::VectorXi censoring;
+  /// Per sample: the output it measures (its error model: pk::ResidualErrorModel::ForOutput), and
+  /// whether that model compares log y (then y holds log DV).
+  Eigen::VectorXi outputs;
+  Eigen::Array<bool, Eigen::Dynamic, 1> logs;
+  bool any_logs = false;
   /// ‖Δη‖∞ at which the mode counts as found: 1e-10 where the predictions are exact to rounding
   /// (Φ/Γ); on the ODE propagator l and ∇l carry the solver's error (about rtol relative), below
   /// which Newton's steps only wander, so 100·rtol there.

@@ -91,7 +91,7 @@ void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eige
     r.wres = wres(j);
     r.cwres = cwres(j);
     double v = 0, dv = 0;
-    point.error->Variance(c.yhat(j), point.sigma.data(), &v, &dv, dsigma.data());
+    OutputVariance(*point.error, s.outputs(j), c.yhat(j), point.sigma.data(), &v, &dv, dsigma.data());
     r.iwres = r.censored == 0 ? (s.y(j) - c.f(j)) / std::sqrt(v) : nan;
     if (r.censored == 0) iwres->push_back(r.iwres);  // ε-shrinkage over values only
     if (declared.pk_values) r.definitions = declared.pk_values(s.objective->RecordParameters(phi, records[static_cast<size_t>(j)]));

@@ -107,12 +107,13 @@ struct VarianceTaylor {
   Eigen::MatrixXd vss;
 };
 
-VarianceTaylor Variance(const ResidualErrorModel& error, double yhat, const Eigen::VectorXd& sigma, bool second) {
+VarianceTaylor Variance(const ResidualErrorModel& error, int output, double yhat, const Eigen::VectorXd& sigma,
+                        bool second) {
   const auto ns = sigma.size();
   VarianceTaylor t;
   auto first = [&](double y, const Eigen::VectorXd& s, double* v, double* vy, Eigen::VectorXd* vs) {
     vs->resize(ns);
-    error.Variance(y, s.data(), v, vy, vs->data());
+    OutputVariance(error, output, y, s.data(), v, vy, vs->data());
   };
   first(yhat, sigma, &t.v, &t.vy, &t.vs);
   if (!second) return t;
@@ -256,10 +257,10 @@ void OmegaTerms(const Variables<HD>& v, HD* quad, HD* log_det_omega, std::vector
 // Sample j's residual variance V and ∂V/∂ŷ (vy): at φ̂ to second order (FOCEI), or at η = 0 to
 // first order (FOCE, where vy stays 0: V does not depend on η).
 template <class HD>
-void ResidualVariance(const PopulationPoint& p, const Expansion& e, const Variables<HD>& v, Eigen::Index j,
-                      const HD& yhat, HD* var, HD* vy) {
+void ResidualVariance(const SubjectModel& s, const PopulationPoint& p, const Expansion& e, const Variables<HD>& v,
+                      Eigen::Index j, const HD& yhat, HD* var, HD* vy) {
   const bool foce = p.method == PopulationMethod::kFoce;
-  const VarianceTaylor vt = Variance(*p.error, foce ? e.y00(j) : e.y0(j), p.sigma, !foce);
+  const VarianceTaylor vt = Variance(*p.error, s.outputs(j), foce ? e.y00(j) : e.y0(j), p.sigma, !foce);
   HD dy(0, v.d);
   if (foce) {
     for (size_t k = 0; k < v.dphi00.size(); ++k) dy += e.j00(j, static_cast<Eigen::Index>(k)) * v.dphi00[k];
@@ -294,9 +295,9 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
     for (int c = 0; c < np; ++c) slope += 0.5 * tj(k, c) * v.dphi[static_cast<size_t>(c)];
     yhat += slope * v.dphi[static_cast<size_t>(k)];
   }
-  const bool logs = p.error->log_transformed();
+  const bool logs = s.logs(j);
   HD var, vy;
-  ResidualVariance(p, e, v, j, yhat, &var, &vy);
+  ResidualVariance(s, p, e, v, j, yhat, &var, &vy);
   const HD r = (logs ? log(yhat) : yhat) * -1.0 + s.y(j);
   const HD w = HD::Reciprocal(var);
   *l += r * r * w + log(var);

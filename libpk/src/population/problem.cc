@@ -6,6 +6,7 @@
 #include "pk/output.h"
 #include "pk/error.h"
 #include "pk/initial_estimates.h"
+#include "pk/model_file.h"
 #include "pk/propagator.h"
 #include "population/conditional.h"
 #include "population/problem_impl.h"
@@ -48,11 +49,13 @@ int IndexOf(const std::vector<std::string>& names, const std::string& name) {
 }
 
 // The subject's observations on the error model's scale; a DV the log cannot take names its line.
-Eigen::VectorXd Observations(const Objective& o, const Dataset& data, int subject, bool logs) {
+// The observations on their error model's scale: log DV where it compares log y.
+Eigen::VectorXd Observations(const Objective& o, const Dataset& data, int subject,
+                             const Eigen::Array<bool, Eigen::Dynamic, 1>& logs) {
   Eigen::VectorXd y = o.observations();
-  if (!logs) return y;
   const std::vector<int> records = o.sample_records();
   for (Eigen::Index j = 0; j < y.size(); ++j) {
+    if (!logs(j)) continue;
     if (y(j) > 0) {
       y(j) = std::log(y(j));
       continue;
@@ -142,13 +145,18 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
   ls.weighting = Weighting::kUniform;
   ls.gradient = GradientRoute::kForward;
   ls.keep_censored = true;  // M3: the conditional objective forms their likelihood
-  const bool logs = options.error_model->log_transformed();
+  const ResidualErrorModel& error = *options.error_model;
   const bool ode = IntegratesOde(ResolvePropagator(*d.model, options.propagator));
   for (int i = 0; i < static_cast<int>(d.data->subjects.size()); ++i) {
     internal::SubjectModel s;
     s.objective = std::make_unique<Objective>(d.model, d.data, i, ls);
     s.base = s.objective->DefaultValues();
-    s.y = Observations(*s.objective, *d.data, i, logs);
+    const std::vector<int> outputs = s.objective->sample_outputs();
+    s.outputs = Eigen::Map<const Eigen::VectorXi>(outputs.data(), static_cast<Eigen::Index>(outputs.size()));
+    s.logs.resize(s.outputs.size());
+    for (Eigen::Index j = 0; j < s.outputs.size(); ++j) s.logs(j) = OutputLogTransformed(error, s.outputs(j));
+    s.any_logs = s.logs.any();
+    s.y = Observations(*s.objective, *d.data, i, s.logs);
     for (const std::string& name : d.theta_names) s.theta_index.push_back(s.objective->ParameterIndex(name));
     s.phi_index = s.theta_index;
     for (const std::string& name : etas_bound.parameters) s.phi_index.push_back(s.objective->ParameterIndex(name));
@@ -258,19 +266,25 @@ PopulationParameters PopulationProblem::DefaultParameters() const {
       }
     }
   }
-  // The observed values pooled (a censored sample's DV is its limit, not a value).
+  // The observed values pooled, with their outputs (a censored sample's DV is its limit, not a value).
   Eigen::VectorXd pooled(d.num_observations - d.num_censored);
+  Eigen::VectorXi outputs(pooled.size());
   Eigen::Index at = 0;
   for (const auto& s : d.subjects) {
     const Eigen::VectorXd& y = s.objective->observations();
     for (Eigen::Index j = 0; j < y.size(); ++j) {
-      if (s.censoring.size() != y.size() || s.censoring(j) == 0) pooled(at++) = y(j);
+      if (s.censoring.size() == y.size() && s.censoring(j) != 0) continue;
+      outputs(at) = s.outputs(j);
+      pooled(at++) = y(j);
     }
   }
-  p.sigma.resize(static_cast<Eigen::Index>(d.sigma_names.size()));
-  for (Eigen::Index j = 0; j < p.sigma.size(); ++j) {
-    p.sigma(j) = d.options.error_model->DefaultSigma(static_cast<int>(j), pooled);
+  std::vector<double> sigma = DefaultSigmas(*d.options.error_model, pooled, outputs);
+  // A model file's $ERROR values, as NONMEM's $SIGMA initial estimates, where it gives them.
+  const std::vector<double> declared = DeclaredSigmas(*d.model, *d.options.error_model);
+  for (size_t j = 0; j < sigma.size() && j < declared.size(); ++j) {
+    if (!std::isnan(declared[j])) sigma[j] = declared[j];
   }
+  p.sigma = Eigen::Map<const Eigen::VectorXd>(sigma.data(), static_cast<Eigen::Index>(sigma.size()));
   return p;
 }
 

@@ -1,6 +1,7 @@
 // The residual-error models by name: adding one is a file in this folder and a line here.
 #include "residual_error/registry.h"
 
+#include <algorithm>
 #include <cmath>
 #include <set>
 #include <utility>
@@ -50,6 +51,64 @@ void ResidualErrorModel::Variance(double, const double*, double* v, double* dv_d
   *dv_dyhat = 0;
 }
 
+const ResidualErrorModel& ResidualErrorModel::ForOutput(int, int* first_sigma) const {
+  *first_sigma = 0;
+  return *this;
+}
+
+void OutputVariance(const ResidualErrorModel& error, int output, double yhat, const double* sigma, double* v,
+                    double* dv_dyhat, double* dv_dsigma) {
+  int first = 0;
+  const ResidualErrorModel& e = error.ForOutput(output, &first);
+  if (&e == &error) {
+    error.Variance(yhat, sigma, v, dv_dyhat, dv_dsigma);
+    return;
+  }
+  std::fill(dv_dsigma, dv_dsigma + error.sigma_names().size(), 0.0);
+  e.Variance(yhat, sigma + first, v, dv_dyhat, dv_dsigma + first);
+}
+
+double OutputStandardDeviation(const ResidualErrorModel& error, int output, double yhat, const double* sigma) {
+  int first = 0;
+  const ResidualErrorModel& e = error.ForOutput(output, &first);
+  return e.StandardDeviation(yhat, sigma + first);
+}
+
+std::string DescribeErrorModel(const ResidualErrorModel& error) {
+  if (error.num_outputs() == 0) return error.name();
+  std::string out;
+  for (int k = 1; k <= error.num_outputs(); ++k) {
+    int first = 0;
+    const ResidualErrorModel& e = error.ForOutput(k, &first);
+    std::string sigmas;
+    for (size_t j = 0; j < e.sigma_names().size(); ++j) {
+      sigmas += (j ? ", " : "") + error.sigma_names()[static_cast<size_t>(first) + j];
+    }
+    out += (k > 1 ? "; " : "") + std::string(e.name()) + " (" + sigmas + ")";
+  }
+  return out;
+}
+
+std::vector<double> DefaultSigmas(const ResidualErrorModel& error, const Eigen::VectorXd& observations,
+                                  const Eigen::VectorXi& outputs) {
+  std::vector<double> out(error.sigma_names().size());
+  if (error.num_outputs() == 0) {
+    for (size_t j = 0; j < out.size(); ++j) out[j] = error.DefaultSigma(static_cast<int>(j), observations);
+    return out;
+  }
+  for (int k = 1; k <= error.num_outputs(); ++k) {
+    std::vector<double> own;
+    for (Eigen::Index i = 0; i < observations.size(); ++i) {
+      if ((outputs.size() ? outputs(i) : 1) == k) own.push_back(observations(i));
+    }
+    const Eigen::Map<const Eigen::VectorXd> obs(own.data(), static_cast<Eigen::Index>(own.size()));
+    int first = 0;
+    const ResidualErrorModel& e = error.ForOutput(k, &first);
+    for (size_t j = 0; j < e.sigma_names().size(); ++j) out[first + j] = e.DefaultSigma(static_cast<int>(j), obs);
+  }
+  return out;
+}
+
 double ResidualErrorModel::StandardDeviation(double yhat, const double* sigma) const {
   std::vector<double> dv_dsigma(sigma_names().size());
   double v, dv_dyhat;
@@ -85,7 +144,12 @@ bool IsResidualErrorName(const std::string& name) {
     }
     return all;
   }();
-  return names.count(name) > 0;
+  if (names.count(name) > 0) return true;
+  // A per-output model's σ: a registered σ, then _ and the output's name.
+  for (const std::string& sigma : names) {
+    if (name.size() > sigma.size() + 1 && name.compare(0, sigma.size() + 1, sigma + "_") == 0) return true;
+  }
+  return false;
 }
 
 }  // namespace pk
