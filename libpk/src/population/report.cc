@@ -87,7 +87,8 @@ std::string PopulationSummary::FullReport() const {
   for (Eigen::Index k = 0; k < eta_shrinkage_sd.size(); ++k) {
     std::string name = k < static_cast<Eigen::Index>(eta_names.size()) ? "η(" + eta_names[static_cast<size_t>(k)] + ")"
                                                                       : "η" + std::to_string(k + 1);
-    name.resize(std::max<size_t>(name.size(), 12), ' ');
+    // Padded to 12 bytes with at least one space after it (η takes two bytes).
+    name.resize(std::max<size_t>(name.size() + 1, 12), ' ');
     out << "    " << name << internal::Num(100 * eta_shrinkage_sd(k), "%.1f") << "%  ("
         << internal::Num(100 * eta_shrinkage_variance(k), "%.1f") << "%)\n";
   }
