@@ -1111,3 +1111,15 @@ TEST_CASE("per-output error models in population: NONMEM's EPS per DVID", "[popu
     CheckOuterGradient(mixed, r, pk::PopulationStructure(), m, 1e-5);
   }
 }
+
+TEST_CASE("a singular covariance step is named as such", "[population]") {
+  pk::PopulationSummary s;
+  pk::PopulationEstimate e;
+  e.name = "CL";
+  s.estimates = {e};
+  s.correlation = Eigen::MatrixXd::Identity(1, 1);
+  s.condition_number = HUGE_VAL;
+  const std::vector<std::string> w = s.CovarianceWarnings();
+  REQUIRE(w.size() == 1);
+  CHECK_THAT(w[0], Catch::StartsWith("the correlation matrix is singular"));
+}

@@ -38,7 +38,10 @@ std::vector<std::string> PopulationSummary::CovarianceWarnings() const {
                     internal::Num(r, "%.3f") + " (|r| > 0.95): the data hardly separate them");
     }
   }
-  if (condition_number > kHighCondition) {
+  if (std::isinf(condition_number)) {
+    out.push_back("the correlation matrix is singular (condition number ∞): some combination of the estimates is "
+                  "not determined, as when there are no more subjects than estimated parameters");
+  } else if (condition_number > kHighCondition) {
     out.push_back("the condition number " + internal::Num(condition_number, "%.4g") +
                   " exceeds 1000: the estimates are ill-determined in some direction");
   }
