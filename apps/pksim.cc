@@ -36,7 +36,7 @@ const char* const kUsage =
     "linear models, by Dormand-Prince for nonlinear ones (stiff stretches by CVODES; or\n"
     "--propagator ode: CVODES throughout).\n"
     "Writes one CSV row per EVID 0/2 record (or requested time): ID,TIME,EVID,CP,\n"
-    "the model's further outputs (e.g. EFFECT), A1..An.\n\n"
+    "the model's further outputs (e.g. EFFECT), A1..An; --columns chooses them.\n\n"
     "Examples:\n"
     "  pksim --model 2cmt_oral --dose 500 --ii 12 --doses 14 --times 0:0.5:168 --summary\n"
     "  pksim --model 1cmt_iv --dose 1000 --duration 2 --times 0:0.1:24 --param CL=4 --out sim.csv\n"
@@ -126,6 +126,9 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "times,t", po::value<std::vector<std::string>>(&a->times)->composing(),
       "output times FROM:STEP:TO or a,b,c; repeatable")("out,o", po::value<std::string>(),
                                                           "write the simulation CSV here (default: stdout)")(
+      "columns", po::value<std::string>(),
+      "the CSV's columns, in order, as NONMEM's $TABLE: e.g. ID,TIME,CP (default: ID,TIME,EVID,CP, the "
+      "model's further outputs, A1..An)")(
       "summary", "print Cmax, Tmax, Cmin, trough and AUC per subject and dosing interval")(
       "summary-csv", po::value<std::string>(), "write the exposure summary as CSV")(
       "plot", po::value<std::string>(), "write concentration against time as SVG")(
@@ -288,19 +291,25 @@ int Main(int argc, char** argv) {
   if (vm.count("summary-csv")) summary_csv.emplace(vm["summary-csv"].as<std::string>());
   // The headers go out with the first subject, so that a run the library refuses writes nothing.
   bool started = false;
+  std::optional<pk::SimulationColumns> columns;
+  if (vm.count("columns")) columns.emplace(*model, vm["columns"].as<std::string>());
   const auto start = [&] {
     if (started) return;
     started = true;
-    if (rows) rows->Write(pk::SimulationCsvHeader(*model));
+    if (rows) rows->Write(columns ? columns->Header() : pk::SimulationCsvHeader(*model));
     if (summary_csv) summary_csv->Write(kSummaryCsvHeader);
   };
   std::vector<pk::PlotSeries> plot;
   int failed = 0;
   pk::SimulationSink sink;
   if (rows) {
-    sink.render = [](const pk::SubjectSimulation& s) {
+    sink.render = [&columns](const pk::SubjectSimulation& s) {
       std::string text;
-      pk::AppendSimulationCsv(s, &text);
+      if (columns) {
+        columns->Append(s, &text);
+      } else {
+        pk::AppendSimulationCsv(s, &text);
+      }
       return text;
     };
   }

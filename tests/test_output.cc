@@ -20,6 +20,7 @@
 #include "pk/plot.h"
 #include "pk/regimen.h"
 #include "pk/simulate.h"
+#include "pk/simulation_csv.h"
 
 namespace {
 
@@ -232,4 +233,33 @@ TEST_CASE("a plot of values equal to the last digits has an axis (it looped unti
     CHECK(svg.find("<svg") != std::string::npos);
     CHECK(svg.size() < 100000);
   }
+}
+
+TEST_CASE("pksim's --columns: the chosen columns of the full CSV, in the chosen order", "[output]") {
+  const auto data = pk::ParseDataset("ID,TIME,AMT,DV\n7,0,100,.\n7,0.5,0,1\n7,2,0,1\n7,7.25,0,1\n", "cols.csv");
+  const auto model = pk::MakeModel("2cmt_oral");
+  const pk::SubjectSimulation sim = pk::SimulateSubject(*model, data, 0, {});
+  REQUIRE(sim.ok);
+  std::string all, chosen;
+  pk::AppendSimulationCsv(sim, &all);
+  const pk::SimulationColumns columns(*model, "a3, time,ID,cp");
+  CHECK(columns.Header() == "A3,TIME,ID,CP\n");
+  columns.Append(sim, &chosen);
+  // The same fields, picked from the full rows (ID,TIME,EVID,CP,A1,A2,A3).
+  std::istringstream a(all), c(chosen);
+  std::string line, got;
+  int rows = 0;
+  while (std::getline(a, line)) {
+    std::vector<std::string> f;
+    std::stringstream ss(line);
+    for (std::string x; std::getline(ss, x, ',');) f.push_back(x);
+    REQUIRE(f.size() == 7);
+    REQUIRE(std::getline(c, got));
+    CHECK(got == f[6] + "," + f[1] + "," + f[0] + "," + f[3]);
+    ++rows;
+  }
+  CHECK(rows == 3);
+  CHECK_THROWS_WITH(pk::SimulationColumns(*model, "ID,CC"), Catch::Contains("no column CC (did you mean CP?)"));
+  CHECK_THROWS_WITH(pk::SimulationColumns(*model, "ID,TIME,id"), Catch::Contains("ID is named twice"));
+  CHECK_THROWS_WITH(pk::SimulationColumns(*model, "ID,"), Catch::Contains("an empty name"));
 }

@@ -9,6 +9,7 @@
 #define PK_SIMULATION_CSV_H_
 
 #include <string>
+#include <vector>
 
 #include "pk/model.h"
 #include "pk/simulate.h"
@@ -20,6 +21,29 @@ std::string SimulationCsvHeader(const Model& model);
 
 /// Appends the rows of `simulation` (none for a failed one) to `out`.
 void AppendSimulationCsv(const SubjectSimulation& simulation, std::string* out);
+
+/// Some of those columns, in a chosen order, as NONMEM's $TABLE lists them (pksim --columns).
+class SimulationColumns {
+ public:
+  /// The columns `list` names, comma-separated and case-insensitive: ID, TIME, EVID, CP, a
+  /// nonlinear model's further outputs by name, A1..An. Throws pk::InputError for an unknown or
+  /// repeated name, listing the columns `model` has.
+  SimulationColumns(const Model& model, const std::string& list);
+
+  /// The header line, with its '\n'.
+  std::string Header() const;
+  /// Appends the rows of `simulation` (none for a failed one), these columns only.
+  void Append(const SubjectSimulation& simulation, std::string* out) const;
+
+ private:
+  enum class Kind { kId, kTime, kEvid, kCp, kOutput, kAmount };
+  struct Column {
+    Kind kind;
+    int index;  // output k (0-based, 1.. for the further outputs) or compartment c (0-based)
+    std::string name;
+  };
+  std::vector<Column> columns_;
+};
 
 }  // namespace pk
 

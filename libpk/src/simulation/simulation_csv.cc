@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "../internal_text.h"
+#include "pk/error.h"
 #include "pk/ode_model.h"
 #include "pk/output.h"
 
@@ -47,6 +48,87 @@ void AppendSimulationCsv(const SubjectSimulation& s, std::string* out) {
     for (Eigen::Index c = 0; c < amounts; ++c) {
       *p++ = ',';
       p = internal::WriteNumber(s.amounts(c, col), p);
+    }
+    *p++ = '\n';
+  }
+  out->resize(static_cast<size_t>(p - out->data()));
+}
+
+namespace {
+
+std::vector<std::string> Split(const std::string& list) {
+  std::vector<std::string> out;
+  std::string item;
+  for (char c : list + ",") {
+    if (c != ',') {
+      if (c != ' ') item += c;
+      continue;
+    }
+    out.push_back(internal::ToUpper(item));
+    item.clear();
+  }
+  return out;
+}
+
+}  // namespace
+
+SimulationColumns::SimulationColumns(const Model& model, const std::string& list) {
+  const auto* ode_model = dynamic_cast<const OdeModel*>(&model);
+  std::vector<Column> all = {{Kind::kId, 0, "ID"}, {Kind::kTime, 0, "TIME"}, {Kind::kEvid, 0, "EVID"},
+                             {Kind::kCp, 0, "CP"}};
+  for (int k = 1; ode_model && k < ode_model->num_outputs(); ++k) {
+    all.push_back({Kind::kOutput, k, internal::ToUpper(ode_model->output_names()[static_cast<size_t>(k)])});
+  }
+  for (int c = 0; c < model.num_compartments(); ++c) all.push_back({Kind::kAmount, c, "A" + std::to_string(c + 1)});
+  std::vector<std::string> names;
+  for (const Column& c : all) names.push_back(c.name);
+  for (const std::string& name : Split(list)) {
+    const auto it = std::find_if(all.begin(), all.end(), [&](const Column& c) { return c.name == name; });
+    if (it == all.end()) {
+      const std::string closest = ClosestName(name, names);
+      throw InputError("--columns: " + (name.empty() ? std::string("an empty name") : "no column " + name) +
+                       (closest.empty() ? "" : " (did you mean " + closest + "?)") + "; model " + model.name() +
+                       " has " + internal::Join(names, ","));
+    }
+    for (const Column& c : columns_) {
+      if (c.name == name) throw InputError("--columns: " + name + " is named twice");
+    }
+    columns_.push_back(*it);
+  }
+}
+
+std::string SimulationColumns::Header() const {
+  std::string out;
+  for (const Column& c : columns_) out += (out.empty() ? "" : ",") + c.name;
+  return out + "\n";
+}
+
+void SimulationColumns::Append(const SubjectSimulation& s, std::string* out) const {
+  if (!s.ok || s.rows.empty()) return;
+  if (s.amounts.cols() != static_cast<Eigen::Index>(s.rows.size()) ||
+      (s.outputs.size() && s.outputs.cols() != s.amounts.cols())) {
+    throw std::invalid_argument("SimulationColumns::Append: the amounts and outputs need a column per row");
+  }
+  char id[48];
+  const size_t id_size = static_cast<size_t>(internal::WriteNumber(s.id, id) - id);
+  const size_t longest = (id_size + 25) * columns_.size() + 1;
+  const size_t start = out->size();
+  out->resize(start + s.rows.size() * longest + 48);  // WriteNumber's room past the last number
+  char* p = &(*out)[start];
+  for (size_t i = 0; i < s.rows.size(); ++i) {
+    const SimulatedRecord& r = s.rows[i];
+    const auto col = static_cast<Eigen::Index>(i);
+    for (size_t k = 0; k < columns_.size(); ++k) {
+      if (k > 0) *p++ = ',';
+      const Column& c = columns_[k];
+      switch (c.kind) {
+        case Kind::kId: p = std::copy(id, id + id_size, p); break;
+        case Kind::kTime: p = internal::WriteNumber(r.time, p); break;
+        case Kind::kEvid: *p++ = r.evid == Evid::kObservation ? '0' : '2'; break;
+        case Kind::kCp: p = internal::WriteNumber(r.cp, p); break;
+        case Kind::kOutput: p = internal::WriteNumber(s.outputs(c.index, col), p); break;
+        case Kind::kAmount: p = internal::WriteNumber(s.amounts(c.index, col), p); break;
+      }
     }
     *p++ = '\n';
   }
