@@ -5,10 +5,12 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <set>
 
 #include <kainjow/mustache.hpp>
 
 #include "cli.h"
+#include "pk/ode_model.h"
 #include "pk/output.h"
 #include "pk/plot.h"
 #include "pk/simulate.h"
@@ -60,16 +62,18 @@ std::string Gof(const std::vector<double>& x, const std::vector<double>& y, bool
   return RenderGofSvg(points, reference, o);
 }
 
-void GoodnessOfFit(const PopulationSummary& fit, list* svgs, Files* files) {
+// The plots of one output's rows (every row's when `dvid` is 0); `suffix` names its files and titles.
+void GoodnessOfFit(const PopulationSummary& fit, int dvid, const std::string& title, const std::string& suffix,
+                   list* svgs, Files* files) {
   std::map<std::string, std::vector<double>> c;
   for (const PopulationRow& r : fit.rows) {
     if (r.censored != 0) continue;  // DV is a limit (M3), not a value to plot against a prediction
+    if (dvid != 0 && r.dvid != dvid) continue;
     for (const auto& [name, v] : std::map<std::string, double>{{"DV", r.dv}, {"PRED", r.pred}, {"IPRED", r.ipred},
                                                                 {"TIME", r.time}, {"CWRES", r.cwres}, {"IWRES", r.iwres}}) {
       c[name].push_back(v);
     }
   }
-  if (fit.rows.empty()) return;
   const struct {
     const char *file, *x, *y;
     bool identity;
@@ -77,9 +81,29 @@ void GoodnessOfFit(const PopulationSummary& fit, list* svgs, Files* files) {
                {"cwres_time", "TIME", "CWRES", false}, {"cwres_pred", "PRED", "CWRES", false},
                {"iwres_ipred", "IPRED", "IWRES", false}};
   for (const auto& p : plots) {
-    const std::string svg = Gof(c[p.x], c[p.y], p.identity, Small(std::string(p.y) + " against " + p.x, p.x, p.y));
+    const std::string svg =
+        Gof(c[p.x], c[p.y], p.identity, Small(std::string(p.y) + " against " + p.x + title, p.x, p.y));
     svgs->push_back(object{{"svg", svg}});
-    files->push_back({std::string("gof_") + p.file + ".svg", svg});
+    files->push_back({std::string("gof_") + p.file + suffix + ".svg", svg});
+  }
+}
+
+// DV against PRED and IPRED, CWRES and IWRES: one set for the rows of each output (DVID) when there
+// are several, as Xpose facets them: a concentration and an effect share no axis.
+void GoodnessOfFit(const PopulationProblem& problem, const PopulationSummary& fit, list* svgs, Files* files) {
+  if (fit.rows.empty()) return;
+  std::set<int> dvids;
+  for (const PopulationRow& r : fit.rows) dvids.insert(r.dvid);
+  if (dvids.size() == 1) {
+    GoodnessOfFit(fit, 0, "", "", svgs, files);
+    return;
+  }
+  const auto* ode = dynamic_cast<const OdeModel*>(&problem.model());
+  for (int dvid : dvids) {
+    const bool named = ode && dvid >= 1 && dvid <= ode->num_outputs();
+    const std::string title =
+        " (DVID " + std::to_string(dvid) + (named ? ": " + ode->output_names()[static_cast<size_t>(dvid - 1)] : "") + ")";
+    GoodnessOfFit(fit, dvid, title, "_dvid" + std::to_string(dvid), svgs, files);
   }
 }
 
@@ -108,7 +132,10 @@ void Covariates(const PopulationProblem& problem, const PopulationSummary& fit, 
 }
 
 // A subject's prediction curve from time 0 to its last record: at φ (IPRED) or θ (PRED).
-PlotSeries Curve(const PopulationProblem& problem, int subject, const Eigen::VectorXd& values, const std::string& label) {
+// A model file's η are parameters of its own (ETA_CL): IPRED sets them to η̂; a catalogue model's
+// individual parameters already hold exp(η̂).
+PlotSeries Curve(const PopulationProblem& problem, int subject, const Eigen::VectorXd& values,
+                 const Eigen::VectorXd& eta, const std::string& label) {
   const auto& records = problem.data().subjects[static_cast<size_t>(subject)].records;
   SimulationOptions options;
   options.check_values = false;  // estimates may sit at the edge of their range
@@ -116,10 +143,17 @@ PlotSeries Curve(const PopulationProblem& problem, int subject, const Eigen::Vec
   for (int k = 0; k <= 240; ++k) options.output_times.push_back(last * k / 240.0);
   ParameterValues p;
   for (size_t k = 0; k < problem.theta_names().size(); ++k) p[problem.theta_names()[k]] = values(static_cast<Eigen::Index>(k));
+  const Model& model = problem.model();
+  for (size_t k = 0; k < problem.eta_names().size() && static_cast<Eigen::Index>(k) < eta.size(); ++k) {
+    const int i = model.ParameterIndex(problem.eta_names()[k]);
+    if (i >= 0 && model.is_eta(i)) p[problem.eta_names()[k]] = eta(static_cast<Eigen::Index>(k));
+  }
   PlotSeries curve{label, {}, {}};
-  const SubjectSimulation sim = SimulateSubject(problem.model(), problem.data(), subject, p, options);
+  const SubjectSimulation sim = SimulateSubject(model, problem.data(), subject, p, options);
+  // The central concentration (output 1 of a nonlinear model): an added output time copies its
+  // neighbour's CMT and DVID, which may name a dose compartment or another output.
   for (const SimulatedRecord& r : sim.rows) {
-    if (r.evid == Evid::kOther) curve.x.push_back(r.time), curve.y.push_back(r.pred);
+    if (r.evid == Evid::kOther) curve.x.push_back(r.time), curve.y.push_back(r.cp);
   }
   return curve;
 }
@@ -138,9 +172,11 @@ list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
     const int index = static_cast<int>(it - subjects.begin());
     PlotSeries dv{"DV", {}, {}, true};
     for (const PopulationRow* r : rows[s.id]) {
-      if (r->censored == 0) dv.x.push_back(r->time), dv.y.push_back(r->dv);
+      if (r->censored == 0 && r->dvid <= 1) dv.x.push_back(r->time), dv.y.push_back(r->dv);
     }
-    PlotSeries ipred = Curve(problem, index, s.parameters, "IPRED"), pred = Curve(problem, index, fit.parameters.theta, "PRED");
+    const Eigen::VectorXd zero = Eigen::VectorXd::Zero(s.eta.size());
+    PlotSeries ipred = Curve(problem, index, s.parameters, s.eta, "IPRED"),
+               pred = Curve(problem, index, fit.parameters.theta, zero, "PRED");
     dv.colour = kObserved, ipred.colour = kIpred, pred.colour = kPred;
     panels.push_back(object{{"caption", Text("ID " + FormatNumber(s.id))},
                             {"svg", RenderSvg({pred, ipred, dv}, Small("", "time", "concentration"))}});
@@ -209,16 +245,18 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   page["has_notes"] = data(!notes.empty());
   page["notes"] = notes;
   list gof, covariates;
-  GoodnessOfFit(fit, &gof, &files);
+  GoodnessOfFit(problem, fit, &gof, &files);
   Covariates(problem, fit, &covariates, &files);
   page["gof"] = gof;
   page["has_covariates"] = data(!covariates.empty());
   page["covariate_plots"] = covariates;
   page["panels"] = Panels(problem, fit);
   const size_t subjects = fit.subjects.size();
-  page["panels_note"] = Text(subjects > kMaxPanels ? "The first " + std::to_string(kMaxPanels) + " of " +
-                                                         std::to_string(subjects) + " subjects."
-                                                   : "");
+  const bool outputs = std::any_of(fit.rows.begin(), fit.rows.end(), [](const PopulationRow& r) { return r.dvid > 1; });
+  page["panels_note"] = Text((subjects > kMaxPanels ? "The first " + std::to_string(kMaxPanels) + " of " +
+                                                          std::to_string(subjects) + " subjects. "
+                                                    : "") +
+                             (outputs ? "Output 1 (DVID 1) only." : ""));
   kainjow::mustache::mustache tmpl(PopulationReportTemplate());
   files.insert(files.begin(), {"report.html", tmpl.render(page)});
   return files;
