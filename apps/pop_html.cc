@@ -98,12 +98,13 @@ void GoodnessOfFit(const PopulationProblem& problem, const PopulationSummary& fi
     GoodnessOfFit(fit, 0, "", "", svgs, files);
     return;
   }
+  // As pkfit names them: output 1's files unsuffixed, DVID k's with _k; titles "(EFFECT, DVID 2)".
   const auto* ode = dynamic_cast<const OdeModel*>(&problem.model());
   for (int dvid : dvids) {
     const bool named = ode && dvid >= 1 && dvid <= ode->num_outputs();
     const std::string title =
-        " (DVID " + std::to_string(dvid) + (named ? ": " + ode->output_names()[static_cast<size_t>(dvid - 1)] : "") + ")";
-    GoodnessOfFit(fit, dvid, title, "_dvid" + std::to_string(dvid), svgs, files);
+        " (" + (named ? ode->output_names()[static_cast<size_t>(dvid - 1)] + ", " : "") + "DVID " + std::to_string(dvid) + ")";
+    GoodnessOfFit(fit, dvid, title, dvid <= 1 ? "" : "_" + std::to_string(dvid), svgs, files);
   }
 }
 

@@ -362,4 +362,12 @@ printf '$PROBLEM mm  saturable\n$PARAM\nVMAX = 20 mg/h\nKM = 2 mg/L\nV = 30 L\n$
   fail "model file with \$ERROR: exit non-zero"
 grep -q "proportional" "$work/mm/summary.json" || fail "the model file's \$ERROR should choose the proportional error"
 grep -q ',SIGMA_PROP,' "$work/mm/estimates.csv" || fail "the model file's error model: SIGMA_PROP estimated"
+# A line per output in $ERROR: each output its own error model and σ, named after it.
+{ cat "$root/models/1cmt_iv_emax.pkm"; printf '$ERROR\nCP ~ proportional(0.1)\nE ~ additive(2)\n'; } >"$work/emax_err.pkm"
+"$pkfit" --model "$work/emax_err.pkm" --data "$root/datasets/emax_synthetic.csv" --subject 1 -o "$work/emax_err" -q \
+  >/dev/null 2>&1 || fail "per-output \$ERROR: exit non-zero"
+grep -q ',SIGMA_PROP_CP,' "$work/emax_err/estimates.csv" && grep -q ',SIGMA_ADD_E,' "$work/emax_err/estimates.csv" ||
+  fail "per-output \$ERROR: SIGMA_PROP_CP and SIGMA_ADD_E estimated"
+grep -q "proportional (SIGMA_PROP_CP); additive (SIGMA_ADD_E)" "$work/emax_err/report.html" ||
+  fail "per-output \$ERROR: the report names both error models"
 if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi
