@@ -597,6 +597,22 @@ TEST_CASE("model files: dose modifiers computed in $PK follow covariates, with e
   CHECK(MaxRel(after.predictions, before.predictions) > 1e-3);
 }
 
+TEST_CASE("model files: NONMEM's A_0(n) in $PK is X0_n", "[model_file]") {
+  std::string text = kComputedModifiers;
+  const size_t at = text.find("X0_2 = ");
+  REQUIRE(at != std::string::npos);
+  text.replace(at, 7, "A_0(2) = ");
+  const auto a = pk::ParseModel(kComputedModifiers, "x0.pkm"), b = pk::ParseModel(text, "a0.pkm");
+  CHECK(b->declarations().computed_modifiers.names == a->declarations().computed_modifiers.names);
+  const pk::Objective oa(a, ModifierData(false), 0, pk::ObjectiveOptions()), ob(b, ModifierData(false), 0, pk::ObjectiveOptions());
+  const auto ea = oa.Evaluate(oa.DefaultValues(), {}, pk::Objective::Need::kValue);
+  const auto eb = ob.Evaluate(ob.DefaultValues(), {}, pk::Objective::Need::kValue);
+  REQUIRE(ea.ok);
+  CHECK(ea.predictions == eb.predictions);
+  text.replace(at, 9, "A_0(B) = ");
+  CHECK_THROWS_WITH(pk::ParseModel(text, "bad.pkm"), Catch::Contains("expected a compartment number in A_0(…)"));
+}
+
 TEST_CASE("model files: a computed dose modifier cannot be given, fixed or read from the data", "[model_file]") {
   const auto model = pk::ParseModel(kComputedModifiers, "modifiers.pkm");
   const pk::ParameterLayout layout(*model);

@@ -1,5 +1,6 @@
 // The recursive-descent parser of model files (grammar: docs/model_language.md).
 #include <algorithm>
+#include <cmath>
 #include <initializer_list>
 #include <map>
 #include <utility>
@@ -309,6 +310,22 @@ class Parser {
     } else if (first.kind == Kind::kIdentifier && ToUpper(first.text) == "DADT" && IsPunct("(", 1)) {
       pos_ += 1;
       derivative = true;
+    }
+    if (!derivative && first.kind == Kind::kIdentifier && ToUpper(first.text) == "A_0" && IsPunct("(", 1)) {
+      // NONMEM's A_0(n) = …: the initial amount in compartment n, libpk's X0_n.
+      pos_ += 2;
+      const Token n = Peek();
+      if (n.kind != Kind::kNumber || !(n.number >= 1) || n.number != std::floor(n.number) || n.number > 999) {
+        Fail(n, "expected a compartment number in A_0(…), found " + Describe(n));
+      }
+      ++pos_;
+      Expect(")", "')'");
+      d.name = "X0_" + std::to_string(static_cast<int>(n.number));
+      Expect("=", "'='");
+      d.node = Expression();
+      EndOfStatement();
+      out->push_back({std::move(d), false});
+      return;
     }
     if (derivative) {
       if (pk) Fail(first, "a derivative belongs in $ODE, not in $PK");
