@@ -597,6 +597,38 @@ TEST_CASE("model files: dose modifiers computed in $PK follow covariates, with e
   CHECK(MaxRel(after.predictions, before.predictions) > 1e-3);
 }
 
+TEST_CASE("model files: a fit with a computed lag, and a computed lag below 0 fails its evaluation", "[model_file][fit]") {
+  // ALAG1 reads only parameters with finite defaults: the fitted values (and the curves drawn from
+  // them) hold a finite ALAG1, which must not be handed back as a given value.
+  const char* text =
+      "$PROBLEM lagged  1cmt oral with a computed lag\n"
+      "$PARAM\nKA = 1.5\nCL = 3\nV = 30\nTLAG = 0.3\nSHIFT = 0 (-1, 1)\n"
+      "$CMT\nDEPOT dose\nCENTRAL central\n"
+      "$PK\nALAG1 = TLAG + SHIFT\n"
+      "$ODE\nd/dt(DEPOT) = -KA * DEPOT\nd/dt(CENTRAL) = KA * DEPOT - CL / V * CENTRAL\n"
+      "$OUTPUT\nCP = CENTRAL / V\n";
+  const auto model = pk::ParseModel(text, "lagged.pkm");
+  pk::FitSubjectsRequest req;
+  req.model = model;
+  req.data = std::make_shared<pk::Dataset>(pk::ReadDataset(std::string(PK_SOURCE_DIR) + "/datasets/theophylline.csv"));
+  req.subjects = {0};
+  req.jobs = 1;
+  req.curve_points = 3;
+  pk::ParameterSettings settings;
+  settings.fixed = {{"SHIFT", 0.0}};
+  req.parameters = pk::MakeParameterSpecs(req, settings);
+  const pk::SubjectFit fit = pk::FitSubjects(req).at(0);
+  INFO(fit.error);
+  REQUIRE(fit.ok);
+  // A lag below 0 would run time backwards: the evaluation fails and says why.
+  const pk::Objective objective(model, req.data, 0, pk::ObjectiveOptions());
+  Eigen::VectorXd values = objective.DefaultValues();
+  values(objective.ParameterIndex("SHIFT")) = -0.5;
+  const auto e = objective.Evaluate(values, {}, pk::Objective::Need::kValue);
+  CHECK_FALSE(e.ok);
+  CHECK_THAT(e.message, Catch::Contains("ALAG1 is -0.2 for the dose at TIME 0: it must be 0 or more"));
+}
+
 TEST_CASE("model files: NONMEM's A_0(n) in $PK is X0_n", "[model_file]") {
   std::string text = kComputedModifiers;
   const size_t at = text.find("X0_2 = ");

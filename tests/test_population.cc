@@ -1123,3 +1123,22 @@ TEST_CASE("a singular covariance step is named as such", "[population]") {
   REQUIRE(w.size() == 1);
   CHECK_THAT(w[0], Catch::StartsWith("the correlation matrix is singular"));
 }
+
+TEST_CASE("population refuses continuous records and a column for a modifier the model computes", "[population]") {
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("additive");
+  const auto cont = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,DV,CONT\n1,0,100,.,0\n1,1,0,3,1\n1,2,0,2,1\n2,0,100,.,0\n2,1,0,3,0\n", "cont.csv"));
+  pk::ObjectiveOptions ode = o;
+  ode.propagator = pk::Propagator::kOde;  // where continuous records are a loss of their own
+  CHECK_THROWS_WITH(pk::PopulationProblem(pk::MakeModel("1cmt_iv"), cont, {"CL"}, ode),
+                    Catch::Contains("has continuous records (CONT=1), which population estimation does not take"));
+  const auto model = pk::ParseModel(
+      "$PROBLEM f  1cmt IV with a computed F1\n$PARAM\nCL = 3\nV = 30\nFPOP = 0.8 (0, 1)\n$OMEGA\nETA_CL ~ 0.1\n"
+      "$CMT\nCENTRAL dose central\n$PK\nF1 = FPOP\nCL_I = CL * exp(ETA_CL)\n$ODE\nd/dt(CENTRAL) = -CL_I / V * CENTRAL\n"
+      "$OUTPUT\nCP = CENTRAL / V\n",
+      "f.pkm", pk::RandomEffects::kParameters);
+  const auto f1 = std::make_shared<pk::Dataset>(
+      pk::ParseDataset("ID,TIME,AMT,DV,F1\n1,0,100,.,0.5\n1,1,0,3,.\n2,0,100,.,0.5\n2,1,0,3,.\n", "f1.csv"));
+  CHECK_THROWS_WITH(pk::PopulationProblem(model, f1, {"ETA_CL"}, o), Catch::Contains("the data column F1 cannot set it"));
+}

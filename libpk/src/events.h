@@ -271,6 +271,7 @@ class EventEngine {
     }
     DoseSpec dose;
     dose.cmt = c;
+    CheckModifiers(p, c, rec);
     dose.amount = p(layout_.F(c)) * rec.amt;
     if (rec.rate != 0) {
       dose.infusion = true;
@@ -305,6 +306,22 @@ class EventEngine {
     for (int k = 1; k <= rec.addl && Value(start) + k * Value(ii) <= s_.last_time; ++k) {
       Schedule(start + double(k) * ii, dose);
     }
+  }
+
+  // A modifier out of its range at run time (PrepareSubject checks the starting values; a modifier
+  // computed in $PK may leave its range during a fit, as NONMEM stops on a negative ALAG): the
+  // evaluation fails rather than running time backwards.
+  void CheckModifiers(const Vec<T>& p, int c, const Record& rec) const {
+    const auto check = [&](int index, bool positive) {
+      const double v = Value(p(index));
+      if (positive ? v > 0 : v >= 0) return;
+      throw NumericalFailure(layout_.name(index) + " is " + FormatNumber(v) + " for the dose at TIME " +
+                             FormatNumber(rec.time) + ": it must be " + (positive ? "positive" : "0 or more"));
+    };
+    check(layout_.F(c), false);
+    check(layout_.Alag(c), false);
+    if (rec.rate == -1) check(layout_.Rate(c), true);
+    if (rec.rate == -2) check(layout_.Duration(c), true);
   }
 
   // The record's dose is the last of an infinite train at start times

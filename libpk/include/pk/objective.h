@@ -202,7 +202,8 @@ class Objective {
 
   /// The predictions ŷ at `values` and, when `jacobian` is not null, ∂ŷ/∂p (samples × free, by
   /// forward sensitivities; zero columns for σ), without the loss: what a population engine needs
-  /// of a subject at each step of its conditional problem. False with `why` on numerical failure.
+  /// of a subject at each step of its conditional problem. False with `why` on numerical failure,
+  /// or for a subject with continuous records (CONT=1), whose loss is not a sum over samples.
   bool Sensitivities(const Eigen::VectorXd& values, const std::vector<int>& free, Eigen::VectorXd* predictions,
                      Eigen::MatrixXd* jacobian, std::string* why) const;
 

@@ -45,6 +45,8 @@ class ResidualErrorModel {
 
   /// The σ parameters appended to the model's, in order (upper case). None for least squares.
   virtual std::vector<std::string> sigma_names() const { return {}; }
+  /// sigma_names().size(), without building the names (per-sample code asks for it).
+  virtual int num_sigma() const { return static_cast<int>(sigma_names().size()); }
   /// A starting value for σ_j from the subject's observations (0.1 unless overridden).
   virtual double DefaultSigma(int j, const Eigen::VectorXd& observations) const;
   /// Whether σ_j is in the units of DV (an additive σ) rather than relative (the default). A σ

@@ -346,6 +346,10 @@ Objective::Evaluation Objective::Evaluate(const Eigen::VectorXd& values, const s
 bool Objective::Sensitivities(const Eigen::VectorXd& values, const std::vector<int>& free,
                               Eigen::VectorXd* predictions, Eigen::MatrixXd* jacobian, std::string* why) const {
   const internal::ObjectiveState& d = *impl_;
+  if (!d.ode.continuous.empty()) {
+    *why = "continuous records (CONT=1) are a loss, not predictions at samples";
+    return false;
+  }
   const internal::FreeParameters fp(free, d.L());
   const Need need = jacobian ? Need::kJacobian : Need::kValue;
   const GradientRoute route = jacobian ? GradientRoute::kForward : GradientRoute::kAuto;
@@ -400,7 +404,8 @@ std::vector<double> Objective::PredictAt(const Eigen::VectorXd& values, const st
   const Dataset one = SubjectWithOutputTimes(*d.data, d.subject, times, read);
   ParameterValues named;
   for (int i = 0; i < d.L(); ++i) {
-    if (std::isfinite(values(i))) named[d.names[i]] = values(i);
+    // A modifier computed in $PK follows from the others (and cannot be given).
+    if (std::isfinite(values(i)) && !d.layout.is_computed(i)) named[d.names[i]] = values(i);
   }
   SimulationOptions opts;
   opts.track_auc = false;

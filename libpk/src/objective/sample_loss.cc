@@ -105,7 +105,7 @@ std::vector<OutputError> OutputErrors(const ResidualErrorModel& error, const Sam
 bool Likelihood(const ResidualErrorModel& error, const SampleSet& samples, const double* sigma,
                 const Eigen::VectorXd& yhat, SampleLoss* out, Eigen::VectorXd* dl_dy, std::string* why) {
   const Eigen::Index n = yhat.size();
-  const int ns = static_cast<int>(error.sigma_names().size());
+  const int ns = error.num_sigma();
   const Eigen::VectorXd& obs = *samples.y;
   const Eigen::VectorXi& cens = *samples.cens;
   out->r = obs - yhat;
@@ -124,8 +124,8 @@ bool Likelihood(const ResidualErrorModel& error, const SampleSet& samples, const
     e.model->Variance(yhat(k), sigma + e.first, &v, &dv, dv_dsigma.data());
     out->v(k) = v;
     out->dv_dy(k) = dv;
-    for (size_t q = 0; q < e.model->sigma_names().size(); ++q) {
-      out->dv_dsigma(k, e.first + static_cast<Eigen::Index>(q)) = dv_dsigma[q];
+    for (int q = 0; q < e.model->num_sigma(); ++q) {
+      out->dv_dsigma(k, e.first + q) = dv_dsigma[static_cast<size_t>(q)];
     }
     // The compared quantities: y and μ = ŷ, or log y and μ = log ŷ.
     double y = obs(k), mu = yhat(k);

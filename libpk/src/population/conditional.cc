@@ -291,15 +291,18 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
       const double predicted = -c.gradient.dot(step), noise = s.relative_noise * (double(s.y.size()) + std::abs(c.l));
       if (predicted < noise && blind_steps < kBlindSteps) {
         // l cannot resolve a decrease this small, but ∇l, exact, still points to the mode: take the
-        // full step. Stopping here would leave η̂ off by about √(noise/H), and OFV_i (whose log det H
-        // is not stationary at the mode) off by as much.
+        // full step when l stays within its noise. Stopping here would leave η̂ off by about
+        // √(noise/H), and OFV_i (whose log det H is not stationary at the mode) off by as much.
         ++blind_steps;
         const Eigen::VectorXd next = mode.eta + step;
-        if (next != mode.eta && EvaluateConditional(s, p, next, fv, true, &c, &mode.message)) {
+        Conditional trial;
+        std::string ignored;
+        if (next != mode.eta && EvaluateConditional(s, p, next, fv, true, &trial, &ignored) &&
+            trial.l <= c.l + noise) {
           mode.eta = next;
+          c = std::move(trial);
           continue;
         }
-        if (!EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) return mode;
       }
       if ((length < std::max(1e-7, 10 * s.step_tolerance) && newton) || predicted < noise) {
         converged = true;  // rounding or the solver's error: l cannot decrease further

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "events.h"
 #include "internal_text.h"
 #include "pk/output.h"
 #include "pk/error.h"
@@ -146,10 +147,17 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
   ls.gradient = GradientRoute::kForward;
   ls.keep_censored = true;  // M3: the conditional objective forms their likelihood
   const ResidualErrorModel& error = *options.error_model;
+  internal::CheckColumns(*d.model, *d.data, true);  // as pkfit: e.g. a column for a modifier the model computes
   const bool ode = IntegratesOde(ResolvePropagator(*d.model, options.propagator));
   for (int i = 0; i < static_cast<int>(d.data->subjects.size()); ++i) {
     internal::SubjectModel s;
     s.objective = std::make_unique<Objective>(d.model, d.data, i, ls);
+    if (s.objective->has_continuous_records()) {
+      throw InputError(d.data->source, 0, d.data->ColumnNumber("CONT"),
+                       "ID " + FormatNumber(d.data->subjects[static_cast<size_t>(i)].id) +
+                           " has continuous records (CONT=1), which population estimation does not take: its "
+                           "conditional likelihood is over samples; give them CONT=0 or leave them out");
+    }
     s.base = s.objective->DefaultValues();
     const std::vector<int> outputs = s.objective->sample_outputs();
     s.outputs = Eigen::Map<const Eigen::VectorXi>(outputs.data(), static_cast<Eigen::Index>(outputs.size()));

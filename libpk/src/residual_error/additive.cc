@@ -12,6 +12,7 @@ class Additive final : public ResidualErrorModel {
  public:
   const char* name() const override { return "additive"; }
   std::vector<std::string> sigma_names() const override { return {kSigmaAdd}; }
+  int num_sigma() const override { return 1; }
   double DefaultSigma(int, const Eigen::VectorXd& dv) const override { return AdditiveStart(dv); }
   bool sigma_in_dv_units(int) const override { return true; }
   void Variance(double, const double* sigma, double* v, double* dv_dyhat, double* dv_dsigma) const override {

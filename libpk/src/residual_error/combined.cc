@@ -10,6 +10,7 @@ class Combined final : public ResidualErrorModel {
  public:
   const char* name() const override { return "combined"; }
   std::vector<std::string> sigma_names() const override { return {kSigmaAdd, kSigmaProp}; }
+  int num_sigma() const override { return 2; }
   double DefaultSigma(int j, const Eigen::VectorXd& dv) const override { return j == 0 ? AdditiveStart(dv) : 0.1; }
   bool sigma_in_dv_units(int j) const override { return j == 0; }
   void Variance(double yhat, const double* sigma, double* v, double* dv_dyhat, double* dv_dsigma) const override {

@@ -15,6 +15,7 @@ class Exponential final : public ResidualErrorModel {
   const char* name() const override { return "exponential"; }
   bool log_transformed() const override { return true; }
   std::vector<std::string> sigma_names() const override { return {kSigmaLog}; }
+  int num_sigma() const override { return 1; }
   double DefaultSigma(int, const Eigen::VectorXd&) const override { return 0.2; }
   void Variance(double, const double* sigma, double* v, double* dv_dyhat, double* dv_dsigma) const override {
     *v = sigma[0] * sigma[0];

@@ -28,6 +28,7 @@ class PerOutput final : public ResidualErrorModel {
     return false;
   }
   std::vector<std::string> sigma_names() const override { return names_; }
+  int num_sigma() const override { return static_cast<int>(names_.size()); }
   double DefaultSigma(int j, const Eigen::VectorXd& observations) const override {
     const size_t k = OutputOfSigma(j);
     return models_[k]->DefaultSigma(j - first_[k], observations);

@@ -10,6 +10,7 @@ class Proportional final : public ResidualErrorModel {
  public:
   const char* name() const override { return "proportional"; }
   std::vector<std::string> sigma_names() const override { return {kSigmaProp}; }
+  int num_sigma() const override { return 1; }
   double DefaultSigma(int, const Eigen::VectorXd&) const override { return 0.1; }
   void Variance(double yhat, const double* sigma, double* v, double* dv_dyhat, double* dv_dsigma) const override {
     const double b = sigma[0];

@@ -64,7 +64,7 @@ void OutputVariance(const ResidualErrorModel& error, int output, double yhat, co
     error.Variance(yhat, sigma, v, dv_dyhat, dv_dsigma);
     return;
   }
-  std::fill(dv_dsigma, dv_dsigma + error.sigma_names().size(), 0.0);
+  std::fill(dv_dsigma, dv_dsigma + error.num_sigma(), 0.0);
   e.Variance(yhat, sigma + first, v, dv_dyhat, dv_dsigma + first);
 }
 
