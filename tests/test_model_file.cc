@@ -848,6 +848,34 @@ TEST_CASE("per-output error models: each output's samples follow their own model
   }
 }
 
+TEST_CASE("per-output error models: a subject without an output's samples holds that σ fixed", "[model_file][error][fit]") {
+  pk::FitSubjectsRequest req;
+  req.model = pk::LoadModelFile(ModelPath("1cmt_iv_emax"));
+  req.data = EmaxData("DVID.EQ.2");  // concentrations only
+  req.subjects = {0};
+  req.jobs = 1;
+  req.curve_points = 2;
+  req.objective.error_model = pk::MakePerOutputError(
+      {pk::MakeResidualError("proportional"), pk::MakeResidualError("additive")}, {"CP", "E"});
+  pk::ParameterSettings settings;  // the effect's parameters cannot be estimated from concentrations
+  settings.fixed = {{"KE0", 0.5}, {"E0", 10}, {"EMAX", 50}, {"EC50", 1}, {"HILL", 1.5}};
+  req.parameters = pk::MakeParameterSpecs(req, settings);
+  req.fit.optimizer = pk::ChooseOptimizer(req, "");
+  const pk::SubjectFit fit = pk::FitSubjects(req).at(0);
+  INFO(fit.error);
+  REQUIRE(fit.ok);
+  bool seen = false;
+  for (const pk::ParameterEstimate& p : fit.summary.estimates) {
+    if (p.name == "SIGMA_ADD_E") {
+      seen = true;
+      CHECK(p.fixed);
+    }
+    if (p.name == "SIGMA_PROP_CP" || p.name == "CL") CHECK_FALSE(p.fixed);
+  }
+  CHECK(seen);
+  CHECK(fit.summary.covariance.size() > 0);  // not singular for want of E samples
+}
+
 TEST_CASE("per-output error models from a model file's $ERROR, with their initial σ", "[model_file][error]") {
   const std::string base = FileText("1cmt_iv_emax");
   const auto model = pk::ParseModel(base + "$ERROR\nCP ~ proportional(0.12)\nE ~ additive(0.9)\n", "emax.pkm");

@@ -33,6 +33,28 @@ Eigen::MatrixXd LeadingCovariance(const Objective& objective, const FitSummary& 
   return cov;
 }
 
+// With an error model per output, the σ of an output this subject has no samples of cannot be
+// estimated (zero gradient, zero information): held at its start, as a fixed parameter.
+void HoldAbsentOutputSigmas(const Objective& objective, std::vector<ParameterSpec>* specs) {
+  const ResidualErrorModel& error = objective.error_model();
+  if (error.num_outputs() == 0) return;
+  const std::vector<int> outputs = objective.sample_outputs(), sigma = objective.sigma_indices();
+  const Eigen::VectorXd defaults = objective.DefaultValues();
+  for (int k = 1; k <= error.num_outputs(); ++k) {
+    if (std::find(outputs.begin(), outputs.end(), k) != outputs.end()) continue;
+    int first = 0;
+    const ResidualErrorModel& e = error.ForOutput(k, &first);
+    for (int j = 0; j < e.num_sigma(); ++j) {
+      const int index = sigma[static_cast<size_t>(first + j)];
+      for (ParameterSpec& spec : *specs) {
+        if (objective.ParameterIndex(spec.name) != index || spec.fixed) continue;
+        spec.fixed = true;
+        if (std::isnan(spec.initial)) spec.initial = defaults(index);
+      }
+    }
+  }
+}
+
 // The specs with their starting values for this subject: given, from the data, or from an
 // earlier fit of it; out->initial_method says where they came from.
 std::vector<ParameterSpec> StartingValues(const FitSubjectsRequest& req, const Objective& objective, int subject,
@@ -71,6 +93,7 @@ std::vector<ParameterSpec> StartingValues(const FitSubjectsRequest& req, const O
                             std::to_string(estimated) + "); the others from " + out->initial_method;
     }
   }
+  HoldAbsentOutputSigmas(objective, &specs);
   const Eigen::VectorXd defaults = objective.DefaultValues();
   for (const ParameterSpec& spec : specs) {
     if (!spec.fixed) {
