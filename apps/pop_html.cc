@@ -235,7 +235,13 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   page["message"] = Text("The outer optimiser ended: " + fit.message + ".");
   page["covariance"] = Text(fit.covariance_message.empty() ? "the sandwich R⁻¹SR⁻¹, NONMEM's default" : "none");
   page["estimates"] = Estimates(problem, fit);
-  page["epsilon_shrinkage"] = Sig(100 * fit.epsilon_shrinkage_sd, 3) + "%";
+  std::string eps = Sig(100 * fit.epsilon_shrinkage_sd, 3) + "%";
+  for (size_t k = 0; k < fit.epsilon_shrinkage_sd_by_output.size(); ++k) {
+    eps += (k == 0 ? " (DVID 1: " : ", DVID " + std::to_string(k + 1) + ": ") +
+           Sig(100 * fit.epsilon_shrinkage_sd_by_output[k], 3) + "%" +
+           (k + 1 == fit.epsilon_shrinkage_sd_by_output.size() ? ")" : "");
+  }
+  page["epsilon_shrinkage"] = eps;
   page["gradient"] = fit.gradient;
   list notes;
   if (!fit.covariance_message.empty()) notes.push_back(Text("No standard errors: " + fit.covariance_message));

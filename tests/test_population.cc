@@ -1101,6 +1101,34 @@ TEST_CASE("per-output error models in population: NONMEM's EPS per DVID", "[popu
     REQUIRE(rb.ok);
     CHECK(std::abs(ra.ofv - rb.ofv) < 1e-8 * std::abs(ra.ofv));
   }
+  // ε-shrinkage per output (NONMEM's EPSSHRINK per EPS): 1 − SD of that output's IWRES.
+  {
+    const pk::internal::PopulationEngine engine(twice, pk::PopulationMethod::kFocei, 1);
+    const std::vector<Eigen::VectorXd> zero(4, Eigen::VectorXd::Zero(2));
+    const auto r = engine.Evaluate(q, zero, true);
+    REQUIRE(r.ok);
+    pk::PopulationSummary summary;
+    pk::internal::PopulationDiagnostics(engine, q, r.modes, &summary);
+    REQUIRE(summary.epsilon_shrinkage_sd_by_output.size() == 2);
+    for (int k = 1; k <= 2; ++k) {
+      std::vector<double> iwres;
+      for (const pk::PopulationRow& row : summary.rows) {
+        if (row.dvid == k) iwres.push_back(row.iwres);
+      }
+      REQUIRE(iwres.size() > 10);
+      double mean = 0, ss = 0;
+      for (double v : iwres) mean += v / static_cast<double>(iwres.size());
+      for (double v : iwres) ss += (v - mean) * (v - mean);
+      const double sd = std::sqrt(ss / static_cast<double>(iwres.size() - 1));
+      CHECK(std::abs(summary.epsilon_shrinkage_sd_by_output[static_cast<size_t>(k - 1)] - (1 - sd)) < 1e-12);
+    }
+    pk::PopulationSummary one;
+    const pk::internal::PopulationEngine single_engine(single, pk::PopulationMethod::kFocei, 1);
+    const auto rs = single_engine.Evaluate(p, zero, true);
+    REQUIRE(rs.ok);
+    pk::internal::PopulationDiagnostics(single_engine, p, rs.modes, &one);
+    CHECK(one.epsilon_shrinkage_sd_by_output.empty());
+  }
   // Different models: the outer gradient, both σ included, against differences of the OFV.
   const pk::PopulationProblem mixed = EmaxProblem(
       pk::MakePerOutputError({MakeResidualError("proportional"), MakeResidualError("additive")}, {"CP", "E"}));

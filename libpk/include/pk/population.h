@@ -268,6 +268,9 @@ struct PopulationSummary {
   Eigen::VectorXd eta_shrinkage_variance;  ///< 1 − Var(η̂)/ω²
   double epsilon_shrinkage_sd = std::numeric_limits<double>::quiet_NaN();  ///< 1 − SD(IWRES)
   double epsilon_shrinkage_variance = std::numeric_limits<double>::quiet_NaN();
+  /// With an error model per output (pk::MakePerOutputError): the ε-shrinkage of each output's
+  /// IWRES, DVID 1, 2, … (NONMEM's EPSSHRINK per EPS); empty with one error model.
+  std::vector<double> epsilon_shrinkage_sd_by_output, epsilon_shrinkage_variance_by_output;
   std::vector<PopulationIteration> history;
   int failed_subjects = 0;
 

@@ -10,6 +10,7 @@
 // IWRES are NaN, and C is formed over the values alone. Shrinkage (Savic & Karlsson, AAPS J 2009;11:558-569) uses the sample SD
 // (n − 1) over the subjects whose mode was found, as PsN and Xpose compute it.
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Eigenvalues>
 
@@ -142,6 +143,18 @@ void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParam
   const double sd = SampleSd(iwres);
   summary->epsilon_shrinkage_sd = 1 - sd;
   summary->epsilon_shrinkage_variance = 1 - sd * sd;
+  // Each output's own ε (an error model per output): NONMEM's EPSSHRINK per EPS.
+  summary->epsilon_shrinkage_sd_by_output.clear();
+  summary->epsilon_shrinkage_variance_by_output.clear();
+  for (int k = 1; k <= d.options.error_model->num_outputs(); ++k) {
+    std::vector<double> own;
+    for (const PopulationRow& r : summary->rows) {
+      if (r.dvid == k && r.censored == 0) own.push_back(r.iwres);
+    }
+    const double sd_k = own.size() > 1 ? SampleSd(own) : std::numeric_limits<double>::quiet_NaN();
+    summary->epsilon_shrinkage_sd_by_output.push_back(1 - sd_k);
+    summary->epsilon_shrinkage_variance_by_output.push_back(1 - sd_k * sd_k);
+  }
 }
 
 }  // namespace internal

@@ -96,7 +96,13 @@ std::string PopulationSummary::FullReport() const {
         << internal::Num(100 * eta_shrinkage_variance(k), "%.1f") << "%)\n";
   }
   out << "    ε         " << internal::Num(100 * epsilon_shrinkage_sd, "%.1f") << "%  ("
-      << internal::Num(100 * epsilon_shrinkage_variance, "%.1f") << "%)\n";
+      << internal::Num(100 * epsilon_shrinkage_variance, "%.1f") << "%)" << (epsilon_shrinkage_sd_by_output.empty() ? "" : "  (every output)") << "\n";
+  for (size_t k = 0; k < epsilon_shrinkage_sd_by_output.size(); ++k) {
+    std::string name = "ε(DVID " + std::to_string(k + 1) + ")";
+    name.resize(std::max<size_t>(name.size() + 1, 12), ' ');
+    out << "    " << name << internal::Num(100 * epsilon_shrinkage_sd_by_output[k], "%.1f") << "%  ("
+        << internal::Num(100 * epsilon_shrinkage_variance_by_output[k], "%.1f") << "%)\n";
+  }
   for (const PopulationSubject& s : subjects) {
     if (!s.ok) out << "  subject " << FormatNumber(s.id) << ": " << s.message << "\n";
   }
