@@ -1129,7 +1129,12 @@ TEST_CASE("per-output error models in population: NONMEM's EPS per DVID", "[popu
     pk::internal::PopulationDiagnostics(single_engine, p, rs.modes, &one);
     CHECK(one.epsilon_shrinkage_sd_by_output.empty());
   }
-  // Different models: the outer gradient, both σ included, against differences of the OFV.
+}
+
+TEST_CASE("per-output error models in population: the outer gradient with both σ", "[population][model-file][release-only]") {
+  // Different models: the outer gradient, both σ included, against differences of the OFV (on the ODE
+  // propagator at rtol 1e-12: seconds, so in the Release run only).
+  using pk::MakeResidualError;
   const pk::PopulationProblem mixed = EmaxProblem(
       pk::MakePerOutputError({MakeResidualError("proportional"), MakeResidualError("additive")}, {"CP", "E"}));
   pk::PopulationParameters r = mixed.DefaultParameters();
