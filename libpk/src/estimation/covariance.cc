@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <vector>
 
 #include <Eigen/LU>
@@ -98,8 +99,14 @@ std::string Collapse(const Objective& objective, const Eigen::VectorXd& values, 
   std::vector<double> rest(sigma.size()), dv_dsigma(sigma.size());
   for (size_t q = 0; q < sigma.size(); ++q) rest[q] = gone[q] ? 0.0 : values(sigma[q]);
   const std::vector<int> outputs = objective.sample_outputs();
-  const double zero = kZeroPredictionLevel * yhat.cwiseAbs().maxCoeff();
+  // Zero to rounding relative to the largest prediction of the sample's own output, as the loss takes it.
+  std::map<int, double> largest;
+  for (int k = 0; k < yhat.size(); ++k) {
+    double& l = largest[outputs[static_cast<size_t>(k)]];
+    l = std::max(l, std::fabs(yhat(k)));
+  }
   for (int k = 0; k < y.size() && *at < 0; ++k) {
+    const double zero = kZeroPredictionLevel * largest[outputs[static_cast<size_t>(k)]];
     if (!(std::fabs(yhat(k)) <= zero) || objective.censoring()(k) != 0) continue;
     double v0, dv0;
     OutputVariance(objective.error_model(), outputs[static_cast<size_t>(k)], 0.0, rest.data(), &v0, &dv0,

@@ -98,8 +98,8 @@ std::string PopulationSummary::FullReport() const {
   out << "    ε         " << internal::Num(100 * epsilon_shrinkage_sd, "%.1f") << "%  ("
       << internal::Num(100 * epsilon_shrinkage_variance, "%.1f") << "%)" << (epsilon_shrinkage_sd_by_output.empty() ? "" : "  (every output)") << "\n";
   for (size_t k = 0; k < epsilon_shrinkage_sd_by_output.size(); ++k) {
-    std::string name = "ε(DVID " + std::to_string(k + 1) + ")";
-    name.resize(std::max<size_t>(name.size() + 1, 12), ' ');
+    std::string name = "ε(DVID " + std::to_string(k + 1) + ")";  // ε takes two bytes, η too
+    name.resize(std::max<size_t>(name.size() + 2, 12), ' ');
     out << "    " << name << internal::Num(100 * epsilon_shrinkage_sd_by_output[k], "%.1f") << "%  ("
         << internal::Num(100 * epsilon_shrinkage_variance_by_output[k], "%.1f") << "%)\n";
   }
