@@ -10,6 +10,20 @@
 
 namespace pk {
 
+namespace {
+
+// Whether `s` has rows to write; throws when its amounts and outputs lack a column per row.
+bool HasRows(const SubjectSimulation& s, const char* who) {
+  if (!s.ok || s.rows.empty()) return false;
+  if (s.amounts.cols() != static_cast<Eigen::Index>(s.rows.size()) ||
+      (s.outputs.size() && s.outputs.cols() != s.amounts.cols())) {
+    throw std::invalid_argument(std::string(who) + ": the amounts and outputs need a column per row");
+  }
+  return true;
+}
+
+}  // namespace
+
 std::string SimulationCsvHeader(const Model& model) {
   const auto* ode_model = dynamic_cast<const OdeModel*>(&model);
   std::string csv = "ID,TIME,EVID,CP";
@@ -19,11 +33,7 @@ std::string SimulationCsvHeader(const Model& model) {
 }
 
 void AppendSimulationCsv(const SubjectSimulation& s, std::string* out) {
-  if (!s.ok || s.rows.empty()) return;
-  if (s.amounts.cols() != static_cast<Eigen::Index>(s.rows.size()) ||
-      (s.outputs.size() && s.outputs.cols() != s.amounts.cols())) {
-    throw std::invalid_argument("AppendSimulationCsv: the amounts and outputs need a column per row");
-  }
+  if (!HasRows(s, "AppendSimulationCsv")) return;
   char id[48];
   const size_t id_size = static_cast<size_t>(internal::WriteNumber(s.id, id) - id);
   const Eigen::Index outputs = std::max<Eigen::Index>(s.outputs.rows() - 1, 0), amounts = s.amounts.rows();
@@ -104,11 +114,7 @@ std::string SimulationColumns::Header() const {
 }
 
 void SimulationColumns::Append(const SubjectSimulation& s, std::string* out) const {
-  if (!s.ok || s.rows.empty()) return;
-  if (s.amounts.cols() != static_cast<Eigen::Index>(s.rows.size()) ||
-      (s.outputs.size() && s.outputs.cols() != s.amounts.cols())) {
-    throw std::invalid_argument("SimulationColumns::Append: the amounts and outputs need a column per row");
-  }
+  if (!HasRows(s, "SimulationColumns::Append")) return;
   char id[48];
   const size_t id_size = static_cast<size_t>(internal::WriteNumber(s.id, id) - id);
   const size_t longest = (id_size + 25) * columns_.size() + 1;
