@@ -66,7 +66,11 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "propagator", po::value<std::string>()->default_value("auto"), "exact, ode, rk or auto (as pkfit)")(
       "gradient", po::value<std::string>()->default_value("auto"),
       "the outer gradient: implicit (the modes' implicit function theorem; FOCE, FOCEI), fd (central differences "
-      "of the OFV, as NONMEM) or auto (implicit on the exact propagator; fd for Laplace and ODE models)")(
+      "of the OFV, as NONMEM) or auto (implicit for FOCE and FOCEI, fd for Laplace)")(
+      "rtol", po::value<double>()->default_value(1e-9),
+      "ODE propagator: relative tolerance (pkfit's is 1e-8; the outer line search needs the OFV closer to the "
+      "one whose gradient it is given)")(
+      "atol", po::value<double>()->default_value(1e-11), "ODE propagator: absolute tolerance")(
       "threads,j", po::value<int>()->default_value(1), "subjects' inner problems on this many threads")(
       "max-evaluations", po::value<int>()->default_value(1000), "outer objective evaluations, at most")(
       "no-covariance", "skip the covariance step (no standard errors)")(
@@ -337,6 +341,8 @@ int Main(int argc, char** argv, const Process& process) {
       pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(a.ignore, a.accept)));
   pk::ObjectiveOptions objective;
   objective.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
+  objective.ode.relative_tolerance = vm["rtol"].as<double>();
+  objective.ode.absolute_tolerance = vm["atol"].as<double>();
   // --error, else the model file's $ERROR (one model, or one per output), else combined.
   objective.error_model = pk::DeclaredErrorModel(*model);
   if (vm.count("error") || !objective.error_model) {

@@ -1072,8 +1072,8 @@ pk::PopulationProblem EmaxProblem(std::shared_ptr<const pk::ResidualErrorModel> 
   const auto model = pk::ParseModel(kEmaxPopulation, "emax_pop.pkm", pk::RandomEffects::kParameters);
   pk::ObjectiveOptions o;
   o.error_model = std::move(error);
-  // The implicit gradient's second order is differences of the ODE sensitivities here: their error
-  // over the step (1e-3) must stay below the 1e-5 the gradient is checked to.
+  // The implicit gradient is the exact OFV's; the differences it is checked against (to 1e-5) are the
+  // computed OFV's, which must be that close to it.
   o.ode.relative_tolerance = 1e-12;
   o.ode.absolute_tolerance = 1e-15;
   return pk::PopulationProblem(model, Data("emax_synthetic"), {"ETA_CL", "ETA_EMAX"}, o);

@@ -26,6 +26,18 @@ inline pk::SubjectSimulation SimulateText(const std::string& model, const std::s
   return pk::SimulateSubject(*pk::MakeModel(model), data, subject, values);
 }
 
+#ifdef PK_SANITIZED
+constexpr bool kSanitized = true;
+#else
+constexpr bool kSanitized = false;
+#endif
+
+/// Whether a study over many models runs `name`: every one optimised; under the sanitizers, whose
+/// builds run the studies ten times slower, only those in `subset` (the code is the same for all).
+inline bool RunsUnderThisBuild(const std::string& name, const std::vector<std::string>& subset) {
+  return !kSanitized || std::find(subset.begin(), subset.end(), name) != subset.end();
+}
+
 /// Relative difference with a floor on the scale.
 inline double RelDiff(double a, double b, double floor = 1e-12) {
   return std::fabs(a - b) / std::max({std::fabs(a), std::fabs(b), floor});

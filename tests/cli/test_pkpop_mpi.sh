@@ -3,7 +3,7 @@
 # table as one process: byte for byte, since every subject's numbers come from one process and
 # are summed in subject order (pk/population.h, SubjectDistribution).
 set -uo pipefail
-pkpop=$1; root=$2; work=$3; mpirun=$4
+pkpop=$1; root=$2; work=$3; mpirun=$4; sanitized=${5:-OFF}
 rm -rf "$work"; mkdir -p "$work"
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
@@ -28,8 +28,12 @@ compare() {  # name, then pkpop's arguments
   done
 }
 compare pheno --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional
-compare theo --model 1cmt_oral --data "$root/datasets/theophylline.csv" --eta KA,CL,V --block CL,V --method foce \
-  --error additive --gradient fd -j 2
+# The second case (differences of the OFV, an Ω block, 2 threads per process) takes 45 s under the
+# sanitizers and 3 s optimised; the sanitizer build runs the first alone.
+if [ "$sanitized" != "ON" ]; then
+  compare theo --model 1cmt_oral --data "$root/datasets/theophylline.csv" --eta KA,CL,V --block CL,V --method foce \
+    --error additive --gradient fd -j 2
+fi
 
 [ $failures -eq 0 ] && echo "pkpop under MPI: all checks passed"
 exit $failures

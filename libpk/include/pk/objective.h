@@ -207,11 +207,13 @@ class Objective {
   bool Sensitivities(const Eigen::VectorXd& values, const std::vector<int>& free, Eigen::VectorXd* predictions,
                      Eigen::MatrixXd* jacobian, std::string* why) const;
 
-  /// Exact second derivatives of the predictions: (*second)[i] = ∂²ŷ/∂p_a∂p_b over the samples
-  /// for pairs[i] = (a, b), positions in `free`. A linear model on the exact propagator, and model
-  /// parameters only (none of F, ALAG, R, D or σ): the state's second derivatives run through the
-  /// block-triangular exponential as the first ones do (docs/gradients.md). False, with `why`,
-  /// otherwise (the ODE routes have no second order) or on numerical failure.
+  /// Second derivatives of the predictions: (*second)[i] = ∂²ŷ/∂p_a∂p_b over the samples for
+  /// pairs[i] = (a, b), positions in `free`, model parameters only (none of F, ALAG, R, D or σ,
+  /// nor one a computed modifier reads). A linear model's are exact: the state's second derivatives
+  /// run through the block-triangular exponential as the first ones do (docs/gradients.md). A
+  /// nonlinear model's are forward sensitivities of the sensitivity system, integrated with x to
+  /// the ODE tolerances (docs/ode_routes.md); no steady states there. False, with `why`, otherwise
+  /// or on numerical failure.
   bool SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
                          const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                          std::string* why) const;

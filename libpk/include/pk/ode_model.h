@@ -40,6 +40,7 @@
 #include <Eigen/Core>
 
 #include "pk/dual.h"
+#include "pk/hyper_dual.h"
 #include "pk/model.h"
 #include "pk/tape_scalar.h"
 
@@ -62,6 +63,17 @@ struct OdeModelSpec {
   std::vector<std::string> signed_parameters;
   /// What a model file declares (pk/model.h); empty for the catalogue.
   ModelDeclarations declarations;
+};
+
+/// Two first-order directions d₁ = (dx1, dθ1), d₂ = (dx2, dθ2) in (x, θ) and the state's own
+/// second-order part dx12 along them: what a second-order sensitivity step asks of f and g.
+/// Each pointer addresses n (dx) or m (dθ) values; dx12 may be null (zero).
+struct SecondDirections {
+  const double* dx1 = nullptr;
+  const double* dtheta1 = nullptr;
+  const double* dx2 = nullptr;
+  const double* dtheta2 = nullptr;
+  const double* dx12 = nullptr;
 };
 
 /// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use
@@ -95,6 +107,13 @@ class OdeModel : public Model {
   virtual void OutputDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
                                  const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
                                  Eigen::RowVectorXd* dy) const = 0;
+  /// The mixed second derivative of f along `d`: f12 = f_x dx12 + f''[d₁, d₂] (n), the
+  /// right-hand side of the second-order sensitivity ∂²x/∂p_k∂p_l. One evaluation on pk::HyperDual.
+  virtual void RhsSecondDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                    const SecondDirections& d, Eigen::VectorXd* f12) const = 0;
+  /// The same for output `output`: g_x dx12 + g''[d₁, d₂].
+  virtual double OutputSecondDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                         const SecondDirections& d) const = 0;
 
  protected:
   explicit OdeModel(const OdeModelSpec& spec);
@@ -138,10 +157,38 @@ class AutoDiffOdeModel final : public OdeModel {
     }
   }
 
+  void RhsSecondDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const SecondDirections& d,
+                            Eigen::VectorXd* f12) const override {
+    const int n = num_compartments();
+    thread_local std::vector<HyperDual> xs, ts, fs;
+    SeedSecond(x, d.dx1, d.dx2, d.dx12, &xs);
+    SeedSecond(theta, d.dtheta1, d.dtheta2, nullptr, &ts);
+    fs.assign(static_cast<size_t>(n), HyperDual());
+    f_.Rhs(xs.data(), ts.data(), fs.data());
+    f12->resize(n);
+    for (int i = 0; i < n; ++i) (*f12)(i) = fs[static_cast<size_t>(i)].e12();
+  }
+
+  double OutputSecondDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                 const SecondDirections& d) const override {
+    thread_local std::vector<HyperDual> xs, ts;
+    SeedSecond(x, d.dx1, d.dx2, d.dx12, &xs);
+    SeedSecond(theta, d.dtheta1, d.dtheta2, nullptr, &ts);
+    return f_.Output(output, xs.data(), ts.data()).e12();
+  }
+
  protected:
   void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const override { f_.Rhs(x, theta, f); }
 
  private:
+  static void SeedSecond(const Eigen::VectorXd& v, const double* d1, const double* d2, const double* d12,
+                         std::vector<HyperDual>* out) {
+    out->resize(static_cast<size_t>(v.size()));
+    for (Eigen::Index i = 0; i < v.size(); ++i) {
+      (*out)[static_cast<size_t>(i)] = HyperDual(v(i), d1[i], d2[i], d12 == nullptr ? 0.0 : d12[i]);
+    }
+  }
+
   static void Seed(const Eigen::VectorXd& v, const Eigen::MatrixXd& d, std::vector<Dual>* out) {
     out->resize(v.size());
     for (Eigen::Index i = 0; i < v.size(); ++i) (*out)[i] = Dual(v(i), d.row(i).transpose());

@@ -127,13 +127,14 @@ class PopulationProblem {
 
 /// How the outer optimiser's gradient of the OFV is formed.
 enum class PopulationGradient {
-  /// kImplicit for FOCE and FOCEI on the exact (Φ/Γ) propagator; kFiniteDifference for Laplace
-  /// and on the ODE propagator, whose sensitivities are not yet accurate enough to difference.
+  /// kImplicit for FOCE and FOCEI, on every propagator; kFiniteDifference for Laplace.
   kAuto,
   /// By the implicit function theorem on each subject's conditional mode (Almquist et al. 2015):
-  /// exact first- and second-order sensitivities of the predictions on Φ/Γ (on the ODE
-  /// propagator the second order is Richardson-extrapolated differences of the exact first).
-  /// FOCE and FOCEI.
+  /// first- and second-order sensitivities of the predictions, exact on Φ/Γ, integrated with the
+  /// ODEs on the ODE propagator (forward sensitivities of the sensitivity system). A parameter
+  /// they cannot follow (one a computed dose modifier reads, or a steady state on the ODE
+  /// propagator) takes Richardson-extrapolated differences of the exact first order instead, and
+  /// the summary says so. FOCE and FOCEI.
   kImplicit,
   /// Central differences of the OFV, the subjects' searches started from the centre's modes
   /// (what NONMEM does). Any method; the check on the others.

@@ -1,8 +1,10 @@
-// Objective::SecondDerivatives: exact ∂²ŷ/∂p_a∂p_b on the exact propagator (exact/second_order.h).
+// Objective::SecondDerivatives: ∂²ŷ/∂p_a∂p_b from Φ/Γ (exact/second_order.h) or from the ODE
+// propagator's second-order sensitivities (ode/second_order.h).
 #include <algorithm>
 
 #include "exact/second_order.h"
 #include "numerical_failure.h"
+#include "ode/second_order.h"
 #include "objective/prediction.h"
 #include "pk/objective.h"
 
@@ -12,10 +14,9 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
                                   const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                                   std::string* why) const {
   const internal::ObjectiveState& d = *impl_;
-  if (d.linear == nullptr || IntegratesOde(d.propagator)) {
-    *why = "exact second derivatives need a linear model on the exact propagator";
-    return false;
-  }
+  // A linear model takes the block-triangular exponential whichever propagator predicts; a
+  // nonlinear one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
+  const bool ode = d.linear == nullptr;
   const int m = d.model->num_parameters();
   for (const int i : free) {
     if (i < 0 || i >= m) {
@@ -42,8 +43,12 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
   internal::PreparedSubject s = d.prepared;
   internal::RebindParameters(d.layout, values.head(d.L()), &s);
   try {
-    internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.layout, fp), fp.num_model(), pairs,
-                                       d.options.modal_propagation, second);
+    if (ode) {
+      internal::OdeSecondOrderSensitivities(d.ode, s, internal::DualSets(s, d.layout, fp), fp.num_model(), pairs, second);
+    } else {
+      internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.layout, fp), fp.num_model(),
+                                         pairs, d.options.modal_propagation, second);
+    }
   } catch (const internal::NumericalFailure& e) {
     *why = e.what();
     return false;

@@ -28,6 +28,8 @@ class OdeSystem {
   int num_theta() const { return m_; }
   const Model& model() const { return model_; }
   bool is_linear() const { return linear_ != nullptr; }
+  /// The nonlinear model (null for a linear one).
+  const OdeModel* nonlinear() const { return ode_; }
 
   void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const;
   /// f and f_x dx + f_θ dtheta (n×k).

@@ -218,14 +218,20 @@ Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing
   return g;
 }
 
-// kAuto: the implicit gradient for FOCE and FOCEI on the exact propagator. On the ODE propagator
-// (measured on CVODES), the second derivatives it differences from the forward sensitivities carry
-// their error (about 1e-5 relative, whatever rtol) divided by the step, which leaves it 1e-4–1e-3
-// from the OFV's own differences; there the OFV is differenced until exact second-order sensitivities exist.
-bool UsesImplicitGradient(const PopulationProblem& problem, const PopulationOptions& o) {
+// kAuto: the implicit gradient for FOCE and FOCEI, on every propagator: its second-order
+// sensitivities are exact on Φ/Γ and integrated with the state on the ODE propagator
+// (ode/second_order.h). Laplace differences the OFV.
+bool UsesImplicitGradient(const PopulationProblem&, const PopulationOptions& o) {
   if (o.gradient != PopulationGradient::kAuto) return o.gradient == PopulationGradient::kImplicit;
-  return o.method != PopulationMethod::kLaplace &&
-         ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
+  return o.method != PopulationMethod::kLaplace;
+}
+
+// What the summary says of the gradient.
+std::string GradientDescription(const PopulationProblem& problem, const PopulationOptions& o) {
+  if (!UsesImplicitGradient(problem, o)) return "central differences of the OFV (modes warm-started from the centre)";
+  const bool exact = ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
+  return std::string("implicit function theorem on the conditional modes (first- and second-order sensitivities ") +
+         (exact ? "exact on Φ/Γ)" : "integrated with the ODEs)");
 }
 
 }  // namespace
@@ -327,10 +333,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   PopulationSummary summary;
   summary.method = options.method;
   summary.eta_names = problem.eta_names();
-  summary.gradient = internal::UsesImplicitGradient(problem, options)
-                         ? "implicit function theorem on the conditional modes (exact first-order sensitivities, "
-                           "second-order by differences of them)"
-                         : "central differences of the OFV (modes warm-started from the centre)";
+  summary.gradient = internal::GradientDescription(problem, options);
   std::vector<Eigen::VectorXd> eta(static_cast<size_t>(problem.num_subjects()),
                                    Eigen::VectorXd::Zero(initial.omega.rows()));
   const std::string failure = internal::StartingPoint(&engine, initial, &eta, &summary);

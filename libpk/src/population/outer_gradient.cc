@@ -9,9 +9,10 @@
 // replaced by its second-order Taylor model about φ̂ = φ(η̂), which has the same value, gradient
 // and Hessian there, and l and L are evaluated on HyperDual in z = (η, x): ∇L and the η rows of
 // ∇²l (all the formula needs) are then exact given ŷ's first and second derivatives. The first derivatives J = ∂ŷ/∂φ are the exact
-// forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are exact too on Φ/Γ: the
-// second-order sensitivities of exact/second_order.h. On the ODE propagator (where the implicit
-// gradient is not the default) they are central differences of J, Richardson-extrapolated.
+// forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are exact too on Φ/Γ (the
+// second-order sensitivities of exact/second_order.h) and integrated with the state on the ODE
+// propagator (ode/second_order.h). Where neither applies (a steady state on the ODE propagator, a
+// parameter a computed dose modifier reads) they are central differences of J, Richardson-extrapolated.
 // The residual variance v(ŷ, σ) enters by its own second-order Taylor model, its second
 // derivatives differences of its exact first ones.
 #include "population/outer_gradient.h"
@@ -36,9 +37,8 @@ bool Sensitivities(const SubjectModel& s, const Eigen::VectorXd& phi, Eigen::Vec
   return s.objective->Sensitivities(phi, s.phi_index, yhat, j, why);
 }
 
-// T[j](k, l) = ∂²ŷ_j/∂φ_k∂φ_l for k or l η'd (others 0), exact: the block-triangular exponential
-// of the second-order sensitivities (Objective::SecondDerivatives). False when the subject's
-// route has none (the ODE propagator), with `why`.
+// T[j](k, l) = ∂²ŷ_j/∂φ_k∂φ_l for k or l η'd (others 0) from the second-order sensitivities
+// (Objective::SecondDerivatives). False when the subject's route has none, with `why`.
 bool ExactSecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<Eigen::MatrixXd>* t,
                       std::string* why) {
   const auto p = static_cast<int>(s.phi_index.size());
@@ -62,8 +62,7 @@ bool ExactSecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::ve
 }
 
 // T as above by Richardson-extrapolated central differences of the exact first-order
-// sensitivities, where no exact second order exists (the ODE propagator, whose implicit gradient
-// is not the default). The step is relative to φ_k, or for a file's η parameter (φ = η, near 0) to
+// sensitivities, where no second-order sensitivities exist. The step is relative to φ_k, or for a file's η parameter (φ = η, near 0) to
 // the η's prior scale 1/√(Ω⁻¹)_mm.
 bool SecondOrderByDifferences(const SubjectModel& s, const PopulationPoint& point, const Eigen::VectorXd& phi,
                               std::vector<Eigen::MatrixXd>* t, std::string* why) {

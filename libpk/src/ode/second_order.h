@@ -1,0 +1,46 @@
+// Second-order sensitivities of a nonlinear model's predictions on the ODE propagator (not
+// installed): the population's outer gradient (FOCE, FOCEI) needs ∂²ŷ/∂p_k∂p_l, and the issue's
+// rule is forward sensitivities of the sensitivity system, not differences.
+//
+// For model parameters p that move f and g but no event (no free F, ALAG, R or D, no modifier
+// computed from p), with d_k = (s_k, ∂θ/∂p_k), s_k = ∂x/∂p_k and w_kl = ∂²x/∂p_k∂p_l,
+//
+//   s_k'  = f_x s_k + f_θ ∂θ/∂p_k,
+//   w_kl' = f_x w_kl + f''[d_k, d_l]                   (θ is linear in p: ∂²θ/∂p_k∂p_l = 0),
+//
+// from s = w = 0; doses and resets move x alone, since their amounts do not depend on p. At a
+// sample of output g,  ∂²ŷ/∂p_k∂p_l = g_x w_kl + g''[d_k, d_l].
+//
+// f_x w_kl + f''[d_k, d_l] is one evaluation of f on pk::HyperDual seeded with x + s_k ε₁ + s_l ε₂ +
+// w_kl ε₁ε₂ and θ + θ_k ε₁ + θ_l ε₂, so the model's own program supplies it exactly. The stacked state
+// [x; s; w] is integrated by Dormand–Prince 5(4) (Boost.Odeint) under one error control, so w is
+// controlled as x and s are; the result is the derivative of the exact solution to the requested
+// tolerance (not the discrete derivative of the computed ŷ: at rtol 1e-8 they differ by about that).
+// Stiff segments are stepped by the same explicit method, which costs steps but not accuracy.
+// Steady states and continuous records are not covered (NumericalFailure).
+#ifndef PK_SRC_ODE_SECOND_ORDER_H_
+#define PK_SRC_ODE_SECOND_ORDER_H_
+
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "../autodiff.h"
+#include "../events.h"
+#include "ode_routes.h"
+
+namespace pk {
+namespace internal {
+
+/// (*out)[i] = ∂²ŷ/∂p_k∂p_l over the samples (o.sample_of_record's order) for pairs[i] = (k, l),
+/// indices into the `num_free` parameters that `sets` seed. Throws NumericalFailure where the
+/// route does not apply (a steady state, a continuous record, a linear system) or fails.
+void OdeSecondOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
+                                 int num_free, const std::vector<std::pair<int, int>>& pairs,
+                                 std::vector<Eigen::VectorXd>* out);
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_ODE_SECOND_ORDER_H_
