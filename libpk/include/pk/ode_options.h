@@ -38,6 +38,7 @@ struct OdeStatistics {
   long rhs_evaluations = 0;       ///< f and the adjoint right-hand side
   long jacobian_evaluations = 0;
   long backward_steps = 0;        ///< adjoint steps
+  long stiff_steps = 0;           ///< of `steps`, those of the rk propagator's stiff method (RODAS4)
   /// Largest adjoint storage held at once: CVODES's Hermite data (y and ẏ per
   /// step, at most checkpoint_steps steps) plus its checkpoints (a Nordsieck array each).
   long peak_adjoint_bytes = 0;

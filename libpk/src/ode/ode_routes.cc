@@ -79,6 +79,7 @@ void Accumulate(const OdeStatistics& from, OdeStatistics* to) {
   to->rhs_evaluations += from.rhs_evaluations;
   to->jacobian_evaluations += from.jacobian_evaluations;
   to->backward_steps += from.backward_steps;
+  to->stiff_steps += from.stiff_steps;
   to->peak_adjoint_bytes = std::max(to->peak_adjoint_bytes, from.peak_adjoint_bytes);
 }
 

@@ -79,6 +79,43 @@ Eigen::MatrixXd OdeSystem::StateJacobian(const Eigen::VectorXd& x, const Eigen::
   return df;
 }
 
+void OdeSystem::SensitivityJacobians(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& s,
+                                     const Eigen::MatrixXd& dtheta, std::vector<Eigen::MatrixXd>* b) const {
+  const auto k = static_cast<size_t>(s.cols());
+  b->resize(k);
+  if (linear_) {
+    // f = A(θ)x: f_xx = 0, so B_a = ∂A/∂θ · dtheta_a, every a from one evaluation on duals.
+    const Eigen::Matrix<Dual, Eigen::Dynamic, Eigen::Dynamic> ad = linear_->SystemMatrix<Dual>(Seeded(theta, dtheta));
+    for (size_t a = 0; a < k; ++a) {
+      Eigen::MatrixXd& m = (*b)[a];
+      m.setZero(n_, n_);
+      for (int i = 0; i < n_; ++i) {
+        for (int j = 0; j < n_; ++j) {
+          if (ad(i, j).derivatives().size()) m(i, j) = ad(i, j).derivatives()(static_cast<Eigen::Index>(a));
+        }
+      }
+    }
+    return;
+  }
+  // Column j of B_a is f''[(e_j, 0), (s_a, θ_a)]: one evaluation on pk::HyperDual.
+  const Eigen::VectorXd zero_theta = Eigen::VectorXd::Zero(m_);
+  Eigen::MatrixXd unit = Eigen::MatrixXd::Identity(n_, n_);
+  Eigen::VectorXd column;
+  for (size_t a = 0; a < k; ++a) {
+    Eigen::MatrixXd& m = (*b)[a];
+    m.resize(n_, n_);
+    SecondDirections d;
+    d.dtheta1 = zero_theta.data();
+    d.dx2 = s.col(static_cast<Eigen::Index>(a)).data();
+    d.dtheta2 = dtheta.col(static_cast<Eigen::Index>(a)).data();
+    for (int j = 0; j < n_; ++j) {
+      d.dx1 = unit.col(j).data();
+      ode_->RhsSecondDirectional(x, theta, d, &column);
+      m.col(j) = column;
+    }
+  }
+}
+
 double OdeSystem::Observe(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
   if (ode_) return ode_->OutputValue(key, x, theta);
   return linear_->OutputRow<double>(key, theta).dot(x);

@@ -9,6 +9,7 @@
 #define PK_SRC_ODE_ODE_SYSTEM_H_
 
 #include <memory>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -40,6 +41,10 @@ class OdeSystem {
                          Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const;
   /// f_x (n×n).
   Eigen::MatrixXd StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const;
+  /// B_a = ∂(f_x s_a + f_θ dtheta_a)/∂x (n×n) for each column a of s (n×k) and dtheta (m×k): the
+  /// lower blocks of the Jacobian of the stacked sensitivity system (rosenbrock.h).
+  void SensitivityJacobians(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& s,
+                            const Eigen::MatrixXd& dtheta, std::vector<Eigen::MatrixXd>* b) const;
 
   double Observe(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const;
   /// y and g_x dx + g_θ dtheta (1×k).

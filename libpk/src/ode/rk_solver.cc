@@ -11,6 +11,7 @@
 #include <boost/numeric/odeint/external/eigen/eigen.hpp>
 
 #include "cvodes_solver.h"
+#include "rosenbrock.h"
 #include "numerical_failure.h"
 
 namespace pk {
@@ -47,17 +48,24 @@ struct StoredSteps {
   SegmentInput in;
   Eigen::MatrixXd x;  // n × steps
   std::vector<double> h;
-  int cvodes = -1;    // a stiff segment: its handle in the CVODES fallback instead
+  bool stiff = false;  // a stiff segment: Rosenbrock's, from x.col(0) (its start) in the backward pass
 };
 
 // h·‖f_x‖∞ above which a segment is stiff for an explicit method: Dormand–Prince's stability region
 // reaches about 3.3 along the negative axis, so stability alone would take some 300 steps, however
-// smooth the solution; BDF takes the segment in tens. (‖f_x‖∞ bounds the spectral radius.)
+// smooth the solution; RODAS4 takes the segment in tens. (‖f_x‖∞ bounds the spectral radius.)
 constexpr double kStiffness = 1000;
 // Steps a segment may take before it counts as stiff after all (the test above reads the segment's
 // start only; a Michaelis–Menten system stiffens as the drug clears): it is then done again from its
-// start by BDF. Non-stiff PK segments take tens of steps.
+// start by RODAS4. Non-stiff PK segments take tens of steps.
 constexpr long kStiffBudget = 1000;
+// And every so many steps the step itself is tested: when h·‖f_x(x)‖∞ exceeds this, the step is held
+// by Dormand–Prince's stability boundary (about 3.3 on the negative axis) rather than by accuracy, the
+// system has stiffened, and the segment goes to RODAS4 from its start (Hairer & Wanner's test for
+// DOPRI5, II §IV.2, with the row-sum norm for the spectral radius). So a Michaelis–Menten segment
+// that stiffens as the drug clears wastes tens of explicit steps, not the whole budget.
+constexpr long kStiffnessCheckEvery = 25;
+constexpr double kStabilityLimited = 2.5;
 struct StiffSegment {};  // thrown by the stepping loops when the budget is spent
 
 }  // namespace
@@ -95,22 +103,35 @@ struct RkSolver::Impl {
     dense = odeint::make_dense_output(opt.absolute_tolerance, opt.relative_tolerance, Stepper());
   }
 
-  // Stiff segments go to CVODES's BDF (created on the first): whether one is stiff is decided from
-  // the segment alone (θ, u, its start and length), so a replay decides the same.
+  // Stiff segments go to RODAS4 (rosenbrock.h): whether one is stiff is decided from the segment
+  // alone (θ, u, its start and length), so a replay decides the same. Those that also integrate a
+  // quadrature (a continuous record's loss, an AUC) go to CVODES's BDF (created on the first).
+  Rosenbrock rosenbrock{sys, opt, &stats};
   std::unique_ptr<CvodesSolver> bdf;
   mutable OdeStatistics combined;  // stats plus the fallback's, for statistics()
-  bool Stiff(const SegmentInput& in, const Eigen::VectorXd& x0) {
-    const double norm = sys.StateJacobian(x0, in.theta).cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>();
-    return std::isfinite(norm) && in.h * norm > kStiffness;  // a non-finite f_x: Dormand–Prince may still pass
+  bool Stiff(const SegmentInput& in, const Eigen::VectorXd& x0) { return in.h * RowSumNorm(in, x0) > kStiffness; }
+  // ‖f_x(x)‖∞, 0 when not finite (Dormand–Prince may still pass).
+  double RowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) const {
+    const double norm = sys.StateJacobian(x, in.theta).cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>();
+    return std::isfinite(norm) ? norm : 0.0;
+  }
+  // The periodic test above, after `count` steps, the last proposal `dt`, at x.
+  void CheckStiffening(const SegmentInput& in, long count, double dt, const Eigen::VectorXd& x) const {
+    if (count > kStiffBudget) throw StiffSegment();
+    if (count % kStiffnessCheckEvery == 0 && dt * RowSumNorm(in, x) > kStabilityLimited) throw StiffSegment();
   }
   CvodesSolver& Bdf() {
     if (!bdf) bdf.reset(new CvodesSolver(sys, opt));
     last.at_end = false;
     return *bdf;
   }
+  Rosenbrock& Rodas() {
+    last.at_end = false;
+    return rosenbrock;
+  }
 
   // Replay mode's stepping of a values-only segment (into *steps when given): false, with x as it
-  // was, when the segment is stiff at its start or spends the step budget, and BDF must take it.
+  // was, when the segment is stiff at its start or spends the step budget, and RODAS4 must take it.
   // The same segment always gives the same answer, so the tape and its replay agree.
   bool ReplaySteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps) {
     if (Stiff(in, *x)) return false;
@@ -163,7 +184,7 @@ struct RkSolver::Impl {
         throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
                                " Dormand–Prince steps between two events");
       }
-      if (count > kStiffBudget) throw StiffSegment();
+      CheckStiffening(in, count, dt, *x);
     }
     if (steps) {
       steps->in = in;
@@ -228,7 +249,7 @@ struct RkSolver::Impl {
   }
 
   // z ← z(h) under `rhs`, continuing the stepper's problem when `continues`.
-  void Integrate(const Rhs& rhs, double h, bool continues, State* z) {
+  void Integrate(const SegmentInput& in, const Rhs& rhs, double h, bool continues, State* z) {
     double target = h;
     if (continues) {
       target = last.t + h;
@@ -247,7 +268,9 @@ struct RkSolver::Impl {
           throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
                                  " Dormand–Prince steps between two events");
         }
-        if (steps > kStiffBudget) throw StiffSegment();
+        if (steps % kStiffnessCheckEvery == 0) {
+          CheckStiffening(in, steps, dense.current_time_step(), dense.current_state().head(n));
+        }
       }
     } catch (const StiffSegment&) {
       last.at_end = false;
@@ -285,7 +308,11 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   if (!(in.h > kEmptySegment)) {
     steps.in = in;  // no steps: the backward pass passes λ through
   } else if (!d.ReplaySteps(in, x, &steps)) {
-    steps.cvodes = d.Bdf().StoreSegment(in, x);
+    steps.in = in;
+    steps.stiff = true;
+    steps.x = *x;  // the start, for the backward pass
+    steps.h.clear();
+    d.Rodas().Advance(in, x);
   }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
@@ -293,17 +320,17 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   return static_cast<int>(d.stored.size()) - 1;
 }
 
-void RkSolver::BackwardStored(int handle, const AdjointScales& scales, const Eigen::VectorXd& lambda_end,
+void RkSolver::BackwardStored(int handle, const AdjointScales& /*scales: RODAS4 needs none*/, const Eigen::VectorXd& lambda_end,
                               Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   const StoredSteps& steps = impl_->stored.at(static_cast<size_t>(handle));
-  if (steps.cvodes >= 0) {
-    impl_->Bdf().BackwardStored(steps.cvodes, scales, lambda_end, lambda_start, q);
+  if (steps.stiff) {
+    impl_->Rodas().AdjointSegment(steps.in, steps.x.col(0), lambda_end, lambda_start, q);
     return;
   }
   impl_->Backward(steps, lambda_end, lambda_start, q);
 }
 
-void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales& scales,
+void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const AdjointScales& /*scales*/,
                               const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   if (!(in.h > kEmptySegment)) {
     *lambda_start = lambda_end;
@@ -313,8 +340,8 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
   // The forward steps again from the segment's start (replay mode took these very steps), then back.
   StoredSteps steps;
   Eigen::VectorXd x = x0;
-  if (!impl_->ReplaySteps(in, &x, &steps)) {  // BDF's segment, as the forward pass found it
-    impl_->Bdf().AdjointSegment(in, x0, scales, lambda_end, lambda_start, q);
+  if (!impl_->ReplaySteps(in, &x, &steps)) {  // a stiff segment, as the forward pass found it
+    impl_->Rodas().AdjointSegment(in, x0, lambda_end, lambda_start, q);
     return;
   }
   impl_->Backward(steps, lambda_end, lambda_start, q);
@@ -342,11 +369,15 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   const bool with_loss = loss != nullptr && !in.continuous.empty();
   const bool with_auc = auc != nullptr && in.auc_key != 0;
   if (d.replay && !with_loss && !with_auc) {  // the steps an adjoint replays (see Impl::replay)
-    if (!d.ReplaySteps(in, x, nullptr)) d.Bdf().Advance(in, x);
+    if (!d.ReplaySteps(in, x, nullptr)) d.Rodas().Advance(in, x);
     return;
   }
   if (d.Stiff(in, *x)) {
-    d.Bdf().Advance(in, x, loss, auc, loss_time);
+    if (with_loss || with_auc) {
+      d.Bdf().Advance(in, x, loss, auc, loss_time);
+    } else {
+      d.Rodas().Advance(in, x);
+    }
     return;
   }
   // The state: x, then the continuous loss and ∫∂L/∂t, then ∫ y_auc dt.
@@ -368,9 +399,13 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   };
   const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
   try {
-    d.Integrate(rhs, in.h, continues, &z);
+    d.Integrate(in, rhs, in.h, continues, &z);
   } catch (const StiffSegment&) {  // x is as it was: Integrate writes z only at its end
-    d.Bdf().Advance(in, x, loss, auc, loss_time);
+    if (with_loss || with_auc) {
+      d.Bdf().Advance(in, x, loss, auc, loss_time);
+    } else {
+      d.Rodas().Advance(in, x);
+    }
     return;
   }
   *x = z.head(n);
@@ -390,13 +425,17 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
                                   Eigen::RowVectorXd* dloss, double* loss_time) {
   Impl& d = *impl_;
   if (!(in.h > kEmptySegment)) return;
+  const bool with_loss = loss != nullptr && !in.continuous.empty();
   if (d.Stiff(in, *x)) {
-    d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
+    if (with_loss) {
+      d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
+    } else {
+      d.Rodas().AdvanceSensitivity(in, x, s);
+    }
     return;
   }
   const int n = d.n;
   const int k = static_cast<int>(s->cols());
-  const bool with_loss = loss != nullptr && !in.continuous.empty();
   // The state: x, vec S (column by column), then the loss, its k derivatives and ∫∂L/∂t.
   const Eigen::Index nk = static_cast<Eigen::Index>(n) * k;
   State z = State::Zero(n + nk + (with_loss ? k + 2 : 0));
@@ -429,10 +468,14 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
   };
   const bool continues = !with_loss && d.last.Continues(in, z, k);
   try {
-    d.Integrate(rhs, in.h, continues, &z);
+    d.Integrate(in, rhs, in.h, continues, &z);
   } catch (const StiffSegment&) {
     *x = z.head(n);  // unchanged: Integrate writes z only at the end
-    d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
+    if (with_loss) {
+      d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
+    } else {
+      d.Rodas().AdvanceSensitivity(in, x, s);
+    }
     return;
   }
   *x = z.head(n);
