@@ -5,7 +5,7 @@
 //          every model, linear or not
 //   rk     a one-step Runge–Kutta method, Dormand–Prince 5(4) with error control and dense
 //          output, with the same tolerances: restarts at doses cost one step, not a multistep
-//          start-up. A stiff stretch (h·‖f_x‖∞ > 1000) is handed to CVODES. Gradients by
+//          start-up. A stiff stretch (h·‖f_x‖∞ > 1000) is handed to RODAS4, an L-stable Rosenbrock method. Gradients by
 //          forward sensitivities or by the discrete adjoint of its steps (continuous records:
 //          forward sensitivities)
 //   auto   exact for linear models, rk otherwise

@@ -71,7 +71,7 @@ class SegmentSolver {
   virtual const OdeStatistics& statistics() const = 0;
 };
 
-/// The integrator of `propagator` (kOde: CVODES; kRungeKutta: Dormand–Prince).
+/// The integrator of `propagator` (kOde: CVODES; kRungeKutta: Dormand–Prince, RODAS4 where stiff).
 /// `tape`: for the forward pass of the adjoint route.
 std::unique_ptr<SegmentSolver> MakeSegmentSolver(const OdeSystem& system, const OdeOptions& options,
                                                  Propagator propagator, bool tape);
