@@ -131,8 +131,15 @@ TEST_CASE("an output set is complete with its manifest, and readers refuse it ot
                     Catch::Contains("has no MANIFEST") && Catch::Contains("did not finish"));
   pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv"}, "pkfit");
   CHECK_NOTHROW(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"));
-  // The next run begins: the old manifest goes first.
+  // The next run begins: the old manifest and the files it lists go first; a file of the user's own stays.
+  pk::WriteFileAtomically(dir + "/notes.txt", "mine\n");
   pk::BeginOutputSet(dir);
+  CHECK_FALSE(std::filesystem::exists(dir + "/MANIFEST"));
+  CHECK_FALSE(std::filesystem::exists(dir + "/estimates.csv"));
+  CHECK_FALSE(std::filesystem::exists(dir + "/fit_details.csv"));
+  CHECK(std::filesystem::exists(dir + "/notes.txt"));
+  pk::WriteFileAtomically(dir + "/estimates.csv", "ID,PARAMETER,ESTIMATE\n1,CL,2\n");
+  pk::WriteFileAtomically(dir + "/fit_details.csv", "ID\n1\n");
   CHECK_THROWS(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"));
   pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv"}, "pkfit");
   // A file changed after the run, or one the run did not write.

@@ -60,6 +60,21 @@ std::string DirectoryOf(const std::string& path) {
 
 void BeginOutputSet(const std::string& directory) {
   const std::string manifest = directory + "/" + kManifestName;
+  // The previous run's files, as its manifest lists them: a file this run does not write again must
+  // not stay beside its new set (a plot of a subject the new data lacks, say). Names with a path are
+  // not ours to remove.
+  std::ifstream in(manifest);
+  std::string line;
+  while (std::getline(in, line)) {
+    const auto fields = internal::SplitCsvLine(line);
+    if (fields.size() != 3 || fields[0] == "FILE" || fields[0].empty() || fields[0][0] == '#') continue;
+    if (fields[0].find('/') != std::string::npos || fields[0] == "." || fields[0] == "..") continue;
+    const std::string old = directory + "/" + fields[0];
+    if (std::remove(old.c_str()) != 0 && errno != ENOENT) {
+      throw std::runtime_error(old + ": cannot remove the previous run's file");
+    }
+  }
+  in.close();
   if (std::remove(manifest.c_str()) != 0 && errno != ENOENT) {
     throw std::runtime_error(manifest + ": cannot remove the previous run's manifest");
   }

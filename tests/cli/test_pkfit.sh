@@ -370,4 +370,13 @@ grep -q ',SIGMA_PROP_CP,' "$work/emax_err/estimates.csv" && grep -q ',SIGMA_ADD_
   fail "per-output \$ERROR: SIGMA_PROP_CP and SIGMA_ADD_E estimated"
 grep -q "proportional (SIGMA_PROP_CP); additive (SIGMA_ADD_E)" "$work/emax_err/report.html" ||
   fail "per-output \$ERROR: the report names both error models"
+# A second run into the same directory removes the first run's files it does not write again (the
+# plots of subjects 2-12 here), and leaves a file of the user's own.
+cp -r "$work/theo" "$work/rerun"
+echo mine > "$work/rerun/notes.txt"
+"$pkfit" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --accept "ID.EQ.1" -q -o "$work/rerun" >/dev/null ||
+  fail "rerun: exited non-zero"
+[ -e "$work/rerun/fit_ID1.svg" ] || fail "rerun: fit_ID1.svg missing"
+[ -e "$work/rerun/fit_ID2.svg" ] && fail "rerun: the first run's fit_ID2.svg stayed"
+[ -e "$work/rerun/notes.txt" ] || fail "rerun: a file of the user's own was removed"
 if [ $failures -eq 0 ]; then echo "cli_pkfit: all checks passed"; else exit 1; fi

@@ -49,7 +49,9 @@ void RemoveStaleTemporaries(const std::string& directory);
 /// The manifest's file name, "MANIFEST".
 extern const char* const kManifestName;
 
-/// Removes `directory`'s manifest (the set is about to change).
+/// Removes `directory`'s manifest and the files it lists (the set is about to change: a file of
+/// the previous run that this one does not write again would otherwise stay beside the new set).
+/// Other files of the directory are left alone.
 void BeginOutputSet(const std::string& directory);
 
 /// Writes `directory`'s manifest for `files` (names within the directory, already written),
