@@ -222,12 +222,16 @@ std::string PatabCsv(const pk::PopulationProblem& problem, const pk::PopulationS
   for (const auto& n : defined.empty() ? problem.theta_names() : defined) out += "," + n;
   out += "\n";
   const auto number = [](double v) { return std::isfinite(v) ? pk::FormatNumber(v) : std::string(); };
-  // Rows come subject by subject in the subjects' order (an ID that comes back is another subject).
-  size_t at = 0;
+  // A row's subject by its position in the data (an ID that comes back is another subject).
+  std::vector<const pk::PopulationSubject*> by_position(problem.data().subjects.size(), nullptr);
+  for (const auto& s : fit.subjects) {
+    if (s.subject >= 0 && static_cast<size_t>(s.subject) < by_position.size()) by_position[static_cast<size_t>(s.subject)] = &s;
+  }
   for (const auto& r : fit.rows) {
-    while (at < fit.subjects.size() && (!fit.subjects[at].ok || fit.subjects[at].id != r.id)) ++at;
-    if (at == fit.subjects.size()) break;
-    const pk::PopulationSubject& s = fit.subjects[at];
+    const pk::PopulationSubject* found =
+        r.subject >= 0 && static_cast<size_t>(r.subject) < by_position.size() ? by_position[static_cast<size_t>(r.subject)] : nullptr;
+    if (found == nullptr || !found->ok) continue;
+    const pk::PopulationSubject& s = *found;
     out += number(r.id) + "," + number(r.time);
     for (Eigen::Index k = 0; k < s.eta.size(); ++k) out += "," + number(s.eta(k));
     const Eigen::VectorXd& values = defined.empty() ? s.parameters : r.definitions;

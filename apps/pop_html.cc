@@ -116,8 +116,9 @@ void Covariates(const PopulationProblem& problem, const PopulationSummary& fit, 
     std::vector<std::vector<double>> y(problem.eta_names().size());
     for (const PopulationSubject& s : fit.subjects) {
       if (!s.ok) continue;
-      const auto it = std::find_if(data.subjects.begin(), data.subjects.end(), [&](const auto& d) { return d.id == s.id; });
-      if (it == data.subjects.end() || it->records.empty() || !std::isfinite(it->records.front().extra[col])) continue;
+      if (s.subject < 0 || static_cast<size_t>(s.subject) >= data.subjects.size()) continue;
+      const auto it = data.subjects.begin() + s.subject;
+      if (it->records.empty() || !std::isfinite(it->records.front().extra[col])) continue;
       x.push_back(it->records.front().extra[col]);
       for (size_t k = 0; k < y.size(); ++k) y[k].push_back(s.eta(static_cast<Eigen::Index>(k)));
     }
@@ -161,18 +162,17 @@ PlotSeries Curve(const PopulationProblem& problem, int subject, const Eigen::Vec
 
 // Each subject's DV with its IPRED and PRED curves, in dataset order (the first kMaxPanels).
 list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
-  std::map<double, std::vector<const PopulationRow*>> rows;
-  for (const PopulationRow& r : fit.rows) rows[r.id].push_back(&r);
+  // By the subject's position in the data: an ID that comes back is another subject.
+  std::map<int, std::vector<const PopulationRow*>> rows;
+  for (const PopulationRow& r : fit.rows) rows[r.subject].push_back(&r);
   list panels;
   size_t shown = 0;
   for (const PopulationSubject& s : fit.subjects) {
     if (!s.ok || shown == kMaxPanels) continue;
-    const auto& subjects = problem.data().subjects;
-    const auto it = std::find_if(subjects.begin(), subjects.end(), [&](const auto& d) { return d.id == s.id; });
-    if (it == subjects.end()) continue;
-    const int index = static_cast<int>(it - subjects.begin());
+    if (s.subject < 0 || static_cast<size_t>(s.subject) >= problem.data().subjects.size()) continue;
+    const int index = s.subject;
     PlotSeries dv{"DV", {}, {}, true};
-    for (const PopulationRow* r : rows[s.id]) {
+    for (const PopulationRow* r : rows[s.subject]) {
       if (r->censored == 0 && r->dvid <= 1) dv.x.push_back(r->time), dv.y.push_back(r->dv);
     }
     const Eigen::VectorXd zero = Eigen::VectorXd::Zero(s.eta.size());

@@ -1175,3 +1175,35 @@ TEST_CASE("population refuses continuous records and a column for a modifier the
       pk::ParseDataset("ID,TIME,AMT,DV,F1\n1,0,100,.,0.5\n1,1,0,3,.\n2,0,100,.,0.5\n2,1,0,3,.\n", "f1.csv"));
   CHECK_THROWS_WITH(pk::PopulationProblem(model, f1, {"ETA_CL"}, o), Catch::Contains("the data column F1 cannot set it"));
 }
+
+TEST_CASE("an ID that comes back is another subject in the population outputs", "[population]") {
+  // IDs 1, 2, 1: three subjects, as NONMEM counts them. Rows and subjects carry their position in the
+  // data, so tables and plots keyed on it never mix the two subjects with ID 1.
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,DV\n1,0,100,.\n1,1,0,8\n1,4,0,5\n1,12,0,2\n2,0,100,.\n2,1,0,6\n2,4,0,4\n2,12,0,1\n"
+      "1,0,100,.\n1,1,0,3\n1,4,0,1.5\n1,12,0,0.3\n",
+      "returning.csv"));
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv"), data, {"CL", "V"}, o);
+  REQUIRE(problem.num_subjects() == 3);
+  pk::PopulationParameters p;
+  p.theta = Eigen::Vector2d(3, 12);
+  p.omega = Diagonal({0.2, 0.2});
+  p.sigma = Eigen::VectorXd::Constant(1, 0.1);
+  pk::PopulationOptions options;
+  options.max_iterations = 1;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, p, options);
+  REQUIRE(fit.subjects.size() == 3);
+  for (int k = 0; k < 3; ++k) CHECK(fit.subjects[static_cast<size_t>(k)].subject == k);
+  CHECK(fit.subjects[0].id == fit.subjects[2].id);
+  CHECK((fit.subjects[0].eta - fit.subjects[2].eta).norm() > 0.1);  // different data, different η̂
+  int last = 0;
+  for (const pk::PopulationRow& r : fit.rows) {
+    REQUIRE(r.subject >= 0);
+    CHECK(fit.subjects[static_cast<size_t>(r.subject)].id == r.id);
+    if (r.subject == 2) ++last;
+  }
+  CHECK(last == 3);
+}

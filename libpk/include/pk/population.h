@@ -180,6 +180,9 @@ struct PopulationOptions {
 /// One subject's conditional mode and its diagnostics.
 struct PopulationSubject {
   double id = 0;
+  /// Its position in the dataset's subjects (Dataset::subjects): an ID that comes back after
+  /// another (1, 2, 1) is another subject with the same ID, as in NONMEM.
+  int subject = -1;
   bool ok = true;
   std::string message;      ///< why the subject's mode could not be found, when !ok
   Eigen::VectorXd eta;      ///< η̂_i
@@ -193,6 +196,7 @@ struct PopulationSubject {
 /// One sample's predictions and residuals, as NONMEM's sdtab.
 struct PopulationRow {
   double id = 0, time = 0, dv = 0;
+  int subject = -1;  ///< the subject's position in the dataset (PopulationSubject::subject)
   int dvid = 1;
   double pred = 0;   ///< f(θ, η = 0)
   double ipred = 0;  ///< f(θ, η̂)

@@ -63,7 +63,7 @@ Eigen::VectorXd WeightedResiduals(const SubjectModel& s, const Conditional& c, c
 }
 
 void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eigen::MatrixXd& omega, double id,
-                 const SubjectMode& m, std::vector<PopulationRow>* rows, std::vector<double>* iwres) {
+                 int subject, const SubjectMode& m, std::vector<PopulationRow>* rows, std::vector<double>* iwres) {
   Conditional c0;
   std::string why;
   const Eigen::VectorXd zero = Eigen::VectorXd::Zero(omega.rows());
@@ -82,6 +82,7 @@ void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eige
   for (Eigen::Index j = 0; j < n; ++j) {
     PopulationRow r;
     r.id = id;
+    r.subject = subject;
     r.time = times[static_cast<size_t>(j)];
     r.dv = s.objective->observations()(j);
     r.dvid = outputs[static_cast<size_t>(j)];
@@ -116,13 +117,14 @@ void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParam
     const double id = d.data->subjects[i].id;
     if (!engine.included()[i]) {
       for (const PopulationSubject& f : failed) {
-        if (f.id == id) summary->subjects.push_back(f);
+        if (f.subject == static_cast<int>(i)) summary->subjects.push_back(f);
       }
       continue;
     }
     const SubjectMode& m = modes[i];
     PopulationSubject s;
     s.id = id;
+    s.subject = static_cast<int>(i);
     s.ok = m.ok;
     s.message = m.message;
     s.eta = m.eta;
@@ -131,7 +133,7 @@ void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParam
     summary->subjects.push_back(s);
     if (!m.ok) continue;
     for (Eigen::Index k = 0; k < q; ++k) etas[static_cast<size_t>(k)].push_back(m.eta(k));
-    SubjectRows(d.subjects[i], point, p.omega, id, m, &summary->rows, &iwres);
+    SubjectRows(d.subjects[i], point, p.omega, id, static_cast<int>(i), m, &summary->rows, &iwres);
   }
   summary->eta_shrinkage_sd.resize(q);
   summary->eta_shrinkage_variance.resize(q);

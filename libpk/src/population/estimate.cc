@@ -184,6 +184,7 @@ std::string StartingPoint(PopulationEngine* engine, const PopulationParameters& 
     ++summary->failed_subjects;
     PopulationSubject s;
     s.id = d.data->subjects[i].id;
+    s.subject = static_cast<int>(i);
     s.ok = false;
     s.message = "left out: at the initial estimates, " + r.modes[i].message;
     summary->subjects.push_back(s);

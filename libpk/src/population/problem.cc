@@ -359,6 +359,7 @@ PopulationEvaluation EvaluatePopulation(const PopulationProblem& problem, const 
     const internal::SubjectMode& m = modes[static_cast<size_t>(i)];
     PopulationSubject s;
     s.id = d.data->subjects[static_cast<size_t>(i)].id;
+    s.subject = i;
     s.ok = m.ok;
     s.message = m.message;
     s.eta = m.eta;
