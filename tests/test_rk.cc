@@ -285,3 +285,123 @@ TEST_CASE("Dormand-Prince: a system that stiffens as the drug clears, and a stea
     CHECK(rk.Evaluate(values, free, Need::kValue, pk::GradientRoute::kForward).ode_statistics.stiff_steps > 0);
   }
 }
+
+// ---------------------------------------------------------------------------------------------
+// RODAS4 and the pieces it rests on, directly.
+
+#include "hyper_dual_number.h"
+#include "ode/ode_system.h"
+#include "ode/rosenbrock.h"
+
+TEST_CASE("the stacked sensitivity Jacobian's blocks B_a equal differences of f_x s_a + f_θ θ_a", "[rk][stiff]") {
+  for (const char* name : {"1cmt_iv_emax", "2cmt_iv_mm", "1cmt_oral_mm", "2cmt_iv"}) {
+    INFO(name);
+    const auto model = pk::MakeModel(name);
+    const pk::internal::OdeSystem sys(*model);
+    const int n = sys.n(), m = sys.num_theta(), k = 3;
+    Eigen::VectorXd theta(m);
+    for (int i = 0; i < m; ++i) theta(i) = model->default_parameters()(i) * (1 + 0.1 * i);
+    Eigen::VectorXd x(n);
+    for (int i = 0; i < n; ++i) x(i) = 5.0 + 3.0 * i;
+    Eigen::MatrixXd s(n, k), dtheta(m, k);
+    for (int i = 0; i < n; ++i) {
+      for (int a = 0; a < k; ++a) s(i, a) = std::sin(1.0 + i + 2.0 * a);
+    }
+    for (int i = 0; i < m; ++i) {
+      for (int a = 0; a < k; ++a) dtheta(i, a) = std::cos(0.5 + i + a);
+    }
+    std::vector<Eigen::MatrixXd> b;
+    sys.SensitivityJacobians(x, theta, s, dtheta, &b);
+    REQUIRE(b.size() == static_cast<size_t>(k));
+    for (int j = 0; j < n; ++j) {
+      const double h = 1e-5 * std::max(1.0, std::abs(x(j)));
+      Eigen::VectorXd xp = x, xm = x, f;
+      xp(j) += h;
+      xm(j) -= h;
+      Eigen::MatrixXd dp, dm;
+      sys.RhsDirectional(xp, theta, s, dtheta, &f, &dp);
+      sys.RhsDirectional(xm, theta, s, dtheta, &f, &dm);
+      const Eigen::MatrixXd fd = (dp - dm) / (2 * h);  // column a: ∂(f_x s_a + f_θ θ_a)/∂x_j
+      for (int a = 0; a < k; ++a) {
+        const double scale = std::max(1.0, fd.col(a).cwiseAbs().maxCoeff());
+        CHECK((b[static_cast<size_t>(a)].col(j) - fd.col(a)).cwiseAbs().maxCoeff() <= 1e-7 * scale);
+      }
+    }
+  }
+}
+
+TEST_CASE("RODAS4's adjoint of a segment is the derivative of the computed map along its steps", "[rk][stiff]") {
+  // At rtol 1e-3 the steps are few and long, so the discrete map differs from the exact flow by far more
+  // than the check's tolerance: only the derivative of the computed map passes (a missing or wrong B_a
+  // would make it the derivative of another method).
+  for (const char* name : {"1cmt_oral_mm", "2cmt_iv_mm", "1cmt_iv_emax"}) {
+    INFO(name);
+    const auto model = pk::MakeModel(name);
+    const pk::internal::OdeSystem sys(*model);
+    const int n = sys.n(), m = sys.num_theta();
+    pk::OdeOptions opt;
+    opt.relative_tolerance = 1e-3;
+    opt.absolute_tolerance = 1e-5;
+    pk::OdeStatistics stats;
+    pk::internal::Rosenbrock rodas(sys, opt, &stats);
+    pk::internal::SegmentInput in;
+    in.h = 12;
+    in.u = Eigen::VectorXd::Zero(n);
+    in.u(0) = 2;  // an infusion, so that ∂u/∂p enters too
+    in.theta = model->default_parameters().head(m);
+    in.dtheta = Eigen::MatrixXd::Identity(m, m + 1);
+    in.du = Eigen::MatrixXd::Zero(n, m + 1);
+    in.du(0, m) = 1;  // the last parameter is the infusion rate
+    Eigen::VectorXd x0(n);
+    for (int i = 0; i < n; ++i) x0(i) = 40.0 / (1 + i);
+    Eigen::VectorXd x = x0;
+    std::vector<double> steps;
+    rodas.Advance(in, &x, &steps);
+    REQUIRE(steps.size() >= 2);
+    REQUIRE(steps.size() < 60);
+    Eigen::VectorXd lambda(n);
+    for (int i = 0; i < n; ++i) lambda(i) = 0.3 + 0.7 * i;
+    Eigen::VectorXd lambda0;
+    Eigen::RowVectorXd q;
+    rodas.AdjointSegment(in, x0, steps, lambda, &lambda0, &q);
+    // Central differences of λᵀx(h) along the same steps.
+    const auto value = [&](const Eigen::VectorXd& start, const pk::internal::SegmentInput& seg) {
+      Eigen::VectorXd y = start;
+      rodas.AdvanceAlong(seg, &y, steps);
+      return lambda.dot(y);
+    };
+    for (int i = 0; i < n; ++i) {
+      const double h = 1e-6 * x0(i);
+      Eigen::VectorXd up = x0, down = x0;
+      up(i) += h;
+      down(i) -= h;
+      const double fd = (value(up, in) - value(down, in)) / (2 * h);
+      CHECK(std::abs(lambda0(i) - fd) <= 1e-7 * std::max(1.0, std::abs(fd)));
+    }
+    for (int a = 0; a <= m; ++a) {
+      pk::internal::SegmentInput up = in, down = in;
+      const double h = a < m ? 1e-6 * in.theta(a) : 1e-6;
+      if (a < m) {
+        up.theta(a) += h;
+        down.theta(a) -= h;
+      } else {
+        up.u(0) += h;
+        down.u(0) -= h;
+      }
+      const double fd = (value(x0, up) - value(x0, down)) / (2 * h);
+      INFO("parameter " << a << ": adjoint " << q(a) << ", differences " << fd);
+      CHECK(std::abs(q(a) - fd) <= 1e-6 * std::max(1.0, std::abs(fd)));
+    }
+  }
+}
+
+TEST_CASE("hyper-dual parts along a direction that does not move x stay 0 where f' or f'' is infinite",
+          "[second-order]") {
+  const pk::HyperDual zero(0.0, 0.0, 1.0, 0.0);  // x = 0, moved along ε₂ only
+  for (const pk::HyperDual& y : {sqrt(pk::HyperDual(0.0)), pow(zero, 1.5), pow(pk::HyperDual(0.0, 0.0, 0.0, 1.0), 1.5)}) {
+    CHECK(y.value() == 0);
+    CHECK(y.e1() == 0);
+    CHECK(std::isfinite(y.e2()));
+    CHECK(y.e12() == 0);
+  }
+}

@@ -28,9 +28,12 @@ class HyperDual {
   double e2() const { return c_; }   ///< the ε₂ part: along the second
   double e12() const { return d_; }  ///< the ε₁ε₂ part: the mixed second derivative
 
-  /// f(this) from f, f' and f'' at the value.
+  /// f(this) from f, f' and f'' at the value. A part that is zero stays zero even where f' or
+  /// f'' is infinite (√x or x^1.5 at x = 0 along a direction that does not move x), as a
+  /// derivative of a constant should, instead of becoming 0·∞ = NaN.
   HyperDual Apply(double f, double df, double d2f) const {
-    return HyperDual(f, df * b_, df * c_, df * d_ + d2f * b_ * c_);
+    const auto times = [](double a, double b) { return b == 0 ? 0.0 : a * b; };
+    return HyperDual(f, times(df, b_), times(df, c_), times(df, d_) + times(times(d2f, b_), c_));
   }
 
   HyperDual& operator+=(const HyperDual& o) {

@@ -127,7 +127,9 @@ class PopulationProblem {
 
 /// How the outer optimiser's gradient of the OFV is formed.
 enum class PopulationGradient {
-  /// kImplicit for FOCE and FOCEI, on every propagator; kFiniteDifference for Laplace.
+  /// kImplicit for FOCE and FOCEI, on every propagator; kFiniteDifference for Laplace. On the ODE
+  /// propagator, where a subject's second derivatives would be differences of the integrated first
+  /// ones (a steady state), it turns to kFiniteDifference from that point, and the summary says so.
   kAuto,
   /// By the implicit function theorem on each subject's conditional mode (Almquist et al. 2015):
   /// first- and second-order sensitivities of the predictions, exact on Φ/Γ, integrated with the

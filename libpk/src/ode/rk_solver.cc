@@ -59,11 +59,13 @@ constexpr double kStiffness = 1000;
 // start only; a Michaelis–Menten system stiffens as the drug clears): it is then done again from its
 // start by RODAS4. Non-stiff PK segments take tens of steps.
 constexpr long kStiffBudget = 1000;
-// And every so many steps the step itself is tested: when h·‖f_x(x)‖∞ exceeds this, the step is held
-// by Dormand–Prince's stability boundary (about 3.3 on the negative axis) rather than by accuracy, the
-// system has stiffened, and the segment goes to RODAS4 from its start (Hairer & Wanner's test for
-// DOPRI5, II §IV.2, with the row-sum norm for the spectral radius). So a Michaelis–Menten segment
-// that stiffens as the drug clears wastes tens of explicit steps, not the whole budget.
+// And every so many steps the step itself is tested, after Hairer & Wanner's stiffness test for DOPRI5
+// (II §IV.2): when h·‖f_x(x)‖∞ exceeds this, the step is near Dormand–Prince's stability boundary
+// (about 3.3 on the negative axis), the system has likely stiffened, and the segment goes to RODAS4
+// from its start. The row-sum norm bounds the spectral radius from above (by about 2 on a transit
+// chain) and one sample decides, so a segment may be judged stiff early; that costs a restart by
+// RODAS4, which is accurate on non-stiff segments too. A Michaelis–Menten segment that stiffens as
+// the drug clears then wastes tens of explicit steps, not the whole budget.
 constexpr long kStiffnessCheckEvery = 25;
 constexpr double kStabilityLimited = 2.5;
 struct StiffSegment {};  // thrown by the stepping loops when the budget is spent
@@ -268,7 +270,7 @@ struct RkSolver::Impl {
           throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
                                  " Dormand–Prince steps between two events");
         }
-        if (steps % kStiffnessCheckEvery == 0) {
+        if (steps > kStiffBudget || steps % kStiffnessCheckEvery == 0) {
           CheckStiffening(in, steps, dense.current_time_step(), dense.current_state().head(n));
         }
       }
@@ -310,9 +312,8 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   } else if (!d.ReplaySteps(in, x, &steps)) {
     steps.in = in;
     steps.stiff = true;
-    steps.x = *x;  // the start, for the backward pass
-    steps.h.clear();
-    d.Rodas().Advance(in, x);
+    steps.x = *x;  // the start and RODAS4's steps, for the backward pass
+    d.Rodas().Advance(in, x, &steps.h);
   }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
@@ -324,7 +325,7 @@ void RkSolver::BackwardStored(int handle, const AdjointScales& /*scales: RODAS4 
                               Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   const StoredSteps& steps = impl_->stored.at(static_cast<size_t>(handle));
   if (steps.stiff) {
-    impl_->Rodas().AdjointSegment(steps.in, steps.x.col(0), lambda_end, lambda_start, q);
+    impl_->Rodas().AdjointSegment(steps.in, steps.x.col(0), steps.h, lambda_end, lambda_start, q);
     return;
   }
   impl_->Backward(steps, lambda_end, lambda_start, q);
@@ -340,8 +341,10 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
   // The forward steps again from the segment's start (replay mode took these very steps), then back.
   StoredSteps steps;
   Eigen::VectorXd x = x0;
-  if (!impl_->ReplaySteps(in, &x, &steps)) {  // a stiff segment, as the forward pass found it
-    impl_->Rodas().AdjointSegment(in, x0, lambda_end, lambda_start, q);
+  if (!impl_->ReplaySteps(in, &x, &steps)) {  // a stiff segment, as the forward pass found it: its steps again
+    x = x0;
+    impl_->Rodas().Advance(in, &x, &steps.h);
+    impl_->Rodas().AdjointSegment(in, x0, steps.h, lambda_end, lambda_start, q);
     return;
   }
   impl_->Backward(steps, lambda_end, lambda_start, q);

@@ -146,50 +146,72 @@ struct Rosenbrock::Stepper {
     };
     double err = norm(g[5].x, z0.x, z1->x);
     if (k > 0 && control_s) err = std::max(err, norm(g[5].s, z0.s, z1->s));
-    return std::isfinite(err) && z1->x.allFinite() ? err : HUGE_VAL;
+    return std::isfinite(err) && z1->x.allFinite() && (k == 0 || z1->s.allFinite()) ? err : HUGE_VAL;
   }
 };
 
-void Rosenbrock::Integrate(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, bool control_s) {
+void Rosenbrock::Integrate(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, bool control_s,
+                           std::vector<double>* record, const std::vector<double>* replay) {
   const int k = s == nullptr ? 0 : static_cast<int>(s->cols());
   Stepper st(sys_, in, k, stats_);
   Point z{*x, s == nullptr ? Eigen::MatrixXd(sys_.n(), 0) : *s}, next;
-  // The first step from the segment alone, so that a replay takes the forward pass's steps.
-  double t = 0, dt = in.h / 100;
-  long steps = 0;
-  while (t < in.h) {
-    const bool last = dt >= in.h - t;
-    const double h = last ? in.h - t : dt;
-    const double err = st.Step(z, h, opt_.absolute_tolerance, opt_.relative_tolerance, control_s, &next);
-    // Hairer & Wanner's control for an order-3 estimate: h·min(6, max(0.2, 0.9·err^(−1/4))).
-    const double factor = err == 0 ? 6 : std::min(6.0, std::max(0.2, 0.9 * std::pow(err, -0.25)));
-    if (++steps > opt_.max_steps) {
-      throw NumericalFailure("too much work: more than " + std::to_string(opt_.max_steps) +
-                             " Rosenbrock steps in one segment");
+  if (record) record->clear();
+  if (replay) {  // the recorded steps, accepted as they were
+    for (const double h : *replay) {
+      st.Step(z, h, opt_.absolute_tolerance, opt_.relative_tolerance, control_s, &next);
+      if (!next.x.allFinite() || (k > 0 && !next.s.allFinite())) {
+        throw NumericalFailure("the stiff solution or its derivatives are not finite");
+      }
+      ++stats_->steps;
+      ++stats_->stiff_steps;
+      z = next;
     }
-    if (!(err <= 1)) {
-      if (err == HUGE_VAL && h < 1e-14 * in.h) throw NumericalFailure("the stiff solution is not finite");
-      dt = h * (err == HUGE_VAL ? 0.2 : factor);
-      continue;
+  } else {
+    // The first step from the segment alone, so that the same segment always takes the same steps.
+    double t = 0, dt = in.h / 100;
+    long steps = 0;
+    while (t < in.h) {
+      const bool last = dt >= in.h - t;
+      const double h = last ? in.h - t : dt;
+      const double err = st.Step(z, h, opt_.absolute_tolerance, opt_.relative_tolerance, control_s, &next);
+      // Hairer & Wanner's control for an order-3 estimate: h·min(6, max(0.2, 0.9·err^(−1/4))).
+      const double factor = err == 0 ? 6 : std::min(6.0, std::max(0.2, 0.9 * std::pow(err, -0.25)));
+      if (++steps > opt_.max_steps) {
+        throw NumericalFailure("too much work: more than " + std::to_string(opt_.max_steps) +
+                               " Rosenbrock steps in one segment");
+      }
+      if (!(err <= 1)) {
+        if (err == HUGE_VAL && h < 1e-14 * in.h) throw NumericalFailure("the stiff solution is not finite");
+        dt = h * (err == HUGE_VAL ? 0.2 : factor);
+        continue;
+      }
+      ++stats_->steps;
+      ++stats_->stiff_steps;
+      if (record) record->push_back(h);
+      z = next;
+      t = last ? in.h : t + h;
+      dt = h * factor;
     }
-    ++stats_->steps;
-    ++stats_->stiff_steps;
-    z = next;
-    t = last ? in.h : t + h;
-    dt = h * factor;
   }
   *x = z.x;
   if (s != nullptr) *s = z.s;
 }
 
-void Rosenbrock::Advance(const SegmentInput& in, Eigen::VectorXd* x) { Integrate(in, x, nullptr, false); }
-
-void Rosenbrock::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s) {
-  Integrate(in, x, s, true);
+void Rosenbrock::Advance(const SegmentInput& in, Eigen::VectorXd* x, std::vector<double>* steps) {
+  Integrate(in, x, nullptr, false, steps, nullptr);
 }
 
-void Rosenbrock::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const Eigen::VectorXd& lambda_end,
-                                Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
+void Rosenbrock::AdvanceAlong(const SegmentInput& in, Eigen::VectorXd* x, const std::vector<double>& steps) {
+  Integrate(in, x, nullptr, false, nullptr, &steps);
+}
+
+void Rosenbrock::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s) {
+  Integrate(in, x, s, true, nullptr, nullptr);
+}
+
+void Rosenbrock::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const std::vector<double>& steps,
+                                const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                                Eigen::RowVectorXd* q) {
   const int n = sys_.n();
   const auto k = in.dtheta.cols();
   // S = [∂x/∂x₀ | ∂x/∂p]: n identity columns, then the parameters' (θ_p and u_p after n zero columns).
@@ -201,10 +223,8 @@ void Rosenbrock::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x
   Eigen::VectorXd x = x0;
   Eigen::MatrixXd s = Eigen::MatrixXd::Zero(n, n + k);
   s.leftCols(n).setIdentity();
-  // Steps chosen by x's error alone are the values pass's steps (x's part of the stacked step does not
-  // read S): the result is the derivative of the computed flow map, the discrete adjoint of the
-  // segment.
-  Integrate(seeded, &x, &s, false);
+  // The values pass's steps again: the derivative of the computed segment, the discrete adjoint.
+  Integrate(seeded, &x, &s, false, nullptr, &steps);
   *lambda_start = s.leftCols(n).transpose() * lambda_end;
   *q = lambda_end.transpose() * s.rightCols(k);
 }

@@ -25,12 +25,13 @@
 // As for Runge–Kutta methods, the method applied to the stacked system with its exact Jacobian is
 // the derivative of the method's own step: W's dependence on x₀ (through f_x) is what B_a carries.
 // The adjoint of a stiff segment uses that: with S(0) = [I | 0] and ∂θ/∂p, ∂u/∂p seeded after the
-// n identity columns, S(h) = [Φ_x | Φ_p], λ(start) = Φ_xᵀ λ(end) and q = λ(end)ᵀ Φ_p. Its steps are
-// controlled by x's error alone, which makes them the values pass's steps (x's part of the stacked
-// step does not read S), so this is the exact derivative of the computed segment: the discrete
-// adjoint, formed by forward mode over n + k columns in the backward pass from x₀ alone.
+// n identity columns, S(h) = [Φ_x | Φ_p], λ(start) = Φ_xᵀ λ(end) and q = λ(end)ᵀ Φ_p. It takes the
+// values pass's accepted steps, stored with x₀, so this is the exact derivative of the computed
+// segment: the discrete adjoint, formed by forward mode over n + k columns in the backward pass.
 #ifndef PK_SRC_ODE_ROSENBROCK_H_
 #define PK_SRC_ODE_ROSENBROCK_H_
+
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -44,18 +45,23 @@ class Rosenbrock {
   Rosenbrock(const OdeSystem& system, const OdeOptions& options, OdeStatistics* stats)
       : sys_(system), opt_(options), stats_(stats) {}
 
-  /// x ← x(h) over the segment (values only).
-  void Advance(const SegmentInput& in, Eigen::VectorXd* x);
+  /// x ← x(h) over the segment (values only); the accepted steps' lengths into *steps when given.
+  void Advance(const SegmentInput& in, Eigen::VectorXd* x, std::vector<double>* steps = nullptr);
+  /// x ← x(h) along the given steps, no error control (the map the adjoint differentiates).
+  void AdvanceAlong(const SegmentInput& in, Eigen::VectorXd* x, const std::vector<double>& steps);
   /// x ← x(h) and s ← ∂x(h)/∂p (its k columns move with in.dtheta and, when it has k columns, in.du).
   void AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s);
-  /// The segment's adjoint from its start x0 (see above): λ(start) and q = λ(end)ᵀ ∂x(h)/∂p.
-  void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const Eigen::VectorXd& lambda_end,
-                      Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
+  /// The segment's adjoint from its start x0 along the values pass's `steps` (Advance's): λ(start)
+  /// and q = λ(end)ᵀ ∂x(h)/∂p.
+  void AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0, const std::vector<double>& steps,
+                      const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q);
 
  private:
   struct Stepper;
-  // x (and s when not null) over the segment; the error control reads s too when `control_s`.
-  void Integrate(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, bool control_s);
+  // x (and s when not null) over the segment; the error control reads s too when `control_s`. The
+  // accepted steps into *record; or, with `replay`, those steps taken as they are.
+  void Integrate(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, bool control_s,
+                 std::vector<double>* record, const std::vector<double>* replay);
 
   const OdeSystem& sys_;
   const OdeOptions opt_;

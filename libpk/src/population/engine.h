@@ -44,8 +44,15 @@ class PopulationEngine {
   /// function theorem (outer_gradient.h; FOCE and FOCEI). Row i of *per_subject (n×size, when
   /// non-null) is ∇OFV_i, 0 for a subject left out. False with `why` naming the first subject
   /// whose gradient cannot be formed.
+  /// How many subjects' second derivatives were differences of the exact first ones, and why (the
+  /// first such subject of this process).
+  struct Differenced {
+    int subjects = 0;
+    std::string reason;
+  };
   bool Gradient(const Packing& packing, const Eigen::VectorXd& x, const std::vector<SubjectMode>& modes,
-                Eigen::VectorXd* gradient, Eigen::MatrixXd* per_subject, std::string* why) const;
+                Eigen::VectorXd* gradient, Eigen::MatrixXd* per_subject, std::string* why,
+                Differenced* differenced = nullptr) const;
 
   const PopulationProblem& problem() const { return problem_; }
   PopulationMethod method() const { return method_; }

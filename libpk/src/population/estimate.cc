@@ -116,7 +116,7 @@ PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& 
 
 bool PopulationEngine::Gradient(const Packing& packing, const Eigen::VectorXd& x,
                                 const std::vector<SubjectMode>& modes, Eigen::VectorXd* gradient,
-                                Eigen::MatrixXd* per_subject, std::string* why) const {
+                                Eigen::MatrixXd* per_subject, std::string* why, Differenced* differenced) const {
   if (method_ == PopulationMethod::kLaplace) {  // its OFV_i holds log det ½∇²l: third derivatives
     *why = "the implicit-function gradient serves FOCE and FOCEI, not Laplace";
     return false;
@@ -125,7 +125,7 @@ bool PopulationEngine::Gradient(const Packing& packing, const Eigen::VectorXd& x
   const PopulationPoint point = PopulationPoint::Make(packing.Unpack(x), *d.options.error_model, method_);
   const int n = problem_.num_subjects();
   Eigen::MatrixXd rows = Eigen::MatrixXd::Zero(n, x.size());
-  std::vector<std::string> errors(static_cast<size_t>(n));
+  std::vector<std::string> errors(static_cast<size_t>(n)), reasons(static_cast<size_t>(n));
   std::vector<char> ok(static_cast<size_t>(n), 1);
   const std::vector<int> mine = Work(distribution_ != nullptr);
   ParallelFor(static_cast<int>(mine.size()), threads_, [&](int k) {
@@ -133,19 +133,31 @@ bool PopulationEngine::Gradient(const Packing& packing, const Eigen::VectorXd& x
     const auto u = static_cast<size_t>(i);
     Eigen::VectorXd g;
     try {
-      ok[u] = SubjectOuterGradient(d.subjects[u], point, packing, x, modes[u], &g, &errors[u]);
+      ok[u] = SubjectOuterGradient(d.subjects[u], point, packing, x, modes[u], &g, &reasons[u], &errors[u]);
     } catch (const std::exception& e) {
       ok[u] = false;
       errors[u] = e.what();
     }
     if (ok[u]) rows.row(i) = g.transpose();
   });
+  Eigen::VectorXd differ(n);  // 1 where a subject's second order was differenced
+  for (int i = 0; i < n; ++i) differ(i) = reasons[static_cast<size_t>(i)].empty() ? 0 : 1;
   if (distribution_) {  // every row from its owner, exactly, and the failures
     Eigen::VectorXd failed(n);
     for (int i = 0; i < n; ++i) failed(i) = ok[static_cast<size_t>(i)] ? 0 : 1;
     distribution_->Sum(rows.data(), static_cast<int>(rows.size()));
     distribution_->Sum(failed.data(), n);
+    distribution_->Sum(differ.data(), n);
     for (int i = 0; i < n; ++i) ok[static_cast<size_t>(i)] = failed(i) < 0.5;
+  }
+  if (differenced) {
+    differenced->subjects = static_cast<int>(differ.sum() + 0.5);
+    for (const std::string& r : reasons) {
+      if (!r.empty()) {
+        differenced->reason = r;
+        break;
+      }
+    }
   }
   for (int i = 0; i < n; ++i) {
     const auto u = static_cast<size_t>(i);
@@ -241,7 +253,14 @@ std::string GradientDescription(const PopulationProblem& problem, const Populati
 void Minimize(const PopulationEngine& engine, const Packing& packing, const PopulationOptions& options,
               Eigen::VectorXd* x, std::vector<Eigen::VectorXd>* eta, PopulationSummary* summary) {
   const int n = packing.size();
-  const bool implicit = UsesImplicitGradient(engine.problem(), options);
+  bool implicit = UsesImplicitGradient(engine.problem(), options);
+  // Second derivatives differenced from the ODE propagator's J carry its error over the step (1e-4–1e-3
+  // of the OFV's own differences, measured on CVODES): where they would be, `auto` differences the OFV.
+  const bool switchable = options.gradient == PopulationGradient::kAuto &&
+                          ResolvePropagator(engine.problem().model(), engine.problem().options().propagator) !=
+                              Propagator::kExact;
+  int differenced_points = 0, switched_at = 0;
+  std::string differenced_reason;
   double best = HUGE_VAL;
   int fallbacks = 0;  // evaluations whose implicit gradient could not be formed
   double best_gradient = HUGE_VAL;  // ‖∇OFV‖∞ at the best point
@@ -253,10 +272,18 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
     const std::vector<Eigen::VectorXd> centre = Etas(c.modes, eta->front().size());
     Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
     std::string why;
-    if (grad && !(implicit && engine.Gradient(packing, xc, c.modes, &g, nullptr, &why))) {
-      if (implicit) ++fallbacks;
-      g = DifferenceGradient(engine, packing, xc, c.ofv, centre);
+    bool have = false;
+    if (grad && implicit) {
+      PopulationEngine::Differenced dn;
+      have = engine.Gradient(packing, xc, c.modes, &g, nullptr, &why, &dn);
+      if (have && dn.subjects > 0) {
+        ++differenced_points;
+        if (differenced_reason.empty()) differenced_reason = dn.reason;
+        if (switchable) implicit = have = false, switched_at = summary->evaluations;
+      }
+      if (!have && implicit) ++fallbacks;
     }
+    if (grad && !have) g = DifferenceGradient(engine, packing, xc, c.ofv, centre);
     for (int k = 0; grad && k < n; ++k) grad[k] = g(k);
     if (c.ofv < best) {
       best = c.ofv;
@@ -297,6 +324,15 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   }
   if (fallbacks > 0) {
     summary->gradient += "; at " + std::to_string(fallbacks) + " point(s) central differences instead";
+  }
+  if (switched_at > 0) {
+    summary->gradient += "; from evaluation " + std::to_string(switched_at) +
+                         " central differences of the OFV, since the second-order sensitivities do not cover "
+                         "this problem (" + differenced_reason + ")";
+  } else if (differenced_points > 0) {
+    summary->gradient += "; at " + std::to_string(differenced_points) +
+                         " point(s) some subjects' second derivatives were differences of the exact first ones (" +
+                         differenced_reason + ")";
   }
   summary->converged = out.kind == Nlopt::Outcome::kConverged || out.kind == Nlopt::Outcome::kRoundoff;
   summary->message = out.result;

@@ -179,13 +179,15 @@ struct Expansion {
   std::vector<Eigen::MatrixXd> t;
 };
 
+// *differenced: why T was differenced (empty when the second-order sensitivities served).
 bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta, bool foce, Expansion* e,
-            std::string* why) {
+            std::string* differenced, std::string* why) {
   e->phi0 = IndividualValues(s, p, eta);
   if (!Sensitivities(s, e->phi0, &e->y0, &e->j0, why)) return false;
-  std::string no_exact;
-  if (!ExactSecondOrder(s, e->phi0, &e->t, &no_exact) && !SecondOrderByDifferences(s, p, e->phi0, &e->t, why)) {
-    return false;
+  differenced->clear();
+  if (!ExactSecondOrder(s, e->phi0, &e->t, differenced)) {
+    if (differenced->empty()) *differenced = "no second-order sensitivities";
+    if (!SecondOrderByDifferences(s, p, e->phi0, &e->t, why)) return false;
   }
   e->phi00 = IndividualValues(s, p, Eigen::VectorXd::Zero(eta.size()));
   if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) return false;
@@ -323,9 +325,9 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
 
 template <class HD>
 bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& packing, const Eigen::VectorXd& x,
-                const SubjectMode& mode, Eigen::VectorXd* gradient, std::string* why) {
+                const SubjectMode& mode, Eigen::VectorXd* gradient, std::string* differenced, std::string* why) {
   Expansion e;
-  if (!Expand(s, p, mode.eta, p.method == PopulationMethod::kFoce, &e, why)) return false;
+  if (!Expand(s, p, mode.eta, p.method == PopulationMethod::kFoce, &e, differenced, why)) return false;
   const Variables<HD> v = MakeVariables<HD>(s, p, packing, x, mode.eta, e);
   HD l, log_det_omega, log_det_h;
   std::vector<std::vector<HD>> h;
@@ -354,13 +356,13 @@ bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& 
 
 bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
                           const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
-                          std::string* why) {
+                          std::string* differenced, std::string* why) {
   // The scalar's derivatives over z = (η, x) live on the stack up to 4 η and 16 variables (2 η and
   // 6 population parameters make 8), on the heap beyond.
   if (mode.eta.size() <= 4 && mode.eta.size() + x.size() <= 16) {
-    return GradientOn<HyperDualT<4, 16>>(s, p, packing, x, mode, gradient, why);
+    return GradientOn<HyperDualT<4, 16>>(s, p, packing, x, mode, gradient, differenced, why);
   }
-  return GradientOn<HyperDualT<Eigen::Dynamic, Eigen::Dynamic>>(s, p, packing, x, mode, gradient, why);
+  return GradientOn<HyperDualT<Eigen::Dynamic, Eigen::Dynamic>>(s, p, packing, x, mode, gradient, differenced, why);
 }
 
 }  // namespace internal
