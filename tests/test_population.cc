@@ -1214,3 +1214,29 @@ TEST_CASE("an ID that comes back is another subject in the population outputs", 
   }
   CHECK(last == 3);
 }
+
+TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the second order is not covered",
+          "[population]") {
+  // Steady-state doses (SS=1): the ODE propagator's second-order sensitivities do not cover them, and
+  // differences of its integrated J would carry its error over the step.
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,II,SS,DV\n1,0,100,12,1,.\n1,1,0,0,0,4\n1,6,0,0,0,2.5\n2,0,100,12,1,.\n2,2,0,0,0,3\n2,8,0,0,0,1.6\n"
+      "3,0,100,12,1,.\n3,1,0,0,0,5\n3,10,0,0,0,1.2\n",
+      "ss.csv"));
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv_mm"), data, {"VMAX"}, o);
+  pk::PopulationParameters p = problem.DefaultParameters();
+  p.sigma = Eigen::VectorXd::Constant(1, 0.2);
+  pk::PopulationOptions options;
+  options.max_iterations = 3;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, p, options);
+  INFO(fit.gradient);
+  CHECK_THAT(fit.gradient, Catch::Contains("from evaluation 1 central differences of the OFV") &&
+                               Catch::Contains("steady states"));
+  options.gradient = pk::PopulationGradient::kImplicit;  // asked for: kept, and the differenced points counted
+  const pk::PopulationSummary asked = pk::FitPopulation(problem, p, options);
+  INFO(asked.gradient);
+  CHECK_THAT(asked.gradient, Catch::Contains("some subjects' second derivatives were differences"));
+}
