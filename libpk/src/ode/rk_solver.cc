@@ -301,6 +301,30 @@ struct RkSolver::Impl {
   }
 };
 
+void DormandPrinceTo(const std::function<void(const Eigen::VectorXd&, Eigen::VectorXd*)>& f, double h, double atol,
+                     double rtol, long max_steps, Eigen::VectorXd* z, double* first_step) {
+  const Rhs rhs = [&](const State& zz, State& dz, double) { f(zz, &dz); };
+  Controlled stepper(Controlled::error_checker_type(atol, rtol));
+  double t = 0, dt = *first_step > 0 ? std::min(h, *first_step) : h;
+  long steps = 0;
+  while (t < h) {
+    const bool last = dt >= h - t;
+    double step = last ? h - t : dt;
+    double tt = t;
+    if (stepper.try_step(std::cref(rhs), *z, tt, step) == odeint::fail) {
+      dt = step;  // the control's smaller proposal
+    } else {
+      if (!z->allFinite()) throw NumericalFailure("the solution is not finite at t = " + std::to_string(tt));
+      t = last ? h : tt;
+      dt = step;
+      if (!last) *first_step = step;
+    }
+    if (++steps > max_steps) {
+      throw NumericalFailure("too much work: more than " + std::to_string(max_steps) + " Dormand–Prince steps");
+    }
+  }
+}
+
 RkSolver::RkSolver(const OdeSystem& system, const OdeOptions& options, bool tape)
     : impl_(new Impl(system, options, tape)) {}
 

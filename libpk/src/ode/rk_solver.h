@@ -28,12 +28,20 @@
 #ifndef PK_SRC_ODE_RK_SOLVER_H_
 #define PK_SRC_ODE_RK_SOLVER_H_
 
+#include <functional>
 #include <memory>
 
 #include "segment_solver.h"
 
 namespace pk {
 namespace internal {
+
+/// z ← z(h) for the autonomous z' = rhs(z) by controlled Dormand–Prince 5(4) steps (Boost.Odeint,
+/// sealed in rk_solver.cc), the last one ending at h, under one error control over every component.
+/// *first_step: the first step to try when > 0 (else h), and on return the last proposal of a step
+/// not cut short by h. Throws NumericalFailure past `max_steps` steps or on a non-finite z.
+void DormandPrinceTo(const std::function<void(const Eigen::VectorXd&, Eigen::VectorXd*)>& rhs, double h, double atol,
+                     double rtol, long max_steps, Eigen::VectorXd* z, double* first_step);
 
 class RkSolver final : public SegmentSolver {
  public:

@@ -1,5 +1,5 @@
 // Second-order sensitivities on the ODE propagator: the stacked system of second_order.h, stepped
-// by Boost.Odeint's controlled Dormand–Prince 5(4) between the event engine's events.
+// by Dormand–Prince 5(4) (rk_solver.h's DormandPrinceTo) between the event engine's events.
 #include "second_order.h"
 
 #include <algorithm>
@@ -7,19 +7,14 @@
 #include <functional>
 #include <string>
 
-#include <boost/numeric/odeint.hpp>
-#include <boost/numeric/odeint/external/eigen/eigen.hpp>
-
 #include "../numerical_failure.h"
+#include "rk_solver.h"
 
 namespace pk {
 namespace internal {
 namespace {
 
-namespace odeint = boost::numeric::odeint;
 using State = Eigen::VectorXd;
-using Stepper = odeint::runge_kutta_dopri5<State, double, State, double, odeint::vector_space_algebra>;
-using Controlled = odeint::controlled_runge_kutta<Stepper>;
 
 constexpr long kMaxSteps = 1000000;  // per segment: a stiff segment takes many explicit steps, not this many
 
@@ -48,24 +43,9 @@ class SecondOrderVisitor {
     if (h <= 0) return;
     const Eigen::VectorXd& theta = theta_[static_cast<size_t>(set)];
     const Eigen::MatrixXd& dtheta = dtheta_[static_cast<size_t>(set)];
-    const auto rhs = [&](const State& z, State& dz, double) { Derivative(z, theta, dtheta, u, &dz); };
-    Controlled stepper(Controlled::error_checker_type(o_.options.absolute_tolerance, o_.options.relative_tolerance));
-    double t = 0, dt = last_step_ > 0 ? std::min(h, last_step_) : h;
-    long steps = 0;
-    while (t < h) {
-      const bool last = dt >= h - t;
-      double step = last ? h - t : dt;
-      double tt = t;
-      if (stepper.try_step(std::cref(rhs), z_, tt, step) == odeint::fail) {
-        dt = step;  // the control's smaller proposal
-      } else {
-        if (!z_.allFinite()) throw NumericalFailure("a second-order sensitivity is not finite");
-        t = last ? h : tt;
-        dt = step;
-        if (!last) last_step_ = step;
-      }
-      if (++steps > kMaxSteps) throw NumericalFailure("the second-order sensitivities took too many steps");
-    }
+    const auto rhs = [&](const Eigen::VectorXd& z, Eigen::VectorXd* dz) { Derivative(z, theta, dtheta, u, dz); };
+    DormandPrinceTo(rhs, h, o_.options.absolute_tolerance, o_.options.relative_tolerance, kMaxSteps, &z_,
+                    &last_step_);
   }
   void Bolus(int cmt, double amount, int) { z_(cmt) += amount; }  // s and w do not jump: amounts are free of p
   void Reset() { z_.setZero(); }
@@ -122,7 +102,7 @@ class SecondOrderVisitor {
   const std::vector<std::pair<int, int>>& pairs_;
   std::vector<Eigen::VectorXd>* out_;
   State z_;
-  double last_step_ = 0;  // the last proposal of a step not cut short by a segment's end
+  double last_step_ = 0;  // the last proposal of a step not cut short by a segment's end (0: none yet)
   std::vector<Eigen::VectorXd> theta_;   // per parameter set
   std::vector<Eigen::MatrixXd> dtheta_;  // ∂θ/∂p per set (m×p)
   mutable Eigen::VectorXd x_, f_, f12_;  // scratch of Derivative
