@@ -223,13 +223,14 @@ std::string PatabCsv(const pk::PopulationProblem& problem, const pk::PopulationS
   out += "\n";
   const auto number = [](double v) { return std::isfinite(v) ? pk::FormatNumber(v) : std::string(); };
   // A row's subject by its position in the data (an ID that comes back is another subject).
-  std::vector<const pk::PopulationSubject*> by_position(problem.data().subjects.size(), nullptr);
+  const size_t count = problem.data().subjects.size();
+  std::vector<const pk::PopulationSubject*> by_position(count, nullptr);
   for (const auto& s : fit.subjects) {
-    if (s.subject >= 0 && static_cast<size_t>(s.subject) < by_position.size()) by_position[static_cast<size_t>(s.subject)] = &s;
+    if (s.subject >= 0 && static_cast<size_t>(s.subject) < count) by_position[static_cast<size_t>(s.subject)] = &s;
   }
   for (const auto& r : fit.rows) {
     const pk::PopulationSubject* found =
-        r.subject >= 0 && static_cast<size_t>(r.subject) < by_position.size() ? by_position[static_cast<size_t>(r.subject)] : nullptr;
+        r.subject >= 0 && static_cast<size_t>(r.subject) < count ? by_position[static_cast<size_t>(r.subject)] : nullptr;
     if (found == nullptr || !found->ok) continue;
     const pk::PopulationSubject& s = *found;
     out += number(r.id) + "," + number(r.time);

@@ -293,6 +293,27 @@ struct OralAsOde {
   T Output(int, const T* x, const T* theta) const { return x[1] / theta[2]; }
 };
 
+// ∂²ŷ/∂p_a∂p_b for every pair a ≤ b of `free`'s positions, with what each is checked against:
+// column b of the Richardson differences of the Jacobian in p_a.
+struct PairsAgainstDifferences {
+  std::vector<std::pair<int, int>> pairs;
+  std::vector<Eigen::VectorXd> second, differences;
+};
+
+PairsAgainstDifferences AllPairs(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free) {
+  PairsAgainstDifferences c;
+  const int p = static_cast<int>(free.size());
+  for (int a = 0; a < p; ++a) {
+    for (int b = a; b < p; ++b) c.pairs.emplace_back(a, b);
+  }
+  std::string why;
+  REQUIRE(obj.SecondDerivatives(values, free, c.pairs, &c.second, &why));
+  std::vector<Eigen::MatrixXd> fd;
+  for (int a = 0; a < p; ++a) fd.push_back(JacobianDifferences(obj, values, free, a));
+  for (const auto& [a, b] : c.pairs) c.differences.push_back(fd[static_cast<size_t>(a)].col(b));
+  return c;
+}
+
 std::shared_ptr<const pk::Model> OralOdeTwin() {
   pk::OdeModelSpec spec;
   spec.name = "1cmt_oral_ode";
@@ -321,19 +342,11 @@ TEST_CASE("second-order sensitivities of a second output, with an effect sample 
   values(hill) = 1.5;  // f'' of Ce^1.5 is infinite at Ce = 0
   std::vector<int> free;
   for (int i = 0; i < obj.model().num_parameters(); ++i) free.push_back(i);
-  const int p = static_cast<int>(free.size());
-  std::vector<std::pair<int, int>> pairs;
-  for (int a = 0; a < p; ++a) {
-    for (int b = a; b < p; ++b) pairs.emplace_back(a, b);
-  }
-  std::vector<Eigen::VectorXd> second;
-  std::string why;
-  REQUIRE(obj.SecondDerivatives(values, free, pairs, &second, &why));
-  std::vector<Eigen::MatrixXd> fd;
-  for (int a = 0; a < p; ++a) fd.push_back(JacobianDifferences(obj, values, free, a));
-  for (size_t k = 0; k < pairs.size(); ++k) {
-    const auto [a, b] = pairs[k];
-    const Eigen::VectorXd want = fd[static_cast<size_t>(a)].col(b);
+  const PairsAgainstDifferences c = AllPairs(obj, values, free);
+  const std::vector<Eigen::VectorXd>& second = c.second;
+  for (size_t k = 0; k < c.pairs.size(); ++k) {
+    const auto [a, b] = c.pairs[k];
+    const Eigen::VectorXd& want = c.differences[k];
     REQUIRE(second[k].allFinite());
     CHECK(second[k](0) == 0);  // the sample at Ce = 0 does not move with any parameter but E0 (linear)
     const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-12);
@@ -361,19 +374,11 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
         Eigen::VectorXd values;
         std::vector<int> free;
         pk_test::ScenarioValues(obj, sc, &values, &free);
-        const int p = static_cast<int>(free.size());
-        std::vector<std::pair<int, int>> pairs;
-        for (int a = 0; a < p; ++a) {
-          for (int b = a; b < p; ++b) pairs.emplace_back(a, b);
-        }
-        std::vector<Eigen::VectorXd> second;
-        std::string why;
-        REQUIRE(obj.SecondDerivatives(values, free, pairs, &second, &why));
-        std::vector<Eigen::MatrixXd> fd;
-        for (int a = 0; a < p; ++a) fd.push_back(JacobianDifferences(obj, values, free, a));
-        for (size_t k = 0; k < pairs.size(); ++k) {
-          const auto [a, b] = pairs[k];
-          const Eigen::VectorXd want = fd[static_cast<size_t>(a)].col(b);
+        const PairsAgainstDifferences c = AllPairs(obj, values, free);
+        const std::vector<Eigen::VectorXd>& second = c.second;
+        for (size_t k = 0; k < c.pairs.size(); ++k) {
+          const auto [a, b] = c.pairs[k];
+          const Eigen::VectorXd& want = c.differences[k];
           const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-12);
           INFO("pair " << a << "," << b << "\node " << second[k].transpose() << "\nfd  " << want.transpose());
           CHECK((second[k] - want).cwiseAbs().maxCoeff() / scale < 1e-6);

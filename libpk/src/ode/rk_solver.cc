@@ -131,6 +131,24 @@ struct RkSolver::Impl {
     last.at_end = false;
     return rosenbrock;
   }
+  // A stiff segment's values: RODAS4, or BDF when it also integrates a quadrature.
+  void StiffAdvance(const SegmentInput& in, Eigen::VectorXd* x, bool quadrature, double* loss, double* auc,
+                    double* loss_time) {
+    if (quadrature) {
+      Bdf().Advance(in, x, loss, auc, loss_time);
+    } else {
+      Rodas().Advance(in, x);
+    }
+  }
+  // Its sensitivities: the same choice.
+  void StiffSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Eigen::MatrixXd* s, bool with_loss, double* loss,
+                        Eigen::RowVectorXd* dloss, double* loss_time) {
+    if (with_loss) {
+      Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
+    } else {
+      Rodas().AdvanceSensitivity(in, x, s);
+    }
+  }
 
   // Replay mode's stepping of a values-only segment (into *steps when given): false, with x as it
   // was, when the segment is stiff at its start or spends the step budget, and RODAS4 must take it.
@@ -345,7 +363,8 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   return static_cast<int>(d.stored.size()) - 1;
 }
 
-void RkSolver::BackwardStored(int handle, const AdjointScales& /*scales: RODAS4 needs none*/, const Eigen::VectorXd& lambda_end,
+// `scales` serve CVODES's backward tolerances; RODAS4's and Dormand–Prince's adjoints need none.
+void RkSolver::BackwardStored(int handle, const AdjointScales& /*scales*/, const Eigen::VectorXd& lambda_end,
                               Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   const StoredSteps& steps = impl_->stored.at(static_cast<size_t>(handle));
   if (steps.stiff) {
@@ -400,11 +419,7 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
     return;
   }
   if (d.Stiff(in, *x)) {
-    if (with_loss || with_auc) {
-      d.Bdf().Advance(in, x, loss, auc, loss_time);
-    } else {
-      d.Rodas().Advance(in, x);
-    }
+    d.StiffAdvance(in, x, with_loss || with_auc, loss, auc, loss_time);
     return;
   }
   // The state: x, then the continuous loss and ∫∂L/∂t, then ∫ y_auc dt.
@@ -428,11 +443,7 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   try {
     d.Integrate(in, rhs, in.h, continues, &z);
   } catch (const StiffSegment&) {  // x is as it was: Integrate writes z only at its end
-    if (with_loss || with_auc) {
-      d.Bdf().Advance(in, x, loss, auc, loss_time);
-    } else {
-      d.Rodas().Advance(in, x);
-    }
+    d.StiffAdvance(in, x, with_loss || with_auc, loss, auc, loss_time);
     return;
   }
   *x = z.head(n);
@@ -454,11 +465,7 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
   if (!(in.h > kEmptySegment)) return;
   const bool with_loss = loss != nullptr && !in.continuous.empty();
   if (d.Stiff(in, *x)) {
-    if (with_loss) {
-      d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
-    } else {
-      d.Rodas().AdvanceSensitivity(in, x, s);
-    }
+    d.StiffSensitivity(in, x, s, with_loss, loss, dloss, loss_time);
     return;
   }
   const int n = d.n;
@@ -498,11 +505,7 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
     d.Integrate(in, rhs, in.h, continues, &z);
   } catch (const StiffSegment&) {
     *x = z.head(n);  // unchanged: Integrate writes z only at the end
-    if (with_loss) {
-      d.Bdf().AdvanceSensitivity(in, x, s, loss, dloss, loss_time);
-    } else {
-      d.Rodas().AdvanceSensitivity(in, x, s);
-    }
+    d.StiffSensitivity(in, x, s, with_loss, loss, dloss, loss_time);
     return;
   }
   *x = z.head(n);

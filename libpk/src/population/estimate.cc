@@ -234,14 +234,14 @@ Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing
 // kAuto: the implicit gradient for FOCE and FOCEI, on every propagator: its second-order
 // sensitivities are exact on Φ/Γ and integrated with the state on the ODE propagator
 // (ode/second_order.h). Laplace differences the OFV.
-bool UsesImplicitGradient(const PopulationProblem&, const PopulationOptions& o) {
+bool UsesImplicitGradient(const PopulationOptions& o) {
   if (o.gradient != PopulationGradient::kAuto) return o.gradient == PopulationGradient::kImplicit;
   return o.method != PopulationMethod::kLaplace;
 }
 
 // What the summary says of the gradient.
 std::string GradientDescription(const PopulationProblem& problem, const PopulationOptions& o) {
-  if (!UsesImplicitGradient(problem, o)) return "central differences of the OFV (modes warm-started from the centre)";
+  if (!UsesImplicitGradient(o)) return "central differences of the OFV (modes warm-started from the centre)";
   const bool exact = ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
   return std::string("implicit function theorem on the conditional modes (first- and second-order sensitivities ") +
          (exact ? "exact on Φ/Γ)" : "integrated with the ODEs)");
@@ -253,7 +253,7 @@ std::string GradientDescription(const PopulationProblem& problem, const Populati
 void Minimize(const PopulationEngine& engine, const Packing& packing, const PopulationOptions& options,
               Eigen::VectorXd* x, std::vector<Eigen::VectorXd>* eta, PopulationSummary* summary) {
   const int n = packing.size();
-  bool implicit = UsesImplicitGradient(engine.problem(), options);
+  bool implicit = UsesImplicitGradient(options);
   // Second derivatives differenced from the ODE propagator's J carry its error over the step (1e-4–1e-3
   // of the OFV's own differences, measured on CVODES): where they would be, `auto` differences the OFV.
   const bool switchable = options.gradient == PopulationGradient::kAuto &&
@@ -279,7 +279,10 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
       if (have && dn.subjects > 0) {
         ++differenced_points;
         if (differenced_reason.empty()) differenced_reason = dn.reason;
-        if (switchable) implicit = have = false, switched_at = summary->evaluations;
+        if (switchable) {  // from here on, differences of the OFV
+          implicit = have = false;
+          switched_at = summary->evaluations;
+        }
       }
       if (!have && implicit) ++fallbacks;
     }

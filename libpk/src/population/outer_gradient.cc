@@ -62,8 +62,8 @@ bool ExactSecondOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::ve
 }
 
 // T as above by Richardson-extrapolated central differences of the exact first-order
-// sensitivities, where no second-order sensitivities exist. The step is relative to φ_k, or for a file's η parameter (φ = η, near 0) to
-// the η's prior scale 1/√(Ω⁻¹)_mm.
+// sensitivities, where no second-order sensitivities exist. The step is relative to φ_k, or for a
+// file's η parameter (φ = η, near 0) to the η's prior scale 1/√(Ω⁻¹)_mm.
 bool SecondOrderByDifferences(const SubjectModel& s, const PopulationPoint& point, const Eigen::VectorXd& phi,
                               std::vector<Eigen::MatrixXd>* t, std::string* why) {
   const auto p = static_cast<Eigen::Index>(s.phi_index.size());
