@@ -56,6 +56,13 @@ std::vector<double> ParseTimes(const std::vector<std::string>& specs) {
       const double step = ToNumber(part.substr(c1 + 1, c2 - c1 - 1), "--times", spec);
       const double to = ToNumber(part.substr(c2 + 1), "--times", spec);
       if (step <= 0 || to < from) throw InputError("--times: '" + part + "' needs STEP > 0 and TO >= FROM");
+      // 0:24:0.5 (FROM:TO:STEP, mrgsolve's and R's seq order) would give the one time FROM.
+      if (to > from && step > to - from) {
+        throw InputError("--times: '" + part + "' is FROM:STEP:TO, and STEP " + FormatNumber(step) +
+                         " is longer than the range " + FormatNumber(from) + " to " + FormatNumber(to) +
+                         " (did you mean " + part.substr(0, c1) + ":" + part.substr(c2 + 1) + ":" +
+                         part.substr(c1 + 1, c2 - c1 - 1) + "?)");
+      }
       const long count = std::lround(std::floor((to - from) / step + 1e-9));
       if (count > 10000000) throw InputError("--times: '" + part + "' asks for too many times");
       for (long k = 0; k <= count; ++k) times.push_back(from + static_cast<double>(k) * step);

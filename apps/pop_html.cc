@@ -10,7 +10,6 @@
 #include <kainjow/mustache.hpp>
 
 #include "cli.h"
-#include "pk/ode_model.h"
 #include "pk/output.h"
 #include "pk/plot.h"
 #include "pk/simulate.h"
@@ -99,11 +98,11 @@ void GoodnessOfFit(const PopulationProblem& problem, const PopulationSummary& fi
     return;
   }
   // As pkfit names them: output 1's files unsuffixed, DVID k's with _k; titles "(EFFECT, DVID 2)".
-  const auto* ode = dynamic_cast<const OdeModel*>(&problem.model());
+  const Model& model = problem.model();
   for (int dvid : dvids) {
-    const bool named = ode && dvid >= 1 && dvid <= ode->num_outputs();
+    const bool named = dvid >= 1 && dvid <= model.num_outputs();
     const std::string title =
-        " (" + (named ? ode->output_names()[static_cast<size_t>(dvid - 1)] + ", " : "") + "DVID " + std::to_string(dvid) + ")";
+        " (" + (named ? model.output_names()[static_cast<size_t>(dvid - 1)] + ", " : "") + "DVID " + std::to_string(dvid) + ")";
     GoodnessOfFit(fit, dvid, title, dvid <= 1 ? "" : "_" + std::to_string(dvid), svgs, files);
   }
 }

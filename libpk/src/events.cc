@@ -124,6 +124,21 @@ void CheckColumns(const Model& model, const Dataset& data, bool fitting) {
   }
 }
 
+int OutputOfRecord(const Model& model, const Dataset& data, const Record& record, int dvid_column) {
+  if (dvid_column < 0) return 1;
+  const double v = record.extra[dvid_column];
+  if (std::isnan(v)) return 1;
+  if (v != std::floor(v) || v < 1 || v > model.num_outputs()) {
+    std::string names;
+    for (int k = 0; k < model.num_outputs(); ++k) {
+      names += (k ? ", " : "") + std::to_string(k + 1) + "=" + model.output_names()[k];
+    }
+    throw InputError(data.source, record.line, data.ColumnNumber("DVID"),
+                     "DVID " + std::to_string(v) + " is not an output of model " + model.name() + " (" + names + ")");
+  }
+  return static_cast<int>(v);
+}
+
 PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout, const Dataset& data,
                                int subject, const Eigen::VectorXd& base, bool check_modifiers, bool check_given) {
   PreparedSubject s;
@@ -137,6 +152,9 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
 
   const std::vector<Record>& records = s.records();
   const int n = model.num_compartments();
+  // A linear model's named outputs are output rows n + 1, n + 2, … (a nonlinear model's samples
+  // are keyed by their DVID elsewhere).
+  const int dvid_col = model.is_linear() && model.num_outputs() > 0 ? data.ExtraColumn("DVID") : -1;
   s.cmt.resize(records.size());
   s.last_time = -INFINITY;
   for (const Record& rec : records) s.last_time = std::max(s.last_time, rec.time);
@@ -158,6 +176,9 @@ PreparedSubject PrepareSubject(const Model& model, const ParameterLayout& layout
     const int c = rec.cmt > 0 ? rec.cmt - 1 : (rec.IsDose() ? model.default_dose_compartment() - 1
                                                             : model.central_compartment() - 1);
     s.cmt[r] = c;
+    if (dvid_col >= 0 && !rec.IsDose() && !std::isnan(rec.extra[dvid_col])) {
+      s.cmt[r] = n + OutputOfRecord(model, data, rec, dvid_col) - 1;
+    }
     // A record under the same set as the one before it (same values, same sources) passes the same checks.
     if (r == 0 || s.set_of_record[r] != s.set_of_record[r - 1]) {
       CheckCovariates(model, layout, s, r);

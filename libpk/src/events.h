@@ -74,7 +74,9 @@ struct SteadyStateCycle {
 struct PreparedSubject {
   const Dataset* data = nullptr;
   int subject = 0;
-  std::vector<int> cmt;            ///< 0-based compartment of each record
+  /// 0-based compartment of each record; for a record with a DVID on a linear model with named
+  /// outputs, n + DVID − 1, so that cmt + 1 indexes that output's row (LinearModel::OutputRow).
+  std::vector<int> cmt;
   std::vector<int> set_of_record;  ///< which parameter set governs the interval ending at each record
   std::vector<Eigen::VectorXd> sets;
   /// Per set, which layout entries come from a data column (those carry no derivative).
@@ -86,6 +88,18 @@ struct PreparedSubject {
 
   const std::vector<Record>& records() const { return data->subjects[subject].records; }
 };
+
+/// The output a record measures: its DVID (column index `dvid_column` into Record::extra, or -1),
+/// default 1. Throws pk::InputError naming the line and column for a DVID that is not one of the
+/// model's outputs (Model::output_names).
+int OutputOfRecord(const Model& model, const Dataset& data, const Record& record, int dvid_column);
+
+/// The output (1-based) an observation measures from its key: a nonlinear model's key is its output;
+/// a linear model's is its compartment (1-based; output 1) or n + k for named output k.
+inline int OutputOfKey(const Model& model, int key) {
+  if (!model.is_linear()) return key;
+  return key > model.num_compartments() ? key - model.num_compartments() : 1;
+}
 
 /// Binds a subject to a model. `base` is the full layout vector used where no
 /// data column supplies a value. Throws pk::InputError (file, line, column)

@@ -27,11 +27,14 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
                                                           InitialStructure initial_structure,
                                                           ModelDeclarations declarations,
                                                           std::vector<std::string> signed_parameters,
-                                                          DerivedCoefficients derived) {
+                                                          DerivedCoefficients derived,
+                                                          std::vector<std::string> outputs) {
   const int n = static_cast<int>(compartments.size()), m = static_cast<int>(parameters.size());
   const int indexed = m + derived.count;  // a term indexes [θ; ψ]
   auto bad = [&](const std::string& what) { throw std::logic_error("model " + name + ": " + what); };
-  if (static_cast<int>(output_terms.size()) != n) bad("one output row per compartment is needed");
+  if (output_terms.size() != compartments.size() + outputs.size()) {
+    bad("one output row per compartment and per named output is needed");
+  }
   if (defaults.size() != m) bad("one default per parameter is needed");
   if (central < 1 || central > n || default_dose < 1 || default_dose > n) bad("central or dose compartment out of range");
   auto check = [&](const LinearTerm& t) {
@@ -63,6 +66,7 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
   if (transfer_function_order > 0) model->set_signed_parameters(model->parameter_names());
   if (!signed_parameters.empty()) model->set_signed_parameters(signed_parameters);
   model->set_declarations(std::move(declarations));
+  model->set_output_names(std::move(outputs));
   model->derived_ = std::move(derived);
   return model;
 }

@@ -44,8 +44,8 @@ struct Recording {
 OdeModel::OdeModel(const OdeModelSpec& spec)
     : Model(spec.name, spec.description, spec.compartments, Names(spec), Defaults(spec), spec.central,
             spec.default_dose),
-      outputs_(spec.outputs),
       id_(NextModelId()) {
+  set_output_names(spec.outputs);
   set_initial_structure(spec.initial_structure);
   set_signed_parameters(spec.signed_parameters);
   set_declarations(spec.declarations);

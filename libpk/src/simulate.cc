@@ -39,7 +39,8 @@ class Recorder {
     });
     out->rows.reserve(static_cast<size_t>(rows));
     out->amounts.resize(sys.n(), rows);
-    out->outputs.resize(ode_ ? ode_->num_outputs() : 0, rows);
+    out->outputs.resize(sys.model().num_outputs(), rows);
+    named_.resize(sys.model().num_outputs());
   }
 
   void Advance(double h, const Eigen::VectorXd& u, int set) { prop_.Advance(h, u, set); }
@@ -67,6 +68,10 @@ class Recorder {
     if (ode_) {
       x_ = out_->amounts.col(i);  // OutputValue takes a vector
       for (int k = 0; k < ode_->num_outputs(); ++k) out_->outputs(k, i) = ode_->OutputValue(k + 1, x_, Theta(set));
+    } else {  // a linear model's named outputs, rows n + 1, n + 2, …
+      for (Eigen::Index k = 0; k < out_->outputs.rows(); ++k) {
+        out_->outputs(k, i) = Output(sys_.n() + static_cast<int>(k) + 1, out_->amounts.col(i), set, &named_[k]);
+      }
     }
     out_->rows.push_back(row);
   }
@@ -95,7 +100,8 @@ class Recorder {
   // The exact propagator's state carries the AUC after the amounts.
   auto Amounts() const { return prop_.state().head(sys_.n()); }
   const Eigen::VectorXd& Theta(int set) const { return theta_[static_cast<size_t>(set)]; }
-  // Nonlinear models: the DVID's output; linear models: the record's compartment.
+  // Nonlinear models: the DVID's output; linear models: the record's compartment, or its DVID's
+  // named output (PreparedSubject::cmt).
   int Key(int r) const {
     if (!ode_) return s_.cmt[r] + 1;
     return internal::OutputOfRecord(*ode_, *s_.data, s_.records()[r], dvid_);
@@ -110,6 +116,7 @@ class Recorder {
   int dvid_ = -1;
   std::vector<Eigen::VectorXd> theta_;  // the model's θ of each parameter set
   CachedRow central_, record_;
+  std::vector<CachedRow> named_;  // a linear model's named outputs
   Eigen::VectorXd x_;  // amounts for a nonlinear model's outputs, which take a vector
 };
 

@@ -75,6 +75,7 @@ cases=$(cat <<CASES
 2|pksim|'CLEARANCE' is not a parameter of model 1cmt_oral|--model 1cmt_oral --estimates estimates_unknown.csv --dose 100 --times 1
 2|pksim|has no MANIFEST|--model 1cmt_oral --estimates killed/estimates.csv --dose 100 --times 1
 2|pksim|give --rate or --duration, not both|--model 1cmt_iv --dose 100 --rate 10 --duration 2 --times 1
+2|pksim|is FROM:STEP:TO, and STEP 72 is longer than the range 0 to 0.5 (did you mean 0:0.5:72?)|--model 1cmt_iv --dose 100 --times 0:72:0.5
 2|pksim|a NUL byte|--model 1cmt_oral --data nul.csv --times 1
 1|pksim|CL of 1cmt_iv must be positive, not -3|--model 1cmt_iv --data negative_cl_column.csv --param V=10
 2|pksim|'V1' is no longer a parameter of 2cmt_oral: its volumes have NONMEM's ADVAN4 TRANS4 names|--model 2cmt_oral --dose 100 --times 1 --param V1=25

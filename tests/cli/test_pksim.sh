@@ -136,5 +136,15 @@ printf '$PROBLEM wt\n$PARAM\nCL = 3\nV = 30\n$COVARIATE\nWT\n$CMT\nCENTRAL\n$ODE
   fail "WT=140 doubles CL=3: the model file should match 1cmt_iv with CL=6"
 "$pksim" --model "$root/models/idr3.pkm" --dose 100 --times 0,6 >"$work/idr3.csv" 2>/dev/null || fail "idr3.pkm"
 head -1 "$work/idr3.csv" | grep -q "^ID,TIME,EVID,CP,E," || fail "idr3.pkm: CP and E columns"
+# A linear model file with two outputs runs on the exact propagator and writes both; CVODES at
+# rtol 1e-12 gives the same metabolite concentrations to 8 digits.
+for p in exact ode; do
+  "$pksim" --model "$root/models/parent_metabolite.pkm" --dose 100 --ii 12 --addl 2 --times 0:6:36 --propagator $p \
+    --rtol 1e-12 --columns ID,TIME,CP,CPM >"$work/pm_$p.csv" 2>/dev/null || fail "parent_metabolite.pkm on $p"
+done
+head -1 "$work/pm_exact.csv" | grep -qx "ID,TIME,CP,CPM" || fail "parent_metabolite.pkm: CP and CPM columns"
+awk -F, 'NR == FNR { cpm[FNR] = $4; next } FNR > 2 { d = $4 - cpm[FNR]; if (d < 0) d = -d; if (d > 1e-8 * $4) bad = 1 }
+         END { exit bad }' "$work/pm_exact.csv" "$work/pm_ode.csv" || fail "parent_metabolite.pkm: CPM exact against CVODES"
+[ "$(wc -l <"$work/pm_exact.csv")" -eq 8 ] || fail "parent_metabolite.pkm: 7 output times"
 
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi

@@ -75,7 +75,8 @@ class LinearModel final : public Model {
   /// A model from its terms: A(θ) = Σ system terms; the output of an observation
   /// in compartment c (1-based) is C_c(θ) x with C_c = Σ output_terms[c-1] (their
   /// `row` is ignored). `transfer_function_order` is n for a companion-form tf<n>
-  /// model (see pk/catalogue.h), 0 otherwise.
+  /// model (see pk/catalogue.h), 0 otherwise. With named `outputs` (K of them, chosen by
+  /// DVID: Model::output_names), output_terms holds n + K rows, row n + k being output k's.
   static std::shared_ptr<const LinearModel> FromTerms(std::string name, std::string description,
                                                       std::vector<std::string> compartments,
                                                       std::vector<std::string> parameters, Eigen::VectorXd defaults,
@@ -86,7 +87,8 @@ class LinearModel final : public Model {
                                                       InitialStructure initial_structure = {},
                                                       ModelDeclarations declarations = {},
                                                       std::vector<std::string> signed_parameters = {},
-                                                      DerivedCoefficients derived = {});
+                                                      DerivedCoefficients derived = {},
+                                                      std::vector<std::string> outputs = {});
 
   const std::vector<LinearTerm>& system_terms() const { return a_terms_; }
   /// ψ(θ) when terms read derived coefficients (count 0 otherwise).
@@ -95,7 +97,8 @@ class LinearModel final : public Model {
   /// rule. θ itself when the model has no derived coefficients.
   template <typename T>
   Eigen::Matrix<T, Eigen::Dynamic, 1> ExtendedParameters(const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const;
-  /// The terms of the output row C_c(θ) of compartment `cmt` (1-based).
+  /// The terms of the output row C_c(θ) of compartment `cmt` (1-based), or of named output k
+  /// for `cmt` = n + k.
   const std::vector<LinearTerm>& output_terms(int cmt) const { return c_terms_[cmt - 1]; }
 
   /// The value of one term, sign · θ[numerator] / θ[denominator], for any
@@ -130,6 +133,7 @@ class LinearModel final : public Model {
   /// The output row C(θ) for an observation in compartment `cmt` (1-based). For
   /// a compartment model y = C x is that compartment's concentration, or its
   /// amount if it has no volume; for a tf<n> model it is the output B(s)/A(s)·u.
+  /// `cmt` = n + k (k ≥ 1) is named output k's row (Model::output_names).
   template <typename T>
   Eigen::Matrix<T, 1, Eigen::Dynamic> OutputRow(int cmt,
                                                 const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {

@@ -159,6 +159,13 @@ class Model {
   /// True when dx/dt = A(θ)x + u; such a model can use the exact propagator.
   virtual bool is_linear() const = 0;
 
+  /// Named outputs y_1 … y_K; an observation's DVID chooses one (none given: y_1). A nonlinear
+  /// model has at least one. A linear model read from a model file has its file's outputs (with
+  /// K > 1 it still runs on the exact propagator); a catalogue linear model has none, and an
+  /// observation measures the concentration, or amount, of its compartment (CMT).
+  int num_outputs() const { return static_cast<int>(output_names_.size()); }
+  const std::vector<std::string>& output_names() const { return output_names_; }
+
   /// Prediction for an observation in compartment `cmt` (1-based) given the
   /// amounts x and parameters θ.
   virtual double Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const = 0;
@@ -176,6 +183,8 @@ class Model {
   void set_former_names(std::vector<std::string> names, std::string note);
   /// Sets what a model file declares (see declarations()).
   void set_declarations(ModelDeclarations d) { declarations_ = std::move(d); }
+  /// Names the outputs (see output_names()).
+  void set_output_names(std::vector<std::string> names) { output_names_ = std::move(names); }
 
  private:
   std::string name_;
@@ -190,6 +199,7 @@ class Model {
   std::vector<std::string> former_names_;
   std::string former_names_note_;
   ModelDeclarations declarations_;
+  std::vector<std::string> output_names_;
 };
 
 }  // namespace pk

@@ -84,8 +84,6 @@ class OdeModel : public Model {
  public:
   ~OdeModel() override;
   bool is_linear() const override { return false; }
-  int num_outputs() const { return static_cast<int>(outputs_.size()); }
-  const std::vector<std::string>& output_names() const { return outputs_; }
 
   /// Output 1 when `cmt` is the central compartment, otherwise the amount in `cmt`.
   double Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const override;
@@ -121,7 +119,6 @@ class OdeModel : public Model {
   virtual void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const = 0;
 
  private:
-  std::vector<std::string> outputs_;
   unsigned long id_;  // identifies this model in the per-thread recordings (an address may be reused)
 };
 

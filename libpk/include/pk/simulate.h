@@ -73,8 +73,8 @@ struct SubjectSimulation {
   /// Column i: the compartments' amounts after rows[i] (n × rows.size()). One matrix a subject,
   /// not a vector a row: a simulation allocates per subject, not per row.
   Eigen::MatrixXd amounts;
-  /// Column i: every output of a nonlinear model after rows[i] (outputs(0, i) = rows[i].cp);
-  /// 0 × rows.size() for linear models.
+  /// Column i: every named output of the model after rows[i] (Model::output_names; outputs(0, i) =
+  /// rows[i].cp); 0 × rows.size() for a catalogue linear model, which names none.
   Eigen::MatrixXd outputs;
   std::vector<DoseEntry> doses;
 };

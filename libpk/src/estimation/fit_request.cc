@@ -194,9 +194,12 @@ std::vector<std::string> CheckSubjects(const FitSubjectsRequest& request) {
   // A nonlinear model's observations measure the output their DVID names, whatever their CMT.
   if (dynamic_cast<const OdeModel*>(request.model.get()) != nullptr) return notes;
   const Model& model = *request.model;
+  // So does a linear model file's, when it names outputs and the observation has a DVID.
+  const int dvid = model.num_outputs() > 0 ? request.data->ExtraColumn("DVID") : -1;
   std::map<int, int> elsewhere;
   for (int i : all) {
     for (const Record& r : request.data->subjects[static_cast<size_t>(i)].records) {
+      if (dvid >= 0 && !std::isnan(r.extra[static_cast<size_t>(dvid)])) continue;
       if (r.IsSample() && r.cmt > 0 && r.cmt != model.central_compartment()) ++elsewhere[r.cmt];
     }
   }

@@ -13,7 +13,6 @@
 #include "pk/conversion.h"
 #include "pk/error.h"
 #include "pk/linear_model.h"
-#include "pk/ode_model.h"
 
 namespace pk {
 namespace {
@@ -142,12 +141,12 @@ void Curves(const FitSubjectsRequest& req, const Objective& objective, int subje
   const int m = std::max(2, req.curve_points);
   for (int k = 0; k < m; ++k) out->curve_times.push_back(t0 + (t1 - t0) * k / (m - 1));
   out->curve = objective.PredictAt(out->summary.values, out->curve_times);
-  const auto* ode = dynamic_cast<const OdeModel*>(req.model.get());
-  if (ode == nullptr || ode->num_outputs() <= 1) return;
+  const Model& model = *req.model;
+  if (model.num_outputs() <= 1) return;
   out->sample_output = objective.sample_outputs();
-  out->output_names = ode->output_names();
+  out->output_names = model.output_names();
   out->output_curves.push_back(out->curve);
-  for (int k = 2; k <= ode->num_outputs(); ++k) {
+  for (int k = 2; k <= model.num_outputs(); ++k) {
     out->output_curves.push_back(objective.PredictAt(out->summary.values, out->curve_times, k));
   }
 }

@@ -689,16 +689,15 @@ class Analyser {
 
   void DetectLinear() {
     out_.linear = false;
-    if (out_.outputs.size() != 1) {
-      out_.declarations.why_not_linear = "it has more than one output";
-      return;
-    }
     bool monomials = true;
     for (int c = 0; c < n() && monomials; ++c) {
       monomials = Terms(out_.rhs[static_cast<size_t>(c)], c, "d/dt(" + out_.compartments[static_cast<size_t>(c)] + ")",
                         &out_.a_terms);
     }
-    monomials = monomials && Terms(out_.outputs[0], 0, "output " + out_.output_names[0], &out_.c_terms);
+    out_.c_terms.assign(out_.outputs.size(), {});
+    for (size_t k = 0; k < out_.outputs.size() && monomials; ++k) {
+      monomials = Terms(out_.outputs[k], 0, "output " + out_.output_names[k], &out_.c_terms[k]);
+    }
     if (monomials) {
       out_.linear = true;
       return;
@@ -854,14 +853,17 @@ class Analyser {
         return;
       }
     }
-    LinearForm output;
-    if (!Linearize(out_.outputs[0], &output, &why) || output.free) {
-      if (why.empty()) why = "reads no amount";
-      out_.declarations.why_not_linear = "output " + out_.output_names[0] + " " + why;
-      return;
+    std::vector<LinearForm> outputs(out_.outputs.size());
+    for (size_t k = 0; k < outputs.size(); ++k) {
+      if (!Linearize(out_.outputs[k], &outputs[k], &why) || outputs[k].free) {
+        if (why.empty()) why = "reads no amount";
+        out_.declarations.why_not_linear = "output " + out_.output_names[k] + " " + why;
+        return;
+      }
     }
     for (int c = 0; c < n(); ++c) FormTerms(rows[static_cast<size_t>(c)], c, &out_.a_terms);
-    FormTerms(output, 0, &out_.c_terms);
+    out_.c_terms.assign(outputs.size(), {});
+    for (size_t k = 0; k < outputs.size(); ++k) FormTerms(outputs[k], 0, &out_.c_terms[k]);
     out_.declarations.why_not_linear.clear();
     out_.linear = true;
   }

@@ -137,20 +137,22 @@ std::shared_ptr<const Model> Build(const CompiledModel& m) {
   ModelDeclarations declarations = WithPkValues(m, n);
   declarations.computed_modifiers = Modifiers(m, n);
   if (m.linear) {
-    // Observations in the central compartment measure the output; in another, its amount.
+    // An observation with a DVID measures that output (row n + DVID); without one, in the central
+    // compartment, the first output; in another compartment, its amount.
     std::vector<std::vector<LinearTerm>> rows(static_cast<size_t>(n));
     for (int c = 0; c < n; ++c) {
       if (c + 1 == m.central) {
-        rows[static_cast<size_t>(c)] = m.c_terms;
+        rows[static_cast<size_t>(c)] = m.c_terms.front();
       } else {
         LinearTerm amount;
         amount.col = c;
         rows[static_cast<size_t>(c)] = {amount};
       }
     }
+    rows.insert(rows.end(), m.c_terms.begin(), m.c_terms.end());
     return LinearModel::FromTerms(t.name, t.description, m.compartments, m.parameters, m.defaults, m.central,
                                   m.default_dose, m.a_terms, rows, 0, InitialStructure(), declarations,
-                                  m.signed_parameters, Coefficients(m, n));
+                                  m.signed_parameters, Coefficients(m, n), m.output_names);
   }
   OdeModelSpec spec;
   spec.name = t.name;
@@ -210,10 +212,9 @@ std::shared_ptr<const ResidualErrorModel> DeclaredErrorModel(const Model& model)
   if (d.output_error_models.empty()) return d.error_model.empty() ? nullptr : MakeResidualError(d.error_model);
   std::vector<std::shared_ptr<const ResidualErrorModel>> models;
   for (const std::string& name : d.output_error_models) models.push_back(MakeResidualError(name));
-  const auto* ode = dynamic_cast<const OdeModel*>(&model);
   std::vector<std::string> outputs;
   for (size_t k = 0; k < models.size(); ++k) {
-    outputs.push_back(ode ? ode->output_names()[k] : "Y" + std::to_string(k + 1));
+    outputs.push_back(k < model.output_names().size() ? model.output_names()[k] : "Y" + std::to_string(k + 1));
   }
   return MakePerOutputError(std::move(models), std::move(outputs));
 }

@@ -147,9 +147,8 @@ std::vector<int> Objective::sample_records() const {
 }
 std::vector<int> Objective::sample_outputs() const {
   std::vector<int> out;
-  const bool ode_model = dynamic_cast<const OdeModel*>(impl_->model.get()) != nullptr;
   for (size_t r = 0; r < impl_->ode.sample_of_record.size(); ++r) {
-    if (impl_->ode.sample_of_record[r] >= 0) out.push_back(ode_model ? impl_->ode.key_of_record[r] : 1);
+    if (impl_->ode.sample_of_record[r] >= 0) out.push_back(internal::OutputOfKey(*impl_->model, impl_->ode.key_of_record[r]));
   }
   return out;
 }

@@ -136,7 +136,7 @@ void BindSamples(ObjectiveState* d, const std::vector<LogNormalPrior>& priors) {
       continue;
     }
     // The output the sample measures, and its error model (each output its own, or one for all).
-    const int output = ode_model ? d->ode.key_of_record[ri] : 1;
+    const int output = OutputOfKey(*d->model, d->ode.key_of_record[ri]);
     int first_sigma = 0;
     const ResidualErrorModel* error = d->error;
     try {

@@ -137,21 +137,6 @@ void OdeSystem::ObserveDirectional(int key, const Eigen::VectorXd& x, const Eige
   }
 }
 
-int OutputOfRecord(const OdeModel& model, const Dataset& data, const Record& record, int dvid_column) {
-  if (dvid_column < 0) return 1;
-  const double v = record.extra[dvid_column];
-  if (std::isnan(v)) return 1;
-  if (v != std::floor(v) || v < 1 || v > model.num_outputs()) {
-    std::string names;
-    for (int k = 0; k < model.num_outputs(); ++k) {
-      names += (k ? ", " : "") + std::to_string(k + 1) + "=" + model.output_names()[k];
-    }
-    throw InputError(data.source, record.line, data.ColumnNumber("DVID"),
-                     "DVID " + std::to_string(v) + " is not an output of model " + model.name() + " (" + names + ")");
-  }
-  return static_cast<int>(v);
-}
-
 int OdeSystem::central_key() const { return ode_ ? 1 : model_.central_compartment(); }
 
 }  // namespace internal

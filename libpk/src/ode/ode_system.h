@@ -4,7 +4,8 @@
 //
 // An observation is identified by an "output key": the DVID for a nonlinear
 // model (output 1, 2, …), the 1-based compartment for a linear model (its
-// concentration, as in the exact propagator).
+// concentration, as in the exact propagator), or n + DVID for a linear model's
+// named output (PreparedSubject::cmt).
 #ifndef PK_SRC_ODE_ODE_SYSTEM_H_
 #define PK_SRC_ODE_ODE_SYSTEM_H_
 
@@ -62,11 +63,6 @@ class OdeSystem {
   int n_ = 0;
   int m_ = 0;
 };
-
-/// The output a record of a nonlinear model measures: its DVID (column index
-/// `dvid_column` into Record::extra, or -1), default 1. Throws pk::InputError
-/// naming the line and column for a DVID that is not an output number.
-int OutputOfRecord(const OdeModel& model, const Dataset& data, const Record& record, int dvid_column);
 
 }  // namespace internal
 }  // namespace pk

@@ -5,7 +5,6 @@
 
 #include "../internal_text.h"
 #include "pk/error.h"
-#include "pk/ode_model.h"
 #include "pk/output.h"
 
 namespace pk {
@@ -25,9 +24,8 @@ bool HasRows(const SubjectSimulation& s, const char* who) {
 }  // namespace
 
 std::string SimulationCsvHeader(const Model& model) {
-  const auto* ode_model = dynamic_cast<const OdeModel*>(&model);
   std::string csv = "ID,TIME,EVID,CP";
-  for (int k = 1; ode_model && k < ode_model->num_outputs(); ++k) csv += "," + ode_model->output_names()[k];
+  for (int k = 1; k < model.num_outputs(); ++k) csv += "," + model.output_names()[static_cast<size_t>(k)];
   for (int c = 1; c <= model.num_compartments(); ++c) csv += ",A" + std::to_string(c);
   return csv + "\n";
 }
@@ -83,11 +81,10 @@ std::vector<std::string> Split(const std::string& list) {
 }  // namespace
 
 SimulationColumns::SimulationColumns(const Model& model, const std::string& list) {
-  const auto* ode_model = dynamic_cast<const OdeModel*>(&model);
   std::vector<Column> all = {{Kind::kId, 0, "ID"}, {Kind::kTime, 0, "TIME"}, {Kind::kEvid, 0, "EVID"},
                              {Kind::kCp, 0, "CP"}};
-  for (int k = 1; ode_model && k < ode_model->num_outputs(); ++k) {
-    all.push_back({Kind::kOutput, k, internal::ToUpper(ode_model->output_names()[static_cast<size_t>(k)])});
+  for (int k = 1; k < model.num_outputs(); ++k) {
+    all.push_back({Kind::kOutput, k, internal::ToUpper(model.output_names()[static_cast<size_t>(k)])});
   }
   for (int c = 0; c < model.num_compartments(); ++c) all.push_back({Kind::kAmount, c, "A" + std::to_string(c + 1)});
   std::vector<std::string> names;
