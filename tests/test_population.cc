@@ -1020,6 +1020,50 @@ TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVAR
   }
 }
 
+TEST_CASE("the covariance step from the exact gradient equals NONMEM's differences of the OFV", "[population]") {
+  // At each FOCEI estimate: S from the exact per-subject gradients and R from differences of the
+  // exact gradient (1 + 2p gradients), against both from central differences of the OFV (1 + 2p²
+  // OFVs). Ω with a fixed block, a fixed θ and a 2×2 block (the packing's Jacobian), and Ω as one
+  // 2×2 block.
+  for (const char* name : {"theo_comb_block", "pheno_add"}) {
+    INFO(name);
+    const Case c = Cases().at(name);
+    const pk::PopulationProblem problem = Problem(c);
+    pk::PopulationOptions options;
+    options.covariance = false;
+    if (std::string(name) == "theo_comb_block") {
+      options.structure.omega_blocks = {1, 2};
+      options.structure.omega_block_fixed = {true, false};
+      options.structure.theta_fixed = {false, false, true};
+    } else {
+      options.structure.omega_blocks = {2};  // CL and V with their covariance
+    }
+    const pk::PopulationSummary fit = pk::FitPopulation(problem, Parameters(c), options);
+    REQUIRE(fit.converged);
+    const pk::internal::Packing packing(problem, options.structure, fit.parameters);
+    const pk::internal::PopulationEngine engine(problem, pk::PopulationMethod::kFocei, 1);
+    std::vector<Eigen::VectorXd> etas;
+    for (const pk::PopulationSubject& subject : fit.subjects) etas.push_back(subject.eta);
+    pk::PopulationSummary exact = fit, differences = fit;
+    pk::internal::PopulationCovariance(engine, packing, etas, true, &exact);
+    pk::internal::PopulationCovariance(engine, packing, etas, false, &differences);
+    INFO(exact.covariance_message << " / " << differences.covariance_message);
+    REQUIRE(exact.covariance.size() > 0);
+    REQUIRE(differences.covariance.size() > 0);
+    CHECK(exact.covariance_derivatives != differences.covariance_derivatives);
+    int estimated = 0;
+    for (size_t k = 0; k < fit.estimates.size(); ++k) {
+      if (fit.estimates[k].fixed) continue;
+      ++estimated;
+      INFO(exact.estimates[k].name << ": SE " << exact.estimates[k].se << " against " << differences.estimates[k].se);
+      CHECK(std::abs(exact.estimates[k].se / differences.estimates[k].se - 1) < 2e-3);
+    }
+    CHECK(estimated == exact.covariance.rows());
+    CHECK((exact.correlation - differences.correlation).cwiseAbs().maxCoeff() < 2e-3);
+    CHECK(std::abs(exact.condition_number / differences.condition_number - 1) < 5e-3);
+  }
+}
+
 TEST_CASE("the covariance step flags correlations above 0.95 and a condition number above 1000", "[population]") {
   pk::PopulationSummary s;
   for (const char* name : {"CL", "V", "KA", "OMEGA(ETA_CL)"}) {

@@ -267,6 +267,8 @@ struct PopulationSummary {
   /// Of the estimates' correlation matrix, largest over smallest eigenvalue (as NONMEM prints it).
   double condition_number = std::numeric_limits<double>::quiet_NaN();
   std::string covariance_message;  ///< why there are no SEs, when there are none
+  /// How R and S were formed: from the exact gradient (FOCE, FOCEI) or differences of the OFV.
+  std::string covariance_derivatives;
 
   std::vector<PopulationSubject> subjects;
   std::vector<PopulationRow> rows;

@@ -1,8 +1,14 @@
 // The covariance step (engine.h), NONMEM's default $COV: the sandwich R⁻¹SR⁻¹ with
 //
-//   R = ∇²OFV                        (second central differences over the estimated
-//                                     natural parameters θ, Ω's elements, σ)
-//   S = Σ_i ∇OFV_i ∇OFV_iᵀ           (central differences of each subject's OFV_i)
+//   R = ∇²OFV                        (over the estimated natural parameters z: θ, Ω's elements, σ)
+//   S = Σ_i ∇OFV_i ∇OFV_iᵀ
+//
+// Where the outer gradient is exact (FOCE and FOCEI: the implicit function theorem on the modes,
+// outer_gradient.h), ∇OFV_i are the exact per-subject gradients at the estimate and R is the
+// central difference of the exact gradient, 1 + 2p gradients in all: a first difference of an
+// exact gradient, where NONMEM takes second differences of the OFV (1 + 2p² OFVs). The gradient
+// is in the optimiser's x (packing.h); ∇_z = Dᵀ∇_x with D = ∂x/∂z. Otherwise (Laplace, or
+// differences asked for) both come from central differences of the OFV, as NONMEM forms them.
 //
 // On the log-likelihood scale R_LL = R/2 and S_LL = S/4, and R_LL⁻¹S_LL R_LL⁻¹ = R⁻¹SR⁻¹: the
 // sandwich is the same on either scale. Every perturbed OFV starts its subjects' searches from
@@ -16,6 +22,7 @@
 
 #include "population/engine.h"
 #include "population/problem_impl.h"
+#include "pk/population.h"
 
 namespace pk {
 namespace internal {
@@ -29,9 +36,13 @@ constexpr double kRelativeStep = 1e-3;
 // which balances a second difference's truncation (h²) against its noise (ε/h²): with rtol 1e-8,
 // 0.018. At 1e-3 there the noise swung pheno_pop's SE(ω²) by a factor of 3 between two points
 // 1e-4 apart.
-double RelativeStep(const PopulationEngine& engine) {
+//
+// A first difference of the exact gradient balances h² against ε/h: ε^⅓ on the ODE propagator
+// (2e-3 at pkpop's rtol 1e-9), 1e-4 on Φ/Γ.
+double RelativeStep(const PopulationEngine& engine, bool exact_gradient) {
   double noise = 0;
   for (const SubjectModel& s : engine.problem().impl().subjects) noise = std::max(noise, s.relative_noise);
+  if (exact_gradient) return noise > 1e-10 ? std::max(1e-4, std::cbrt(noise)) : 1e-4;
   return noise > 1e-10 ? std::max(kRelativeStep, std::pow(noise, 0.25)) : kRelativeStep;
 }
 
@@ -52,27 +63,18 @@ struct Differences {
   }
 };
 
-}  // namespace
-
-void PopulationCovariance(const PopulationEngine& engine, const Packing& packing,
-                          const std::vector<Eigen::VectorXd>& starts, PopulationSummary* summary) {
-  std::vector<int> est;
-  for (size_t k = 0; k < packing.natural_fixed().size(); ++k) {
-    if (!packing.natural_fixed()[k]) est.push_back(static_cast<int>(k));
-  }
+// R (p×p) and the per-subject gradients G (n×p) over the estimated natural parameters `est`, by
+// central differences of the OFV. False, with *why, where the OFV cannot be evaluated.
+bool FromOfvDifferences(const Differences& diff, const std::vector<int>& est, const Eigen::VectorXd& h,
+                        Eigen::MatrixXd* r, Eigen::MatrixXd* g, std::string* why) {
   const int p = static_cast<int>(est.size());
-  if (p == 0) return;
-  const Differences diff{engine, packing, starts, packing.Natural(summary->parameters)};
-  Eigen::VectorXd h(p);
-  const double step = RelativeStep(engine);
-  for (int a = 0; a < p; ++a) h(a) = step * std::max(std::abs(diff.z0(est[a])), 0.01);
   PopulationEngine::Result centre, plus, minus, pp, pm, mp, mm;
   if (!diff.At(diff.z0, &centre)) {
-    summary->covariance_message = "the OFV cannot be evaluated at the estimate";
-    return;
+    *why = "the OFV cannot be evaluated at the estimate";
+    return false;
   }
-  const Eigen::Index n = centre.per_subject.size();
-  Eigen::MatrixXd r(p, p), g(n, p);
+  r->resize(p, p);
+  g->resize(centre.per_subject.size(), p);
   auto shifted = [&](int a, double sa, int b, double sb) {
     Eigen::VectorXd z = diff.z0;
     z(est[a]) += sa * h(a);
@@ -81,22 +83,119 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
   };
   for (int a = 0; a < p; ++a) {
     if (!diff.At(shifted(a, 1, -1, 0), &plus) || !diff.At(shifted(a, -1, -1, 0), &minus)) {
-      summary->covariance_message = "the OFV cannot be evaluated next to the estimate of " +
-                                    packing.natural_names()[static_cast<size_t>(est[a])] + " (" +
-                                    (plus.ok ? minus.message : plus.message) + ")";
-      return;
+      *why = "the OFV cannot be evaluated next to the estimate of " +
+             diff.packing.natural_names()[static_cast<size_t>(est[a])] + " (" + (plus.ok ? minus.message : plus.message) +
+             ")";
+      return false;
     }
-    r(a, a) = (plus.ofv - 2 * centre.ofv + minus.ofv) / (h(a) * h(a));
-    g.col(a) = (plus.per_subject - minus.per_subject) / (2 * h(a));
+    (*r)(a, a) = (plus.ofv - 2 * centre.ofv + minus.ofv) / (h(a) * h(a));
+    g->col(a) = (plus.per_subject - minus.per_subject) / (2 * h(a));
     for (int b = 0; b < a; ++b) {
       if (!diff.At(shifted(a, 1, b, 1), &pp) || !diff.At(shifted(a, 1, b, -1), &pm) ||
           !diff.At(shifted(a, -1, b, 1), &mp) || !diff.At(shifted(a, -1, b, -1), &mm)) {
-        summary->covariance_message = "the OFV cannot be evaluated next to the estimate";
-        return;
+        *why = "the OFV cannot be evaluated next to the estimate";
+        return false;
       }
-      r(a, b) = r(b, a) = (pp.ofv - pm.ofv - mp.ofv + mm.ofv) / (4 * h(a) * h(b));
+      (*r)(a, b) = (*r)(b, a) = (pp.ofv - pm.ofv - mp.ofv + mm.ofv) / (4 * h(a) * h(b));
     }
   }
+  return true;
+}
+
+// D = ∂x/∂z over `est` (q×p) at z: central differences of Pack∘FromNatural, a cheap smooth
+// bijection (logs, logits and a Cholesky factor), at steps where their error (about 1e-10 of D)
+// is far below the R's own differencing error.
+Eigen::MatrixXd PackingJacobian(const Packing& packing, const Eigen::VectorXd& z, const std::vector<int>& est) {
+  Eigen::MatrixXd d(packing.size(), static_cast<Eigen::Index>(est.size()));
+  for (size_t a = 0; a < est.size(); ++a) {
+    const double step = 1e-6 * std::max(std::abs(z(est[a])), 0.01);
+    Eigen::VectorXd up = z, down = z;
+    up(est[a]) += step;
+    down(est[a]) -= step;
+    d.col(static_cast<Eigen::Index>(a)) =
+        (packing.Pack(packing.FromNatural(up)) - packing.Pack(packing.FromNatural(down))) / (2 * step);
+  }
+  return d;
+}
+
+// ∇_z OFV over `est` at z, and the per-subject rows when `per_subject` is given, from the exact
+// outer gradient. False, with *why, where a mode or a gradient cannot be formed.
+bool ExactGradient(const Differences& diff, const Eigen::VectorXd& z, const std::vector<int>& est,
+                   Eigen::VectorXd* gradient, Eigen::MatrixXd* per_subject, std::string* why) {
+  PopulationEngine::Result r;
+  PopulationParameters p;
+  try {
+    p = diff.packing.FromNatural(z);
+    r = diff.engine.Evaluate(p, diff.starts, true);
+  } catch (const std::exception& e) {  // a perturbed Ω that is not positive definite
+    r.ok = false;
+    r.message = e.what();
+  }
+  if (!r.ok) {
+    *why = r.message;
+    return false;
+  }
+  Eigen::VectorXd gx;
+  Eigen::MatrixXd gx_subjects;
+  if (!diff.engine.Gradient(diff.packing, diff.packing.Pack(p), r.modes, &gx, per_subject ? &gx_subjects : nullptr,
+                            why)) {
+    return false;
+  }
+  const Eigen::MatrixXd d = PackingJacobian(diff.packing, z, est);
+  *gradient = d.transpose() * gx;
+  if (per_subject) *per_subject = gx_subjects * d;
+  return true;
+}
+
+// R and G as FromOfvDifferences gives them, from the exact gradient: R's column a is the central
+// difference of ∇_z OFV along z_a, symmetrised.
+bool FromExactGradient(const Differences& diff, const std::vector<int>& est, const Eigen::VectorXd& h,
+                       Eigen::MatrixXd* r, Eigen::MatrixXd* g, std::string* why) {
+  const int p = static_cast<int>(est.size());
+  Eigen::VectorXd centre, plus, minus;
+  if (!ExactGradient(diff, diff.z0, est, &centre, g, why)) return false;
+  r->resize(p, p);
+  for (int a = 0; a < p; ++a) {
+    Eigen::VectorXd up = diff.z0, down = diff.z0;
+    up(est[a]) += h(a);
+    down(est[a]) -= h(a);
+    if (!ExactGradient(diff, up, est, &plus, nullptr, why) || !ExactGradient(diff, down, est, &minus, nullptr, why)) {
+      *why = "the gradient cannot be formed next to the estimate of " +
+             diff.packing.natural_names()[static_cast<size_t>(est[a])] + " (" + *why + ")";
+      return false;
+    }
+    r->col(a) = (plus - minus) / (2 * h(a));
+  }
+  *r = (0.5 * (*r + r->transpose())).eval();
+  return true;
+}
+
+}  // namespace
+
+void PopulationCovariance(const PopulationEngine& engine, const Packing& packing,
+                          const std::vector<Eigen::VectorXd>& starts, bool exact_gradient,
+                          PopulationSummary* summary) {
+  std::vector<int> est;
+  for (size_t k = 0; k < packing.natural_fixed().size(); ++k) {
+    if (!packing.natural_fixed()[k]) est.push_back(static_cast<int>(k));
+  }
+  const int p = static_cast<int>(est.size());
+  if (p == 0) return;
+  const Differences diff{engine, packing, starts, packing.Natural(summary->parameters)};
+  Eigen::VectorXd h(p);
+  const double step = RelativeStep(engine, exact_gradient);
+  for (int a = 0; a < p; ++a) h(a) = step * std::max(std::abs(diff.z0(est[a])), 0.01);
+  Eigen::MatrixXd r, g;
+  std::string why;
+  const bool formed = exact_gradient ? FromExactGradient(diff, est, h, &r, &g, &why)
+                                     : FromOfvDifferences(diff, est, h, &r, &g, &why);
+  if (!formed) {
+    summary->covariance_message = why;
+    return;
+  }
+  summary->covariance_derivatives = exact_gradient
+                                        ? "R from central differences of the exact gradient, S from exact per-subject gradients"
+                                        : "R and S from central differences of the OFV";
   Eigen::LLT<Eigen::MatrixXd> llt(r);
   if (llt.info() != Eigen::Success) {
     summary->covariance_message = "the R matrix (Hessian of the OFV) is not positive definite at the estimate";

@@ -73,11 +73,14 @@ class PopulationEngine {
   std::vector<int> Work(bool shared) const;
 };
 
-/// The covariance step at the estimate (covariance.cc): R = ∇²OFV by central differences over the
-/// estimated natural parameters, S = Σ_i ∇OFV_i ∇OFV_iᵀ, and the sandwich R⁻¹SR⁻¹; SEs, RSE%,
-/// correlations and the condition number into `summary`.
+/// The covariance step at the estimate (covariance.cc): R = ∇²OFV over the estimated natural
+/// parameters, S = Σ_i ∇OFV_i ∇OFV_iᵀ, and the sandwich R⁻¹SR⁻¹; SEs, RSE%, correlations and the
+/// condition number into `summary`. With `exact_gradient` (FOCE, FOCEI) S is formed from the exact
+/// per-subject gradients and R from central differences of the exact gradient; otherwise both
+/// from central differences of the OFV.
 void PopulationCovariance(const PopulationEngine& engine, const Packing& packing,
-                          const std::vector<Eigen::VectorXd>& starts, PopulationSummary* summary);
+                          const std::vector<Eigen::VectorXd>& starts, bool exact_gradient,
+                          PopulationSummary* summary);
 
 /// PRED, IPRED, RES, WRES, CWRES and IWRES per sample, and the shrinkages (diagnostics.cc).
 void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParameters& p,

@@ -416,7 +416,9 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   if (final_eval.ok) {
     eta = internal::Etas(final_eval.modes, initial.omega.rows());
     internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
-    if (options.covariance) internal::PopulationCovariance(engine, packing, eta, &summary);
+    if (options.covariance) {
+      internal::PopulationCovariance(engine, packing, eta, internal::UsesImplicitGradient(options), &summary);
+    }
   }
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;

@@ -84,6 +84,7 @@ std::string PopulationSummary::FullReport() const {
   if (covariance.size()) {
     out << "  covariance: sandwich R⁻¹SR⁻¹ (NONMEM's default); condition number "
         << internal::Num(condition_number, "%.4g") << "\n";
+    if (!covariance_derivatives.empty()) out << "  (" << covariance_derivatives << ")\n";
     for (const std::string& w : CovarianceWarnings()) out << "  warning: " << w << "\n";
   }
   out << "\n  shrinkage (SD form; variance form in parentheses)\n";
