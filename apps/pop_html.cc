@@ -232,7 +232,10 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   page["evaluations"] = std::to_string(fit.evaluations);
   page["seconds"] = Sig(fit.seconds, 3);
   page["message"] = Text("The outer optimiser ended: " + fit.message + ".");
-  page["covariance"] = Text(fit.covariance_message.empty() ? "the sandwich R⁻¹SR⁻¹, NONMEM's default" : "none");
+  page["covariance"] = Text(fit.covariance_message.empty()
+                                ? "the sandwich R⁻¹SR⁻¹, NONMEM's default" +
+                                      (fit.covariance_derivatives.empty() ? "" : "; " + fit.covariance_derivatives)
+                                : "none");
   page["estimates"] = Estimates(problem, fit);
   std::string eps = Sig(100 * fit.epsilon_shrinkage_sd, 3) + "%";
   for (size_t k = 0; k < fit.epsilon_shrinkage_sd_by_output.size(); ++k) {
