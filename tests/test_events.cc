@@ -259,6 +259,38 @@ TEST_CASE("initial amounts X0_<n> enter at the first record and add to doses", "
   CHECK(reset.rows[1].cp == 0);
 }
 
+TEST_CASE("a zero-order input K0_<n> is always on, and SS=1 includes it", "[events]") {
+  // 1cmt IV with endogenous production K0: C = K0/CL + doses' terms, from the baseline amount
+  // X0 = K0·V/CL. On each propagator (exact, CVODES, Dormand–Prince).
+  const double cl = 3, v = 30, k = cl / v, k0 = 6, base = k0 / cl;
+  const pk::Dataset data = pk::ParseDataset(
+      "ID,TIME,AMT,II,SS,EVID\n1,0,0,0,0,2\n1,0,100,0,0,1\n1,5,0,0,0,0\n"  // bolus on the baseline
+      "2,0,100,12,1,1\n2,5,0,0,0,0\n"                                     // SS=1: the train on K0's state
+      "3,0,0,0,0,2\n3,4,0,0,0,3\n3,6,0,0,0,0\n",                         // a reset empties, K0 refills
+      "k0.csv");
+  const double tau = 12;
+  for (pk::Propagator prop : {pk::Propagator::kExact, pk::Propagator::kOde, pk::Propagator::kRungeKutta}) {
+    INFO(pk::ToString(prop));
+    pk::SimulationOptions options;
+    options.propagator = prop;
+    options.ode.relative_tolerance = 1e-11;
+    options.ode.absolute_tolerance = 1e-12;
+    const double tol = prop == pk::Propagator::kExact ? 1e-13 : 1e-8;
+    const auto model = pk::MakeModel("1cmt_iv");
+    const pk::ParameterValues values{{"CL", cl}, {"V", v}, {"K0_1", k0}, {"X0_1", k0 * v / cl}};
+    const auto a = pk::SimulateSubject(*model, data, 0, values, options);
+    REQUIRE(a.ok);
+    CHECK(RelDiff(a.rows[0].cp, base) < tol);
+    CHECK(RelDiff(a.rows[1].cp, base + 100 / v * std::exp(-k * 5)) < tol);
+    const auto b = pk::SimulateSubject(*model, data, 1, values, options);
+    REQUIRE(b.ok);
+    CHECK(RelDiff(b.rows[0].cp, base + 100 / v * std::exp(-k * 5) / (1 - std::exp(-k * tau))) < tol);
+    const auto c = pk::SimulateSubject(*model, data, 2, values, options);
+    REQUIRE(c.ok);
+    CHECK(RelDiff(c.rows[1].cp, base * (1 - std::exp(-k * 2))) < tol);
+  }
+}
+
 TEST_CASE("dose modifiers F, R and D", "[events]") {
   const double cl = 3, v = 30, k = cl / v;
   auto infusion_end_conc = [&](double rate, double dur) { return rate / cl * (1 - std::exp(-k * dur)); };

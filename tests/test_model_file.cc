@@ -5,6 +5,7 @@
 #include <catch2/catch.hpp>
 
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <sstream>
 
@@ -607,6 +608,72 @@ TEST_CASE("model files: a linear model with two outputs runs on Φ/Γ, its sampl
     CHECK(e.column() == 5);
     CHECK_THAT(e.message(), Catch::Contains("DVID 3") && Catch::Contains("1=CP, 2=CPM"));
   }
+}
+
+TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal to the exogenous form",
+          "[model_file][gradient]") {
+  // The shipped turnover.pkm, d/dt(A) = KIN − KOUT·A from the baseline X0_1 = KIN/KOUT, against the
+  // same turnover with the exogenous part as the state and the baseline in the output (which keeps
+  // it on the ODE route), at rtol 1e-12. Every event type but a reset (which empties the amount
+  // itself, not its exogenous part).
+  const auto model = pk::LoadModelFile(ModelPath("turnover"));
+  INFO(pk::WhyNotLinear(*model));
+  REQUIRE(dynamic_cast<const pk::LinearModel*>(model.get()) != nullptr);
+  CHECK(model->declarations().computed_modifiers.names == std::vector<std::string>{"X0_1", "K0_1"});
+  const auto exogenous = pk::ParseModel(
+      "$PROBLEM turnover_exo  the exogenous part as the state\n"
+      "$PARAM\nKIN = 10\nKOUT = 0.5\nV = 20\n"
+      "$CMT\nEXOGENOUS  dose central\n"
+      "$ODE\nd/dt(EXOGENOUS) = -KOUT * EXOGENOUS\n"
+      "$OUTPUT\nCP = (KIN / KOUT + EXOGENOUS) / V\n",
+      "turnover_exo.pkm");
+  REQUIRE(dynamic_cast<const pk::OdeModel*>(exogenous.get()) != nullptr);
+  CHECK_THAT(pk::WhyNotLinear(*exogenous), Catch::Contains("output CP has a term without an amount"));
+  for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
+    if (std::string(sc.name).find("reset") != std::string::npos || std::string(sc.name) == "initial state") continue;
+    INFO(sc.name);
+    const auto data = pk_test::ScenarioData(sc);
+    pk::ObjectiveOptions exact;
+    exact.error_model = pk::MakeResidualError("proportional");
+    pk::ObjectiveOptions ode = exact;
+    ode.ode.relative_tolerance = 1e-12;
+    ode.ode.absolute_tolerance = 1e-14;
+    const pk::Objective objective(model, data, 0, exact), reference(exogenous, data, 0, ode);
+    Eigen::VectorXd values = objective.DefaultValues();
+    std::vector<int> free;
+    for (const char* name : {"KIN", "KOUT", "V"}) free.push_back(objective.ParameterIndex(name));
+    for (size_t e = 0; e < sc.extra_free.size(); ++e) {
+      const int k = objective.ParameterIndex(sc.extra_free[e]);
+      values(k) = sc.extra_values[e];
+      free.push_back(k);
+    }
+    for (int k : objective.sigma_indices()) free.push_back(k);
+    // The same vector without the amount form's computed X0_1 and K0_1 (0 in the exogenous form).
+    Eigen::VectorXd exogenous_values = values;
+    for (const char* name : {"X0_1", "K0_1"}) exogenous_values(reference.ParameterIndex(name)) = 0;
+    const auto want =
+        reference.Evaluate(exogenous_values, free, pk::Objective::Need::kGradient, pk::GradientRoute::kForward);
+    REQUIRE(want.ok);
+    const Eigen::VectorXd fd = pk_test::CentralDifferences(objective, values, free);
+    for (pk::GradientRoute r : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint}) {
+      const auto got = objective.Evaluate(values, free, pk::Objective::Need::kGradient, r);
+      INFO(pk::ToString(r) << "\n" << got.gradient.transpose() << "\node " << want.gradient.transpose() << "\nfd  "
+                           << fd.transpose());
+      REQUIRE(got.ok);
+      CHECK(std::string(got.propagator) == "exact");
+      CHECK(MaxRel(got.predictions, want.predictions) < 1e-9);
+      CHECK(MaxRel(got.gradient, want.gradient) < 1e-7);
+      CHECK(MaxRel(got.gradient, fd) < 1e-6);
+    }
+  }
+  // Both a term without an amount and a K0_1 of $PK: one input would hide the other, so the ODE
+  // route takes the equations as written.
+  std::ifstream in(ModelPath("turnover"));
+  std::string both((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  both.insert(both.find("$ODE"), "K0_1 = 2\n");
+  const auto twice = pk::ParseModel(both, "both.pkm");
+  CHECK(dynamic_cast<const pk::OdeModel*>(twice.get()) != nullptr);
+  CHECK_THAT(pk::WhyNotLinear(*twice), Catch::Contains("$PK computes K0_1 too"));
 }
 
 namespace {

@@ -11,6 +11,9 @@
 //   DoseEntered(time, set)        a dose is about to enter (for exposure metrics)
 //   RecordDone(record, set)       the record has been processed
 //
+// The input rates u are the running infusions plus the constant zero-order inputs K0_<n> of the
+// set in force (pk/parameters.h), which a steady state with SS=1 includes.
+//
 // `set` indexes the parameter vector in force: the values on record i govern
 // the interval ending at record i (PREDPP's "next observation carried
 // backward"), including implied events inside that interval.
@@ -192,9 +195,19 @@ class EventEngine {
       // The rates in a member: a step is a few hundred instructions, an allocation a good part of that.
       rates_.setZero(n_);
       for (const Infusion& inf : active_) rates_(inf.cmt) += inf.rate;
+      AddConstantInput(set, &rates_);
       v_->Advance(h, rates_, set);
     }
     t_ = t;
+  }
+
+  // The zero-order inputs K0_<n> of parameter set `set` (endogenous production), always on.
+  void AddConstantInput(int set, Vec<T>* u) const {
+    const Vec<T>& p = sets_[set];
+    for (int c = 0; c < n_; ++c) {
+      const T& k0 = p(layout_.ConstantInput(c));
+      if (!IsExactlyZero(k0)) (*u)(c) += k0;
+    }
   }
 
   void Reset() {
@@ -280,6 +293,7 @@ class EventEngine {
       if (rec.ss == 1) Reset();
       Vec<T> u = Vec<T>::Zero(n_);
       u(c) = rate;
+      if (rec.ss == 1) AddConstantInput(set, &u);  // SS=2 adds to a state that holds it already
       v_->SteadyInfusion(u, set, rec.ss == 2);
       return;
     }
@@ -377,6 +391,10 @@ class EventEngine {
         if (Value(rho) > 0) cycle.to_record.push_back({rho, high});
         cycle.to_record.push_back({psi - rho, low});
       }
+    }
+    if (!add) {  // the train on top of the constant inputs (SS=2 adds to a state that holds them)
+      for (Segment<T>& segment : cycle.period) AddConstantInput(set, &segment.rate);
+      for (Segment<T>& segment : cycle.to_record) AddConstantInput(set, &segment.rate);
     }
     v_->SteadyState(cycle, set, add);
     if (dose.infusion) {

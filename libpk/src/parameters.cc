@@ -10,7 +10,7 @@ namespace pk {
 
 ParameterLayout::ParameterLayout(const Model& model)
     : model_(&model), num_model_(model.num_parameters()), n_(model.num_compartments()), names_(model.parameter_names()) {
-  const char* prefixes[] = {"F", "ALAG", "R", "D", "X0_"};
+  const char* prefixes[] = {"F", "ALAG", "R", "D", "X0_", "K0_"};
   for (const char* prefix : prefixes) {
     for (int c = 1; c <= n_; ++c) names_.push_back(prefix + std::to_string(c));
   }
@@ -23,6 +23,7 @@ ParameterLayout::ParameterLayout(const Model& model)
     defaults_(Rate(c)) = nan;
     defaults_(Duration(c)) = nan;
     defaults_(InitialState(c)) = 0.0;
+    defaults_(ConstantInput(c)) = 0.0;
   }
   // Modifiers a model file declares start from its values.
   for (const DeclaredParameter& m : model.declarations().modifiers) defaults_(Index(m.name)) = m.initial;

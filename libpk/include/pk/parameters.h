@@ -12,8 +12,12 @@
 //   D<n>     infusion duration, used by doses with RATE=-2             no default
 //   X0_<n>   initial amount in compartment n at the subject's first    default 0
 //            record (like NONMEM's A_0(n)); a reset (EVID 3/4, SS=1) empties it
+//   K0_<n>   a constant zero-order input into compartment n, always    default 0
+//            on (endogenous production: amount per time, any sign), added
+//            to the doses' infusion rates; a steady state (SS=1) includes it
 //
-// The layout is θ followed by F1..Fn, ALAG1..ALAGn, R1..Rn, D1..Dn, X0_1..X0_n.
+// The layout is θ followed by F1..Fn, ALAG1..ALAGn, R1..Rn, D1..Dn, X0_1..X0_n, K0_1..K0_n.
+// A model file's `d/dt(A) = KIN − KOUT·A` becomes a linear model with K0_1 = KIN computed.
 //
 // A model file may instead compute a modifier in $PK (`F1 = FPOP * (WT/70)^0.25`,
 // pk::ComputedModifiers): its entry then always holds the value computed from the same vector's
@@ -54,6 +58,7 @@ class ParameterLayout {
   int Rate(int cmt) const { return num_model_ + 2 * n_ + cmt; }
   int Duration(int cmt) const { return num_model_ + 3 * n_ + cmt; }
   int InitialState(int cmt) const { return num_model_ + 4 * n_ + cmt; }
+  int ConstantInput(int cmt) const { return num_model_ + 5 * n_ + cmt; }
 
   /// Whether entry i is a modifier the model computes (ComputedModifiers).
   bool is_computed(int i) const { return i >= 0 && i < size() && computed_flag_[static_cast<size_t>(i)] != 0; }
@@ -67,7 +72,7 @@ class ParameterLayout {
   /// ("a data column", …) and completes "…, so WHAT cannot set it".
   void CheckNotComputed(const std::string& name, const std::string& what) const;
 
-  /// Model defaults, F=1, ALAG=0, X0=0, and NaN (unset) for R and D.
+  /// Model defaults, F=1, ALAG=0, X0=0, K0=0, and NaN (unset) for R and D.
   Eigen::VectorXd Defaults() const;
   /// Defaults overridden by `values`; throws pk::InputError for an unknown name,
   /// listing the valid ones.

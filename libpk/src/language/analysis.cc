@@ -39,9 +39,9 @@ const char* KindName(SymbolKind k) {
   return "";
 }
 
-// "F1" → ("F", 1); "X0_2" → ("X0_", 2); else ("", 0).
+// "F1" → ("F", 1); "X0_2" → ("X0_", 2); "K0_1" → ("K0_", 1); else ("", 0).
 std::pair<std::string, int> ModifierName(const std::string& name) {
-  for (const char* prefix : {"ALAG", "X0_", "F", "R", "D"}) {
+  for (const char* prefix : {"ALAG", "X0_", "K0_", "F", "R", "D"}) {
     const std::string p(prefix);
     if (name.size() <= p.size() || name.compare(0, p.size(), p) != 0) continue;
     const std::string digits = name.substr(p.size());
@@ -708,11 +708,12 @@ class Analyser {
   }
 
   // --- linear structure with coefficients that are any expression of the parameters ----------
-  // Node k as Σ_s coef[s] · x_s with one coefficient node (reading no amount) per state, or `free`
-  // when k reads no amount at all. False, with `why`, when k is not linear and homogeneous in the
-  // amounts. Coefficient nodes are new nodes of the graph; they become the derived coefficients ψ.
+  // Node k as Σ_s coef[s] · x_s + constant, with one coefficient node (reading no amount) per state
+  // and an amount-free part (`constant`, −1: none). False, with `why`, when k is not linear in the
+  // amounts. Coefficient nodes are new nodes of the graph; they become the derived coefficients ψ,
+  // and a d/dt's constant part its zero-order input K0_<n> (pk/parameters.h).
   struct LinearForm {
-    bool free = false;
+    int constant = -1;
     std::map<int, int> coef;
   };
   bool IsZero(int k) const {
@@ -749,11 +750,11 @@ class Analyser {
     return true;
   }
   // A sum or difference of two forms (kAdd, kSub), or a choice between them (kSelect with `cond`).
-  bool Combine(Op op, const LinearForm& a, const LinearForm& b, const Node& at, int cond, LinearForm* f,
-               std::string* why) {
-    if (a.free || b.free) {
-      *why = "has a term without an amount (a zero-order input)";
-      return false;
+  bool Combine(Op op, const LinearForm& a, const LinearForm& b, const Node& at, int cond, LinearForm* f) {
+    if (a.constant >= 0 || b.constant >= 0) {
+      const int ca = a.constant >= 0 ? a.constant : Constant(0, at);
+      const int cb = b.constant >= 0 ? b.constant : Constant(0, at);
+      f->constant = op == Op::kSelect ? Derived(op, cond, ca, at, cb) : Derived(op, ca, cb, at);
     }
     std::map<int, int> all = a.coef;
     all.insert(b.coef.begin(), b.coef.end());
@@ -768,7 +769,7 @@ class Analyser {
   bool LinearizeNode(int k, LinearForm* f, std::string* why) {
     const Node node = g_[static_cast<size_t>(k)];  // a copy: new nodes may move the graph
     if (StateRead(k) < 0) {
-      f->free = true;
+      f->constant = k;
       return true;
     }
     LinearForm a, b;
@@ -781,13 +782,14 @@ class Analyser {
       case Op::kNeg:
         if (!Linearize(node.a, &a, why)) return false;
         for (const auto& kv : a.coef) f->coef[kv.first] = Derived(Op::kNeg, kv.second, -1, node);
+        if (a.constant >= 0) f->constant = Derived(Op::kNeg, a.constant, -1, node);
         return true;
       case Op::kAdd:
       case Op::kSub:
-        return side(node.a, &a) && side(node.b, &b) && Combine(node.op, a, b, node, -1, f, why);
+        return side(node.a, &a) && side(node.b, &b) && Combine(node.op, a, b, node, -1, f);
       case Op::kSelect:
         if (StateRead(node.a) >= 0) break;
-        return side(node.b, &a) && side(node.c, &b) && Combine(Op::kSelect, a, b, node, node.a, f, why);
+        return side(node.b, &a) && side(node.c, &b) && Combine(Op::kSelect, a, b, node, node.a, f);
       case Op::kMul:
       case Op::kDiv: {
         const bool amount_right = StateRead(node.b) >= 0;
@@ -795,6 +797,7 @@ class Analyser {
         const int factor = amount_right ? node.a : node.b;
         if (!Linearize(amount_right ? node.b : node.a, &a, why)) return false;
         for (const auto& kv : a.coef) f->coef[kv.first] = Derived(node.op, kv.second, factor, node);
+        if (a.constant >= 0) f->constant = Derived(node.op, a.constant, factor, node);
         return true;
       }
       default: break;
@@ -846,20 +849,35 @@ class Analyser {
     std::string why;
     std::vector<LinearForm> rows(static_cast<size_t>(n()));
     for (int c = 0; c < n(); ++c) {
-      if (!Linearize(out_.rhs[static_cast<size_t>(c)], &rows[static_cast<size_t>(c)], &why) ||
-          rows[static_cast<size_t>(c)].free) {
-        if (why.empty()) why = "has no amount in it (a zero-order input)";
-        out_.declarations.why_not_linear = "d/dt(" + out_.compartments[static_cast<size_t>(c)] + ") " + why;
+      const std::string what = "d/dt(" + out_.compartments[static_cast<size_t>(c)] + ") ";
+      if (!Linearize(out_.rhs[static_cast<size_t>(c)], &rows[static_cast<size_t>(c)], &why)) {
+        out_.declarations.why_not_linear = what + why;
+        return;
+      }
+      const std::string k0 = "K0_" + std::to_string(c + 1);
+      if (rows[static_cast<size_t>(c)].constant >= 0 &&
+          std::find(out_.modifier_names.begin(), out_.modifier_names.end(), k0) != out_.modifier_names.end()) {
+        out_.declarations.why_not_linear = what + "has a term without an amount, and $PK computes " + k0 + " too";
         return;
       }
     }
     std::vector<LinearForm> outputs(out_.outputs.size());
     for (size_t k = 0; k < outputs.size(); ++k) {
-      if (!Linearize(out_.outputs[k], &outputs[k], &why) || outputs[k].free) {
-        if (why.empty()) why = "reads no amount";
+      if (!Linearize(out_.outputs[k], &outputs[k], &why) || outputs[k].coef.empty() || outputs[k].constant >= 0) {
+        if (why.empty()) {
+          why = outputs[k].coef.empty() ? "reads no amount" : "has a term without an amount (a baseline)";
+        }
         out_.declarations.why_not_linear = "output " + out_.output_names[k] + " " + why;
         return;
       }
+    }
+    // A d/dt's amount-free part is the compartment's zero-order input, a modifier computed like $PK's.
+    for (int c = 0; c < n(); ++c) {
+      const int constant = rows[static_cast<size_t>(c)].constant;
+      if (constant < 0 || IsZero(constant)) continue;
+      out_.modifier_names.push_back("K0_" + std::to_string(c + 1));
+      out_.modifier_roots.push_back(constant);
+      out_.modifier_reads.push_back(ParametersRead(constant));
     }
     for (int c = 0; c < n(); ++c) FormTerms(rows[static_cast<size_t>(c)], c, &out_.a_terms);
     out_.c_terms.assign(outputs.size(), {});
