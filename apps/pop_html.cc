@@ -132,11 +132,11 @@ void Covariates(const PopulationProblem& problem, const PopulationSummary& fit, 
   }
 }
 
-// A subject's prediction curve from time 0 to its last record: at φ (IPRED) or θ (PRED).
-// A model file's η are parameters of its own (ETA_CL): IPRED sets them to η̂; a catalogue model's
-// individual parameters already hold exp(η̂).
-PlotSeries Curve(const PopulationProblem& problem, int subject, const Eigen::VectorXd& values,
-                 const Eigen::VectorXd& eta, const std::string& label) {
+// A subject's prediction curves from time 0 to its last record, one per output (1 = CP): at φ (IPRED)
+// or θ (PRED). A model file's η are parameters of its own (ETA_CL): IPRED sets them to η̂; a
+// catalogue model's individual parameters already hold exp(η̂).
+std::vector<PlotSeries> Curves(const PopulationProblem& problem, int subject, const Eigen::VectorXd& values,
+                               const Eigen::VectorXd& eta, const std::string& label, int outputs) {
   const auto& records = problem.data().subjects[static_cast<size_t>(subject)].records;
   SimulationOptions options;
   options.check_values = false;  // estimates may sit at the edge of their range
@@ -149,37 +149,55 @@ PlotSeries Curve(const PopulationProblem& problem, int subject, const Eigen::Vec
     const int i = model.ParameterIndex(problem.eta_names()[k]);
     if (i >= 0 && model.is_eta(i)) p[problem.eta_names()[k]] = eta(static_cast<Eigen::Index>(k));
   }
-  PlotSeries curve{label, {}, {}};
+  std::vector<PlotSeries> curves(static_cast<size_t>(outputs), PlotSeries{label, {}, {}});
   const SubjectSimulation sim = SimulateSubject(model, problem.data(), subject, p, options);
-  // The central concentration (output 1 of a nonlinear model): an added output time copies its
-  // neighbour's CMT and DVID, which may name a dose compartment or another output.
-  for (const SimulatedRecord& r : sim.rows) {
-    if (r.evid == Evid::kOther) curve.x.push_back(r.time), curve.y.push_back(r.cp);
+  // Each output by its own column (an added output time copies its neighbour's CMT and DVID, which
+  // may name a dose compartment or another output).
+  for (size_t i = 0; i < sim.rows.size(); ++i) {
+    const SimulatedRecord& r = sim.rows[i];
+    if (r.evid != Evid::kOther) continue;
+    for (int k = 0; k < outputs; ++k) {
+      curves[static_cast<size_t>(k)].x.push_back(r.time);
+      curves[static_cast<size_t>(k)].y.push_back(k == 0 ? r.cp : sim.outputs(k, static_cast<Eigen::Index>(i)));
+    }
   }
-  return curve;
+  return curves;
 }
 
-// Each subject's DV with its IPRED and PRED curves, in dataset order (the first kMaxPanels).
+// The outputs the report's subject panels show: those the data observe, up to the model's last.
+int PanelOutputs(const PopulationProblem& problem, const PopulationSummary& fit) {
+  int outputs = 1;
+  for (const PopulationRow& r : fit.rows) outputs = std::max(outputs, r.dvid);
+  return std::min(outputs, std::max(1, problem.model().num_outputs()));
+}
+
+// Each subject's DV with its IPRED and PRED curves, in dataset order (the first kMaxPanels), a panel
+// per observed output.
 list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
   // By the subject's position in the data: an ID that comes back is another subject.
   std::map<int, std::vector<const PopulationRow*>> rows;
   for (const PopulationRow& r : fit.rows) rows[r.subject].push_back(&r);
+  const int outputs = PanelOutputs(problem, fit);
   list panels;
   size_t shown = 0;
   for (const PopulationSubject& s : fit.subjects) {
     if (!s.ok || shown == kMaxPanels) continue;
     if (s.subject < 0 || static_cast<size_t>(s.subject) >= problem.data().subjects.size()) continue;
-    const int index = s.subject;
-    PlotSeries dv{"DV", {}, {}, true};
-    for (const PopulationRow* r : rows[s.subject]) {
-      if (r->censored == 0 && r->dvid <= 1) dv.x.push_back(r->time), dv.y.push_back(r->dv);
-    }
     const Eigen::VectorXd zero = Eigen::VectorXd::Zero(s.eta.size());
-    PlotSeries ipred = Curve(problem, index, s.parameters, s.eta, "IPRED"),
-               pred = Curve(problem, index, fit.parameters.theta, zero, "PRED");
-    dv.colour = kObserved, ipred.colour = kIpred, pred.colour = kPred;
-    panels.push_back(object{{"caption", Text("ID " + FormatNumber(s.id))},
-                            {"svg", RenderSvg({pred, ipred, dv}, Small("", "time", "concentration"))}});
+    std::vector<PlotSeries> ipred = Curves(problem, s.subject, s.parameters, s.eta, "IPRED", outputs),
+                            pred = Curves(problem, s.subject, fit.parameters.theta, zero, "PRED", outputs);
+    for (int k = 1; k <= outputs; ++k) {
+      PlotSeries dv{"DV", {}, {}, true};
+      for (const PopulationRow* r : rows[s.subject]) {
+        if (r->censored == 0 && std::max(r->dvid, 1) == k) dv.x.push_back(r->time), dv.y.push_back(r->dv);
+      }
+      PlotSeries& i = ipred[static_cast<size_t>(k - 1)];
+      PlotSeries& p = pred[static_cast<size_t>(k - 1)];
+      dv.colour = kObserved, i.colour = kIpred, p.colour = kPred;
+      const std::string name = outputs > 1 ? problem.model().output_names()[static_cast<size_t>(k - 1)] : "";
+      panels.push_back(object{{"caption", Text("ID " + FormatNumber(s.id) + (name.empty() ? "" : " · " + name))},
+                              {"svg", RenderSvg({p, i, dv}, Small("", "time", k == 1 ? "concentration" : name))}});
+    }
     ++shown;
   }
   return panels;
@@ -261,11 +279,11 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   page["covariate_plots"] = covariates;
   page["panels"] = Panels(problem, fit);
   const size_t subjects = fit.subjects.size();
-  const bool outputs = std::any_of(fit.rows.begin(), fit.rows.end(), [](const PopulationRow& r) { return r.dvid > 1; });
+  const bool outputs = PanelOutputs(problem, fit) > 1;
   page["panels_note"] = Text((subjects > kMaxPanels ? "The first " + std::to_string(kMaxPanels) + " of " +
                                                           std::to_string(subjects) + " subjects. "
                                                     : "") +
-                             (outputs ? "Output 1 (DVID 1) only." : ""));
+                             (outputs ? "A panel per output the data observe (DVID)." : ""));
   kainjow::mustache::mustache tmpl(PopulationReportTemplate());
   files.insert(files.begin(), {"report.html", tmpl.render(page)});
   return files;

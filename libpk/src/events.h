@@ -142,7 +142,11 @@ class EventEngine {
  public:
   EventEngine(const PreparedSubject& subject, const ParameterLayout& layout, const std::vector<Vec<T>>& sets,
               Visitor* visitor)
-      : s_(subject), layout_(layout), sets_(sets), v_(visitor), n_(layout.num_compartments()) {}
+      : s_(subject), layout_(layout), sets_(sets), v_(visitor), n_(layout.num_compartments()) {
+    for (const Vec<T>& p : sets_) {
+      for (int c = 0; c < n_; ++c) constant_input_ = constant_input_ || !IsExactlyZero(p(layout_.ConstantInput(c)));
+    }
+  }
 
   void Run() {
     const std::vector<Record>& records = s_.records();
@@ -203,6 +207,7 @@ class EventEngine {
 
   // The zero-order inputs K0_<n> of parameter set `set` (endogenous production), always on.
   void AddConstantInput(int set, Vec<T>* u) const {
+    if (!constant_input_) return;
     const Vec<T>& p = sets_[set];
     for (int c = 0; c < n_; ++c) {
       const T& k0 = p(layout_.ConstantInput(c));
@@ -412,6 +417,7 @@ class EventEngine {
   Visitor* v_;
   const int n_;
   Vec<T> rates_;  // AdvanceTo's input rates
+  bool constant_input_ = false;  // some set has a K0_<n> other than 0
   T t_;
   std::vector<Infusion> active_;
   std::vector<Pending> pending_;
