@@ -27,4 +27,13 @@ done
 
 check_screenshot "$work/pheno/report.html"
 
+# Two outputs (1cmt_iv_emax on emax_synthetic: CP and EFFECT, 4 subjects): the goodness-of-fit plots
+# and the subject panels per output.
+"$pkpop" --model 1cmt_iv_emax --data "$root/datasets/emax_synthetic.csv" --eta CL,EMAX --error proportional -q \
+  -o "$work/emax" || fail "pkpop on emax_synthetic"
+browse --dump-dom "file://$work/emax/report.html" >"$work/emax_dom.html"
+[ "$(grep -o "<svg" "$work/emax_dom.html" | wc -l)" -eq $((2 * 5 + 2 * 4)) ] ||
+  fail "two outputs: 10 goodness-of-fit plots and 8 panels, not $(grep -o "<svg" "$work/emax_dom.html" | wc -l)"
+grep -q "ID 3 · EFFECT" "$work/emax_dom.html" || fail "no EFFECT panel for ID 3"
+
 if [ $failures -eq 0 ]; then echo "cli_pop_report: all checks passed ($report_bytes-byte screenshot)"; else exit 1; fi
