@@ -74,6 +74,9 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "threads,j", po::value<int>()->default_value(1), "subjects' inner problems on this many threads")(
       "max-evaluations", po::value<int>()->default_value(1000), "outer objective evaluations, at most")(
       "no-covariance", "skip the covariance step (no standard errors)")(
+      "cov-matrix", po::value<std::string>()->default_value("sandwich"),
+      "the covariance step's matrix, as NONMEM's $COVARIANCE MATRIX=: sandwich (R⁻¹SR⁻¹, the default), r (2R⁻¹) "
+      "or s (4S⁻¹)")(
       "output-dir,o", po::value<std::string>()->default_value("pkpop_out"), "where the results go")(
       "quiet,q", "no progress line and no table on stdout");
   pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
@@ -365,6 +368,8 @@ int Main(int argc, char** argv, const Process& process) {
   options.distribution = process.distribution;
   options.max_iterations = vm["max-evaluations"].as<int>();
   options.covariance = !vm.count("no-covariance");
+  options.covariance_matrix = pk::cli::Parsed(
+      "--cov-matrix", [&] { return pk::ParseCovarianceMatrix(vm["cov-matrix"].as<std::string>()); });
   // --block replaces the blocks a model file's $OMEGA declares (its FIX flags go with them).
   if (a.block.empty()) {
     options.structure = problem.DeclaredStructure();

@@ -251,7 +251,7 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   page["seconds"] = Sig(fit.seconds, 3);
   page["message"] = Text("The outer optimiser ended: " + fit.message + ".");
   page["covariance"] = Text(fit.covariance_message.empty()
-                                ? "the sandwich R⁻¹SR⁻¹, NONMEM's default" +
+                                ? std::string(Describe(fit.covariance_matrix)) +
                                       (fit.covariance_derivatives.empty() ? "" : "; " + fit.covariance_derivatives)
                                 : "none");
   page["estimates"] = Estimates(problem, fit);

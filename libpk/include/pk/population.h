@@ -162,6 +162,20 @@ class SubjectDistribution {
 /// "auto", "implicit" or "fd" (case-insensitive); throws pk::InputError otherwise.
 PopulationGradient ParsePopulationGradient(const std::string& text);
 
+/// The covariance step's matrix, as NONMEM's `$COVARIANCE MATRIX=`: with R = ∇²OFV and
+/// S = Σ_i ∇OFV_i ∇OFV_iᵀ (OFV = −2 log L),
+enum class CovarianceMatrix {
+  kSandwich,  ///< R⁻¹SR⁻¹, NONMEM's default (robust to a misspecified residual error)
+  kR,         ///< 2R⁻¹ (MATRIX=R): the inverse Hessian of −log L
+  kS,         ///< 4S⁻¹ (MATRIX=S): the inverse cross-product of the subjects' scores; needs more
+              ///< subjects than estimated parameters
+};
+const char* ToString(CovarianceMatrix m);
+/// "sandwich R⁻¹SR⁻¹ (NONMEM's default)", "2R⁻¹ (NONMEM's MATRIX=R)" or "4S⁻¹ (NONMEM's MATRIX=S)".
+const char* Describe(CovarianceMatrix m);
+/// "sandwich", "r" or "s" (case-insensitive); throws pk::InputError otherwise.
+CovarianceMatrix ParseCovarianceMatrix(const std::string& text);
+
 struct PopulationOptions {
   PopulationMethod method = PopulationMethod::kFocei;
   PopulationGradient gradient = PopulationGradient::kAuto;
@@ -173,6 +187,7 @@ struct PopulationOptions {
   /// Subjects split across processes (pk/mpi.h), each process using `threads`; null: all here.
   std::shared_ptr<const SubjectDistribution> distribution;
   bool covariance = true;               ///< run the covariance step
+  CovarianceMatrix covariance_matrix = CovarianceMatrix::kSandwich;
   /// Called after each outer evaluation that improves the OFV (for a progress line); may be empty.
   std::function<void(int evaluation, double ofv, double gradient_norm)> progress;
 
@@ -261,8 +276,10 @@ struct PopulationSummary {
 
   PopulationParameters parameters;
   std::vector<PopulationEstimate> estimates;  ///< θ, then Ω's lower triangle by blocks, then σ
-  /// Covariance of the estimated ones (natural scale), the sandwich R⁻¹SR⁻¹ (NONMEM's default).
+  /// Covariance of the estimated ones (natural scale): the sandwich R⁻¹SR⁻¹ (NONMEM's default),
+  /// or 2R⁻¹ or 4S⁻¹ (PopulationOptions::covariance_matrix).
   Eigen::MatrixXd covariance;
+  CovarianceMatrix covariance_matrix = CovarianceMatrix::kSandwich;
   Eigen::MatrixXd correlation;
   /// Of the estimates' correlation matrix, largest over smallest eigenvalue (as NONMEM prints it).
   double condition_number = std::numeric_limits<double>::quiet_NaN();

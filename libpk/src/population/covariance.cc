@@ -65,7 +65,8 @@ struct Differences {
 
 // R (p×p) and the per-subject gradients G (n×p) over the estimated natural parameters `est`, by
 // central differences of the OFV. False, with *why, where the OFV cannot be evaluated.
-bool FromOfvDifferences(const Differences& diff, const std::vector<int>& est, const Eigen::VectorXd& h,
+// Without `need_r` (MATRIX=S) only G, from the ± evaluations.
+bool FromOfvDifferences(const Differences& diff, const std::vector<int>& est, const Eigen::VectorXd& h, bool need_r,
                         Eigen::MatrixXd* r, Eigen::MatrixXd* g, std::string* why) {
   const int p = static_cast<int>(est.size());
   PopulationEngine::Result centre, plus, minus, pp, pm, mp, mm;
@@ -73,7 +74,7 @@ bool FromOfvDifferences(const Differences& diff, const std::vector<int>& est, co
     *why = "the OFV cannot be evaluated at the estimate";
     return false;
   }
-  r->resize(p, p);
+  r->setZero(p, p);
   g->resize(centre.per_subject.size(), p);
   auto shifted = [&](int a, double sa, int b, double sb) {
     Eigen::VectorXd z = diff.z0;
@@ -90,7 +91,7 @@ bool FromOfvDifferences(const Differences& diff, const std::vector<int>& est, co
     }
     (*r)(a, a) = (plus.ofv - 2 * centre.ofv + minus.ofv) / (h(a) * h(a));
     g->col(a) = (plus.per_subject - minus.per_subject) / (2 * h(a));
-    for (int b = 0; b < a; ++b) {
+    for (int b = 0; b < a && need_r; ++b) {
       if (!diff.At(shifted(a, 1, b, 1), &pp) || !diff.At(shifted(a, 1, b, -1), &pm) ||
           !diff.At(shifted(a, -1, b, 1), &mp) || !diff.At(shifted(a, -1, b, -1), &mm)) {
         *why = "the OFV cannot be evaluated next to the estimate";
@@ -149,13 +150,13 @@ bool ExactGradient(const Differences& diff, const Eigen::VectorXd& z, const std:
 
 // R and G as FromOfvDifferences gives them, from the exact gradient: R's column a is the central
 // difference of ∇_z OFV along z_a, symmetrised.
-bool FromExactGradient(const Differences& diff, const std::vector<int>& est, const Eigen::VectorXd& h,
+bool FromExactGradient(const Differences& diff, const std::vector<int>& est, const Eigen::VectorXd& h, bool need_r,
                        Eigen::MatrixXd* r, Eigen::MatrixXd* g, std::string* why) {
   const int p = static_cast<int>(est.size());
   Eigen::VectorXd centre, plus, minus;
   if (!ExactGradient(diff, diff.z0, est, &centre, g, why)) return false;
-  r->resize(p, p);
-  for (int a = 0; a < p; ++a) {
+  r->setZero(p, p);
+  for (int a = 0; a < p && need_r; ++a) {
     Eigen::VectorXd up = diff.z0, down = diff.z0;
     up(est[a]) += h(a);
     down(est[a]) -= h(a);
@@ -170,11 +171,36 @@ bool FromExactGradient(const Differences& diff, const std::vector<int>& est, con
   return true;
 }
 
+// The covariance from R and S as NONMEM's MATRIX= asks: R⁻¹SR⁻¹, 2R⁻¹ or 4S⁻¹ (on the
+// log-likelihood scale R_LL = R/2, S_LL = S/4: R_LL⁻¹, S_LL⁻¹ and the sandwich of the two).
+bool Combine(CovarianceMatrix matrix, const Eigen::MatrixXd& r, const Eigen::MatrixXd& s, Eigen::MatrixXd* cov,
+             std::string* why) {
+  const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(r.rows(), r.cols());
+  if (matrix == CovarianceMatrix::kS) {
+    Eigen::LLT<Eigen::MatrixXd> llt(s);
+    if (llt.info() != Eigen::Success) {
+      *why = "the S matrix (cross-product of the subjects' gradients) is singular at the estimate: it has rank at "
+             "most the number of subjects";
+      return false;
+    }
+    *cov = 4 * llt.solve(identity);
+    return true;
+  }
+  Eigen::LLT<Eigen::MatrixXd> llt(r);
+  if (llt.info() != Eigen::Success) {
+    *why = "the R matrix (Hessian of the OFV) is not positive definite at the estimate";
+    return false;
+  }
+  const Eigen::MatrixXd r_inv = llt.solve(identity);
+  *cov = matrix == CovarianceMatrix::kR ? Eigen::MatrixXd(2 * r_inv) : Eigen::MatrixXd(r_inv * s * r_inv);
+  return true;
+}
+
 }  // namespace
 
 void PopulationCovariance(const PopulationEngine& engine, const Packing& packing,
                           const std::vector<Eigen::VectorXd>& starts, bool exact_gradient,
-                          PopulationSummary* summary) {
+                          CovarianceMatrix matrix, PopulationSummary* summary) {
   std::vector<int> est;
   for (size_t k = 0; k < packing.natural_fixed().size(); ++k) {
     if (!packing.natural_fixed()[k]) est.push_back(static_cast<int>(k));
@@ -187,23 +213,22 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
   for (int a = 0; a < p; ++a) h(a) = step * std::max(std::abs(diff.z0(est[a])), 0.01);
   Eigen::MatrixXd r, g;
   std::string why;
-  const bool formed = exact_gradient ? FromExactGradient(diff, est, h, &r, &g, &why)
-                                     : FromOfvDifferences(diff, est, h, &r, &g, &why);
+  const bool need_r = matrix != CovarianceMatrix::kS;
+  const bool formed = exact_gradient ? FromExactGradient(diff, est, h, need_r, &r, &g, &why)
+                                     : FromOfvDifferences(diff, est, h, need_r, &r, &g, &why);
   if (!formed) {
     summary->covariance_message = why;
     return;
   }
-  summary->covariance_derivatives = exact_gradient
-                                        ? "R from central differences of the exact gradient, S from exact per-subject gradients"
-                                        : "R and S from central differences of the OFV";
-  Eigen::LLT<Eigen::MatrixXd> llt(r);
-  if (llt.info() != Eigen::Success) {
-    summary->covariance_message = "the R matrix (Hessian of the OFV) is not positive definite at the estimate";
-    return;
-  }
-  const Eigen::MatrixXd r_inv = llt.solve(Eigen::MatrixXd::Identity(p, p));
-  const Eigen::MatrixXd s = g.transpose() * g;
-  summary->covariance = r_inv * s * r_inv;
+  const std::string r_from = exact_gradient ? "R from central differences of the exact gradient"
+                                            : "R from central differences of the OFV";
+  const std::string s_from = exact_gradient ? "S from exact per-subject gradients"
+                                            : "S from central differences of each subject's OFV";
+  summary->covariance_derivatives = matrix == CovarianceMatrix::kR   ? r_from
+                                    : matrix == CovarianceMatrix::kS ? s_from
+                                                                     : r_from + ", " + s_from;
+  summary->covariance_matrix = matrix;
+  if (!Combine(matrix, r, g.transpose() * g, &summary->covariance, &summary->covariance_message)) return;
   const Eigen::VectorXd se = summary->covariance.diagonal().cwiseMax(0).cwiseSqrt();
   summary->correlation = se.cwiseInverse().asDiagonal() * summary->covariance * se.cwiseInverse().asDiagonal();
   Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(summary->correlation, Eigen::EigenvaluesOnly);

@@ -77,9 +77,9 @@ class PopulationEngine {
 /// parameters, S = Σ_i ∇OFV_i ∇OFV_iᵀ, and the sandwich R⁻¹SR⁻¹; SEs, RSE%, correlations and the
 /// condition number into `summary`. With `exact_gradient` (FOCE, FOCEI) S is formed from the exact
 /// per-subject gradients and R from central differences of the exact gradient; otherwise both
-/// from central differences of the OFV.
+/// from central differences of the OFV. `matrix` chooses R⁻¹SR⁻¹, 2R⁻¹ or 4S⁻¹ (NONMEM's MATRIX=).
 void PopulationCovariance(const PopulationEngine& engine, const Packing& packing,
-                          const std::vector<Eigen::VectorXd>& starts, bool exact_gradient,
+                          const std::vector<Eigen::VectorXd>& starts, bool exact_gradient, CovarianceMatrix matrix,
                           PopulationSummary* summary);
 
 /// PRED, IPRED, RES, WRES, CWRES and IWRES per sample, and the shrinkages (diagnostics.cc).

@@ -417,7 +417,8 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
     eta = internal::Etas(final_eval.modes, initial.omega.rows());
     internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
     if (options.covariance) {
-      internal::PopulationCovariance(engine, packing, eta, internal::UsesImplicitGradient(options), &summary);
+      internal::PopulationCovariance(engine, packing, eta, internal::UsesImplicitGradient(options),
+                                     options.covariance_matrix, &summary);
     }
   }
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -31,6 +31,32 @@ PopulationMethod ParsePopulationMethod(const std::string& text) {
   throw InputError("unknown population method '" + text + "': expected foce, focei or laplace");
 }
 
+const char* ToString(CovarianceMatrix m) {
+  switch (m) {
+    case CovarianceMatrix::kSandwich: return "sandwich";
+    case CovarianceMatrix::kR: return "r";
+    case CovarianceMatrix::kS: return "s";
+  }
+  return "";
+}
+
+const char* Describe(CovarianceMatrix m) {
+  switch (m) {
+    case CovarianceMatrix::kSandwich: return "sandwich R⁻¹SR⁻¹ (NONMEM's default)";
+    case CovarianceMatrix::kR: return "2R⁻¹ (NONMEM's MATRIX=R)";
+    case CovarianceMatrix::kS: return "4S⁻¹ (NONMEM's MATRIX=S)";
+  }
+  return "";
+}
+
+CovarianceMatrix ParseCovarianceMatrix(const std::string& text) {
+  const std::string t = internal::ToUpper(text);
+  if (t == "SANDWICH") return CovarianceMatrix::kSandwich;
+  if (t == "R") return CovarianceMatrix::kR;
+  if (t == "S") return CovarianceMatrix::kS;
+  throw InputError("unknown covariance matrix '" + text + "': expected sandwich (R⁻¹SR⁻¹), r (2R⁻¹) or s (4S⁻¹)");
+}
+
 PopulationGradient ParsePopulationGradient(const std::string& text) {
   const std::string t = internal::ToUpper(text);
   if (t == "AUTO") return PopulationGradient::kAuto;

@@ -82,7 +82,7 @@ std::string PopulationSummary::FullReport() const {
   }
   if (!covariance_message.empty()) out << "  no standard errors: " << covariance_message << "\n";
   if (covariance.size()) {
-    out << "  covariance: sandwich R⁻¹SR⁻¹ (NONMEM's default); condition number "
+    out << "  covariance: " << Describe(covariance_matrix) << "; condition number "
         << internal::Num(condition_number, "%.4g") << "\n";
     if (!covariance_derivatives.empty()) out << "  (" << covariance_derivatives << ")\n";
     for (const std::string& w : CovarianceWarnings()) out << "  warning: " << w << "\n";
