@@ -1,7 +1,10 @@
 #include "pk/simulation_csv.h"
 
 #include <algorithm>
+#include <array>
+#include <cstring>
 #include <stdexcept>
+#include <vector>
 
 #include "../internal_text.h"
 #include "pk/error.h"
@@ -10,6 +13,38 @@
 namespace pk {
 
 namespace {
+
+// Each row's TIME text, kept from one subject to the next on this thread: subjects share their
+// output grid, and a number's shortest digits cost several times their copy. A row whose time has
+// the cached bits takes the cached text; any other is written and cached.
+class TimeTexts {
+ public:
+  char* Write(size_t row, double time, char* p) {
+    if (row < times_.size() && std::memcmp(&times_[row], &time, sizeof time) == 0) {
+      return std::copy_n(texts_[row].data(), sizes_[row], p);
+    }
+    char* end = internal::WriteNumber(time, p);
+    if (end - p > 24) return end;  // never: a number's text has at most 24 characters
+    if (row >= times_.size()) {
+      times_.resize(row + 1);
+      texts_.resize(row + 1);
+      sizes_.resize(row + 1);
+    }
+    times_[row] = time;
+    sizes_[row] = static_cast<unsigned char>(end - p);
+    std::copy(p, end, texts_[row].data());
+    return end;
+  }
+  static TimeTexts& ForThisThread() {
+    thread_local TimeTexts texts;
+    return texts;
+  }
+
+ private:
+  std::vector<double> times_;
+  std::vector<std::array<char, 24>> texts_;
+  std::vector<unsigned char> sizes_;
+};
 
 // Whether `s` has rows to write; throws when its amounts and outputs lack a column per row.
 bool HasRows(const SubjectSimulation& s, const char* who) {
@@ -41,12 +76,13 @@ void AppendSimulationCsv(const SubjectSimulation& s, std::string* out) {
   const size_t start = out->size();
   out->resize(start + s.rows.size() * longest + 48);  // WriteNumber's room past the last number
   char* p = &(*out)[start];
+  TimeTexts& times = TimeTexts::ForThisThread();
   for (size_t i = 0; i < s.rows.size(); ++i) {
     const SimulatedRecord& r = s.rows[i];
     const auto col = static_cast<Eigen::Index>(i);
     p = std::copy(id, id + id_size, p);
     *p++ = ',';
-    p = internal::WriteNumber(r.time, p);
+    p = times.Write(i, r.time, p);
     p = std::copy_n(r.evid == Evid::kObservation ? ",0," : ",2,", 3, p);
     p = internal::WriteNumber(r.cp, p);
     for (Eigen::Index k = 1; k <= outputs; ++k) {
@@ -118,6 +154,7 @@ void SimulationColumns::Append(const SubjectSimulation& s, std::string* out) con
   const size_t start = out->size();
   out->resize(start + s.rows.size() * longest + 48);  // WriteNumber's room past the last number
   char* p = &(*out)[start];
+  TimeTexts& times = TimeTexts::ForThisThread();
   for (size_t i = 0; i < s.rows.size(); ++i) {
     const SimulatedRecord& r = s.rows[i];
     const auto col = static_cast<Eigen::Index>(i);
@@ -126,7 +163,7 @@ void SimulationColumns::Append(const SubjectSimulation& s, std::string* out) con
       const Column& c = columns_[k];
       switch (c.kind) {
         case Kind::kId: p = std::copy(id, id + id_size, p); break;
-        case Kind::kTime: p = internal::WriteNumber(r.time, p); break;
+        case Kind::kTime: p = times.Write(i, r.time, p); break;
         case Kind::kEvid: *p++ = r.evid == Evid::kObservation ? '0' : '2'; break;
         case Kind::kCp: p = internal::WriteNumber(r.cp, p); break;
         case Kind::kOutput: p = internal::WriteNumber(s.outputs(c.index, col), p); break;
