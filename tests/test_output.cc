@@ -242,6 +242,32 @@ TEST_CASE("a plot of values equal to the last digits has an axis (it looped unti
   }
 }
 
+TEST_CASE("the simulation CSV's TIME is each row's own, whatever the subjects before it wrote", "[output]") {
+  // Rows' TIME texts are kept between subjects (a shared grid); subjects whose grids differ, partly or
+  // in length, and −0 against 0, must still write their own times.
+  const auto model = pk::MakeModel("1cmt_iv");
+  const char* grids[] = {"0,0.5,1,2", "0,0.5,1.5,2,3", "-0,0.5", "0,0.5,1,2"};
+  for (const char* grid : grids) {
+    std::string csv = "ID,TIME,AMT,EVID\n";
+    std::stringstream times(grid);
+    for (std::string t; std::getline(times, t, ',');) csv += "1," + t + ",0,2\n";
+    const auto data = pk::ParseDataset(csv, "grid.csv");
+    const pk::SubjectSimulation sim = pk::SimulateSubject(*model, data, 0, {});
+    REQUIRE(sim.ok);
+    std::string all, chosen;
+    pk::AppendSimulationCsv(sim, &all);
+    pk::SimulationColumns(*model, "TIME").Append(sim, &chosen);
+    std::string want_all, want_chosen;
+    for (const pk::SimulatedRecord& r : sim.rows) {
+      want_chosen += pk::FormatNumber(r.time) + "\n";
+      want_all += "1," + pk::FormatNumber(r.time) + ",2," + pk::FormatNumber(r.cp) + ",0\n";
+    }
+    INFO(grid);
+    CHECK(chosen == want_chosen);
+    CHECK(all == want_all);
+  }
+}
+
 TEST_CASE("pksim's --columns: the chosen columns of the full CSV, in the chosen order", "[output]") {
   const auto data = pk::ParseDataset("ID,TIME,AMT,DV\n7,0,100,.\n7,0.5,0,1\n7,2,0,1\n7,7.25,0,1\n", "cols.csv");
   const auto model = pk::MakeModel("2cmt_oral");
