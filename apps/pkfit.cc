@@ -68,7 +68,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
   desc->add_options()("help,h", "show this help")("version", "print the version of libpk and exit")("model,m", po::value<std::string>(), "catalogue model, or a model file FILE.pkm (docs/model_language.md)")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "init", po::value<std::vector<std::string>>(&a->init)->composing(),
-      "NAME=VALUE: initial value; the parameter is estimated (also F1, ALAG1, R1, D1). 'auto': print the "
+      "NAME=VALUE: initial value; the parameter is estimated (also F1, ALAG1, R1, D1, X0_1, K0_1). 'auto': print the "
       "starting values computed from the data (the default for parameters without --init)")(
       "catalogue-init", "start from the catalogue defaults instead of values computed from the data")(
       "init-from", po::value<std::string>(),

@@ -111,7 +111,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "model,m", po::value<std::string>(), "catalogue model, e.g. 2cmt_oral, or a model file FILE.pkm")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
       "param,p", po::value<std::vector<std::string>>(&a->params)->composing(),
-      "NAME=VALUE for a model parameter or dose modifier (F1, ALAG1, R1, D1); repeatable")(
+      "NAME=VALUE for a model parameter or dose modifier (F1, ALAG1, R1, D1, X0_1, K0_1); repeatable")(
       "estimates", po::value<std::string>(),
       "per-subject parameters from a table with columns ID, PARAMETER, ESTIMATE (pkfit's estimates.csv); "
       "--param overrides them. With --data each ID takes its own; with a regimen, every ID in the table gets it")(

@@ -4,6 +4,7 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <fstream>
 #include <iterator>
 #include <map>
@@ -614,8 +615,9 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
           "[model_file][gradient]") {
   // The shipped turnover.pkm, d/dt(A) = KIN − KOUT·A from the baseline X0_1 = KIN/KOUT, against the
   // same turnover with the exogenous part as the state and the baseline in the output (which keeps
-  // it on the ODE route), at rtol 1e-12. Every event type but a reset (which empties the amount
-  // itself, not its exogenous part).
+  // it on the ODE route), at rtol 1e-12, on every event type (a reset record sets X0_1 again, as
+  // NONMEM's A_0, which is where the exogenous form's reset leaves it) but the one that gives X0_1
+  // (computed here).
   const auto model = pk::LoadModelFile(ModelPath("turnover"));
   INFO(pk::WhyNotLinear(*model));
   REQUIRE(dynamic_cast<const pk::LinearModel*>(model.get()) != nullptr);
@@ -630,7 +632,7 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
   REQUIRE(dynamic_cast<const pk::OdeModel*>(exogenous.get()) != nullptr);
   CHECK_THAT(pk::WhyNotLinear(*exogenous), Catch::Contains("output CP has a term without an amount"));
   for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
-    if (std::string(sc.name).find("reset") != std::string::npos || std::string(sc.name) == "initial state") continue;
+    if (std::string(sc.name) == "initial state") continue;
     INFO(sc.name);
     const auto data = pk_test::ScenarioData(sc);
     pk::ObjectiveOptions exact;
@@ -666,14 +668,27 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
       CHECK(MaxRel(got.gradient, fd) < 1e-6);
     }
   }
-  // Both a term without an amount and a K0_1 of $PK: one input would hide the other, so the ODE
-  // route takes the equations as written.
+  // Both a term without an amount and a K0_1 of $PK, or a d/dt that reads K0_1: the event engine
+  // adds K0_1 whatever the equations say, so the input would count twice. Errors at the d/dt.
   std::ifstream in(ModelPath("turnover"));
-  std::string both((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string shipped((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const int ode_line = 1 + static_cast<int>(std::count(shipped.begin(), shipped.begin() + shipped.find("d/dt(A)"), '\n'));
+  std::string both = shipped;
   both.insert(both.find("$ODE"), "K0_1 = 2\n");
-  const auto twice = pk::ParseModel(both, "both.pkm");
-  CHECK(dynamic_cast<const pk::OdeModel*>(twice.get()) != nullptr);
-  CHECK_THAT(pk::WhyNotLinear(*twice), Catch::Contains("$PK computes K0_1 too"));
+  std::string reads = shipped;
+  reads.insert(reads.find("$ODE"), "K0_1 = KIN\n");
+  reads.replace(reads.find("KIN - KOUT * A"), 14, "K0_1 - KOUT * A");
+  for (const std::string& text : {both, reads}) {
+    try {
+      pk::ParseModel(text, "twice.pkm");
+      FAIL("an input counted twice was accepted");
+    } catch (const pk::InputError& e) {
+      CHECK(e.file() == "twice.pkm");
+      CHECK(e.line() == ode_line + 1);  // the d/dt, one line down for the inserted definition
+      CHECK(e.column() > 0);
+      CHECK_THAT(e.message(), Catch::Contains("would count twice"));
+    }
+  }
 }
 
 namespace {

@@ -152,12 +152,7 @@ class EventEngine {
     const std::vector<Record>& records = s_.records();
     if (records.empty()) return;
     t_ = T(records[0].time);
-    // Initial amounts (X0_<n>) enter at the first record, as jumps of the state.
-    const Vec<T>& first = sets_[s_.set_of_record[0]];
-    for (int c = 0; c < n_; ++c) {
-      const T& x0 = first(layout_.InitialState(c));
-      if (!IsExactlyZero(x0)) v_->Bolus(c, x0, s_.set_of_record[0]);
-    }
+    InitialState(s_.set_of_record[0]);
     for (int r = 0; r < static_cast<int>(records.size()); ++r) {
       const Record& rec = records[r];
       const int set = s_.set_of_record[r];
@@ -203,6 +198,17 @@ class EventEngine {
       v_->Advance(h, rates_, set);
     }
     t_ = t;
+  }
+
+  // Initial amounts (X0_<n>) as jumps of the state: at the first record and after a reset record
+  // (EVID 3 or 4), where NONMEM's PREDPP sets A_0FLG and applies A_0 again. A steady-state dose
+  // (SS=1) starts from zero, as NONMEM's ignores A_0.
+  void InitialState(int set) {
+    const Vec<T>& p = sets_[set];
+    for (int c = 0; c < n_; ++c) {
+      const T& x0 = p(layout_.InitialState(c));
+      if (!IsExactlyZero(x0)) v_->Bolus(c, x0, set);
+    }
   }
 
   // The zero-order inputs K0_<n> of parameter set `set` (endogenous production), always on.
@@ -273,9 +279,11 @@ class EventEngine {
     switch (rec.evid) {
       case Evid::kReset:
         Reset();
+        InitialState(set);
         break;
       case Evid::kResetDose:
         Reset();
+        InitialState(set);
         Dose(r, set);
         break;
       case Evid::kDose:

@@ -96,7 +96,8 @@ std::string ParameterUnit(const std::string& raw, const Units& units) {
   if (Numbered(name, "CL") || Numbered(name, "Q")) return Per(volume, units.time);
   if (name == "KA" || name == "KE0" || Numbered(name, "K") || StartsWith(name, "LAMBDA")) return per_time;
   if (Numbered(name, "ALAG") || Numbered(name, "D") || name == "MTT" || StartsWith(name, "THALF")) return units.time;
-  if (Numbered(name, "R")) return Per(units.amount, units.time);
+  if (Numbered(name, "R") || Numbered(name, "K0_")) return Per(units.amount, units.time);
+  if (Numbered(name, "X0_")) return units.amount;
   return "";
 }
 

@@ -146,5 +146,9 @@ head -1 "$work/pm_exact.csv" | grep -qx "ID,TIME,CP,CPM" || fail "parent_metabol
 awk -F, 'NR == FNR { cpm[FNR] = $4; next } FNR > 2 { d = $4 - cpm[FNR]; if (d < 0) d = -d; if (d > 1e-8 * $4) bad = 1 }
          END { exit bad }' "$work/pm_exact.csv" "$work/pm_ode.csv" || fail "parent_metabolite.pkm: CPM exact against CVODES"
 [ "$(wc -l <"$work/pm_exact.csv")" -eq 8 ] || fail "parent_metabolite.pkm: 7 output times"
+# A STEP equal to the range, which rounding makes a little longer (0.3 − 0.1 < 0.2): two times.
+"$pksim" --model 1cmt_iv --dose 100 --times 0.1:0.2:0.3 --columns TIME >"$work/two_times.csv" 2>/dev/null ||
+  fail "--times 0.1:0.2:0.3 refused"
+[ "$(tr '\n' ' ' <"$work/two_times.csv")" = "TIME 0.1 0.3 " ] || fail "--times 0.1:0.2:0.3: $(cat "$work/two_times.csv")"
 
 if [ $failures -eq 0 ]; then echo "cli_pksim: all checks passed"; else exit 1; fi

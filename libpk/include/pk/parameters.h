@@ -11,7 +11,8 @@
 //   R<n>     infusion rate, used by doses with RATE=-1                 no default
 //   D<n>     infusion duration, used by doses with RATE=-2             no default
 //   X0_<n>   initial amount in compartment n at the subject's first    default 0
-//            record (like NONMEM's A_0(n)); a reset (EVID 3/4, SS=1) empties it
+//            record and after a reset record (EVID 3/4), as NONMEM's A_0(n);
+//            a steady-state dose (SS=1) starts from zero
 //   K0_<n>   a constant zero-order input into compartment n, always    default 0
 //            on (endogenous production: amount per time, any sign), added
 //            to the doses' infusion rates; a steady state (SS=1) includes it

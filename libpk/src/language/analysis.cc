@@ -299,7 +299,13 @@ class Analyser {
         eta_used_[static_cast<size_t>(s.index)] = true;
         if (bind_etas_) return Input(n() + eta_input_[static_cast<size_t>(s.index)], src);
         return Constant(0.0, src);  // an individual model: η = 0
-      case SymbolKind::kDefinition: return ResolveDefinition(s.index, src);
+      case SymbolKind::kDefinition:
+        if (ModifierName(src.name).first == "K0_" && context.compare(0, 5, "d/dt(") == 0) {
+          Fail(src, context + " reads " + src.name + ", the zero-order input the event engine adds to compartment " +
+                        std::to_string(ModifierName(src.name).second) + " at all times: it would count twice; write "
+                        "the input in d/dt or compute " + src.name + " in $PK, not both");
+        }
+        return ResolveDefinition(s.index, src);
       case SymbolKind::kModifier:
         Fail(src, src.name + " is a dose modifier, which the event engine applies to doses; an expression cannot "
                              "read it");
@@ -855,10 +861,13 @@ class Analyser {
         return;
       }
       const std::string k0 = "K0_" + std::to_string(c + 1);
-      if (rows[static_cast<size_t>(c)].constant >= 0 &&
+      const int constant = rows[static_cast<size_t>(c)].constant;
+      if (constant >= 0 && !IsZero(constant) &&
           std::find(out_.modifier_names.begin(), out_.modifier_names.end(), k0) != out_.modifier_names.end()) {
-        out_.declarations.why_not_linear = what + "has a term without an amount, and $PK computes " + k0 + " too";
-        return;
+        Fail(g_[static_cast<size_t>(out_.rhs[static_cast<size_t>(c)])],
+             what + "has a term without an amount, which is compartment " + std::to_string(c + 1) +
+                 "'s zero-order input, and $PK computes " + k0 + ", which the event engine adds too: the input "
+                 "would count twice; keep one");
       }
     }
     std::vector<LinearForm> outputs(out_.outputs.size());

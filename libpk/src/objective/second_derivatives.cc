@@ -28,7 +28,7 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
     const std::vector<int>& computed = d.layout.computed_reads();
     if (std::binary_search(computed.begin(), computed.end(), i)) {
       *why = "exact second derivatives do not follow a computed dose modifier (" + d.layout.name(i) +
-             " is read by F, ALAG, R, D or X0 in $PK)";
+             " is read by an F, ALAG, R, D or X0 of $PK, or by a zero-order input K0 of d/dt)";
       return false;
     }
   }

@@ -138,13 +138,24 @@ bool ExactGradient(const Differences& diff, const Eigen::VectorXd& z, const std:
   }
   Eigen::VectorXd gx;
   Eigen::MatrixXd gx_subjects;
+  PopulationEngine::Differenced differenced;
   if (!diff.engine.Gradient(diff.packing, diff.packing.Pack(p), r.modes, &gx, per_subject ? &gx_subjects : nullptr,
-                            why)) {
+                            why, &differenced)) {
+    return false;
+  }
+  // A subject's second order differenced (a steady state on the ODE propagator) leaves the gradient
+  // off by 1e-4 or so: too coarse to difference again.
+  if (differenced.subjects > 0) {
+    *why = "a subject's second-order sensitivities were differences (" + differenced.reason + ")";
     return false;
   }
   const Eigen::MatrixXd d = PackingJacobian(diff.packing, z, est);
   *gradient = d.transpose() * gx;
   if (per_subject) *per_subject = gx_subjects * d;
+  if (!gradient->allFinite() || (per_subject && !per_subject->allFinite())) {
+    *why = "the gradient is not finite (a step across a bound of θ?)";
+    return false;
+  }
   return true;
 }
 
@@ -177,8 +188,11 @@ bool Combine(CovarianceMatrix matrix, const Eigen::MatrixXd& r, const Eigen::Mat
              std::string* why) {
   const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(r.rows(), r.cols());
   if (matrix == CovarianceMatrix::kS) {
+    // S = GᵀG has rank at most the number of subjects; rounding may leave a singular one a tiny
+    // positive pivot, so a pivot below 1e-12 of the largest is singular too.
     Eigen::LLT<Eigen::MatrixXd> llt(s);
-    if (llt.info() != Eigen::Success) {
+    const Eigen::VectorXd pivots = llt.matrixLLT().diagonal().cwiseAbs2();
+    if (llt.info() != Eigen::Success || !(pivots.minCoeff() > 1e-12 * pivots.maxCoeff())) {
       *why = "the S matrix (cross-product of the subjects' gradients) is singular at the estimate: it has rank at "
              "most the number of subjects";
       return false;
@@ -214,9 +228,14 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
   Eigen::MatrixXd r, g;
   std::string why;
   const bool need_r = matrix != CovarianceMatrix::kS;
-  const bool formed = exact_gradient ? FromExactGradient(diff, est, h, need_r, &r, &g, &why)
-                                     : FromOfvDifferences(diff, est, h, need_r, &r, &g, &why);
-  if (!formed) {
+  // Where the exact gradient cannot serve (a subject's second order differenced, a gradient that
+  // fails), the OFV's differences, as NONMEM forms them, at their own step.
+  if (exact_gradient && !FromExactGradient(diff, est, h, need_r, &r, &g, &why)) {
+    exact_gradient = false;
+    const double ofv_step = RelativeStep(engine, false);
+    for (int a = 0; a < p; ++a) h(a) = ofv_step * std::max(std::abs(diff.z0(est[a])), 0.01);
+  }
+  if (!exact_gradient && !FromOfvDifferences(diff, est, h, need_r, &r, &g, &why)) {
     summary->covariance_message = why;
     return;
   }
