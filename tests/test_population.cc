@@ -1333,4 +1333,14 @@ TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the 
   const pk::PopulationSummary asked = pk::FitPopulation(problem, p, options);
   INFO(asked.gradient);
   CHECK_THAT(asked.gradient, Catch::Contains("some subjects' second derivatives were differences"));
+  // The covariance step does not difference such a gradient again: it takes the OFV's differences.
+  const pk::internal::Packing packing(problem, options.structure, fit.parameters);
+  const pk::internal::PopulationEngine engine(problem, pk::PopulationMethod::kFocei, 1);
+  std::vector<Eigen::VectorXd> etas;
+  for (const pk::PopulationSubject& subject : fit.subjects) etas.push_back(subject.eta);
+  pk::PopulationSummary with = fit;
+  pk::internal::PopulationCovariance(engine, packing, etas, true, pk::CovarianceMatrix::kSandwich, &with);
+  INFO(with.covariance_message);
+  CHECK(with.covariance_derivatives == "R from central differences of the OFV, S from central differences of each "
+                                       "subject's OFV");
 }
