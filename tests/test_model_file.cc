@@ -678,13 +678,15 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
   std::string reads = shipped;
   reads.insert(reads.find("$ODE"), "K0_1 = KIN\n");
   reads.replace(reads.find("KIN - KOUT * A"), 14, "K0_1 - KOUT * A");
-  for (const std::string& text : {both, reads}) {
+  std::string declared = shipped;
+  declared.insert(declared.find("$CMT"), "K0_1 = 2\n");
+  for (const std::string& text : {both, reads, declared}) {
     try {
       pk::ParseModel(text, "twice.pkm");
       FAIL("an input counted twice was accepted");
     } catch (const pk::InputError& e) {
       CHECK(e.file() == "twice.pkm");
-      CHECK(e.line() == ode_line + 1);  // the d/dt, one line down for the inserted definition
+      CHECK(e.line() == ode_line + 1);  // the d/dt, one line down for the inserted line
       CHECK(e.column() > 0);
       CHECK_THAT(e.message(), Catch::Contains("would count twice"));
     }

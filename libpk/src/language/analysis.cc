@@ -862,12 +862,17 @@ class Analyser {
       }
       const std::string k0 = "K0_" + std::to_string(c + 1);
       const int constant = rows[static_cast<size_t>(c)].constant;
+      const auto& declared = out_.declarations.modifiers;
+      const bool in_param = std::any_of(declared.begin(), declared.end(), [&](const DeclaredParameter& m) {
+        return m.name == k0;
+      });
       if (constant >= 0 && !IsZero(constant) &&
-          std::find(out_.modifier_names.begin(), out_.modifier_names.end(), k0) != out_.modifier_names.end()) {
+          (in_param ||
+           std::find(out_.modifier_names.begin(), out_.modifier_names.end(), k0) != out_.modifier_names.end())) {
         Fail(g_[static_cast<size_t>(out_.rhs[static_cast<size_t>(c)])],
              what + "has a term without an amount, which is compartment " + std::to_string(c + 1) +
-                 "'s zero-order input, and $PK computes " + k0 + ", which the event engine adds too: the input "
-                 "would count twice; keep one");
+                 "'s zero-order input, and " + (in_param ? "$PARAM declares " : "$PK computes ") + k0 +
+                 ", which the event engine adds too: the input would count twice; keep one");
       }
     }
     std::vector<LinearForm> outputs(out_.outputs.size());
