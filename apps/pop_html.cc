@@ -186,6 +186,7 @@ list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
     const Eigen::VectorXd zero = Eigen::VectorXd::Zero(s.eta.size());
     std::vector<PlotSeries> ipred = Curves(problem, s.subject, s.parameters, s.eta, "IPRED", outputs),
                             pred = Curves(problem, s.subject, fit.parameters.theta, zero, "PRED", outputs);
+    list figures;  // side by side, a subject's outputs stay on one row
     for (int k = 1; k <= outputs; ++k) {
       PlotSeries dv{"DV", {}, {}, true};
       for (const PopulationRow* r : rows[s.subject]) {
@@ -195,9 +196,10 @@ list Panels(const PopulationProblem& problem, const PopulationSummary& fit) {
       PlotSeries& p = pred[static_cast<size_t>(k - 1)];
       dv.colour = kObserved, i.colour = kIpred, p.colour = kPred;
       const std::string name = outputs > 1 ? problem.model().output_names()[static_cast<size_t>(k - 1)] : "";
-      panels.push_back(object{{"caption", Text("ID " + FormatNumber(s.id) + (name.empty() ? "" : " · " + name))},
-                              {"svg", RenderSvg({p, i, dv}, Small("", "time", k == 1 ? "concentration" : name))}});
+      figures.push_back(object{{"caption", Text("ID " + FormatNumber(s.id) + (name.empty() ? "" : " · " + name))},
+                               {"svg", RenderSvg({p, i, dv}, Small("", "time", k == 1 ? "concentration" : name))}});
     }
+    panels.push_back(object{{"span", std::to_string(outputs)}, {"figures", figures}});
     ++shown;
   }
   return panels;
