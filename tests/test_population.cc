@@ -101,6 +101,13 @@ pk::PopulationProblem Problem(const Case& c, std::shared_ptr<pk::Dataset> data =
   return pk::PopulationProblem(pk::MakeModel(c.model), data, c.etas, o);
 }
 
+// Each subject's η̂ of a fit, the starts of a covariance step at its estimate.
+std::vector<Eigen::VectorXd> FittedEtas(const pk::PopulationSummary& fit) {
+  std::vector<Eigen::VectorXd> etas;
+  for (const pk::PopulationSubject& subject : fit.subjects) etas.push_back(subject.eta);
+  return etas;
+}
+
 pk::PopulationParameters Parameters(const Case& c) {
   pk::PopulationParameters p;
   p.theta = Eigen::Map<const Eigen::VectorXd>(c.theta.data(), static_cast<Eigen::Index>(c.theta.size()));
@@ -1042,8 +1049,7 @@ TEST_CASE("the covariance step from the exact gradient equals NONMEM's differenc
     REQUIRE(fit.converged);
     const pk::internal::Packing packing(problem, options.structure, fit.parameters);
     const pk::internal::PopulationEngine engine(problem, pk::PopulationMethod::kFocei, 1);
-    std::vector<Eigen::VectorXd> etas;
-    for (const pk::PopulationSubject& subject : fit.subjects) etas.push_back(subject.eta);
+    const std::vector<Eigen::VectorXd> etas = FittedEtas(fit);
     pk::PopulationSummary exact = fit, differences = fit;
     pk::internal::PopulationCovariance(engine, packing, etas, true, pk::CovarianceMatrix::kSandwich, &exact);
     pk::internal::PopulationCovariance(engine, packing, etas, false, pk::CovarianceMatrix::kSandwich, &differences);
@@ -1076,8 +1082,7 @@ TEST_CASE("the covariance step's MATRIX=R and MATRIX=S are 2R⁻¹ and 4S⁻¹",
   REQUIRE(fit.converged);
   const pk::internal::Packing packing(problem, options.structure, fit.parameters);
   const pk::internal::PopulationEngine engine(problem, pk::PopulationMethod::kFocei, 1);
-  std::vector<Eigen::VectorXd> etas;
-  for (const pk::PopulationSubject& subject : fit.subjects) etas.push_back(subject.eta);
+  const std::vector<Eigen::VectorXd> etas = FittedEtas(fit);
   std::map<pk::CovarianceMatrix, pk::PopulationSummary> by;
   for (pk::CovarianceMatrix m : {pk::CovarianceMatrix::kSandwich, pk::CovarianceMatrix::kR, pk::CovarianceMatrix::kS}) {
     by[m] = fit;
@@ -1336,8 +1341,7 @@ TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the 
   // The covariance step does not difference such a gradient again: it takes the OFV's differences.
   const pk::internal::Packing packing(problem, options.structure, fit.parameters);
   const pk::internal::PopulationEngine engine(problem, pk::PopulationMethod::kFocei, 1);
-  std::vector<Eigen::VectorXd> etas;
-  for (const pk::PopulationSubject& subject : fit.subjects) etas.push_back(subject.eta);
+  const std::vector<Eigen::VectorXd> etas = FittedEtas(fit);
   pk::PopulationSummary with = fit;
   pk::internal::PopulationCovariance(engine, packing, etas, true, pk::CovarianceMatrix::kSandwich, &with);
   INFO(with.covariance_message);

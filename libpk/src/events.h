@@ -202,7 +202,7 @@ class EventEngine {
 
   // Initial amounts (X0_<n>) as jumps of the state: at the first record and after a reset record
   // (EVID 3 or 4), where NONMEM's PREDPP sets A_0FLG and applies A_0 again. A steady-state dose
-  // (SS=1) starts from zero, as NONMEM's ignores A_0.
+  // (SS=1) starts from zero: NONMEM ignores A_0 there.
   void InitialState(int set) {
     const Vec<T>& p = sets_[set];
     for (int c = 0; c < n_; ++c) {

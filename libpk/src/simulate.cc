@@ -68,8 +68,9 @@ class Recorder {
     if (ode_) {
       x_ = out_->amounts.col(i);  // OutputValue takes a vector
       for (int k = 0; k < ode_->num_outputs(); ++k) out_->outputs(k, i) = ode_->OutputValue(k + 1, x_, Theta(set));
-    } else {  // a linear model's named outputs, rows n + 1, n + 2, …
-      for (Eigen::Index k = 0; k < out_->outputs.rows(); ++k) {
+    } else if (out_->outputs.rows() > 0) {  // a linear model's named outputs, rows n + 1, n + 2, …
+      out_->outputs(0, i) = row.cp;  // output 1's row is the central compartment's (file_model.cc)
+      for (Eigen::Index k = 1; k < out_->outputs.rows(); ++k) {
         out_->outputs(k, i) = Output(sys_.n() + static_cast<int>(k) + 1, out_->amounts.col(i), set, &named_[k]);
       }
     }

@@ -299,13 +299,15 @@ class Analyser {
         eta_used_[static_cast<size_t>(s.index)] = true;
         if (bind_etas_) return Input(n() + eta_input_[static_cast<size_t>(s.index)], src);
         return Constant(0.0, src);  // an individual model: η = 0
-      case SymbolKind::kDefinition:
-        if (ModifierName(src.name).first == "K0_" && context.compare(0, 5, "d/dt(") == 0) {
+      case SymbolKind::kDefinition: {
+        const auto modifier = ModifierName(src.name);
+        if (modifier.first == "K0_" && context.compare(0, 5, "d/dt(") == 0) {
           Fail(src, context + " reads " + src.name + ", the zero-order input the event engine adds to compartment " +
-                        std::to_string(ModifierName(src.name).second) + " at all times: it would count twice; write "
-                        "the input in d/dt or compute " + src.name + " in $PK, not both");
+                        std::to_string(modifier.second) + " at all times: it would count twice; write the input in "
+                        "d/dt or compute " + src.name + " in $PK, not both");
         }
         return ResolveDefinition(s.index, src);
+      }
       case SymbolKind::kModifier:
         Fail(src, src.name + " is a dose modifier, which the event engine applies to doses; an expression cannot "
                              "read it");

@@ -46,6 +46,15 @@ double RelativeStep(const PopulationEngine& engine, bool exact_gradient) {
   return noise > 1e-10 ? std::max(kRelativeStep, std::pow(noise, 0.25)) : kRelativeStep;
 }
 
+// The steps h_a = c·max(|z_a|, 0.01) over the estimated `est`, c as above.
+Eigen::VectorXd Steps(const PopulationEngine& engine, const Eigen::VectorXd& z, const std::vector<int>& est,
+                      bool exact_gradient) {
+  const double c = RelativeStep(engine, exact_gradient);
+  Eigen::VectorXd h(static_cast<Eigen::Index>(est.size()));
+  for (Eigen::Index a = 0; a < h.size(); ++a) h(a) = c * std::max(std::abs(z(est[static_cast<size_t>(a)])), 0.01);
+  return h;
+}
+
 struct Differences {
   const PopulationEngine& engine;
   const Packing& packing;
@@ -222,9 +231,7 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
   const int p = static_cast<int>(est.size());
   if (p == 0) return;
   const Differences diff{engine, packing, starts, packing.Natural(summary->parameters)};
-  Eigen::VectorXd h(p);
-  const double step = RelativeStep(engine, exact_gradient);
-  for (int a = 0; a < p; ++a) h(a) = step * std::max(std::abs(diff.z0(est[a])), 0.01);
+  Eigen::VectorXd h = Steps(engine, diff.z0, est, exact_gradient);
   Eigen::MatrixXd r, g;
   std::string why;
   const bool need_r = matrix != CovarianceMatrix::kS;
@@ -232,8 +239,7 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
   // fails), the OFV's differences, as NONMEM forms them, at their own step.
   if (exact_gradient && !FromExactGradient(diff, est, h, need_r, &r, &g, &why)) {
     exact_gradient = false;
-    const double ofv_step = RelativeStep(engine, false);
-    for (int a = 0; a < p; ++a) h(a) = ofv_step * std::max(std::abs(diff.z0(est[a])), 0.01);
+    h = Steps(engine, diff.z0, est, false);
   }
   if (!exact_gradient && !FromOfvDifferences(diff, est, h, need_r, &r, &g, &why)) {
     summary->covariance_message = why;

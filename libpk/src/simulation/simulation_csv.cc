@@ -20,19 +20,16 @@ namespace {
 class TimeTexts {
  public:
   char* Write(size_t row, double time, char* p) {
-    if (row < times_.size() && std::memcmp(&times_[row], &time, sizeof time) == 0) {
-      return std::copy_n(texts_[row].data(), sizes_[row], p);
+    if (row < rows_.size() && std::memcmp(&rows_[row].time, &time, sizeof time) == 0) {
+      return std::copy_n(rows_[row].text.data(), rows_[row].size, p);
     }
     char* end = internal::WriteNumber(time, p);
     if (end - p > 24) return end;  // never: a number's text has at most 24 characters
-    if (row >= times_.size()) {
-      times_.resize(row + 1);
-      texts_.resize(row + 1);
-      sizes_.resize(row + 1);
-    }
-    times_[row] = time;
-    sizes_[row] = static_cast<unsigned char>(end - p);
-    std::copy(p, end, texts_[row].data());
+    if (row >= rows_.size()) rows_.resize(row + 1);
+    Text& cached = rows_[row];
+    cached.time = time;
+    cached.size = static_cast<unsigned char>(end - p);
+    std::copy(p, end, cached.text.data());
     return end;
   }
   static TimeTexts& ForThisThread() {
@@ -41,9 +38,12 @@ class TimeTexts {
   }
 
  private:
-  std::vector<double> times_;
-  std::vector<std::array<char, 24>> texts_;
-  std::vector<unsigned char> sizes_;
+  struct Text {
+    double time = 0;
+    unsigned char size = 0;
+    std::array<char, 24> text;
+  };
+  std::vector<Text> rows_;
 };
 
 // Whether `s` has rows to write; throws when its amounts and outputs lack a column per row.
