@@ -1348,3 +1348,130 @@ TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the 
   CHECK(with.covariance_derivatives == "R from central differences of the OFV, S from central differences of each "
                                        "subject's OFV");
 }
+
+namespace {
+
+// ½∇²l from the second-order sensitivities (ExactConditionalHessian) against Richardson differences
+// of the exact ∇l, for the first `count` subjects at η = `eta` (away from their modes, so that the
+// residual terms r·∂²f and r·∂²V count).
+void CheckExactHessian(const pk::PopulationProblem& problem, const pk::PopulationParameters& parameters,
+                       pk::PopulationMethod method, const Eigen::VectorXd& eta, double tolerance, size_t count = 4) {
+  const pk::internal::PopulationPoint point =
+      pk::internal::PopulationPoint::Make(parameters, *problem.options().error_model, method);
+  const auto& subjects = problem.impl().subjects;
+  for (size_t i = 0; i < std::min(count, subjects.size()); ++i) {
+    INFO("subject " << i + 1);
+    const auto& subject = subjects[i];
+    std::string why;
+    pk::internal::Conditional at;
+    Eigen::VectorXd fixed;  // FOCE: V at η = 0
+    if (method == pk::PopulationMethod::kFoce) {
+      REQUIRE(pk::internal::EvaluateConditional(subject, point, Eigen::VectorXd::Zero(eta.size()), nullptr, false, &at, &why));
+      fixed = at.variance;
+    }
+    const Eigen::VectorXd* fv = fixed.size() ? &fixed : nullptr;
+    REQUIRE(pk::internal::EvaluateConditional(subject, point, eta, fv, true, &at, &why));
+    Eigen::MatrixXd exact, differences;
+    REQUIRE(pk::internal::ExactConditionalHessian(subject, point, eta, fv, at, &exact, &why));
+    // Richardson's extrapolation of central differences at steps h and h/2, h a thousandth of the
+    // η's prior SD (ConditionalHessian's fixed 10⁻³ is coarse for an η of SD 3·10⁻³).
+    differences.resize(eta.size(), eta.size());
+    for (Eigen::Index k = 0; k < eta.size(); ++k) {
+      Eigen::VectorXd d[2];
+      for (int level = 0; level < 2; ++level) {
+        const double h = 1e-3 * std::min(1.0, std::sqrt(parameters.omega(k, k))) / (1 << level);
+        pk::internal::Conditional plus, minus;
+        Eigen::VectorXd e = eta;
+        e(k) += h;
+        REQUIRE(pk::internal::EvaluateConditional(subject, point, e, fv, true, &plus, &why));
+        e(k) = eta(k) - h;
+        REQUIRE(pk::internal::EvaluateConditional(subject, point, e, fv, true, &minus, &why));
+        d[level] = (plus.gradient - minus.gradient) / (4 * h);
+      }
+      differences.col(k) = (4 * d[1] - d[0]) / 3;
+    }
+    INFO("exact\n" << exact << "\ndifferences\n" << differences);
+    CHECK((exact - differences).cwiseAbs().maxCoeff() <= tolerance * differences.cwiseAbs().maxCoeff());
+    // Not the first-order H (the r·∂²f terms count away from the mode).
+    CHECK((exact - at.h).cwiseAbs().maxCoeff() > 100 * tolerance * differences.cwiseAbs().maxCoeff());
+  }
+}
+
+}  // namespace
+
+TEST_CASE("½∇²l from the second-order sensitivities equals differences of the exact ∇l", "[population]") {
+  const auto cases = Cases();
+  SECTION("Φ/Γ: additive, combined with a block, exponential, proportional; FOCE holds V") {
+    for (const char* name : {"theo_add", "theo_comb_block", "theo_exp", "pheno_prop"}) {
+      INFO(name);
+      const Case& c = cases.at(name);
+      const Eigen::VectorXd eta = Eigen::VectorXd::LinSpaced(static_cast<Eigen::Index>(c.etas.size()), 0.3, -0.2);
+      for (pk::PopulationMethod m : {pk::PopulationMethod::kFoce, pk::PopulationMethod::kLaplace}) {
+        INFO(pk::ToString(m));
+        CheckExactHessian(Problem(c), Parameters(c), m, eta, 1e-7);
+      }
+    }
+  }
+  SECTION("censored samples (M3) with their full second derivatives") {
+    Case c = cases.at("theo_comb_block");
+    c.data = "theophylline_blq";
+    const pk::PopulationProblem problem = Problem(c);
+    REQUIRE((problem.impl().subjects[1].censoring.array() != 0).count() == 3);
+    CheckExactHessian(problem, Parameters(c), pk::PopulationMethod::kLaplace, Eigen::Vector3d(0.2, -0.1, 0.05), 1e-7);
+  }
+  SECTION("a model file's additive η on Φ/Γ, and its log-normal η on the ODE propagator") {
+    const pk::PopulationProblem additive = FileProblem(kAdditiveEtaFile, "proportional", 1e-8);
+    pk::PopulationParameters p = additive.DefaultParameters();
+    p.omega(0, 0) = 1e-5;
+    p.sigma = Eigen::VectorXd::Constant(1, 0.12);
+    CheckExactHessian(additive, p, pk::PopulationMethod::kLaplace, Eigen::VectorXd::Constant(1, 2e-3), 1e-7);
+    // The ODE's own error (rtol 1e-11) enters the differences divided by their step.
+    const pk::PopulationProblem lognormal = FileProblem(kLogNormalFile, "proportional", 1e-11);
+    p = lognormal.DefaultParameters();
+    p.sigma = Eigen::VectorXd::Constant(1, 0.12);
+    CheckExactHessian(lognormal, p, pk::PopulationMethod::kLaplace, Eigen::Vector2d(0.3, -0.2), 1e-5);
+  }
+  SECTION("a nonlinear catalogue model on the ODE propagator") {
+    pk::ObjectiveOptions o;
+    o.error_model = pk::MakeResidualError("combined");
+    o.ode.relative_tolerance = 1e-11;
+    o.ode.absolute_tolerance = 1e-14;
+    const pk::PopulationProblem problem(pk::MakeModel("1cmt_oral_mm"), Data("theophylline"), {"VMAX", "V"}, o);
+    pk::PopulationParameters p = problem.DefaultParameters();
+    p.sigma = Eigen::Vector2d(0.3, 0.1);
+    CheckExactHessian(problem, p, pk::PopulationMethod::kLaplace, Eigen::Vector2d(0.2, -0.1), 1e-5);
+  }
+}
+
+TEST_CASE("Laplace's H is differenced only where the route has no second derivatives, and says why",
+          "[population]") {
+  // Steady-state doses on the ODE propagator: no second-order sensitivities there.
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,II,SS,DV\n1,0,100,12,1,.\n1,1,0,0,0,4\n1,6,0,0,0,2.5\n", "ss.csv"));
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  const pk::PopulationProblem ss(pk::MakeModel("1cmt_iv_mm"), data, {"VMAX"}, o);
+  pk::PopulationParameters p = ss.DefaultParameters();
+  p.sigma = Eigen::VectorXd::Constant(1, 0.2);
+  const pk::internal::PopulationPoint point =
+      pk::internal::PopulationPoint::Make(p, *ss.options().error_model, pk::PopulationMethod::kLaplace);
+  const pk::internal::SubjectMode differenced =
+      pk::internal::SolveSubject(ss.impl().subjects[0], point, Eigen::VectorXd::Zero(1));
+  REQUIRE(differenced.ok);
+  CHECK_THAT(differenced.hessian_differenced, Catch::Contains("steady states"));
+  // On Φ/Γ it is exact, and the OFV_i is the differenced one's to their error.
+  const Case c = Cases().at("pheno_prop");
+  const pk::PopulationProblem pheno = Problem(c);
+  const pk::internal::PopulationPoint pp =
+      pk::internal::PopulationPoint::Make(Parameters(c), *pheno.options().error_model, pk::PopulationMethod::kLaplace);
+  const auto& subject = pheno.impl().subjects[0];
+  const pk::internal::SubjectMode exact = pk::internal::SolveSubject(subject, pp, Eigen::VectorXd::Zero(2));
+  REQUIRE(exact.ok);
+  CHECK(exact.hessian_differenced.empty());
+  Eigen::MatrixXd h;
+  std::string why;
+  REQUIRE(pk::internal::ConditionalHessian(subject, pp, exact.eta, nullptr, true, &h, &why));
+  const double by_differences = exact.at_mode.l + pp.log_det_omega + 2 * Eigen::LLT<Eigen::MatrixXd>(h).matrixLLT().diagonal().array().log().sum();
+  CHECK(std::abs(exact.ofv - by_differences) < 1e-8);
+  CHECK(std::abs(exact.ofv - by_differences) > 0);  // they are computed differently
+}

@@ -217,6 +217,104 @@ bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const E
 
 namespace {
 
+// ∂²ŷ_j/∂φ_a∂φ_b for the η'd parameters (positions in s.eta_free), a ≤ b, one vector per pair.
+bool EtaSecondDerivatives(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<Eigen::VectorXd>* second,
+                          std::string* why) {
+  const auto q = static_cast<int>(s.eta_free.size());
+  std::vector<std::pair<int, int>> pairs;
+  for (int a = 0; a < q; ++a) {
+    for (int b = a; b < q; ++b) pairs.emplace_back(a, b);
+  }
+  return s.objective->SecondDerivatives(phi, s.eta_free, pairs, second, why);
+}
+
+// One sample's derivatives in η: of the prediction (dy, yy), of f = T(ŷ) (g, ff) and of the
+// residual variance V (dv, vv; zero when V is held at its η = 0 value, FOCE).
+struct SampleDerivatives {
+  Eigen::VectorXd dy, g, dv;
+  Eigen::MatrixXd yy, ff, vv;
+};
+
+// ∂²ŷ/∂η_a∂η_b = T_ab φ'_a φ'_b + δ_ab ∂ŷ/∂η_a for a log-normal η (φ = θe^η: φ' = φ'' = φ), with
+// T from `second` (EtaSecondDerivatives' order); then the chain rule into f and V.
+void SampleEtaDerivatives(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& phi,
+                          const std::vector<Eigen::VectorXd>& second, const Conditional& c, bool fixed_variance,
+                          Eigen::Index j, SampleDerivatives* d) {
+  const auto q = static_cast<Eigen::Index>(s.eta_free.size());
+  Eigen::VectorXd slope(q);  // φ'_a
+  for (Eigen::Index a = 0; a < q; ++a) slope(a) = s.eta_log[static_cast<size_t>(a)] ? phi(s.eta_free[static_cast<size_t>(a)]) : 1;
+  const double yhat = c.yhat(j);
+  const bool logs = s.any_logs && s.logs(j);
+  d->g = c.g.row(j).transpose();
+  d->dy = logs ? Eigen::VectorXd(d->g * yhat) : d->g;
+  d->yy.resize(q, q);
+  size_t pair = 0;
+  for (Eigen::Index a = 0; a < q; ++a) {
+    for (Eigen::Index b = a; b < q; ++b) d->yy(a, b) = d->yy(b, a) = second[pair++](j) * slope(a) * slope(b);
+    if (s.eta_log[static_cast<size_t>(a)]) d->yy(a, a) += d->dy(a);
+  }
+  d->ff = logs ? Eigen::MatrixXd(d->yy / yhat - d->g * d->g.transpose()) : d->yy;
+  if (fixed_variance) {
+    d->dv.setZero(q);
+    d->vv.setZero(q, q);
+    return;
+  }
+  // v(ŷ, σ)'s second derivative in ŷ by central differences of its exact first (quadratic in ŷ
+  // for every error model, so the difference is exact to rounding).
+  const auto ns = std::max<Eigen::Index>(p.sigma.size(), 1);
+  thread_local Eigen::VectorXd dsigma;
+  dsigma.resize(ns);
+  double v, vy, vy_plus, vy_minus;
+  const double h = 1e-5 * std::max(std::abs(yhat), 1e-8);
+  OutputVariance(*p.error, s.outputs(j), yhat, p.sigma.data(), &v, &vy, dsigma.data());
+  OutputVariance(*p.error, s.outputs(j), yhat + h, p.sigma.data(), &v, &vy_plus, dsigma.data());
+  OutputVariance(*p.error, s.outputs(j), yhat - h, p.sigma.data(), &v, &vy_minus, dsigma.data());
+  d->dv = vy * d->dy;
+  d->vv = (vy_plus - vy_minus) / (2 * h) * d->dy * d->dy.transpose() + vy * d->yy;
+}
+
+}  // namespace
+
+bool ExactConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                             const Eigen::VectorXd* fixed_variance, const Conditional& c,
+                             Eigen::MatrixXd* half_hessian, std::string* why) {
+  const Eigen::VectorXd phi = IndividualValues(s, p, eta);
+  std::vector<Eigen::VectorXd> second;
+  if (!EtaSecondDerivatives(s, phi, &second, why)) return false;
+  *half_hessian = p.omega_inverse;
+  Eigen::MatrixXd& h = *half_hessian;
+  SampleDerivatives d;
+  for (Eigen::Index j = 0; j < c.yhat.size(); ++j) {
+    SampleEtaDerivatives(s, p, phi, second, c, fixed_variance != nullptr, j, &d);
+    const double r = s.y(j) - c.f(j), w = 1 / c.variance(j);
+    const Eigen::MatrixXd gv = d.g * d.dv.transpose() + d.dv * d.g.transpose();
+    if (s.censoring.size() == 0 || s.censoring(j) == 0) {
+      // ½∂²[r²/V + log V] with ∂r = −g.
+      h += w * d.g * d.g.transpose() - r * w * d.ff + r * w * w * gv + (r * r * w * w * w - 0.5 * w * w) * d.dv * d.dv.transpose() +
+           0.5 * (w - r * r * w * w) * d.vv;
+      continue;
+    }
+    // M3: ½∂²[−2 log Φ(z)] = m(z + m) ∂z∂zᵀ − m ∂²z, z = sign·r/√V, m = φ(z)/Φ(z), with
+    // ∂z = −sign·g/√V − ½ z ∂V/V and
+    // ∂²z = −sign·∂²f/√V + ½ sign (g∂Vᵀ + ∂V gᵀ)/V^{3/2} + ¾ z ∂V∂Vᵀ/V² − ½ z ∂²V/V.
+    const double sign = s.censoring(j), root_w = std::sqrt(w), z = sign * r * root_w;
+    double log_cdf = 0, mills = 0;
+    LogNormalCdf(z, &log_cdf, &mills);
+    const Eigen::VectorXd dz = -sign * root_w * d.g - 0.5 * z * w * d.dv;
+    const Eigen::MatrixXd d2z = -sign * root_w * d.ff + 0.5 * sign * w * root_w * gv +
+                                0.75 * z * w * w * d.dv * d.dv.transpose() - 0.5 * z * w * d.vv;
+    h += mills * (z + mills) * dz * dz.transpose() - mills * d2z;
+  }
+  h = 0.5 * (h + h.transpose()).eval();
+  if (!h.allFinite()) {
+    *why = "the Hessian of the conditional objective is not finite";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
 // Newton's (or scoring's) step from c, with `half_hessian` standing for ½∇²l.
 bool Step(const Conditional& c, const Eigen::MatrixXd& half_hessian, Eigen::VectorXd* step) {
   Eigen::LLT<Eigen::MatrixXd> llt(half_hessian);
@@ -267,13 +365,21 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     if (!start.any() || !EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) return mode;
   }
   bool newton = false, converged = false;
+  // ½∇²l: exact while the route has second derivatives (the first refusal is kept for the rest of
+  // the search, with its reason); `exact_here` says half_hessian holds it at the current η.
+  bool exact = true, exact_here = false;
+  std::string no_exact;
   int blind_steps = 0;  // full steps taken where l cannot resolve the decrease (below)
   const Eigen::VectorXd scale = p.omega_inverse.diagonal().cwiseSqrt();
   double previous = 0;  // the last step's length
   Eigen::MatrixXd half_hessian;
   Eigen::VectorXd step;
   for (mode.iterations = 0; mode.iterations < kMaxIterations; ++mode.iterations) {
-    if (newton && !ConditionalHessian(s, p, mode.eta, fv, false, &half_hessian, &mode.message)) return mode;
+    if (newton) {
+      exact_here = false;
+      if (exact && s.newton_exact_hessian) exact = exact_here = ExactConditionalHessian(s, p, mode.eta, fv, c, &half_hessian, &no_exact);
+      if (!exact_here && !ConditionalHessian(s, p, mode.eta, fv, false, &half_hessian, &mode.message)) return mode;
+    }
     if (!newton || !Step(c, half_hessian, &step)) {
       newton = false;
       if (!Step(c, c.h, &step)) {
@@ -300,6 +406,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
         if (next != mode.eta && EvaluateConditional(s, p, next, fv, true, &trial, &ignored) &&
             trial.l <= c.l + noise) {
           mode.eta = next;
+          exact_here = false;
           c = std::move(trial);
           continue;
         }
@@ -311,6 +418,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
       mode.message = "the search for the conditional mode made no progress";
       return mode;
     }
+    exact_here = false;  // the line search moved η
     // Scoring contracts fast near the mode when the residuals are small; Newton (5 sensitivity
     // passes an iteration to scoring's 1) takes over where it does not.
     const bool slow = previous > 0 && length > 0.2 * previous;
@@ -321,10 +429,13 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     mode.message = "the conditional mode was not found in " + std::to_string(kMaxIterations) + " iterations";
     return mode;
   }
-  // Laplace's H enters the OFV: at the mode, extrapolated.
-  if (p.method == PopulationMethod::kLaplace &&
-      !ConditionalHessian(s, p, mode.eta, fv, true, &half_hessian, &mode.message)) {
-    return mode;
+  // Laplace's H enters the OFV: at the mode, exact, or else differences extrapolated.
+  if (p.method == PopulationMethod::kLaplace && !exact_here) {
+    exact = exact && ExactConditionalHessian(s, p, mode.eta, fv, c, &half_hessian, &no_exact);
+    if (!exact) {
+      mode.hessian_differenced = no_exact;
+      if (!ConditionalHessian(s, p, mode.eta, fv, true, &half_hessian, &mode.message)) return mode;
+    }
   }
   double log_det_h = 0;
   const Eigen::MatrixXd& h = p.method == PopulationMethod::kLaplace ? half_hessian : c.h;

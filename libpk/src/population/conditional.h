@@ -49,6 +49,11 @@ struct SubjectModel {
   /// line search that cannot decrease l along a step whose predicted decrease is below it has
   /// found the mode to the accuracy the predictions allow.
   double relative_noise = 1e-10;
+  /// Newton's ½∇²l in the mode search: exact (ExactConditionalHessian) on the ODE propagator, where
+  /// differences of ∇l carry the solver's error over the step; on Φ/Γ one central difference, which
+  /// costs 2q first-order passes against the second order's q(q+1)/2 pairs, and only sets the
+  /// rate of convergence. Laplace's H at the mode is exact on both.
+  bool newton_exact_hessian = false;
 };
 
 /// The population parameters as the conditional problems use them.
@@ -101,10 +106,13 @@ struct SubjectMode {
   Conditional at_mode;
   Eigen::VectorXd fixed_variance;  ///< FOCE: V at η = 0 (empty otherwise)
   int iterations = 0;
+  /// Laplace: why its H at the mode is differences of the exact ∇l (empty when it is exact).
+  std::string hessian_differenced;
 };
 
-/// Finds η̂ from `start` (damped Fisher scoring, then Newton with the Hessian from central
-/// differences of the exact gradient, to ‖step‖∞ < s.step_tolerance) and forms OFV_i for p.method.
+/// Finds η̂ from `start` (damped Fisher scoring, then Newton with the exact ½∇²l, or central
+/// differences of the exact gradient where the route has no second derivatives, to
+/// ‖step‖∞ < s.step_tolerance) and forms OFV_i for p.method.
 SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& start);
 
 /// ½∇²l at η by central differences of the exact gradient: Richardson-extrapolated (error
@@ -113,6 +121,16 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
 bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
                         const Eigen::VectorXd* fixed_variance, bool extrapolate, Eigen::MatrixXd* half_hessian,
                         std::string* why);
+
+/// ½∇²l at η, exact given the predictions' second derivatives in the η'd parameters
+/// (Objective::SecondDerivatives: Φ/Γ's block-triangular exponential, or the ODE propagator's
+/// second-order sensitivities), `at` being EvaluateConditional's result at η with derivatives.
+/// Censored samples (M3) enter with their full second derivatives. False, with `why`, where the
+/// subject's route has no second derivatives (a steady state on the ODE propagator, a parameter a
+/// computed dose modifier reads): ConditionalHessian's differences then serve.
+bool ExactConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
+                             const Eigen::VectorXd* fixed_variance, const Conditional& at,
+                             Eigen::MatrixXd* half_hessian, std::string* why);
 
 /// Runs work(i) for i in [0, n) on `threads` threads (each takes every threads-th item, so the
 /// assignment, and hence every result, does not depend on timing).

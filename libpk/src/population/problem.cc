@@ -200,6 +200,7 @@ PopulationProblem::PopulationProblem(std::shared_ptr<const Model> model, std::sh
     if (ode) {
       s.step_tolerance = std::max(1e-10, 100 * options.ode.relative_tolerance);
       s.relative_noise = std::max(1e-10, 10 * options.ode.relative_tolerance);
+      s.newton_exact_hessian = true;
     }
     s.censoring = s.objective->censoring();
     d.num_censored += s.objective->num_censored();
