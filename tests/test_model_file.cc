@@ -286,6 +286,16 @@ TEST_CASE("model files: each kind of error names the file, line and column and w
       {"a word after a variance", Replace(5, "V = 30\n$OMEGA\nETA_V ~ 0.1 FIXD\n$PARAM"),
        "expected FIX or the end of the line, found 'FIXD'", 7, 13},
       {"a σ name taken", Replace(5, "V = 30\nSIGMA_ADD = 1"), "SIGMA_ADD is the name of a residual-error σ", 6, 1},
+      {"$INIT of an unknown compartment", std::string(kBase) + "$INIT\nCENTRL = 1\n",
+       "$INIT sets CENTRL, which is not a compartment (the compartments are DEPOT, CENTRAL)", 17, 1},
+      {"a compartment set twice in $INIT", std::string(kBase) + "$INIT\nCENTRAL = 1, CENTRAL = 2\n",
+       "$INIT sets CENTRAL twice: here and at line 17", 17, 14},
+      {"an initial amount in $INIT and as X0_n", Replace(10, "K = CL / V\nX0_2 = 1") + "$INIT\nCENTRAL = 2\n",
+       "the initial amount of CENTRAL is given twice: here and as X0_2 at line 11", 18, 1},
+      {"an initial amount in $INIT and in $PARAM", Replace(5, "V = 30\nX0_2 = 1") + "$INIT\nCENTRAL = 2\n",
+       "the initial amount of CENTRAL is given twice: here and as X0_2 in $PARAM at line 6", 18, 1},
+      {"$INIT reads an amount", std::string(kBase) + "$INIT\nCENTRAL = DEPOT / 2\n",
+       "the initial amount of CENTRAL in $INIT reads the amount in DEPOT", 17, 1},
   };
   int checked = 0;
   for (const ErrorCase& c : cases) {
@@ -835,6 +845,28 @@ TEST_CASE("model files: NONMEM's A_0(n) in $PK is X0_n", "[model_file]") {
   CHECK(ea.predictions == eb.predictions);
   text.replace(at, 9, "A_0(B) = ");
   CHECK_THROWS_WITH(pk::ParseModel(text, "bad.pkm"), Catch::Contains("expected a compartment number in A_0(…)"));
+}
+
+TEST_CASE("model files: $INIT sets a compartment's initial amount, as X0_n in $PK", "[model_file][gradient]") {
+  // kComputedModifiers' X0_2 = A0·WT/70 written as $INIT's CENTRAL = …, with several on a line.
+  std::string text = kComputedModifiers;
+  const size_t at = text.find("X0_2 = A0 * WT / 70\n");
+  REQUIRE(at != std::string::npos);
+  text.erase(at, 20);
+  text += "$INIT\nCENTRAL = A0 * WT / 70, DEPOT = 0\n";
+  const auto a = pk::ParseModel(kComputedModifiers, "x0.pkm"), b = pk::ParseModel(text, "init.pkm");
+  CHECK(b->declarations().computed_modifiers.names == std::vector<std::string>{"F1", "ALAG1", "D1", "X0_2", "X0_1"});
+  CHECK(dynamic_cast<const pk::LinearModel*>(b.get()) != nullptr);  // still on Φ/Γ
+  const pk::Objective oa(a, ModifierData(false), 0, pk::ObjectiveOptions()), ob(b, ModifierData(false), 0, pk::ObjectiveOptions());
+  std::vector<int> free;
+  for (const char* name : {"KA", "CL", "V", "A0"}) free.push_back(oa.ParameterIndex(name));
+  const auto ea = oa.Evaluate(oa.DefaultValues(), free, pk::Objective::Need::kGradient);
+  const auto eb = ob.Evaluate(ob.DefaultValues(), free, pk::Objective::Need::kGradient);
+  REQUIRE(ea.ok);
+  REQUIRE(eb.ok);
+  CHECK(MaxRel(ea.predictions, eb.predictions) < 1e-14);
+  CHECK(MaxRel(ea.gradient, eb.gradient) < 1e-12);
+  CHECK(std::abs(ea.gradient(3)) > 0);  // the initial amount's parameter counts
 }
 
 TEST_CASE("model files: a computed dose modifier cannot be given, fixed or read from the data", "[model_file]") {

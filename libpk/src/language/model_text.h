@@ -64,6 +64,7 @@ struct Definition {
   int node = -1;
   Place at;
   bool in_pk = false;  // written in $PK (must not read a state)
+  std::string initial_of;  // $INIT's line for this compartment (then named X0_<n>)
 };
 
 /// d/dt(NAME) = expression.

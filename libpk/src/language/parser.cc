@@ -50,6 +50,7 @@ class Parser {
       Block(block);
       SkipNewlines();
     }
+    InitialAmounts();
   }
 
  private:
@@ -129,8 +130,9 @@ class Parser {
     if (b == "ODE" || b == "DES") return Statements(false);
     if (b == "OUTPUT" || b == "OUT") return Lines(&Parser::OutputLine);
     if (b == "ERROR" || b == "SIGMA") return Lines(&Parser::ErrorLine);
+    if (b == "INIT") return Lines(&Parser::InitLine);
     Fail(block, "unknown block $" + b +
-                    " (the blocks are $PROBLEM, $PARAM, $COVARIATE, $OMEGA, $CMT, $PK, $ODE, $OUTPUT, $ERROR)");
+                    " (the blocks are $PROBLEM, $PARAM, $COVARIATE, $OMEGA, $CMT, $INIT, $PK, $ODE, $OUTPUT, $ERROR)");
   }
 
   void Problem(const Token& block) {
@@ -257,6 +259,53 @@ class Parser {
     Expect("=", "'=' and the output's expression");
     o.node = Expression();
     m_->outputs.push_back(std::move(o));
+  }
+
+  // COMPARTMENT = expression [, COMPARTMENT = expression …]: its amount at time 0 and after a
+  // reset (mrgsolve's $INIT), which becomes X0_<n> computed after $PK (InitialAmounts).
+  void InitLine() {
+    do {
+      Definition d;
+      d.at = {Peek().line, Peek().column};
+      d.name = Name("a compartment name");
+      Expect("=", "'=' and the compartment's initial amount");
+      d.node = Expression();
+      d.in_pk = true;
+      inits_.push_back(std::move(d));
+    } while (Accept(","));
+  }
+
+  // $INIT's lines as X0_<n> definitions after every $PK definition (which they may read). A
+  // compartment that does not exist, or an amount given twice, is an error at its line.
+  void InitialAmounts() {
+    for (Definition& d : inits_) {
+      Token at;
+      at.line = d.at.line;
+      at.column = d.at.column;
+      const auto& cmts = m_->compartments;
+      const auto it = std::find_if(cmts.begin(), cmts.end(), [&](const CompartmentDecl& c) { return c.name == d.name; });
+      if (it == cmts.end()) {
+        std::string names;
+        for (const CompartmentDecl& c : cmts) names += (names.empty() ? "" : ", ") + c.name;
+        Fail(at, "$INIT sets " + d.name + ", which is not a compartment (the compartments are " +
+                     (names.empty() ? std::string("none: declare them in $CMT") : names) + ")");
+      }
+      const std::string x0 = "X0_" + std::to_string(it - cmts.begin() + 1);
+      const std::string cmt = d.name;
+      for (const Definition& e : m_->definitions) {
+        if (e.name != x0) continue;
+        if (!e.initial_of.empty()) Fail(at, "$INIT sets " + cmt + " twice: here and at line " + std::to_string(e.at.line));
+        Fail(at, "the initial amount of " + cmt + " is given twice: here and as " + x0 + " at line " +
+                     std::to_string(e.at.line) + (e.in_pk ? "" : " of $ODE"));
+      }
+      for (const ParameterDecl& p : m_->parameters) {
+        if (p.name == x0) Fail(at, "the initial amount of " + cmt + " is given twice: here and as " + x0 +
+                                       " in $PARAM at line " + std::to_string(p.at.line));
+      }
+      d.initial_of = cmt;
+      d.name = x0;
+      m_->definitions.push_back(std::move(d));
+    }
   }
 
   // OUTPUT ~ model[(σ, ...)]
@@ -533,6 +582,7 @@ class Parser {
 
   std::vector<Token> tok_;
   size_t pos_ = 0;
+  std::vector<Definition> inits_;  // $INIT's lines, named by compartment until InitialAmounts
   const std::string& text_;
   ModelText* m_;
 };
