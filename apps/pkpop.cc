@@ -19,6 +19,7 @@
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/output.h"
+#include "pk/nonmem_ext.h"
 #include "pk/population.h"
 #ifdef PK_HAVE_MPI
 #include "pk/mpi.h"
@@ -308,7 +309,8 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
       {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit, problem.num_censored() > 0)},
       {"patab.csv", PatabCsv(problem, fit)},
       {"subjects.csv", SubjectsCsv(problem, fit)},     {"iterations.csv", IterationsCsv(fit)},
-      {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()}};
+      {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()},
+      {"pkpop.ext", pk::NonmemExtTable(fit)}};
   const auto report = pk::cli::PopulationReport(problem, fit, context);
   files.insert(files.end(), report.begin(), report.end());
   std::vector<std::string> names;
@@ -396,7 +398,7 @@ int Main(int argc, char** argv, const Process& process) {
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
               << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "
-                 "covariance.csv, report.txt)\n";
+                 "covariance.csv, report.txt, pkpop.ext: NONMEM's .ext)\n";
   }
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
   return fit.converged ? 0 : 1;

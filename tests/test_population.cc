@@ -14,6 +14,7 @@
 #include "pk/catalogue.h"
 #include "pk/error.h"
 #include "pk/model_file.h"
+#include "pk/nonmem_ext.h"
 #include "pk/output.h"
 #include "pk/population.h"
 #include "pk/residual_error.h"
@@ -1474,4 +1475,128 @@ TEST_CASE("Laplace's H is differenced only where the route has no second derivat
   const double by_differences = exact.at_mode.l + pp.log_det_omega + 2 * Eigen::LLT<Eigen::MatrixXd>(h).matrixLLT().diagonal().array().log().sum();
   CHECK(std::abs(exact.ofv - by_differences) < 1e-8);
   CHECK(std::abs(exact.ofv - by_differences) > 0);  // they are computed differently
+}
+
+namespace {
+
+// A .ext table's rows by ITERATION, each the numbers after it; the header's names in *names.
+std::map<long long, std::vector<std::vector<double>>> ReadExt(const std::string& text, std::vector<std::string>* names) {
+  std::istringstream in(text);
+  std::string line;
+  std::getline(in, line);
+  REQUIRE(line.rfind("TABLE NO.     1: ", 0) == 0);
+  std::getline(in, line);
+  std::istringstream header(line);
+  names->clear();
+  for (std::string name; header >> name;) names->push_back(name);
+  std::map<long long, std::vector<std::vector<double>>> rows;
+  while (std::getline(in, line)) {
+    std::istringstream fields(line);
+    long long iteration = 0;
+    fields >> iteration;
+    std::vector<double> values;
+    for (std::string f; fields >> f;) values.push_back(std::stod(f));
+    REQUIRE(values.size() + 1 == names->size());
+    rows[iteration].push_back(values);
+  }
+  return rows;
+}
+
+}  // namespace
+
+TEST_CASE("the .ext table: NONMEM's layout, final estimates, SEs, SD/correlation form and fixed flags",
+          "[population]") {
+  // Phenobarbital, additive error, a 2×2 Ω block, V fixed: THETA1 CL, THETA2 V, THETA3 σ_ADD
+  // (NONMEM's W = THETA(3), $SIGMA 1 FIX).
+  const Case c = Cases().at("pheno_add");
+  const pk::PopulationProblem problem = Problem(c);
+  pk::PopulationOptions options;
+  options.structure.theta_fixed = {false, true};
+  options.structure.omega_blocks = {2};
+  options.structure.omega_block_fixed = {false};
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, Parameters(c), options);
+  REQUIRE(fit.converged);
+  REQUIRE(fit.covariance.rows() == 5);  // CL, OMEGA(CL), OMEGA(V,CL), OMEGA(V), SIGMA_ADD
+  std::vector<std::string> names;
+  const auto rows = ReadExt(pk::NonmemExtTable(fit), &names);
+  CHECK(names == std::vector<std::string>{"ITERATION", "THETA1", "THETA2", "THETA3", "SIGMA(1,1)", "OMEGA(1,1)",
+                                          "OMEGA(2,1)", "OMEGA(2,2)", "OBJ"});
+  // The estimates in NONMEM's order, and their positions in the covariance matrix.
+  const auto& e = fit.estimates;
+  REQUIRE(e.size() == 6);
+  REQUIRE(e[2].name == "OMEGA(CL)");
+  REQUIRE(e[3].name == "OMEGA(V,CL)");
+  const double w11 = e[2].estimate, w21 = e[3].estimate, w22 = e[4].estimate;
+  const std::vector<double> final_values = {e[0].estimate, e[1].estimate, e[5].estimate, 1, w11, w21, w22};
+  const auto& final_row = rows.at(-1000000000).front();
+  for (size_t k = 0; k < final_values.size(); ++k) CHECK(final_row[k] == Approx(final_values[k]).epsilon(6e-6));
+  CHECK(final_row.back() == fit.ofv);  // OBJ to every digit
+  // Iterations: from the initial estimates (0), each lowering the OFV, the last the final one.
+  REQUIRE(rows.count(0) == 1);
+  CHECK(rows.at(0).front().back() == Approx(fit.initial_ofv).epsilon(1e-12));
+  double last = HUGE_VAL;
+  int iterations = 0;
+  for (const auto& [iteration, list] : rows) {
+    if (iteration < 0) continue;
+    ++iterations;
+    CHECK(list.front().back() < last);
+    last = list.front().back();
+  }
+  CHECK(iterations > 3);
+  CHECK(last == fit.ofv);
+  // SEs: 1.0E+10 for what is fixed (V, Σ).
+  const std::vector<double> se = {e[0].se, 1e10, e[5].se, 1e10, e[2].se, e[3].se, e[4].se};
+  const auto& se_row = rows.at(-1000000001).front();
+  for (size_t k = 0; k < se.size(); ++k) CHECK(se_row[k] == Approx(se[k]).epsilon(6e-6));
+  // SD and correlation form; its SEs by the delta method, here with the correlation's gradient by
+  // central differences over (ω21, ω11, ω22), positions 2, 1, 3 of the covariance matrix.
+  const auto& sd_row = rows.at(-1000000004).front();
+  CHECK(sd_row[0] == 0);
+  CHECK(sd_row[3] == 1);
+  CHECK(sd_row[4] == Approx(std::sqrt(w11)).epsilon(6e-6));
+  CHECK(sd_row[5] == Approx(w21 / std::sqrt(w11 * w22)).epsilon(6e-6));
+  CHECK(sd_row[6] == Approx(std::sqrt(w22)).epsilon(6e-6));
+  const auto rho = [](const Eigen::Vector3d& w) { return w(0) / std::sqrt(w(1) * w(2)); };
+  const Eigen::Vector3d w(w21, w11, w22);
+  Eigen::Vector3d g;
+  for (int k = 0; k < 3; ++k) {
+    const double h = 1e-6 * std::abs(w(k));
+    g(k) = (rho(w + h * Eigen::Vector3d::Unit(k)) - rho(w - h * Eigen::Vector3d::Unit(k))) / (2 * h);
+  }
+  const int at[3] = {2, 1, 3};
+  Eigen::Matrix3d cov;
+  for (int a = 0; a < 3; ++a) {
+    for (int b = 0; b < 3; ++b) cov(a, b) = fit.covariance(at[a], at[b]);
+  }
+  const auto& sd_se = rows.at(-1000000005).front();
+  CHECK(sd_se[4] == Approx(e[2].se / (2 * std::sqrt(w11))).epsilon(6e-6));
+  CHECK(sd_se[5] == Approx(std::sqrt(g.dot(cov * g))).epsilon(1e-5));
+  CHECK(sd_se[3] == 1e10);
+  CHECK(rows.at(-1000000006).front() == std::vector<double>{0, 1, 0, 1, 0, 0, 0, 0});
+}
+
+TEST_CASE("the .ext table: a diagonal Ω, no covariance step, and one EPS per output's error model", "[population]") {
+  const Case c = Cases().at("pheno_prop");
+  pk::PopulationOptions options;
+  options.covariance = false;
+  options.max_iterations = 5;
+  const pk::PopulationSummary fit = pk::FitPopulation(Problem(c), Parameters(c), options);
+  std::vector<std::string> names;
+  auto rows = ReadExt(pk::NonmemExtTable(fit), &names);
+  CHECK(rows.count(-1000000001) == 0);  // no SEs without a covariance step
+  CHECK(rows.count(-1000000005) == 0);
+  // OMEGA(2,1) lies outside Ω's blocks: 0, and fixed.
+  CHECK(names[6] == "OMEGA(2,1)");
+  CHECK(rows.at(-1000000000).front()[5] == 0);
+  CHECK(rows.at(-1000000006).front()[5] == 1);
+  CHECK(rows.at(-1000000004).front()[5] == 0);
+  // Two outputs with an error model each: EPS(1) and EPS(2), a 2×2 Σ fixed to the identity.
+  pk::PopulationSummary two = fit;
+  two.epsilon_shrinkage_sd_by_output = {0.1, 0.2};
+  rows = ReadExt(pk::NonmemExtTable(two), &names);
+  CHECK(names == std::vector<std::string>{"ITERATION", "THETA1", "THETA2", "THETA3", "SIGMA(1,1)", "SIGMA(2,1)",
+                                          "SIGMA(2,2)", "OMEGA(1,1)", "OMEGA(2,1)", "OMEGA(2,2)", "OBJ"});
+  CHECK(rows.at(-1000000000).front()[3] == 1);
+  CHECK(rows.at(-1000000000).front()[4] == 0);
+  CHECK(rows.at(-1000000000).front()[5] == 1);
 }

@@ -10,9 +10,14 @@ fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 # Phenobarbital, FOCEI, proportional error: the whole output set.
 "$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional -o "$work/pheno" \
   >"$work/pheno.txt" 2>"$work/pheno.err" || fail "phenobarbital FOCEI exited non-zero: $(cat "$work/pheno.err")"
-for f in population_estimates.csv sdtab.csv subjects.csv iterations.csv covariance.csv report.txt MANIFEST; do
+for f in population_estimates.csv sdtab.csv subjects.csv iterations.csv covariance.csv report.txt pkpop.ext MANIFEST; do
   [ -s "$work/pheno/$f" ] || fail "missing $f"
 done
+grep -q "pkpop.ext" "$work/pheno/MANIFEST" || fail "pkpop.ext is not in the MANIFEST"
+# The .ext's final row: CL, V, σ as THETA1-3, SIGMA(1,1) = 1, Ω's lower triangle, and the OFV.
+awk 'NR == 2 { ok = ($2 == "THETA1" && $5 == "SIGMA(1,1)" && $6 == "OMEGA(1,1)" && $9 == "OBJ") }
+     $1 == "-1000000000" { final = ($5 == "1.00000E+00" && $7 == "0.00000E+00" && $9 ~ /^730\.8947/) }
+     END { exit !(ok && final) }' "$work/pheno/pkpop.ext" || fail "pkpop.ext: $(sed -n '2p;/-1000000000/p' "$work/pheno/pkpop.ext")"
 grep -q "^FOCEI: OFV 730.8947" "$work/pheno.txt" || fail "the table's OFV: $(head -1 "$work/pheno.txt")"
 grep -q "evaluation [0-9]*  OFV" "$work/pheno.err" || fail "no progress line on stderr"
 [ "$(tail -n +2 "$work/pheno/sdtab.csv" | wc -l)" -eq 155 ] || fail "sdtab: expected 155 samples"
