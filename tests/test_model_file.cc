@@ -287,9 +287,11 @@ TEST_CASE("model files: each kind of error names the file, line and column and w
        "expected FIX or the end of the line, found 'FIXD'", 7, 13},
       {"a σ name taken", Replace(5, "V = 30\nSIGMA_ADD = 1"), "SIGMA_ADD is the name of a residual-error σ", 6, 1},
       {"$INIT of an unknown compartment", std::string(kBase) + "$INIT\nCENTRL = 1\n",
-       "$INIT sets CENTRL, which is not a compartment (the compartments are DEPOT, CENTRAL)", 17, 1},
+       "the initial amount of CENTRL is set, but it is not a compartment (the compartments are DEPOT, CENTRAL)", 17, 1},
       {"a compartment set twice in $INIT", std::string(kBase) + "$INIT\nCENTRAL = 1, CENTRAL = 2\n",
-       "$INIT sets CENTRAL twice: here and at line 17", 17, 14},
+       "the initial amount of CENTRAL is set twice: here and at line 17", 17, 14},
+      {"CMT(0) in $PK and in $INIT", Replace(10, "K = CL / V\nCENTRAL(0) = 1") + "$INIT\nCENTRAL = 2\n",
+       "the initial amount of CENTRAL is set twice: here and at line 11", 18, 1},
       {"an initial amount in $INIT and as X0_n", Replace(10, "K = CL / V\nX0_2 = 1") + "$INIT\nCENTRAL = 2\n",
        "the initial amount of CENTRAL is given twice: here and as X0_2 at line 11", 18, 1},
       {"an initial amount in $INIT and in $PARAM", Replace(5, "V = 30\nX0_2 = 1") + "$INIT\nCENTRAL = 2\n",
@@ -847,7 +849,7 @@ TEST_CASE("model files: NONMEM's A_0(n) in $PK is X0_n", "[model_file]") {
   CHECK_THROWS_WITH(pk::ParseModel(text, "bad.pkm"), Catch::Contains("expected a compartment number in A_0(…)"));
 }
 
-TEST_CASE("model files: $INIT sets a compartment's initial amount, as X0_n in $PK", "[model_file][gradient]") {
+TEST_CASE("model files: $INIT and CMT(0) set a compartment's initial amount, as X0_n in $PK", "[model_file][gradient]") {
   // kComputedModifiers' X0_2 = A0·WT/70 written as $INIT's CENTRAL = …, with several on a line.
   std::string text = kComputedModifiers;
   const size_t at = text.find("X0_2 = A0 * WT / 70\n");
@@ -867,6 +869,16 @@ TEST_CASE("model files: $INIT sets a compartment's initial amount, as X0_n in $P
   CHECK(MaxRel(ea.predictions, eb.predictions) < 1e-14);
   CHECK(MaxRel(ea.gradient, eb.gradient) < 1e-12);
   CHECK(std::abs(ea.gradient(3)) > 0);  // the initial amount's parameter counts
+  // nlmixr2's CENTRAL(0) = … in $PK, also within if/else, is the same.
+  std::string pk_form = kComputedModifiers;
+  pk_form.replace(pk_form.find("X0_2 = A0 * WT / 70"), 19, "if (WT > 0) {\n  CENTRAL(0) = A0 * WT / 70\n} else {\n  CENTRAL(0) = 0\n}");
+  const auto c = pk::ParseModel(pk_form, "nlmixr.pkm");
+  CHECK(c->declarations().computed_modifiers.names == a->declarations().computed_modifiers.names);
+  const pk::Objective oc(c, ModifierData(false), 0, pk::ObjectiveOptions());
+  const auto ec = oc.Evaluate(oc.DefaultValues(), free, pk::Objective::Need::kGradient);
+  REQUIRE(ec.ok);
+  CHECK(MaxRel(ea.predictions, ec.predictions) < 1e-14);
+  CHECK(MaxRel(ea.gradient, ec.gradient) < 1e-12);
 }
 
 TEST_CASE("model files: a computed dose modifier cannot be given, fixed or read from the data", "[model_file]") {

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 #include <initializer_list>
+#include <iterator>
 #include <map>
 #include <utility>
 
@@ -278,6 +279,20 @@ class Parser {
   // $INIT's lines as X0_<n> definitions after every $PK definition (which they may read). A
   // compartment that does not exist, or an amount given twice, is an error at its line.
   void InitialAmounts() {
+    // nlmixr2's CMT(0) = … in $PK (named "CMT(0)" by Statement, merged through if/else) joins
+    // $INIT's lines, in the order written.
+    std::vector<Definition> from_pk;
+    auto& defs = m_->definitions;
+    for (auto it = defs.begin(); it != defs.end();) {
+      if (it->name.size() > 3 && it->name.compare(it->name.size() - 3, 3, "(0)") == 0) {
+        from_pk.push_back(std::move(*it));
+        from_pk.back().name.resize(from_pk.back().name.size() - 3);
+        it = defs.erase(it);
+      } else {
+        ++it;
+      }
+    }
+    inits_.insert(inits_.begin(), std::make_move_iterator(from_pk.begin()), std::make_move_iterator(from_pk.end()));
     for (Definition& d : inits_) {
       Token at;
       at.line = d.at.line;
@@ -287,14 +302,16 @@ class Parser {
       if (it == cmts.end()) {
         std::string names;
         for (const CompartmentDecl& c : cmts) names += (names.empty() ? "" : ", ") + c.name;
-        Fail(at, "$INIT sets " + d.name + ", which is not a compartment (the compartments are " +
+        Fail(at, "the initial amount of " + d.name + " is set, but it is not a compartment (the compartments are " +
                      (names.empty() ? std::string("none: declare them in $CMT") : names) + ")");
       }
       const std::string x0 = "X0_" + std::to_string(it - cmts.begin() + 1);
       const std::string cmt = d.name;
       for (const Definition& e : m_->definitions) {
         if (e.name != x0) continue;
-        if (!e.initial_of.empty()) Fail(at, "$INIT sets " + cmt + " twice: here and at line " + std::to_string(e.at.line));
+        if (!e.initial_of.empty()) {
+          Fail(at, "the initial amount of " + cmt + " is set twice: here and at line " + std::to_string(e.at.line));
+        }
         Fail(at, "the initial amount of " + cmt + " is given twice: here and as " + x0 + " at line " +
                      std::to_string(e.at.line) + (e.in_pk ? "" : " of $ODE"));
       }
@@ -371,6 +388,17 @@ class Parser {
       Expect(")", "')'");
       d.name = "X0_" + std::to_string(static_cast<int>(n.number));
       Expect("=", "'='");
+      d.node = Expression();
+      EndOfStatement();
+      out->push_back({std::move(d), false});
+      return;
+    }
+    if (!derivative && pk && first.kind == Kind::kIdentifier && IsPunct("(", 1) && Peek(2).kind == Kind::kNumber &&
+        Peek(2).number == 0 && IsPunct(")", 3)) {
+      // nlmixr2's CMT(0) = …: the compartment's initial amount, as a line of $INIT (InitialAmounts).
+      pos_ += 4;
+      d.name = ToUpper(first.text) + "(0)";
+      Expect("=", "'=' and the compartment's initial amount");
       d.node = Expression();
       EndOfStatement();
       out->push_back({std::move(d), false});
