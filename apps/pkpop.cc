@@ -19,7 +19,7 @@
 #include "pk/dataset.h"
 #include "pk/error.h"
 #include "pk/output.h"
-#include "pk/nonmem_ext.h"
+#include "pk/nonmem_files.h"
 #include "pk/population.h"
 #ifdef PK_HAVE_MPI
 #include "pk/mpi.h"
@@ -310,7 +310,7 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
       {"patab.csv", PatabCsv(problem, fit)},
       {"subjects.csv", SubjectsCsv(problem, fit)},     {"iterations.csv", IterationsCsv(fit)},
       {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()},
-      {"pkpop.ext", pk::NonmemExtTable(fit)}};
+      {"pkpop.ext", pk::NonmemExtTable(fit)},          {"pkpop.phi", pk::NonmemPhiTable(fit)}};
   const auto report = pk::cli::PopulationReport(problem, fit, context);
   files.insert(files.end(), report.begin(), report.end());
   std::vector<std::string> names;
@@ -398,7 +398,7 @@ int Main(int argc, char** argv, const Process& process) {
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
               << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "
-                 "covariance.csv, report.txt, pkpop.ext: NONMEM's .ext)\n";
+                 "covariance.csv, report.txt, pkpop.ext and pkpop.phi: NONMEM's .ext and .phi)\n";
   }
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
   return fit.converged ? 0 : 1;

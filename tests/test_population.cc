@@ -14,7 +14,7 @@
 #include "pk/catalogue.h"
 #include "pk/error.h"
 #include "pk/model_file.h"
-#include "pk/nonmem_ext.h"
+#include "pk/nonmem_files.h"
 #include "pk/output.h"
 #include "pk/population.h"
 #include "pk/residual_error.h"
@@ -1573,6 +1573,42 @@ TEST_CASE("the .ext table: NONMEM's layout, final estimates, SEs, SD/correlation
   CHECK(sd_se[5] == Approx(std::sqrt(g.dot(cov * g))).epsilon(1e-5));
   CHECK(sd_se[3] == 1e10);
   CHECK(rows.at(-1000000006).front() == std::vector<double>{0, 1, 0, 1, 0, 0, 0, 0});
+
+  // The .phi: per subject its number, ID, η̂, ETC = H_i⁻¹ (FOCEI's H at η̂, formed here again) and
+  // OFV_i, which sum to the OFV.
+  std::istringstream phi(pk::NonmemPhiTable(fit));
+  std::string line;
+  std::getline(phi, line);
+  CHECK(line.rfind("TABLE NO.     1: First Order Conditional Estimation with Interaction:", 0) == 0);
+  std::getline(phi, line);
+  CHECK(line == " SUBJECT_NO   ID           ETA(1)       ETA(2)       ETC(1,1)     ETC(2,1)     ETC(2,2)     OBJ");
+  const pk::internal::PopulationPoint point =
+      pk::internal::PopulationPoint::Make(fit.parameters, *problem.options().error_model, pk::PopulationMethod::kFocei);
+  double total = 0;
+  size_t count = 0;
+  while (std::getline(phi, line)) {
+    std::istringstream fields(line);
+    int number = 0;
+    double id = 0, eta1 = 0, eta2 = 0, etc11 = 0, etc21 = 0, etc22 = 0, obj = 0;
+    REQUIRE(fields >> number >> id >> eta1 >> eta2 >> etc11 >> etc21 >> etc22 >> obj);
+    const pk::PopulationSubject& subject = fit.subjects[count++];
+    CHECK(number == subject.subject + 1);
+    CHECK(id == subject.id);
+    CHECK(eta1 == Approx(subject.eta(0)).epsilon(6e-6).margin(1e-12));
+    CHECK(eta2 == Approx(subject.eta(1)).epsilon(6e-6).margin(1e-12));
+    pk::internal::Conditional c;
+    std::string why;
+    REQUIRE(pk::internal::EvaluateConditional(problem.impl().subjects[static_cast<size_t>(subject.subject)], point,
+                                              subject.eta, nullptr, true, &c, &why));
+    const Eigen::MatrixXd etc = c.h.llt().solve(Eigen::MatrixXd::Identity(2, 2));
+    CHECK(etc11 == Approx(etc(0, 0)).epsilon(1e-5));
+    CHECK(etc21 == Approx(etc(1, 0)).epsilon(1e-5));
+    CHECK(etc22 == Approx(etc(1, 1)).epsilon(1e-5));
+    CHECK(obj == Approx(subject.ofv).epsilon(1e-15));
+    total += obj;
+  }
+  CHECK(count == fit.subjects.size());
+  CHECK(total == Approx(fit.ofv).epsilon(1e-12));
 }
 
 TEST_CASE("the .ext table: a diagonal Ω, no covariance step, and one EPS per output's error model", "[population]") {

@@ -10,10 +10,11 @@ fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
 # Phenobarbital, FOCEI, proportional error: the whole output set.
 "$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional -o "$work/pheno" \
   >"$work/pheno.txt" 2>"$work/pheno.err" || fail "phenobarbital FOCEI exited non-zero: $(cat "$work/pheno.err")"
-for f in population_estimates.csv sdtab.csv subjects.csv iterations.csv covariance.csv report.txt pkpop.ext MANIFEST; do
+for f in population_estimates.csv sdtab.csv subjects.csv iterations.csv covariance.csv report.txt pkpop.ext pkpop.phi MANIFEST; do
   [ -s "$work/pheno/$f" ] || fail "missing $f"
 done
 grep -q "pkpop.ext" "$work/pheno/MANIFEST" || fail "pkpop.ext is not in the MANIFEST"
+[ "$(tail -n +3 "$work/pheno/pkpop.phi" | wc -l)" -eq 59 ] || fail "pkpop.phi: expected 59 subjects"
 # The .ext's final row: CL, V, σ as THETA1-3, SIGMA(1,1) = 1, Ω's lower triangle, and the OFV.
 awk 'NR == 2 { ok = ($2 == "THETA1" && $5 == "SIGMA(1,1)" && $6 == "OMEGA(1,1)" && $9 == "OBJ") }
      $1 == "-1000000000" { final = ($5 == "1.00000E+00" && $7 == "0.00000E+00" && $9 ~ /^730\.8947/) }

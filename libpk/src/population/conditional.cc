@@ -444,10 +444,17 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     return mode;
   }
   mode.ofv = c.l + p.log_det_omega + log_det_h;
+  mode.hessian = h;
   mode.at_mode = std::move(c);
   mode.ok = std::isfinite(mode.ofv);
   if (!mode.ok) mode.message = "OFV_i is not finite";
   return mode;
+}
+
+Eigen::MatrixXd EtaCovariance(const SubjectMode& mode) {
+  if (!mode.ok || mode.hessian.size() == 0) return Eigen::MatrixXd();
+  const Eigen::Index q = mode.hessian.rows();
+  return mode.hessian.llt().solve(Eigen::MatrixXd::Identity(q, q));
 }
 
 void ParallelFor(int n, int threads, const std::function<void(int)>& work) {

@@ -108,6 +108,8 @@ struct SubjectMode {
   int iterations = 0;
   /// Laplace: why its H at the mode is differences of the exact ∇l (empty when it is exact).
   std::string hessian_differenced;
+  Eigen::MatrixXd hessian;  ///< the H_i of OFV_i (the method's) at η̂
+
 };
 
 /// Finds η̂ from `start` (damped Fisher scoring, then Newton with the exact ½∇²l, or central
@@ -131,6 +133,9 @@ bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const E
 bool ExactConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
                              const Eigen::VectorXd* fixed_variance, const Conditional& at,
                              Eigen::MatrixXd* half_hessian, std::string* why);
+
+/// H_i⁻¹ of a found mode (PopulationSubject::eta_covariance); empty when !mode.ok.
+Eigen::MatrixXd EtaCovariance(const SubjectMode& mode);
 
 /// Runs work(i) for i in [0, n) on `threads` threads (each takes every threads-th item, so the
 /// assignment, and hence every result, does not depend on timing).

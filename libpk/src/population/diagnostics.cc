@@ -129,6 +129,7 @@ void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParam
     s.message = m.message;
     s.eta = m.eta;
     s.ofv = m.ofv;
+    s.eta_covariance = EtaCovariance(m);
     DescribeIndividual(d.subjects[i], point, m.eta, &s);
     summary->subjects.push_back(s);
     if (!m.ok) continue;

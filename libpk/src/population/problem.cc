@@ -391,6 +391,7 @@ PopulationEvaluation EvaluatePopulation(const PopulationProblem& problem, const 
     s.message = m.message;
     s.eta = m.eta;
     s.ofv = m.ofv;
+    s.eta_covariance = internal::EtaCovariance(m);
     internal::DescribeIndividual(d.subjects[static_cast<size_t>(i)], point, m.eta, &s);
     if (!m.ok && out.ok) {
       out.ok = false;

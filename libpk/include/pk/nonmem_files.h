@@ -1,7 +1,8 @@
-// NONMEM's .ext file of a population fit: the parameter history and final estimates in the layout
-// that PsN, xpose, Pirana, pharmpy, mrgsolve's read_nmext, NMdata's NMreadExt and nonmem2R read.
-#ifndef PK_NONMEM_EXT_H_
-#define PK_NONMEM_EXT_H_
+// NONMEM's output files of a population fit, in the layout that PsN, xpose, Pirana, pharmpy,
+// mrgsolve's read_nmext, NMdata's NMreadExt and nonmem2R read: the .ext (parameter history and
+// final estimates) and the .phi (each subject's η̂, its conditional covariance and OFV_i).
+#ifndef PK_NONMEM_FILES_H_
+#define PK_NONMEM_FILES_H_
 
 #include <string>
 
@@ -13,7 +14,7 @@ namespace pk {
 ///
 ///     TABLE NO.     1: First Order Conditional Estimation with Interaction: Goal Function=…
 ///      ITERATION    THETA1       THETA2       THETA3       SIGMA(1,1)   OMEGA(1,1)   OMEGA(2,1)   OMEGA(2,2)   OBJ
-///                 0  4.70000E-03  9.90000E-01  1.30000E-01  1.00000E+00  …                                   742.52…
+///                 0  5.00000E-03  1.00000E+00  1.00000E-01  1.00000E-01  1.00000E+00  …   598.1325054994285
 ///       -1000000000  …final estimates…
 ///
 /// libpk's model maps onto NONMEM's as docs/population.md writes it: THETA1, … are θ in
@@ -32,6 +33,18 @@ namespace pk {
 /// gradient) are not written.
 std::string NonmemExtTable(const PopulationSummary& fit);
 
+/// The fit's subjects as NONMEM 7 writes its `.phi` table (`pkpop` writes `pkpop.phi`):
+///
+///     TABLE NO.     1: First Order Conditional Estimation with Interaction: Goal Function=…
+///      SUBJECT_NO   ID           ETA(1)       ETA(2)       ETC(1,1)     ETC(2,1)     ETC(2,2)     OBJ
+///                 1            1 -4.38581E-02  5.44221E-03  2.48827E-02 -2.99914E-03  7.15709E-03    5.947340253766742
+///
+/// One row per subject whose mode was found (the others are in PopulationSummary::subjects with
+/// their reason): its position among the subjects (from 1), ID, η̂ in eta_names order, ETC = the
+/// lower triangle of PopulationSubject::eta_covariance (H_i⁻¹, η's conditional covariance) and
+/// OBJ = OFV_i, whose sum over the subjects is the OFV.
+std::string NonmemPhiTable(const PopulationSummary& fit);
+
 }  // namespace pk
 
-#endif  // PK_NONMEM_EXT_H_
+#endif  // PK_NONMEM_FILES_H_

@@ -1,10 +1,10 @@
-// NONMEM's .ext table of a population fit (pk/nonmem_ext.h).
+// NONMEM's .ext and .phi tables of a population fit (pk/nonmem_files.h).
 #include <cmath>
 #include <cstdio>
 #include <string>
 #include <vector>
 
-#include "pk/nonmem_ext.h"
+#include "pk/nonmem_files.h"
 #include "pk/output.h"
 
 namespace pk {
@@ -67,6 +67,17 @@ std::vector<Column> Columns(const PopulationSummary& fit) {
     }
   }
   return columns;
+}
+
+std::string Title(const PopulationSummary& fit) {
+  return std::string("TABLE NO.     1: ") + MethodTitle(fit.method) +
+         ": Goal Function=MINIMUM VALUE OF OBJECTIVE FUNCTION: Problem=1 Subproblem=0 Superproblem1=0 Iteration1=0 "
+         "Superproblem2=0 Iteration2=0\n";
+}
+
+// A header's name in its 13 columns.
+std::string Name(const std::string& name) {
+  return " " + name + std::string(name.size() < 12 ? 12 - name.size() : 1, ' ');
 }
 
 std::string Value(double v) {
@@ -155,10 +166,8 @@ std::vector<double> StandardDeviationForm(const PopulationSummary& fit, const st
 
 std::string NonmemExtTable(const PopulationSummary& fit) {
   const std::vector<Column> columns = Columns(fit);
-  std::string out = std::string("TABLE NO.     1: ") + MethodTitle(fit.method) +
-                    ": Goal Function=MINIMUM VALUE OF OBJECTIVE FUNCTION: Problem=1 Subproblem=0 Superproblem1=0 "
-                    "Iteration1=0 Superproblem2=0 Iteration2=0\n ITERATION   ";
-  for (const Column& c : columns) out += " " + c.name + std::string(c.name.size() < 12 ? 12 - c.name.size() : 1, ' ');
+  std::string out = Title(fit) + " ITERATION   ";
+  for (const Column& c : columns) out += Name(c.name);
   out += " OBJ\n";
   double best = HUGE_VAL;
   for (const PopulationIteration& it : fit.history) {
@@ -178,6 +187,29 @@ std::string NonmemExtTable(const PopulationSummary& fit) {
     fixed.push_back(c.estimate < 0 || fit.estimates[static_cast<size_t>(c.estimate)].fixed ? 1 : 0);
   }
   out += Row(-1000000006, fixed, 0);
+  return out;
+}
+
+std::string NonmemPhiTable(const PopulationSummary& fit) {
+  const auto q = static_cast<Eigen::Index>(fit.eta_names.size());
+  std::string out = Title(fit) + " SUBJECT_NO   ID          ";
+  for (Eigen::Index k = 0; k < q; ++k) out += Name("ETA(" + std::to_string(k + 1) + ")");
+  for (Eigen::Index r = 0; r < q; ++r) {
+    for (Eigen::Index c = 0; c <= r; ++c) out += Name("ETC(" + std::to_string(r + 1) + "," + std::to_string(c + 1) + ")");
+  }
+  out += " OBJ\n";
+  for (const PopulationSubject& s : fit.subjects) {
+    if (!s.ok || s.eta.size() != q || s.eta_covariance.rows() != q) continue;
+    char head[64];
+    std::snprintf(head, sizeof head, "%13d", s.subject + 1);
+    const std::string id = FormatNumber(s.id);
+    std::vector<double> values(s.eta.data(), s.eta.data() + q);
+    for (Eigen::Index r = 0; r < q; ++r) {
+      for (Eigen::Index c = 0; c <= r; ++c) values.push_back(s.eta_covariance(r, c));
+    }
+    const std::string row = Row(0, values, s.ofv);  // its ITERATION field replaced below
+    out += head + std::string(id.size() < 13 ? 13 - id.size() : 1, ' ') + id + row.substr(13);
+  }
   return out;
 }
 
