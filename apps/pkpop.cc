@@ -68,6 +68,9 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "gradient", po::value<std::string>()->default_value("auto"),
       "the outer gradient: implicit (the modes' implicit function theorem; FOCE, FOCEI), fd (central differences "
       "of the OFV, as NONMEM) or auto (implicit for FOCE and FOCEI, fd for Laplace)")(
+      "conditional-hessian", po::value<std::string>()->default_value("exact"),
+      "½∇²l of each subject's conditional objective (Laplace's H; Newton's matrix on the ODE propagator): exact "
+      "(from the second-order sensitivities) or differences (of the exact gradient, as NONMEM; a check)")(
       "rtol", po::value<double>()->default_value(1e-9),
       "ODE propagator: relative tolerance (pkfit's is 1e-8; the outer line search needs the OFV closer to the "
       "one whose gradient it is given)")(
@@ -366,6 +369,11 @@ int Main(int argc, char** argv, const Process& process) {
   options.method = pk::cli::Parsed("--method", [&] { return pk::ParsePopulationMethod(vm["method"].as<std::string>()); });
   options.gradient =
       pk::cli::Parsed("--gradient", [&] { return pk::ParsePopulationGradient(vm["gradient"].as<std::string>()); });
+  const std::string hessian = vm["conditional-hessian"].as<std::string>();
+  if (hessian != "exact" && hessian != "differences") {
+    throw pk::InputError("--conditional-hessian: expected exact or differences, not '" + hessian + "'");
+  }
+  options.exact_conditional_hessian = hessian == "exact";
   options.threads = vm["threads"].as<int>();
   options.distribution = process.distribution;
   options.max_iterations = vm["max-evaluations"].as<int>();

@@ -361,6 +361,51 @@ void PopulationCase(const char* name, const pk::PopulationProblem& problem, cons
   std::fflush(stdout);
 }
 
+// One Laplace OFV evaluation (every subject's mode, warm-started from the modes found before, and
+// its H) with the exact ½∇²l against Richardson differences of the exact ∇l, as the difference
+// gradient calls it 2m times an outer step.
+void LaplaceHessianCase(const char* name, const pk::PopulationProblem& problem, const pk::PopulationParameters& p) {
+  pk::internal::PopulationEngine exact(problem, pk::PopulationMethod::kLaplace, 1), differences = exact;
+  differences.set_exact_hessian(false);
+  const std::vector<Eigen::VectorXd> zero(static_cast<size_t>(problem.num_subjects()),
+                                          Eigen::VectorXd::Zero(static_cast<Eigen::Index>(problem.eta_names().size())));
+  const pk::internal::PopulationEngine::Result start = exact.Evaluate(p, zero, true);
+  std::vector<Eigen::VectorXd> etas;
+  for (const auto& m : start.modes) etas.push_back(m.eta);
+  double a = 0, b = 0;
+  const Timing t = Interleaved({[&] { a = exact.Evaluate(p, etas, false).ofv; },
+                                [&] { b = differences.Evaluate(p, etas, false).ofv; }});
+  std::printf("%-22s %11.3f %14.2f %12.2e\n", name, t.base_seconds * 1e3, t.ratios[1], std::abs(a - b));
+  std::fflush(stdout);
+}
+
+void LaplaceHessian(const std::string& data_dir) {
+  std::printf("\n== Laplace: one OFV evaluation with the exact ½∇²l against differences of the exact ∇l ==\n");
+  std::printf("%-22s %11s %14s %12s\n", "problem", "exact (ms)", "differences/ex", "|ΔOFV|");
+  const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
+  pk::PopulationParameters start;
+  start.theta = Eigen::Vector2d(0.0047, 0.99);
+  start.omega = Eigen::Vector2d(0.03, 0.03).asDiagonal();
+  start.sigma = Eigen::VectorXd::Constant(1, 0.12);
+  LaplaceHessianCase("phenobarbital (Φ/Γ)", BolusProblem(pheno), start);
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("combined");
+  const auto theo = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/theophylline.csv"));
+  const pk::PopulationProblem oral(pk::MakeModel("1cmt_oral"), theo, {"KA", "CL", "V"}, o);
+  pk::PopulationParameters p = oral.DefaultParameters();
+  p.theta = Eigen::Vector3d(1.5, 2.8, 32);
+  p.sigma = Eigen::Vector2d(0.3, 0.1);
+  LaplaceHessianCase("theophylline 3 η (Φ/Γ)", oral, p);
+  pk::ObjectiveOptions ode = o;
+  ode.error_model = pk::MakeResidualError("proportional");
+  ode.ode.relative_tolerance = 1e-9;
+  ode.ode.absolute_tolerance = 1e-11;
+  const pk::PopulationProblem emax(pk::MakeModel("1cmt_iv_emax"),
+                                   std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/emax_synthetic.csv")),
+                                   {"CL", "EMAX"}, ode);
+  LaplaceHessianCase("emax (ODE)", emax, emax.DefaultParameters());
+}
+
 void PopulationEstimation(const std::string& data_dir) {
   std::printf("\n== population estimation: FOCEI, 1cmt_iv, η on CL and V, proportional error, one thread ==\n");
   std::printf("%-14s %9s %9s %11s %9s %9s %11s %10s %9s\n", "data", "OFV", "evals", "fit (ms)", "fd evals",
@@ -714,6 +759,7 @@ int main(int argc, char** argv) {
     }
   }
   if (only == 0 || only == 8) PopulationEstimation(data_dir);
+  if (only == 0 || only == 8) LaplaceHessian(data_dir);
   // ---- 6. Simulation throughput and memory.
   if (only == 0 || only == 6) SimulationThroughput(g_min_time < 0.05 ? 10000 : 100000);
   return 0;

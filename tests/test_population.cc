@@ -1475,6 +1475,13 @@ TEST_CASE("Laplace's H is differenced only where the route has no second derivat
   const double by_differences = exact.at_mode.l + pp.log_det_omega + 2 * Eigen::LLT<Eigen::MatrixXd>(h).matrixLLT().diagonal().array().log().sum();
   CHECK(std::abs(exact.ofv - by_differences) < 1e-8);
   CHECK(std::abs(exact.ofv - by_differences) > 0);  // they are computed differently
+  // Asked for (PopulationOptions::exact_conditional_hessian = false): the differences, and so said.
+  pk::internal::PopulationPoint asked = pp;
+  asked.exact_hessian = false;
+  const pk::internal::SubjectMode differenced_by_choice = pk::internal::SolveSubject(subject, asked, Eigen::VectorXd::Zero(2));
+  REQUIRE(differenced_by_choice.ok);
+  CHECK(differenced_by_choice.hessian_differenced == "differences asked for");
+  CHECK(std::abs(differenced_by_choice.ofv - by_differences) < 1e-10);
 }
 
 namespace {

@@ -186,6 +186,9 @@ struct PopulationOptions {
   int threads = 1;                      ///< subjects' inner problems in parallel
   /// Subjects split across processes (pk/mpi.h), each process using `threads`; null: all here.
   std::shared_ptr<const SubjectDistribution> distribution;
+  /// ½∇²l from the predictions' second derivatives (Laplace's H at the mode; Newton's matrix on the
+  /// ODE propagator); false: central differences of the exact ∇l, as NONMEM forms them (a check).
+  bool exact_conditional_hessian = true;
   bool covariance = true;               ///< run the covariance step
   CovarianceMatrix covariance_matrix = CovarianceMatrix::kSandwich;
   /// Called after each outer evaluation that improves the OFV (for a progress line); may be empty.

@@ -367,8 +367,8 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
   bool newton = false, converged = false;
   // ½∇²l: exact while the route has second derivatives (the first refusal is kept for the rest of
   // the search, with its reason); `exact_here` says half_hessian holds it at the current η.
-  bool exact = true, exact_here = false;
-  std::string no_exact;
+  bool exact = p.exact_hessian, exact_here = false;
+  std::string no_exact = exact ? "" : "differences asked for";
   int blind_steps = 0;  // full steps taken where l cannot resolve the decrease (below)
   const Eigen::VectorXd scale = p.omega_inverse.diagonal().cwiseSqrt();
   double previous = 0;  // the last step's length

@@ -64,6 +64,7 @@ struct PopulationPoint {
   Eigen::VectorXd sigma;
   const ResidualErrorModel* error = nullptr;
   PopulationMethod method = PopulationMethod::kFocei;
+  bool exact_hessian = true;  ///< PopulationOptions::exact_conditional_hessian
 
   /// Throws pk::InputError when Ω is not positive definite.
   static PopulationPoint Make(const PopulationParameters& p, const ResidualErrorModel& error, PopulationMethod m);

@@ -56,11 +56,14 @@ class PopulationEngine {
 
   const PopulationProblem& problem() const { return problem_; }
   PopulationMethod method() const { return method_; }
+  /// PopulationOptions::exact_conditional_hessian (default true).
+  void set_exact_hessian(bool exact) { exact_hessian_ = exact; }
   int threads() const { return threads_; }
 
  private:
   const PopulationProblem& problem_;
   PopulationMethod method_;
+  bool exact_hessian_ = true;
   int threads_;
   std::shared_ptr<const SubjectDistribution> distribution_;
   std::vector<bool> included_;

@@ -79,6 +79,7 @@ PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& 
   PopulationPoint point;
   try {
     point = PopulationPoint::Make(p, *d.options.error_model, method_);
+    point.exact_hessian = exact_hessian_;
   } catch (const InputError& e) {  // Ω underflowed (a variance of 1e-300) on an optimiser's trial step
     r.message = e.message();
     r.ofv = HUGE_VAL;
@@ -370,6 +371,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   internal::CheckMethod(problem, options.method);
   const internal::Packing packing(problem, options.structure, initial);
   internal::PopulationEngine engine(problem, options.method, options.threads, options.distribution);
+  engine.set_exact_hessian(options.exact_conditional_hessian);
   PopulationSummary summary;
   summary.method = options.method;
   summary.eta_names = problem.eta_names();
