@@ -239,6 +239,7 @@ TEST_CASE("censored samples (M3): a Laplace fit, its residuals and the gradient 
   }
   CHECK(censored == 27);
   CHECK(fit.ofv < pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kLaplace).ofv);
+  CHECK(fit.conditional_hessian == "exact, from the second-order sensitivities");  // censored terms included
 }
 
 TEST_CASE("Laplace approaches the exact marginal likelihood as data become rich", "[population]") {

@@ -278,6 +278,8 @@ struct PopulationSummary {
   int evaluations = 0;
   double seconds = 0;
   std::string gradient;  ///< how the outer gradient was computed
+  /// Laplace: how H_i (½∇²l at the modes) was formed at the estimate; empty for FOCE and FOCEI.
+  std::string conditional_hessian;
   int processes = 1;     ///< processes the subjects were split across (PopulationOptions::distribution)
 
   PopulationParameters parameters;

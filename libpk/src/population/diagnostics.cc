@@ -101,6 +101,24 @@ void SubjectRows(const SubjectModel& s, const PopulationPoint& point, const Eige
   }
 }
 
+// What the summary says of Laplace's H at the estimate: exact, or differenced for some subjects.
+std::string LaplaceHessian(const PopulationEngine& engine, const std::vector<SubjectMode>& modes) {
+  if (engine.method() != PopulationMethod::kLaplace) return "";
+  int differenced = 0, found = 0;
+  std::string why;
+  for (size_t i = 0; i < modes.size(); ++i) {
+    if (!engine.included()[i] || !modes[i].ok) continue;
+    ++found;
+    if (modes[i].hessian_differenced.empty()) continue;
+    if (why.empty()) why = modes[i].hessian_differenced;
+    ++differenced;
+  }
+  if (differenced == 0) return "exact, from the second-order sensitivities";
+  return differenced == found ? "central differences of the exact ∇l (" + why + ")"
+                              : "central differences of the exact ∇l for " + std::to_string(differenced) + " of " +
+                                    std::to_string(found) + " subjects (" + why + "), exact for the others";
+}
+
 }  // namespace
 
 void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParameters& p,
@@ -113,6 +131,7 @@ void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParam
   std::vector<double> iwres;
   const Eigen::Index q = p.omega.rows();
   std::vector<std::vector<double>> etas(static_cast<size_t>(q));
+  summary->conditional_hessian = LaplaceHessian(engine, modes);
   for (size_t i = 0; i < d.subjects.size(); ++i) {
     const double id = d.data->subjects[i].id;
     if (!engine.included()[i]) {

@@ -108,6 +108,7 @@ std::string PopulationSummary::FullReport() const {
     if (!s.ok) out << "  subject " << FormatNumber(s.id) << ": " << s.message << "\n";
   }
   out << "  outer gradient: " << gradient << "\n";
+  if (!conditional_hessian.empty()) out << "  Laplace's H: " << conditional_hessian << "\n";
   if (processes > 1) out << "  subjects split across " << processes << " processes\n";
   return out.str();
 }
