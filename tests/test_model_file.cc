@@ -297,7 +297,11 @@ TEST_CASE("model files: each kind of error names the file, line and column and w
       {"an initial amount in $INIT and in $PARAM", Replace(5, "V = 30\nX0_2 = 1") + "$INIT\nCENTRAL = 2\n",
        "the initial amount of CENTRAL is given twice: here and as X0_2 in $PARAM at line 6", 18, 1},
       {"$INIT reads an amount", std::string(kBase) + "$INIT\nCENTRAL = DEPOT / 2\n",
-       "the initial amount of CENTRAL in $INIT reads the amount in DEPOT", 17, 1},
+       "the initial amount of CENTRAL reads the amount in DEPOT", 17, 1},
+      {"CMT(0) in $ODE", Replace(13, "d/dt(CENTRAL) = KA * DEPOT - K * CENTRAL\nCENTRAL(0) = 1"),
+       "an initial amount, CENTRAL(0), belongs in $PK or $INIT, not in $ODE", 14, 1},
+      {"$INIT before the $PK CMT(0) it repeats", Replace(9, "$INIT\nCENTRAL = 2\n$PK\nCENTRAL(0) = 1"),
+       "the initial amount of CENTRAL is set twice: here and at line 10", 12, 1},
   };
   int checked = 0;
   for (const ErrorCase& c : cases) {
@@ -869,9 +873,10 @@ TEST_CASE("model files: $INIT and CMT(0) set a compartment's initial amount, as 
   CHECK(MaxRel(ea.predictions, eb.predictions) < 1e-14);
   CHECK(MaxRel(ea.gradient, eb.gradient) < 1e-12);
   CHECK(std::abs(ea.gradient(3)) > 0);  // the initial amount's parameter counts
-  // nlmixr2's CENTRAL(0) = … in $PK, also within if/else, is the same.
+  // nlmixr2's CENTRAL(0) = … in $PK, also within if/else (both branches taken: WT is 60 at the
+  // first record, 75 at a later one), is the same.
   std::string pk_form = kComputedModifiers;
-  pk_form.replace(pk_form.find("X0_2 = A0 * WT / 70"), 19, "if (WT > 0) {\n  CENTRAL(0) = A0 * WT / 70\n} else {\n  CENTRAL(0) = 0\n}");
+  pk_form.replace(pk_form.find("X0_2 = A0 * WT / 70"), 19, "if (WT > 65) {\n  CENTRAL(0) = A0 * WT / 70\n} else {\n  CENTRAL(0) = A0 * (WT / 70)\n}");
   const auto c = pk::ParseModel(pk_form, "nlmixr.pkm");
   CHECK(c->declarations().computed_modifiers.names == a->declarations().computed_modifiers.names);
   const pk::Objective oc(c, ModifierData(false), 0, pk::ObjectiveOptions());

@@ -1483,6 +1483,23 @@ TEST_CASE("Laplace's H is differenced only where the route has no second derivat
   REQUIRE(differenced_by_choice.ok);
   CHECK(differenced_by_choice.hessian_differenced == "differences asked for");
   CHECK(std::abs(differenced_by_choice.ofv - by_differences) < 1e-10);
+  // On the ODE propagator Newton's last exact matrix may serve as H at the mode: it is the one at η̂.
+  pk::ObjectiveOptions mo;
+  mo.error_model = pk::MakeResidualError("combined");
+  const pk::PopulationProblem mm(pk::MakeModel("1cmt_oral_mm"), Data("theophylline"), {"VMAX", "V"}, mo);
+  pk::PopulationParameters mp = mm.DefaultParameters();
+  mp.sigma = Eigen::Vector2d(0.3, 0.1);
+  const pk::internal::PopulationPoint mpoint =
+      pk::internal::PopulationPoint::Make(mp, *mm.options().error_model, pk::PopulationMethod::kLaplace);
+  for (size_t i = 0; i < 3; ++i) {
+    const auto& s = mm.impl().subjects[i];
+    const pk::internal::SubjectMode m = pk::internal::SolveSubject(s, mpoint, Eigen::VectorXd::Zero(2));
+    REQUIRE(m.ok);
+    CHECK(m.hessian_differenced.empty());
+    Eigen::MatrixXd fresh;
+    REQUIRE(pk::internal::ExactConditionalHessian(s, mpoint, m.eta, nullptr, m.at_mode, &fresh, &why));
+    CHECK((fresh - m.hessian).cwiseAbs().maxCoeff() <= 1e-12 * fresh.cwiseAbs().maxCoeff());
+  }
 }
 
 namespace {
@@ -1551,7 +1568,7 @@ TEST_CASE("the .ext table: NONMEM's layout, final estimates, SEs, SD/correlation
     last = list.front().back();
   }
   CHECK(iterations > 3);
-  CHECK(last == fit.ofv);
+  CHECK(last == Approx(fit.ofv).epsilon(1e-12));  // the best evaluation, re-solved at the end
   // SEs: 1.0E+10 for what is fixed (V, Σ).
   const std::vector<double> se = {e[0].se, 1e10, e[5].se, 1e10, e[2].se, e[3].se, e[4].se};
   const auto& se_row = rows.at(-1000000001).front();
@@ -1617,6 +1634,25 @@ TEST_CASE("the .ext table: NONMEM's layout, final estimates, SEs, SD/correlation
   }
   CHECK(count == fit.subjects.size());
   CHECK(total == Approx(fit.ofv).epsilon(1e-12));
+}
+
+TEST_CASE("the .ext and .phi tables of a fit that stopped at its starting point are their headers", "[population]") {
+  // Every subject's first sample precedes its dose: the exponential error's log ŷ fails there.
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,DV,EVID\n1,0,0,2,0\n1,1,100,.,1\n1,2,0,3,0\n2,0,0,2,0\n2,1,100,.,1\n2,3,0,2,0\n", "pre.csv"));
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("exponential");
+  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv"), data, {"CL"}, o);
+  pk::PopulationParameters p = problem.DefaultParameters();
+  p.sigma = Eigen::VectorXd::Constant(1, 0.2);
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, p, pk::PopulationOptions());
+  REQUIRE_FALSE(fit.converged);
+  REQUIRE(fit.estimates.empty());
+  std::vector<std::string> names;
+  CHECK(ReadExt(pk::NonmemExtTable(fit), &names).empty());
+  CHECK(names == std::vector<std::string>{"ITERATION", "OBJ"});
+  const std::string phi = pk::NonmemPhiTable(fit);
+  CHECK(std::count(phi.begin(), phi.end(), '\n') == 2);
 }
 
 TEST_CASE("the .ext table: a diagonal Ω, no covariance step, and one EPS per output's error model", "[population]") {

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# pkpop under mpirun with 2 processes gives the same estimates, covariance, sdtab and subject
-# table as one process: byte for byte, since every subject's numbers come from one process and
+# pkpop under mpirun with 2 processes gives the same estimates, covariance, sdtab, subject table and
+# NONMEM .ext/.phi as one process: byte for byte, since every subject's numbers come from one process and
 # are summed in subject order (pk/population.h, SubjectDistribution).
 set -uo pipefail
 pkpop=$1; root=$2; work=$3; mpirun=$4; sanitized=${5:-OFF}
@@ -22,7 +22,7 @@ compare() {  # name, then pkpop's arguments
   # MPI really split the subjects (a process that missed its launcher would run them all as one).
   grep -q "subjects split across 2 processes" "$work/$name.2/report.txt" || fail "$name: not split across 2 processes"
   grep -q "subjects split across" "$work/$name.1/report.txt" && fail "$name: one process reports a split"
-  for f in population_estimates.csv covariance.csv sdtab.csv subjects.csv iterations.csv; do
+  for f in population_estimates.csv covariance.csv sdtab.csv subjects.csv iterations.csv pkpop.ext pkpop.phi; do
     [ -s "$work/$name.1/$f" ] || fail "$name: one process wrote no $f"
     cmp -s "$work/$name.1/$f" "$work/$name.2/$f" || fail "$name: $f differs between 1 and 2 processes"
   done

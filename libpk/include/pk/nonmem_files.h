@@ -22,11 +22,12 @@ namespace pk {
 /// `W = THETA(k)*F` with `$SIGMA 1 FIX`); SIGMA(k,k) = 1, fixed, one EPS per output's error model;
 /// OMEGA(i,j) is Ω's whole lower triangle by rows over the η in eta_names order (0 and fixed outside
 /// its blocks). Values are NONMEM's 5-decimal E format (population_estimates.csv keeps every
-/// digit); OBJ is the OFV to 17 digits.
+/// digit); OBJ is the OFV in the shortest text that reads back exactly. A fit without estimates
+/// (stopped at its starting point) gives the header alone.
 ///
 /// Rows: one per objective evaluation that lowered the OFV (ITERATION = the evaluation's number
 /// less 1, so 0 is the initial estimates); −1000000000 the final estimates and OFV; with a covariance
-/// step, −1000000001 the SEs (1.0E+10 for what is fixed); −1000000004 Ω and Σ as SDs and
+/// step, −1000000001 the SEs (1.0E+10 for what is fixed, 0 where the step gave none); −1000000004 Ω and Σ as SDs and
 /// correlations (THETA columns 0, as NONMEM writes them); with SEs, −1000000005 their SEs by the
 /// delta method over the covariance matrix; −1000000006 1 for each fixed element. NONMEM's
 /// −1000000002/3 (eigenvalues, PRINT=E), −1000000007 (termination codes) and −1000000008 (the

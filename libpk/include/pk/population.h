@@ -206,8 +206,9 @@ struct PopulationSubject {
   bool ok = true;
   std::string message;      ///< why the subject's mode could not be found, when !ok
   Eigen::VectorXd eta;      ///< η̂_i
-  /// H_i⁻¹, H_i the method's ½∇²l_i at η̂_i (the one in OFV_i): η's conditional covariance, NONMEM's
-  /// ETC in its .phi file (empty when !ok).
+  /// H_i⁻¹, H_i the method's approximation of ½∇²l_i at η̂_i, the one in OFV_i (Laplace's exact one,
+  /// FOCE's and FOCEI's first-order H): η's conditional covariance, NONMEM's ETC in its .phi file
+  /// (empty when !ok).
   Eigen::MatrixXd eta_covariance;
   double ofv = 0;           ///< OFV_i
   Eigen::VectorXd parameters;  ///< individual φ_i (theta_names order)

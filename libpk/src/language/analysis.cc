@@ -447,7 +447,7 @@ class Analyser {
       const int r = ResolveDefinition(static_cast<int>(d), at);
       const int s = t.definitions[d].in_pk ? StateRead(r) : -1;
       if (s >= 0 && !t.definitions[d].initial_of.empty()) {
-        Fail(t.definitions[d].at, "the initial amount of " + t.definitions[d].initial_of + " in $INIT reads the amount in " +
+        Fail(t.definitions[d].at, "the initial amount of " + t.definitions[d].initial_of + " reads the amount in " +
                                       out_.compartments[static_cast<size_t>(s)] +
                                       ": it is set before any amount exists (write it from parameters and $PK)");
       }

@@ -280,7 +280,7 @@ class Parser {
   // compartment that does not exist, or an amount given twice, is an error at its line.
   void InitialAmounts() {
     // nlmixr2's CMT(0) = … in $PK (named "CMT(0)" by Statement, merged through if/else) joins
-    // $INIT's lines, in the order written.
+    // $INIT's lines, all in the order written (a merged if/else at its first branch's place).
     std::vector<Definition> from_pk;
     auto& defs = m_->definitions;
     for (auto it = defs.begin(); it != defs.end();) {
@@ -293,6 +293,9 @@ class Parser {
       }
     }
     inits_.insert(inits_.begin(), std::make_move_iterator(from_pk.begin()), std::make_move_iterator(from_pk.end()));
+    std::stable_sort(inits_.begin(), inits_.end(), [](const Definition& a, const Definition& b) {
+      return a.at.line != b.at.line ? a.at.line < b.at.line : a.at.column < b.at.column;
+    });
     for (Definition& d : inits_) {
       Token at;
       at.line = d.at.line;
@@ -393,8 +396,9 @@ class Parser {
       out->push_back({std::move(d), false});
       return;
     }
-    if (!derivative && pk && first.kind == Kind::kIdentifier && IsPunct("(", 1) && Peek(2).kind == Kind::kNumber &&
+    if (!derivative && first.kind == Kind::kIdentifier && IsPunct("(", 1) && Peek(2).kind == Kind::kNumber &&
         Peek(2).number == 0 && IsPunct(")", 3)) {
+      if (!pk) Fail(first, "an initial amount, " + first.text + "(0), belongs in $PK or $INIT, not in $ODE");
       // nlmixr2's CMT(0) = …: the compartment's initial amount, as a line of $INIT (InitialAmounts).
       pos_ += 4;
       d.name = ToUpper(first.text) + "(0)";

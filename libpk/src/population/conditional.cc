@@ -260,7 +260,8 @@ void SampleEtaDerivatives(const SubjectModel& s, const PopulationPoint& p, const
     return;
   }
   // v(ŷ, σ)'s second derivative in ŷ by central differences of its exact first (quadratic in ŷ
-  // for every error model, so the difference is exact to rounding).
+  // for libpk's error models, so the difference is exact to rounding; a user's ResidualErrorModel
+// that is not quadratic gets its O(h²) error).
   const auto ns = std::max<Eigen::Index>(p.sigma.size(), 1);
   thread_local Eigen::VectorXd dsigma;
   dsigma.resize(ns);
@@ -365,9 +366,10 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
     if (!start.any() || !EvaluateConditional(s, p, mode.eta, fv, true, &c, &mode.message)) return mode;
   }
   bool newton = false, converged = false;
-  // ½∇²l: exact while the route has second derivatives (the first refusal is kept for the rest of
-  // the search, with its reason); `exact_here` says half_hessian holds it at the current η.
-  bool exact = p.exact_hessian, exact_here = false;
+  // ½∇²l: exact where the route gives second derivatives (tried at every use: a numerical failure
+  // at one η says nothing of the next); `exact_here` says half_hessian holds it at the current η.
+  const bool exact = p.exact_hessian;
+  bool exact_here = false;
   std::string no_exact = exact ? "" : "differences asked for";
   int blind_steps = 0;  // full steps taken where l cannot resolve the decrease (below)
   const Eigen::VectorXd scale = p.omega_inverse.diagonal().cwiseSqrt();
@@ -377,7 +379,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
   for (mode.iterations = 0; mode.iterations < kMaxIterations; ++mode.iterations) {
     if (newton) {
       exact_here = false;
-      if (exact && s.newton_exact_hessian) exact = exact_here = ExactConditionalHessian(s, p, mode.eta, fv, c, &half_hessian, &no_exact);
+      if (exact && s.newton_exact_hessian) exact_here = ExactConditionalHessian(s, p, mode.eta, fv, c, &half_hessian, &no_exact);
       if (!exact_here && !ConditionalHessian(s, p, mode.eta, fv, false, &half_hessian, &mode.message)) return mode;
     }
     if (!newton || !Step(c, half_hessian, &step)) {
@@ -431,8 +433,7 @@ SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const 
   }
   // Laplace's H enters the OFV: at the mode, exact, or else differences extrapolated.
   if (p.method == PopulationMethod::kLaplace && !exact_here) {
-    exact = exact && ExactConditionalHessian(s, p, mode.eta, fv, c, &half_hessian, &no_exact);
-    if (!exact) {
+    if (!(exact && ExactConditionalHessian(s, p, mode.eta, fv, c, &half_hessian, &no_exact))) {
       mode.hessian_differenced = no_exact;
       if (!ConditionalHessian(s, p, mode.eta, fv, true, &half_hessian, &mode.message)) return mode;
     }

@@ -75,15 +75,16 @@ std::string Title(const PopulationSummary& fit) {
          "Superproblem2=0 Iteration2=0\n";
 }
 
-// A header's name in its 13 columns.
+// A header's name in its 13 columns (a longer one, OMEGA(10,10), takes what it needs).
 std::string Name(const std::string& name) {
-  return " " + name + std::string(name.size() < 12 ? 12 - name.size() : 1, ' ');
+  return " " + name + std::string(name.size() < 12 ? 12 - name.size() : 0, ' ');
 }
 
+// NONMEM's E12.5 in 13 columns, with a space before it whatever its width (−1.50000E-120 has 13).
 std::string Value(double v) {
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%13.5E", v);
-  return buffer;
+  return buffer[0] == ' ' ? std::string(buffer) : " " + std::string(buffer);
 }
 
 std::string Row(long long iteration, const std::vector<double>& values, double obj) {
@@ -106,7 +107,9 @@ std::vector<double> Values(const PopulationSummary& fit, const std::vector<Colum
       continue;
     }
     const PopulationEstimate& e = fit.estimates[static_cast<size_t>(c.estimate)];
-    out.push_back(se ? (e.fixed || !std::isfinite(e.se) ? kNotEstimated : e.se) : estimates(c.estimate));
+    // An estimated element without an SE (a covariance step that failed for it) writes 0, as
+    // NONMEM's row does when $COV did not run.
+    out.push_back(se ? (e.fixed ? kNotEstimated : std::isfinite(e.se) ? e.se : 0.0) : estimates(c.estimate));
   }
   return out;
 }
@@ -138,8 +141,8 @@ std::vector<double> StandardDeviationForm(const PopulationSummary& fit, const st
     } else if (fit.estimates[static_cast<size_t>(c.estimate)].fixed && se) {
       out.push_back(kNotEstimated);
     } else if (c.i == c.j) {
-      const double sd = std::sqrt(estimate(c.estimate));
-      out.push_back(se ? fit.estimates[static_cast<size_t>(c.estimate)].se / (2 * sd) : sd);
+      const double sd = std::sqrt(estimate(c.estimate)), s = fit.estimates[static_cast<size_t>(c.estimate)].se;
+      out.push_back(se ? (std::isfinite(s) ? s / (2 * sd) : 0.0) : sd);
     } else {
       const int ii = diagonal[static_cast<size_t>(c.i)], jj = diagonal[static_cast<size_t>(c.j)];
       const double root = std::sqrt(estimate(ii) * estimate(jj)), rho = estimate(c.estimate) / root;
@@ -156,17 +159,30 @@ std::vector<double> StandardDeviationForm(const PopulationSummary& fit, const st
           if (pa >= 0 && pb >= 0) variance += g[a] * g[b] * fit.covariance(pa, pb);
         }
       }
-      out.push_back(std::sqrt(std::max(variance, 0.0)));
+      out.push_back(std::isfinite(variance) ? std::sqrt(std::max(variance, 0.0)) : 0.0);
     }
   }
   return out;
 }
 
+// Whether the summary holds a fit's estimates (θ, Ω's elements and σ): a fit that stopped at its
+// starting point (no subject's mode found) has none.
+bool HasEstimates(const PopulationSummary& fit) {
+  const auto q = fit.parameters.omega.rows();
+  const auto least = static_cast<size_t>(fit.parameters.theta.size() + fit.parameters.sigma.size() + q);
+  if (fit.estimates.size() < least || !std::isfinite(fit.ofv)) return false;
+  for (const PopulationIteration& it : fit.history) {
+    if (it.values.size() != static_cast<Eigen::Index>(fit.estimates.size())) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 std::string NonmemExtTable(const PopulationSummary& fit) {
-  const std::vector<Column> columns = Columns(fit);
   std::string out = Title(fit) + " ITERATION   ";
+  if (!HasEstimates(fit)) return out + " OBJ\n";  // the header alone: there are no estimates to list
+  const std::vector<Column> columns = Columns(fit);
   for (const Column& c : columns) out += Name(c.name);
   out += " OBJ\n";
   double best = HUGE_VAL;
@@ -199,7 +215,7 @@ std::string NonmemPhiTable(const PopulationSummary& fit) {
   }
   out += " OBJ\n";
   for (const PopulationSubject& s : fit.subjects) {
-    if (!s.ok || s.eta.size() != q || s.eta_covariance.rows() != q) continue;
+    if (!s.ok || s.eta.size() != q || s.eta_covariance.rows() != q || !std::isfinite(s.ofv)) continue;
     char head[64];
     std::snprintf(head, sizeof head, "%13d", s.subject + 1);
     const std::string id = FormatNumber(s.id);
