@@ -229,39 +229,44 @@ bool EtaSecondDerivatives(const SubjectModel& s, const Eigen::VectorXd& phi, std
 }
 
 // One sample's derivatives in η: of the prediction (dy, yy), of f = T(ŷ) (g, ff) and of the
-// residual variance V (dv, vv; zero when V is held at its η = 0 value, FOCE).
+// residual variance V (dv, vv; zero when V is held at its η = 0 value, FOCE), and M3's ∂z (dz).
+// Kept per thread and reused from sample to sample: the Hessian is formed at every mode of every
+// outer evaluation, on a few samples each, where allocating would cost more than the arithmetic.
 struct SampleDerivatives {
-  Eigen::VectorXd dy, g, dv;
+  Eigen::VectorXd slope;  // φ'_a = ∂φ_a/∂η_a: φ_a for a log-normal η, 1 for a file's η parameter
+  Eigen::VectorXd dy, g, dv, dz;
   Eigen::MatrixXd yy, ff, vv;
 };
 
 // ∂²ŷ/∂η_a∂η_b = T_ab φ'_a φ'_b + δ_ab ∂ŷ/∂η_a for a log-normal η (φ = θe^η: φ' = φ'' = φ), with
 // T from `second` (EtaSecondDerivatives' order); then the chain rule into f and V.
-void SampleEtaDerivatives(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& phi,
-                          const std::vector<Eigen::VectorXd>& second, const Conditional& c, bool fixed_variance,
-                          Eigen::Index j, SampleDerivatives* d) {
+void SampleEtaDerivatives(const SubjectModel& s, const PopulationPoint& p, const std::vector<Eigen::VectorXd>& second,
+                          const Conditional& c, bool fixed_variance, Eigen::Index j, SampleDerivatives* d) {
   const auto q = static_cast<Eigen::Index>(s.eta_free.size());
-  Eigen::VectorXd slope(q);  // φ'_a
-  for (Eigen::Index a = 0; a < q; ++a) slope(a) = s.eta_log[static_cast<size_t>(a)] ? phi(s.eta_free[static_cast<size_t>(a)]) : 1;
   const double yhat = c.yhat(j);
   const bool logs = s.any_logs && s.logs(j);
-  d->g = c.g.row(j).transpose();
-  d->dy = logs ? Eigen::VectorXd(d->g * yhat) : d->g;
+  d->g.resize(q);
+  d->dy.resize(q);
   d->yy.resize(q, q);
+  d->ff.resize(q, q);
+  for (Eigen::Index a = 0; a < q; ++a) {
+    d->g(a) = c.g(j, a);
+    d->dy(a) = logs ? d->g(a) * yhat : d->g(a);
+  }
   size_t pair = 0;
   for (Eigen::Index a = 0; a < q; ++a) {
-    for (Eigen::Index b = a; b < q; ++b) d->yy(a, b) = d->yy(b, a) = second[pair++](j) * slope(a) * slope(b);
+    for (Eigen::Index b = a; b < q; ++b) d->yy(a, b) = d->yy(b, a) = second[pair++](j) * d->slope(a) * d->slope(b);
     if (s.eta_log[static_cast<size_t>(a)]) d->yy(a, a) += d->dy(a);
   }
-  d->ff = logs ? Eigen::MatrixXd(d->yy / yhat - d->g * d->g.transpose()) : d->yy;
-  if (fixed_variance) {
-    d->dv.setZero(q);
-    d->vv.setZero(q, q);
-    return;
+  for (Eigen::Index a = 0; a < q; ++a) {
+    for (Eigen::Index b = 0; b < q; ++b) d->ff(a, b) = logs ? d->yy(a, b) / yhat - d->g(a) * d->g(b) : d->yy(a, b);
   }
-  // v(ŷ, σ)'s second derivative in ŷ by central differences of its exact first (quadratic in ŷ
-  // for libpk's error models, so the difference is exact to rounding; a user's ResidualErrorModel
-// that is not quadratic gets its O(h²) error).
+  d->dv.setZero(q);
+  d->vv.setZero(q, q);
+  if (fixed_variance) return;
+  // v(ŷ, σ)'s second derivative in ŷ by central differences of its exact first (quadratic in ŷ for
+  // libpk's error models, so the difference is exact to rounding; a user's ResidualErrorModel that
+  // is not quadratic gets its O(h²) error).
   const auto ns = std::max<Eigen::Index>(p.sigma.size(), 1);
   thread_local Eigen::VectorXd dsigma;
   dsigma.resize(ns);
@@ -270,9 +275,32 @@ void SampleEtaDerivatives(const SubjectModel& s, const PopulationPoint& p, const
   OutputVariance(*p.error, s.outputs(j), yhat, p.sigma.data(), &v, &vy, dsigma.data());
   OutputVariance(*p.error, s.outputs(j), yhat + h, p.sigma.data(), &v, &vy_plus, dsigma.data());
   OutputVariance(*p.error, s.outputs(j), yhat - h, p.sigma.data(), &v, &vy_minus, dsigma.data());
-  d->dv = vy * d->dy;
-  d->vv = (vy_plus - vy_minus) / (2 * h) * d->dy * d->dy.transpose() + vy * d->yy;
+  const double vyy = (vy_plus - vy_minus) / (2 * h);
+  for (Eigen::Index a = 0; a < q; ++a) {
+    d->dv(a) = vy * d->dy(a);
+    for (Eigen::Index b = 0; b < q; ++b) d->vv(a, b) = vyy * d->dy(a) * d->dy(b) + vy * d->yy(a, b);
+  }
 }
+
+// Sample j's term of ½∇²l, element (a, b), from its derivatives: for a value
+// ½∂²[r²/V + log V] with ∂r = −g; for a censored sample (M3) ½∂²[−2 log Φ(z)] = m(z + m) ∂z∂zᵀ − m ∂²z,
+// z = sign·r/√V, m = φ(z)/Φ(z), ∂z = −sign·g/√V − ½ z ∂V/V (d.dz) and
+// ∂²z = −sign·∂²f/√V + ½ sign (g∂Vᵀ + ∂V gᵀ)/V^{3/2} + ¾ z ∂V∂Vᵀ/V² − ½ z ∂²V/V.
+struct SampleTerm {
+  double r = 0, w = 0;          // residual and 1/V
+  double sign = 0, z = 0, m = 0;  // M3 (sign ≠ 0)
+  double operator()(const SampleDerivatives& d, Eigen::Index a, Eigen::Index b) const {
+    const double gv = d.g(a) * d.dv(b) + d.dv(a) * d.g(b), vv = d.dv(a) * d.dv(b);
+    if (sign == 0) {
+      return w * d.g(a) * d.g(b) - r * w * d.ff(a, b) + r * w * w * gv + (r * r * w * w * w - 0.5 * w * w) * vv +
+             0.5 * (w - r * r * w * w) * d.vv(a, b);
+    }
+    const double root_w = std::sqrt(w);
+    const double d2z = -sign * root_w * d.ff(a, b) + 0.5 * sign * w * root_w * gv + 0.75 * z * w * w * vv -
+                       0.5 * z * w * d.vv(a, b);
+    return m * (z + m) * d.dz(a) * d.dz(b) - m * d2z;
+  }
+};
 
 }  // namespace
 
@@ -282,31 +310,35 @@ bool ExactConditionalHessian(const SubjectModel& s, const PopulationPoint& p, co
   const Eigen::VectorXd phi = IndividualValues(s, p, eta);
   std::vector<Eigen::VectorXd> second;
   if (!EtaSecondDerivatives(s, phi, &second, why)) return false;
+  const Eigen::Index q = eta.size();
+  thread_local SampleDerivatives d;
+  d.slope.resize(q);
+  for (Eigen::Index a = 0; a < q; ++a) {
+    const auto k = static_cast<size_t>(a);
+    d.slope(a) = s.eta_log[k] ? phi(s.eta_free[k]) : 1;
+  }
   *half_hessian = p.omega_inverse;
   Eigen::MatrixXd& h = *half_hessian;
-  SampleDerivatives d;
   for (Eigen::Index j = 0; j < c.yhat.size(); ++j) {
-    SampleEtaDerivatives(s, p, phi, second, c, fixed_variance != nullptr, j, &d);
-    const double r = s.y(j) - c.f(j), w = 1 / c.variance(j);
-    const Eigen::MatrixXd gv = d.g * d.dv.transpose() + d.dv * d.g.transpose();
-    if (s.censoring.size() == 0 || s.censoring(j) == 0) {
-      // ½∂²[r²/V + log V] with ∂r = −g.
-      h += w * d.g * d.g.transpose() - r * w * d.ff + r * w * w * gv + (r * r * w * w * w - 0.5 * w * w) * d.dv * d.dv.transpose() +
-           0.5 * (w - r * r * w * w) * d.vv;
-      continue;
+    SampleEtaDerivatives(s, p, second, c, fixed_variance != nullptr, j, &d);
+    SampleTerm term;
+    term.r = s.y(j) - c.f(j);
+    term.w = 1 / c.variance(j);
+    if (s.censoring.size() > 0 && s.censoring(j) != 0) {
+      term.sign = s.censoring(j);
+      term.z = term.sign * term.r * std::sqrt(term.w);
+      double log_cdf = 0;
+      LogNormalCdf(term.z, &log_cdf, &term.m);
+      d.dz = -term.sign * std::sqrt(term.w) * d.g - 0.5 * term.z * term.w * d.dv;
     }
-    // M3: ½∂²[−2 log Φ(z)] = m(z + m) ∂z∂zᵀ − m ∂²z, z = sign·r/√V, m = φ(z)/Φ(z), with
-    // ∂z = −sign·g/√V − ½ z ∂V/V and
-    // ∂²z = −sign·∂²f/√V + ½ sign (g∂Vᵀ + ∂V gᵀ)/V^{3/2} + ¾ z ∂V∂Vᵀ/V² − ½ z ∂²V/V.
-    const double sign = s.censoring(j), root_w = std::sqrt(w), z = sign * r * root_w;
-    double log_cdf = 0, mills = 0;
-    LogNormalCdf(z, &log_cdf, &mills);
-    const Eigen::VectorXd dz = -sign * root_w * d.g - 0.5 * z * w * d.dv;
-    const Eigen::MatrixXd d2z = -sign * root_w * d.ff + 0.5 * sign * w * root_w * gv +
-                                0.75 * z * w * w * d.dv * d.dv.transpose() - 0.5 * z * w * d.vv;
-    h += mills * (z + mills) * dz * dz.transpose() - mills * d2z;
+    for (Eigen::Index a = 0; a < q; ++a) {
+      for (Eigen::Index b = 0; b <= a; ++b) {
+        const double t = term(d, a, b);
+        h(a, b) += t;
+        if (b != a) h(b, a) += t;
+      }
+    }
   }
-  h = 0.5 * (h + h.transpose()).eval();
   if (!h.allFinite()) {
     *why = "the Hessian of the conditional objective is not finite";
     return false;
