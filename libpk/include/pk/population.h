@@ -256,7 +256,7 @@ struct PopulationEstimate {
   double rse_pct = std::numeric_limits<double>::quiet_NaN();
   bool fixed = false;
   /// An estimated Ω variance below 1e-6, or a θ near a model file's bound (within 1e-3 of the
-  /// bounds' width; with one bound, 1e-3 relative).
+  /// bounds' width; with one bound, 1e-3 of the largest of |θ|, |bound| and |initial θ|).
   bool at_boundary = false;
   /// For Ω's variance of a log-normal parameter's η: the between-subject CV%, 100·√(exp(ω²) − 1).
   double cv_pct = std::numeric_limits<double>::quiet_NaN();

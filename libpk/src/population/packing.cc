@@ -88,7 +88,11 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
 
 bool Packing::NearThetaBound(size_t k, double theta) const {
   const double lo = theta_lower_[k], hi = theta_upper_[k];
-  const double tol = std::isfinite(lo) && std::isfinite(hi) ? 1e-3 * (hi - lo) : 1e-3 * std::max(std::fabs(theta), 1e-8);
+  // With one bound the scale is the larger of θ, the bound and the initial value: relative to θ
+  // alone, an estimate that runs into a bound of 0 (θ → 0) would never be near it.
+  const double bound = std::isfinite(lo) ? lo : hi, initial = initial_.theta(static_cast<Eigen::Index>(k));
+  const double scale = std::max({std::fabs(theta), std::fabs(bound), std::fabs(initial), 1e-8});
+  const double tol = std::isfinite(lo) && std::isfinite(hi) ? 1e-3 * (hi - lo) : 1e-3 * scale;
   return (std::isfinite(lo) && theta - lo <= tol) || (std::isfinite(hi) && hi - theta <= tol);
 }
 

@@ -42,8 +42,9 @@ class Packing {
   const std::vector<bool>& natural_fixed() const { return fixed_; }
   Eigen::VectorXd Natural(const PopulationParameters& p) const;
   PopulationParameters FromNatural(const Eigen::VectorXd& z) const;
-  /// Whether θ_k lies within 1e-3 of the width of its bounds (or, with one bound, 1e-3 of
-  /// max(|θ_k|, 1e-8)) of a model file's bound: NONMEM's "estimate near its boundary".
+  /// Whether θ_k lies within 1e-3 of the width of its bounds (or, with one bound, 1e-3 of the
+  /// largest of |θ_k|, |bound|, |initial θ_k| and 1e-8) of a model file's bound: NONMEM's
+  /// "estimate near its boundary".
   bool NearThetaBound(size_t k, double theta) const;
   /// Positions (in natural order) of the variances ω_kk, for boundary checks.
   std::vector<int> variance_positions() const;
