@@ -1691,3 +1691,39 @@ TEST_CASE("the .ext table: a diagonal Ω, no covariance step, and one EPS per ou
   CHECK(rows.at(-1000000000).front()[4] == 0);
   CHECK(rows.at(-1000000000).front()[5] == 1);
 }
+
+TEST_CASE("the .ext table of a fit with an error model per output: a THETA per σ and one EPS per output",
+          "[population][model-file]") {
+  using pk::MakeResidualError;
+  const pk::PopulationProblem twice =
+      EmaxProblem(pk::MakePerOutputError({MakeResidualError("proportional"), MakeResidualError("proportional")},
+                                         {"CP", "E"}));
+  pk::PopulationParameters p = twice.DefaultParameters();
+  p.sigma = Eigen::Vector2d(0.12, 0.2);
+  pk::PopulationOptions options;
+  options.max_iterations = 3;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(twice, p, options);
+  REQUIRE(fit.epsilon_shrinkage_sd_by_output.size() == 2);
+  std::vector<std::string> names;
+  const auto rows = ReadExt(pk::NonmemExtTable(fit), &names);
+  const auto ntheta = static_cast<int>(twice.theta_names().size());
+  std::vector<std::string> want{"ITERATION"};
+  for (int k = 1; k <= ntheta + 2; ++k) want.push_back("THETA" + std::to_string(k));
+  for (const char* n : {"SIGMA(1,1)", "SIGMA(2,1)", "SIGMA(2,2)", "OMEGA(1,1)", "OMEGA(2,1)", "OMEGA(2,2)", "OBJ"}) {
+    want.push_back(n);
+  }
+  CHECK(names == want);
+  const auto& final_row = rows.at(-1000000000).front();
+  const auto at = static_cast<size_t>(ntheta);
+  CHECK(final_row[at] == Approx(fit.parameters.sigma(0)).epsilon(6e-6));      // SIGMA_PROP_CP
+  CHECK(final_row[at + 1] == Approx(fit.parameters.sigma(1)).epsilon(6e-6));  // SIGMA_PROP_E
+  CHECK(final_row[at + 2] == 1);
+  CHECK(final_row[at + 3] == 0);
+  CHECK(final_row[at + 4] == 1);
+  const auto& fixed = rows.at(-1000000006).front();
+  CHECK(fixed[at + 2] == 1);
+  CHECK(fixed[at + 3] == 1);
+  CHECK(fixed[at + 4] == 1);
+  CHECK(fixed[at] == 0);
+}
