@@ -72,6 +72,13 @@ void CheckAgainst(const std::string& name, pk::Propagator reference, double refe
     CHECK(std::string(a.propagator) == "rk");
     CHECK(MaxAbs(a.predictions - b.predictions) < 1e-9 * MaxAbs(b.predictions));
     CHECK(MaxAbs(a.jacobian - b.jacobian) < 1e-9 * MaxAbs(b.jacobian));
+    // The discrete adjoint (its stage products: recorded for a nonlinear model, formed at the stage
+    // points for a linear one) against the reference's forward gradient.
+    const auto adjoint = rk.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+    const auto forward = other.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+    REQUIRE(adjoint.ok);
+    CHECK(std::string(adjoint.route) == "adjoint");
+    CHECK(MaxAbs(adjoint.gradient - forward.gradient) < 1e-8 * MaxAbs(forward.gradient));
   }
 }
 

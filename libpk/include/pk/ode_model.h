@@ -76,6 +76,10 @@ struct SecondDirections {
   const double* dx12 = nullptr;
 };
 
+namespace internal {
+class StageTape;  // records f at a one-step method's stages (libpk/src/ode/ode_system.h)
+}  // namespace internal
+
 /// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use
 /// MakeOdeModel); derivatives always come from AD. f is recorded on a tape (RecordRhs) at each
 /// (x, θ) it is asked about, per thread, and the recording is swept forward for directional
@@ -119,6 +123,7 @@ class OdeModel : public Model {
   virtual void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const = 0;
 
  private:
+  friend class internal::StageTape;
   unsigned long id_;  // identifies this model in the per-thread recordings (an address may be reused)
 };
 

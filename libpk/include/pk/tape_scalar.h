@@ -16,6 +16,14 @@
 #include <utility>
 #include <vector>
 
+// Recording an operation is a handful of stores; a call around it cost as much again (a 32-compartment
+// saturable chain's adjoint in pkbench), so the few functions on that path are always inlined.
+#if defined(__GNUC__)
+#define PK_TAPE_INLINE __attribute__((always_inline)) inline
+#else
+#define PK_TAPE_INLINE inline
+#endif
+
 namespace pk {
 
 /// The recording: node k has up to two parents with their partial derivatives.
@@ -26,6 +34,10 @@ class Tape {
     double da, db;
   };
   void Clear() { size_ = 0; }
+  /// Drops the nodes from `size` on (a recording made after the first `size` nodes).
+  void Truncate(int size) {
+    if (size < size_) size_ = size;
+  }
   /// Exchanges the recordings (to keep one while the active tape records others).
   void Swap(Tape& other) {
     nodes_.swap(other.nodes_);
@@ -33,7 +45,7 @@ class Tape {
     std::swap(capacity_, other.capacity_);
   }
   int size() const { return size_; }
-  int Push(int a, double da, int b = -1, double db = 0) {
+  PK_TAPE_INLINE int Push(int a, double da, int b = -1, double db = 0) {
     // Written field by field into storage kept between recordings: a Node
     // built on the stack and copied stalled store forwarding here.
     if (size_ == capacity_) {
@@ -50,13 +62,18 @@ class Tape {
   /// Back-propagates the adjoints in `adj` (one per node, seeded by the caller).
   /// Nodes below `first` must have no parents (the independent variables,
   /// recorded first) and are not visited.
-  void Sweep(std::vector<double>* adj, int first = 0) const {
-    for (int k = size() - 1; k >= first; --k) {
-      const double w = (*adj)[k];
+  void Sweep(std::vector<double>* adj, int first = 0) const { Sweep(adj, first, size()); }
+  /// The same over the nodes [first, end) only: one of several recordings on the tape, whose
+  /// nodes' parents are before `end`.
+  void Sweep(std::vector<double>* adj, int first, int end) const {
+    double* a = adj->data();  // raw pointers: the loop keeps its counter and bases in registers
+    const Node* nodes = nodes_.data();
+    for (int k = end - 1; k >= first; --k) {
+      const double w = a[k];
       if (w == 0) continue;
-      const Node& n = nodes_[k];
-      if (n.a >= 0) (*adj)[n.a] += n.da * w;
-      if (n.b >= 0) (*adj)[n.b] += n.db * w;
+      const Node& n = nodes[k];
+      if (n.a >= 0) a[n.a] += n.da * w;
+      if (n.b >= 0) a[n.b] += n.db * w;
     }
   }
   /// Forward mode over the recording: `tangents` holds `width` values per node
@@ -102,9 +119,9 @@ class TapeScalar {
   int index() const { return i_; }  ///< node on the tape, -1 for a constant
 
   /// f(x) with f'(x): one unary node.
-  TapeScalar Unary(double f, double df) const { return i_ < 0 ? TapeScalar(f) : TapeScalar(f, Tape::Active().Push(i_, df)); }
+  PK_TAPE_INLINE TapeScalar Unary(double f, double df) const { return i_ < 0 ? TapeScalar(f) : TapeScalar(f, Tape::Active().Push(i_, df)); }
   /// f(x, y) with its partials: one binary node.
-  static TapeScalar Binary(double f, const TapeScalar& x, double dx, const TapeScalar& y, double dy) {
+  PK_TAPE_INLINE static TapeScalar Binary(double f, const TapeScalar& x, double dx, const TapeScalar& y, double dy) {
     if (x.i_ < 0 && y.i_ < 0) return TapeScalar(f);
     if (x.i_ < 0) return TapeScalar(f, Tape::Active().Push(y.i_, dy));
     if (y.i_ < 0) return TapeScalar(f, Tape::Active().Push(x.i_, dx));

@@ -1,5 +1,6 @@
 #include "ode_system.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -138,6 +139,82 @@ void OdeSystem::ObserveDirectional(int key, const Eigen::VectorXd& x, const Eige
 }
 
 int OdeSystem::central_key() const { return ode_ ? 1 : model_.central_compartment(); }
+
+}  // namespace internal
+}  // namespace pk
+
+namespace pk {
+namespace internal {
+
+StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta)
+    : sys_(system), theta_(theta), n_(system.n()), m_(static_cast<int>(theta.size())) {
+  if (sys_.is_linear()) {
+    theta_product_ = Eigen::VectorXd::Zero(m_);
+    return;
+  }
+  Tape& tape = Tape::Active();
+  tape.Clear();
+  theta_vars_.reserve(static_cast<size_t>(m_));
+  for (int j = 0; j < m_; ++j) theta_vars_.push_back(TapeScalar::Variable(theta(j)));  // nodes 0…m−1
+  adj_.assign(static_cast<size_t>(m_), 0.0);
+  NewStep();
+}
+
+void StageTape::NewStep() {
+  start_.assign(1, m_);
+  f_node_.clear();
+  points_.clear();
+  zeroed_ = m_;
+  if (!sys_.is_linear()) Tape::Active().Truncate(m_);
+}
+
+void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
+  if (sys_.is_linear()) {
+    sys_.Rhs(x, theta_, f);
+    points_.push_back(x);
+    return;
+  }
+  thread_local std::vector<TapeScalar> xs, fs;
+  xs.resize(static_cast<size_t>(n_));
+  for (int i = 0; i < n_; ++i) xs[static_cast<size_t>(i)] = TapeScalar::Variable(x(i));
+  fs.assign(static_cast<size_t>(n_), TapeScalar());
+  sys_.nonlinear()->RecordRhs(xs.data(), theta_vars_.data(), fs.data());
+  f->resize(n_);
+  for (int i = 0; i < n_; ++i) {
+    (*f)(i) = fs[static_cast<size_t>(i)].value();
+    f_node_.push_back(fs[static_cast<size_t>(i)].index());
+  }
+  start_.push_back(Tape::Active().size());
+}
+
+void StageTape::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx) {
+  const size_t s = static_cast<size_t>(stage);
+  if (sys_.is_linear()) {
+    Eigen::VectorXd f, wft;
+    sys_.RhsVectorJacobian(points_.at(s), theta_, w, &f, wfx, &wft);
+    theta_product_ += wft;
+    return;
+  }
+  const Tape& tape = Tape::Active();
+  if (zeroed_ < tape.size()) {  // this step's nodes, once a step
+    adj_.resize(static_cast<size_t>(tape.size()));
+    std::fill(adj_.begin() + zeroed_, adj_.end(), 0.0);
+    zeroed_ = tape.size();
+  }
+  const int first = start_.at(s), end = start_.at(s + 1);
+  for (int i = 0; i < n_; ++i) {
+    const int node = f_node_[s * static_cast<size_t>(n_) + static_cast<size_t>(i)];
+    if (node >= 0) adj_[static_cast<size_t>(node)] += w(i);
+  }
+  tape.Sweep(&adj_, first + n_, end);  // the stage's x are its first n nodes
+  wfx->resize(n_);
+  for (int i = 0; i < n_; ++i) (*wfx)(i) = adj_[static_cast<size_t>(first + i)];
+}
+
+Eigen::VectorXd StageTape::ThetaProduct() const {
+  if (sys_.is_linear()) return theta_product_;
+  return Eigen::Map<const Eigen::VectorXd>(adj_.data(), m_);
+}
 
 }  // namespace internal
 }  // namespace pk

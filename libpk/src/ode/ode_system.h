@@ -64,6 +64,42 @@ class OdeSystem {
   int m_ = 0;
 };
 
+/// Vector–Jacobian products at the stages of one step of a one-step method, for its discrete
+/// adjoint (rk_solver.cc). The stages share θ: it is recorded once, as the first nodes of the
+/// calling thread's tape, and wᵀf_θ accumulates there over every stage swept, so a step costs one
+/// recording of f a stage (which also gives the stage's slope) and one sweep a stage, and no
+/// evaluation twice. A linear system has no recording: each product is formed at the stage's point.
+/// The thread's tape is this object's until it is destroyed.
+class StageTape {
+ public:
+  StageTape(const OdeSystem& system, const Eigen::VectorXd& theta);
+  StageTape(const StageTape&) = delete;
+  StageTape& operator=(const StageTape&) = delete;
+
+  /// Forgets the stages recorded so far (θ and its accumulated products stay).
+  void NewStep();
+  /// Records f at x as the next stage of this step, its value into *f.
+  void Record(const Eigen::VectorXd& x, Eigen::VectorXd* f);
+  /// wᵀf_x at stage `stage` (in recording order) into *wfx, and wᵀf_θ added to ThetaProduct.
+  /// Each stage is swept once.
+  void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
+  /// Σ wᵀf_θ over every stage swept since construction.
+  Eigen::VectorXd ThetaProduct() const;
+
+ private:
+  const OdeSystem& sys_;
+  const Eigen::VectorXd& theta_;
+  int n_, m_;
+  std::vector<TapeScalar> theta_vars_;  // nodes 0…m−1 of the thread's tape, shared by every stage
+  std::vector<int> start_;  // a stage's first node (its x), and one past its last at the end
+  std::vector<int> f_node_;  // n a stage: f_i's node, −1 for a constant
+  std::vector<double> adj_;
+  int zeroed_ = 0;  // adj_ is zero on [m, zeroed_) but for what sweeps put there
+  // Linear systems: the stages' points, and the accumulated wᵀf_θ.
+  std::vector<Eigen::VectorXd> points_;
+  Eigen::VectorXd theta_product_;
+};
+
 }  // namespace internal
 }  // namespace pk
 

@@ -224,25 +224,24 @@ struct RkSolver::Impl {
   // backward, with stages X_i = x_n + h Σ_j a_ij k_j, k_i = f(X_i) + u, x_{n+1} = x_n + h Σ b_i k_i,
   //   κ_i = h (b_i λ_{n+1} + Σ_{j>i} a_ji ξ_j),   ξ_i = f_x(X_i)ᵀ κ_i,   λ_n = λ_{n+1} + Σ_i ξ_i,
   //   q += Σ_i κ_iᵀ (f_θ(X_i) ∂θ/∂p + ∂u/∂p).
-  // One vector–Jacobian product a stage, whatever the number of parameters.
+  // The stages are recomputed from the step's start and recorded as they are (StageTape), then swept
+  // backward: one recording and one sweep a stage, whatever the number of parameters.
   void Backward(const StoredSteps& steps, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                 Eigen::RowVectorXd* q) {
     const SegmentInput& in = steps.in;
     const int k = static_cast<int>(in.dtheta.cols());
-    Eigen::VectorXd lambda = lambda_end, wft_sum = Eigen::VectorXd::Zero(in.theta.size());
-    Eigen::VectorXd kappa_sum = Eigen::VectorXd::Zero(n);
-    Eigen::MatrixXd stage_k(n, kStages), stage_x(n, kStages), xi(n, kStages);
-    Eigen::VectorXd f, wfx, wft, point(n), kappa(n), lambda_next(n);
+    StageTape stages(sys, in.theta);
+    Eigen::VectorXd lambda = lambda_end, kappa_sum = Eigen::VectorXd::Zero(n);
+    Eigen::MatrixXd stage_k(n, kStages), xi(n, kStages);
+    Eigen::VectorXd f, wfx, point(n), kappa(n), lambda_next(n);
     for (Eigen::Index step = steps.x.cols() - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
-      const auto x0 = steps.x.col(step);
-      // The stage points, forward again (the last stage's slope enters only through X₆'s product below).
+      // The stages, forward again, each recorded (the last one's slope does not enter a stage point).
+      stages.NewStep();
       for (int i = 0; i < kStages; ++i) {
-        stage_x.col(i) = x0;
-        for (int j = 0; j < i; ++j) stage_x.col(i) += h * kA[i][j] * stage_k.col(j);
-        if (i + 1 == kStages) break;
-        point = stage_x.col(i);
-        sys.Rhs(point, in.theta, &f);
+        point = steps.x.col(step);
+        for (int j = 0; j < i; ++j) point += h * kA[i][j] * stage_k.col(j);
+        stages.Record(point, &f);
         stage_k.col(i) = f + in.u;
         ++stats.rhs_evaluations;
       }
@@ -252,17 +251,15 @@ struct RkSolver::Impl {
         kappa = kB[i] * lambda_next;
         for (int j = i + 1; j < kStages; ++j) kappa += kA[j][i] * xi.col(j);
         kappa *= h;
-        point = stage_x.col(i);
-        sys.RhsVectorJacobian(point, in.theta, kappa, &f, &wfx, &wft);
+        stages.Sweep(i, kappa, &wfx);
         xi.col(i) = wfx;
-        wft_sum += wft;
         kappa_sum += kappa;
         lambda += wfx;
       }
       ++stats.backward_steps;
     }
     *lambda_start = lambda;
-    *q = wft_sum.transpose() * in.dtheta;
+    *q = stages.ThetaProduct().transpose() * in.dtheta;
     if (in.du.cols() == k) *q += kappa_sum.transpose() * in.du;
   }
 
