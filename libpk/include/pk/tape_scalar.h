@@ -13,6 +13,7 @@
 #define PK_TAPE_SCALAR_H_
 
 #include <cmath>
+#include <cstddef>
 #include <utility>
 #include <vector>
 
@@ -44,7 +45,7 @@ class Tape {
     std::swap(size_, other.size_);
     std::swap(capacity_, other.capacity_);
   }
-  int size() const { return size_; }
+  int size() const { return static_cast<int>(size_); }
   PK_TAPE_INLINE int Push(int a, double da, int b = -1, double db = 0) {
     // Written field by field into storage kept between recordings: a Node
     // built on the stack and copied stalled store forwarding here.
@@ -57,7 +58,7 @@ class Tape {
     n.b = b;
     n.da = da;
     n.db = db;
-    return size_++;
+    return static_cast<int>(size_++);
   }
   /// Back-propagates the adjoints in `adj` (one per node, seeded by the caller).
   /// Nodes below `first` must have no parents (the independent variables,
@@ -104,8 +105,11 @@ class Tape {
 
  private:
   std::vector<Node> nodes_;  // nodes_[0, size_) are the recording; nodes_.size() == capacity_
-  int size_ = 0;
-  int capacity_ = 0;
+  // Wider than int on purpose: a node's int fields, and a TapeScalar's, then cannot alias them, so
+  // a recording inlined into a model keeps them in registers instead of reloading them after every
+  // store (a store-to-load chain through size_ that set the pace of recording).
+  std::ptrdiff_t size_ = 0;
+  std::ptrdiff_t capacity_ = 0;
 };
 
 class TapeScalar {
@@ -132,8 +136,9 @@ class TapeScalar {
   friend TapeScalar operator-(const TapeScalar& a, const TapeScalar& b) { return Binary(a.v_ - b.v_, a, 1, b, -1); }
   friend TapeScalar operator*(const TapeScalar& a, const TapeScalar& b) { return Binary(a.v_ * b.v_, a, b.v_, b, a.v_); }
   friend TapeScalar operator/(const TapeScalar& a, const TapeScalar& b) {
-    const double q = a.v_ / b.v_;
-    return Binary(q, a, 1 / b.v_, b, -q / b.v_);
+    // q exactly as in double; its partials from one more division that does not wait for q's.
+    const double q = a.v_ / b.v_, inv = 1 / b.v_;
+    return Binary(q, a, inv, b, -q * inv);
   }
   TapeScalar operator-() const { return Unary(-v_, -1); }
   TapeScalar operator+() const { return *this; }

@@ -103,6 +103,10 @@ struct RkSolver::Impl {
   // continuation through samples (a replay from the segment's start must take the same steps).
   bool replay = false;
   std::vector<StoredSteps> stored;
+  struct Carry {  // the last stored segment's end and its last step proposal (0: none to carry)
+    double step = 0;
+    Eigen::VectorXd theta, u, x;
+  } carry;
   long stored_bytes = 0;
 
   Impl(const OdeSystem& s, const OdeOptions& o, bool tape) : sys(s), opt(o), n(s.n()), replay(tape) {
@@ -160,11 +164,12 @@ struct RkSolver::Impl {
   // Replay mode's stepping of a values-only segment (into *steps when given): false, with x as it
   // was, when the segment is stiff at its start or spends the step budget, and RODAS4 must take it.
   // The same segment always gives the same answer, so the tape and its replay agree.
-  bool ReplaySteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps) {
+  // *carry: see FixedEndSteps.
+  bool ReplaySteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps, double* carry = nullptr) {
     if (Stiff(in, *x)) return false;
     start_of_segment = *x;
     try {
-      FixedEndSteps(in, x, steps);
+      FixedEndSteps(in, x, steps, carry);
     } catch (const StiffSegment&) {
       *x = start_of_segment;
       if (steps) *steps = StoredSteps();
@@ -175,15 +180,19 @@ struct RkSolver::Impl {
   Eigen::VectorXd start_of_segment;  // ReplaySteps's copy of x
 
   // Values only, replay mode: x ← x(h) by controlled steps whose last one ends at h, each accepted
-  // step's start and length into *steps when given. The same x and `in` give the same steps.
-  void FixedEndSteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps) {
+  // step's start and length into *steps when given. The same x and `in` give the same steps, unless
+  // `carry` is given: a segment that continues the last one (a sample between them) then tries
+  // *carry > 0 first, the step the control proposed there, instead of restarting from a small step
+  // (what stepping through the sample would do), and *carry is left with this segment's last
+  // proposal. Only a stored segment may carry a step over: its steps are kept, never replayed.
+  void FixedEndSteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps, double* carry = nullptr) {
     const Rhs rhs = [&](const State& z, State& dz, double) {
       ++stats.rhs_evaluations;
       sys.Rhs(z, in.theta, &f_buf);
       dz = f_buf + in.u;
     };
     Controlled stepper(Controlled::error_checker_type(opt.absolute_tolerance, opt.relative_tolerance));
-    double t = 0, dt = InitialStep(*x, rhs, in.h);
+    double t = 0, dt = carry != nullptr && *carry > 0 ? std::min(*carry, in.h) : InitialStep(*x, rhs, in.h);
     long count = 0, tries = 0;
     int limited = 0;  // CheckStiffening's consecutive stability-limited checks
     std::vector<double>& starts = starts_buf;  // the steps' starts, n numbers each
@@ -207,6 +216,7 @@ struct RkSolver::Impl {
       }
       t = last ? in.h : tt;
       dt = step;
+      if (carry != nullptr) *carry = last ? std::max(*carry, step) : step;
       ++stats.steps;
       if (++count > opt.max_steps) {
         throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
@@ -355,13 +365,22 @@ RkSolver::RkSolver(const OdeSystem& system, const OdeOptions& options, bool tape
 int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl& d = *impl_;
   StoredSteps steps;
+  // A segment that continues the last stored one (same θ and inputs, from its end) carries its step.
+  Impl::Carry& c = d.carry;
+  if (!(c.step > 0 && in.theta == c.theta && in.u == c.u && *x == c.x)) c.step = 0;
   if (!(in.h > kEmptySegment)) {
     steps.in = in;  // no steps: the backward pass passes λ through
-  } else if (!d.ReplaySteps(in, x, &steps)) {
+  } else if (!d.ReplaySteps(in, x, &steps, &c.step)) {
     steps.in = in;
     steps.stiff = true;
     steps.x = *x;  // the start and RODAS4's steps, for the backward pass
     d.Rodas().Advance(in, x, &steps.h);
+    c.step = 0;
+  }
+  if (c.step > 0) {
+    c.theta = in.theta;
+    c.u = in.u;
+    c.x = *x;
   }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
