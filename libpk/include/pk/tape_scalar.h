@@ -118,6 +118,10 @@ class TapeScalar {
   TapeScalar(double value) : v_(value) {}  // NOLINT: constants convert implicitly
   /// A new independent variable on the active tape.
   static TapeScalar Variable(double value) { return TapeScalar(value, Tape::Active().Push(-1, 0)); }
+  /// The variable recorded earlier as node `index` of the active tape, at a new value: recordings
+  /// that follow one another on a tape may share their variables (nodes without parents hold no
+  /// value), each sweep reading the variables' adjoints before the next.
+  static TapeScalar OnTape(double value, int index) { return TapeScalar(value, index); }
 
   double value() const { return v_; }
   int index() const { return i_; }  ///< node on the tape, -1 for a constant

@@ -156,16 +156,17 @@ StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta)
   tape.Clear();
   theta_vars_.reserve(static_cast<size_t>(m_));
   for (int j = 0; j < m_; ++j) theta_vars_.push_back(TapeScalar::Variable(theta(j)));  // nodes 0…m−1
-  adj_.assign(static_cast<size_t>(m_), 0.0);
+  for (int i = 0; i < n_; ++i) TapeScalar::Variable(0.0);  // x: nodes m…m+n−1, shared by the stages
+  adj_.assign(static_cast<size_t>(m_ + n_), 0.0);
   NewStep();
 }
 
 void StageTape::NewStep() {
-  start_.assign(1, m_);
+  start_.assign(1, m_ + n_);
   f_node_.clear();
   points_.clear();
-  zeroed_ = m_;
-  if (!sys_.is_linear()) Tape::Active().Truncate(m_);
+  zeroed_ = m_ + n_;
+  if (!sys_.is_linear()) Tape::Active().Truncate(m_ + n_);
 }
 
 void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
@@ -176,7 +177,7 @@ void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
   }
   thread_local std::vector<TapeScalar> xs, fs;
   xs.resize(static_cast<size_t>(n_));
-  for (int i = 0; i < n_; ++i) xs[static_cast<size_t>(i)] = TapeScalar::Variable(x(i));
+  for (int i = 0; i < n_; ++i) xs[static_cast<size_t>(i)] = TapeScalar::OnTape(x(i), m_ + i);
   fs.assign(static_cast<size_t>(n_), TapeScalar());
   sys_.nonlinear()->RecordRhs(xs.data(), theta_vars_.data(), fs.data());
   f->resize(n_);
@@ -201,14 +202,15 @@ void StageTape::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx)
     std::fill(adj_.begin() + zeroed_, adj_.end(), 0.0);
     zeroed_ = tape.size();
   }
-  const int first = start_.at(s), end = start_.at(s + 1);
+  double* x_adj = adj_.data() + m_;  // the shared x nodes: this stage's products only
+  std::fill(x_adj, x_adj + n_, 0.0);
   for (int i = 0; i < n_; ++i) {
     const int node = f_node_[s * static_cast<size_t>(n_) + static_cast<size_t>(i)];
     if (node >= 0) adj_[static_cast<size_t>(node)] += w(i);
   }
-  tape.Sweep(&adj_, first + n_, end);  // the stage's x are its first n nodes
+  tape.Sweep(&adj_, start_.at(s), start_.at(s + 1));
   wfx->resize(n_);
-  for (int i = 0; i < n_; ++i) (*wfx)(i) = adj_[static_cast<size_t>(first + i)];
+  for (int i = 0; i < n_; ++i) (*wfx)(i) = x_adj[i];
 }
 
 Eigen::VectorXd StageTape::ThetaProduct() const {

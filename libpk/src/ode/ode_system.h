@@ -68,7 +68,9 @@ class OdeSystem {
 /// adjoint (rk_solver.cc). The stages share θ: it is recorded once, as the first nodes of the
 /// calling thread's tape, and wᵀf_θ accumulates there over every stage swept, so a step costs one
 /// recording of f a stage (which also gives the stage's slope) and one sweep a stage, and no
-/// evaluation twice. A linear system has no recording: each product is formed at the stage's point.
+/// evaluation twice. The stages also share the nodes of x, which hold no values: each sweep reads
+/// its wᵀf_x there before the next. A linear system has no recording: each product is formed at the
+/// stage's point.
 /// The thread's tape is this object's until it is destroyed.
 class StageTape {
  public:
@@ -91,7 +93,7 @@ class StageTape {
   const Eigen::VectorXd& theta_;
   int n_, m_;
   std::vector<TapeScalar> theta_vars_;  // nodes 0…m−1 of the thread's tape, shared by every stage
-  std::vector<int> start_;  // a stage's first node (its x), and one past its last at the end
+  std::vector<int> start_;  // a stage's first node, and one past its last at the end
   std::vector<int> f_node_;  // n a stage: f_i's node, −1 for a constant
   std::vector<double> adj_;
   int zeroed_ = 0;  // adj_ is zero on [m, zeroed_) but for what sweeps put there
