@@ -142,4 +142,28 @@ void OdeModel::RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd
   for (Eigen::Index j = 0; j < m; ++j) (*wftheta)(j) = rec.adj[n + j];
 }
 
+double OdeModel::OutputGradient(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                Eigen::VectorXd* gx, Eigen::VectorXd* gtheta) const {
+  const int n = num_compartments();
+  const Eigen::Index m = theta.size();
+  Tape& tape = Tape::Active();
+  tape.Clear();
+  thread_local std::vector<TapeScalar> xt, tt;
+  xt.resize(static_cast<size_t>(n));
+  tt.resize(static_cast<size_t>(m));
+  for (int i = 0; i < n; ++i) xt[static_cast<size_t>(i)] = TapeScalar::Variable(x(i));
+  for (Eigen::Index j = 0; j < m; ++j) tt[static_cast<size_t>(j)] = TapeScalar::Variable(theta(j));
+  const TapeScalar y = RecordOutput(output, xt.data(), tt.data());
+  thread_local std::vector<double> adj;
+  adj.assign(static_cast<size_t>(tape.size()), 0.0);
+  if (y.index() >= 0) adj[static_cast<size_t>(y.index())] = 1;
+  tape.Sweep(&adj, n + static_cast<int>(m));  // x and θ are nodes 0…n+m−1
+  gx->resize(n);
+  gtheta->resize(m);
+  for (int i = 0; i < n; ++i) (*gx)(i) = adj[static_cast<size_t>(i)];
+  for (Eigen::Index j = 0; j < m; ++j) (*gtheta)(j) = adj[static_cast<size_t>(n + j)];
+  tape.Clear();
+  return y.value();
+}
+
 }  // namespace pk

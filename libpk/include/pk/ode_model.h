@@ -105,6 +105,9 @@ class OdeModel : public Model {
                          Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const;
   /// y = g_output(x, θ), output numbered from 1.
   virtual double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const = 0;
+  /// y and its gradients g_x (n) and g_θ (m), by one reverse-mode pass (the adjoint's jump at a sample).
+  double OutputGradient(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* gx,
+                        Eigen::VectorXd* gtheta) const;
   /// y and dy = g_x dx + g_θ dtheta (1×k).
   virtual void OutputDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
                                  const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
@@ -121,6 +124,8 @@ class OdeModel : public Model {
   explicit OdeModel(const OdeModelSpec& spec);
   /// Evaluates f with tape variables x (n) and θ (m) into f (n), recording it on the active tape.
   virtual void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const = 0;
+  /// Evaluates output `output` with tape variables x (n) and θ (m), recording it on the active tape.
+  virtual TapeScalar RecordOutput(int output, const TapeScalar* x, const TapeScalar* theta) const = 0;
 
  private:
   friend class internal::StageTape;
@@ -181,6 +186,9 @@ class AutoDiffOdeModel final : public OdeModel {
 
  protected:
   void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const override { f_.Rhs(x, theta, f); }
+  TapeScalar RecordOutput(int output, const TapeScalar* x, const TapeScalar* theta) const override {
+    return f_.Output(output, x, theta);
+  }
 
  private:
   static void SeedSecond(const Eigen::VectorXd& v, const double* d1, const double* d2, const double* d12,

@@ -292,10 +292,12 @@ class OdePropagator {
   SegmentSolver& solver() { return *solver_; }
   /// θ and ∂θ/∂p of a parameter set.
   void Theta(int set, Eigen::VectorXd* theta, Eigen::MatrixXd* dtheta) const {
-    const int m = sys_.num_theta();
-    *theta = Values(sets_[set], m);
-    *dtheta = DerivativeMatrix(sets_[set], p_, m);
+    *theta = SetTheta(set);
+    *dtheta = SetDtheta(set);
   }
+  /// θ of parameter set `set`, and ∂θ/∂p (m×P), formed once a set.
+  const Eigen::VectorXd& SetTheta(int set) const { return Cached(set).theta; }
+  const Eigen::MatrixXd& SetDtheta(int set) const { return Cached(set).dtheta; }
 
   /// f(x(h)) + u at the end of a segment.
   Eigen::VectorXd FlowAtEnd(const SegmentInput& seg) const {
@@ -408,8 +410,26 @@ class OdePropagator {
     for (const Segment<T>& period : cycle.period) AdvanceAux(period.duration, period.rate, set, n_, x, s, steps);
   }
 
+  struct SetValues {
+    bool formed = false;
+    Eigen::VectorXd theta;
+    Eigen::MatrixXd dtheta;
+  };
+  const SetValues& Cached(int set) const {
+    if (set_values_.size() < sets_.size()) set_values_.resize(sets_.size());
+    SetValues& v = set_values_[static_cast<size_t>(set)];
+    if (!v.formed) {
+      const int m = sys_.num_theta();
+      v.theta = Values(sets_[set], m);
+      v.dtheta = DerivativeMatrix(sets_[set], p_, m);
+      v.formed = true;
+    }
+    return v;
+  }
+
   const OdeSystem& sys_;
   const std::vector<Vec<T>>& sets_;
+  mutable std::vector<SetValues> set_values_;  // Cached(): the sets' θ and ∂θ/∂p
   const int p_;
   const int n_;
   std::unique_ptr<SegmentSolver> solver_;

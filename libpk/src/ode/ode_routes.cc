@@ -117,24 +117,18 @@ struct OdeAdjoint::Impl {
   int p;
   OdePropagator<Dual> prop;
   double scale = 0;  // S = Σ_k |Δλ_k|ᵀ|x(t_k)| (the backward solves' error control)
+  Eigen::VectorXd gx, gtheta;  // an output's gradients, reused from sample to sample
 
   // S over every sample of a tape, Δλ_k = g_xᵀ ∂ℓ_k/∂y.
   double GradientScale(const std::vector<TapeStep>& tape, const Eigen::VectorXd& dl_dy) {
-    const int n = o.system->n();
     double sum = 0;
     for (const TapeStep& step : tape) {
       if (step.kind == TapeStep::kSteadyState) {
         sum += GradientScale(step.to_record, dl_dy) + GradientScale(step.cycle, dl_dy);
       }
       if (step.kind != TapeStep::kSample || dl_dy(step.sample) == 0) continue;
-      Eigen::VectorXd theta;
-      Eigen::MatrixXd dtheta;
-      prop.Theta(step.set, &theta, &dtheta);
-      double y;
-      Eigen::RowVectorXd dy;
-      o.system->ObserveDirectional(step.key, step.x1, theta, Eigen::MatrixXd::Identity(n, n),
-                                   Eigen::MatrixXd::Zero(theta.size(), n), &y, &dy);
-      sum += std::fabs(dl_dy(step.sample)) * dy.cwiseAbs().dot(step.x1.cwiseAbs());
+      o.system->ObserveGradient(step.key, step.x1, prop.SetTheta(step.set), &gx, &gtheta);
+      sum += std::fabs(dl_dy(step.sample)) * gx.cwiseAbs().dot(step.x1.cwiseAbs());
     }
     return sum;
   }
@@ -171,20 +165,12 @@ struct OdeAdjoint::Impl {
       const TapeStep& step = *it;
       switch (step.kind) {
         case TapeStep::kSample: {
-          // λ jumps by g_xᵀ ∂ℓ/∂y; the output's own θ-dependence adds g_θᵀ ∂ℓ/∂y.
-          Eigen::VectorXd theta;
-          Eigen::MatrixXd dtheta;
-          prop.Theta(step.set, &theta, &dtheta);
-          Eigen::MatrixXd dirs = Eigen::MatrixXd::Zero(n, n + p);
-          dirs.leftCols(n).setIdentity();
-          Eigen::MatrixXd dth = Eigen::MatrixXd::Zero(theta.size(), n + p);
-          dth.rightCols(p) = dtheta;
-          double y;
-          Eigen::RowVectorXd dy;
-          o.system->ObserveDirectional(step.key, step.x1, theta, dirs, dth, &y, &dy);
+          // λ jumps by g_xᵀ ∂ℓ/∂y; the output's own θ-dependence adds (g_θ ∂θ/∂p)ᵀ ∂ℓ/∂y.
           const double w = dl_dy(step.sample);
-          *lambda += w * dy.head(n).transpose();
-          *g += w * dy.tail(p).transpose();
+          if (w == 0) break;
+          o.system->ObserveGradient(step.key, step.x1, prop.SetTheta(step.set), &gx, &gtheta);
+          *lambda += w * gx;
+          *g += w * (prop.SetDtheta(step.set).transpose() * gtheta);
           break;
         }
         case TapeStep::kAdvance:

@@ -138,6 +138,20 @@ void OdeSystem::ObserveDirectional(int key, const Eigen::VectorXd& x, const Eige
   }
 }
 
+double OdeSystem::ObserveGradient(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* gx,
+                                  Eigen::VectorXd* gtheta) const {
+  if (ode_) return ode_->OutputGradient(key, x, theta, gx, gtheta);
+  // y = c(θ)ᵀx: g_x = c, and g_θ from c on duals, one direction a parameter.
+  *gx = linear_->OutputRow<double>(key, theta).transpose();
+  const Eigen::Matrix<Dual, 1, Eigen::Dynamic> cd =
+      linear_->OutputRow<Dual>(key, Seeded(theta, Eigen::MatrixXd::Identity(m_, m_)));
+  *gtheta = Eigen::VectorXd::Zero(m_);
+  for (int j = 0; j < n_; ++j) {
+    if (x(j) != 0 && cd(j).derivatives().size()) *gtheta += x(j) * cd(j).derivatives();
+  }
+  return gx->dot(x);
+}
+
 int OdeSystem::central_key() const { return ode_ ? 1 : model_.central_compartment(); }
 
 }  // namespace internal

@@ -53,6 +53,10 @@ class OdeSystem {
                           const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
                           Eigen::RowVectorXd* dy) const;
 
+  /// y and its gradients g_x (n) and g_θ (m): reverse mode for a nonlinear model.
+  double ObserveGradient(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* gx,
+                         Eigen::VectorXd* gtheta) const;
+
   /// The key of the model's default output (central concentration).
   int central_key() const;
 
