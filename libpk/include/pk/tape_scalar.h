@@ -66,17 +66,7 @@ class Tape {
   void Sweep(std::vector<double>* adj, int first = 0) const { Sweep(adj, first, size()); }
   /// The same over the nodes [first, end) only: one of several recordings on the tape, whose
   /// nodes' parents are before `end`.
-  void Sweep(std::vector<double>* adj, int first, int end) const {
-    double* a = adj->data();  // raw pointers: the loop keeps its counter and bases in registers
-    const Node* nodes = nodes_.data();
-    for (int k = end - 1; k >= first; --k) {
-      const double w = a[k];
-      if (w == 0) continue;
-      const Node& n = nodes[k];
-      if (n.a >= 0) a[n.a] += n.da * w;
-      if (n.b >= 0) a[n.b] += n.db * w;
-    }
-  }
+  void Sweep(std::vector<double>* adj, int first, int end) const { SweepNodes(nodes_.data(), adj->data(), first, end); }
   /// Forward mode over the recording: `tangents` holds `width` values per node
   /// (node-major), the derivatives of that node along `width` directions. The
   /// rows of the independent variables (the nodes without parents) are set by
@@ -104,6 +94,21 @@ class Tape {
   }
 
  private:
+  // The sweep's loop on its own: inlined into a caller with more live values, its adjoints' base was
+  // spilled and reloaded at every node.
+#if defined(__GNUC__)
+  __attribute__((noinline))
+#endif
+  static void SweepNodes(const Node* nodes, double* a, int first, int end) {
+    for (int k = end - 1; k >= first; --k) {
+      const double w = a[k];
+      if (w == 0) continue;
+      const Node& n = nodes[k];
+      if (n.a >= 0) a[n.a] += n.da * w;
+      if (n.b >= 0) a[n.b] += n.db * w;
+    }
+  }
+
   std::vector<Node> nodes_;  // nodes_[0, size_) are the recording; nodes_.size() == capacity_
   // Wider than int on purpose: a node's int fields, and a TapeScalar's, then cannot alias them, so
   // a recording inlined into a model keeps them in registers instead of reloading them after every
