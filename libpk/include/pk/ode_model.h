@@ -3,7 +3,9 @@
 // A nonlinear model is a functor with a templated right-hand side and output;
 // libpk differentiates it by automatic differentiation: f is recorded on a
 // tape (pk::TapeScalar) and swept forward for f_x and f_θ and backward for the
-// adjoint's λᵀf_x and λᵀf_θ; g_x and g_θ come from forward mode (pk::Dual).
+// adjoint's λᵀf_x and λᵀf_θ; g's directional derivatives come from forward mode
+// (pk::Dual), its gradient at an adjoint's sample from the tape. So both Rhs and
+// Output must compile with T = double, pk::Dual, pk::HyperDual and pk::TapeScalar.
 // The input u is the vector of infusion rates into each compartment and adds
 // to f; boluses are jumps of x. Such a model is propagated by the ODE propagator
 // (Dormand–Prince or CVODES, docs/ode_routes.md); linear catalogue models can use
@@ -106,6 +108,7 @@ class OdeModel : public Model {
   /// y = g_output(x, θ), output numbered from 1.
   virtual double OutputValue(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const = 0;
   /// y and its gradients g_x (n) and g_θ (m), by one reverse-mode pass (the adjoint's jump at a sample).
+  /// Records on the calling thread's active tape (pk::Tape::Active()) and clears it.
   double OutputGradient(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* gx,
                         Eigen::VectorXd* gtheta) const;
   /// y and dy = g_x dx + g_θ dtheta (1×k).

@@ -27,6 +27,10 @@
 
 namespace pk {
 
+namespace internal {
+class StageTape;  // records a one-step method's stages on one tape (libpk/src/ode/ode_system.h)
+}  // namespace internal
+
 /// The recording: node k has up to two parents with their partial derivatives.
 class Tape {
  public:
@@ -123,10 +127,6 @@ class TapeScalar {
   TapeScalar(double value) : v_(value) {}  // NOLINT: constants convert implicitly
   /// A new independent variable on the active tape.
   static TapeScalar Variable(double value) { return TapeScalar(value, Tape::Active().Push(-1, 0)); }
-  /// The variable recorded earlier as node `index` of the active tape, at a new value: recordings
-  /// that follow one another on a tape may share their variables (nodes without parents hold no
-  /// value), each sweep reading the variables' adjoints before the next.
-  static TapeScalar OnTape(double value, int index) { return TapeScalar(value, index); }
 
   double value() const { return v_; }
   int index() const { return i_; }  ///< node on the tape, -1 for a constant
@@ -162,7 +162,13 @@ class TapeScalar {
   friend bool operator>=(const TapeScalar& a, const TapeScalar& b) { return a.v_ >= b.v_; }
 
  private:
+  friend class internal::StageTape;
   TapeScalar(double value, int index) : v_(value), i_(index) {}
+  // The variable recorded earlier as node `index` of the active tape, at a new value: recordings that
+  // follow one another on a tape may share their variables (nodes without parents hold no value), each
+  // sweep reading the variables' adjoints before the next. For libpk's stage recordings only: an
+  // index that is not a variable's node would send a sweep out of bounds.
+  static TapeScalar OnTape(double value, int index) { return TapeScalar(value, index); }
   double v_ = 0;
   int i_ = -1;
 };

@@ -80,6 +80,7 @@ class OdePropagator {
                 Propagator integrator = Propagator::kOde)
       : sys_(sys),
         sets_(sets),
+        set_values_(sets.size()),
         p_(p),
         n_(sys.n()),
         solver_(MakeSegmentSolver(sys, options, integrator, tape)),
@@ -416,8 +417,7 @@ class OdePropagator {
     Eigen::MatrixXd dtheta;
   };
   const SetValues& Cached(int set) const {
-    if (set_values_.size() < sets_.size()) set_values_.resize(sets_.size());
-    SetValues& v = set_values_[static_cast<size_t>(set)];
+    SetValues& v = set_values_.at(static_cast<size_t>(set));
     if (!v.formed) {
       const int m = sys_.num_theta();
       v.theta = Values(sets_[set], m);
@@ -429,7 +429,9 @@ class OdePropagator {
 
   const OdeSystem& sys_;
   const std::vector<Vec<T>>& sets_;
-  mutable std::vector<SetValues> set_values_;  // Cached(): the sets' θ and ∂θ/∂p
+  // Cached(): the sets' θ and ∂θ/∂p, formed at first use. Sized once: the sets are fixed for the
+  // propagator's life, and references to their entries stay valid.
+  mutable std::vector<SetValues> set_values_;
   const int p_;
   const int n_;
   std::unique_ptr<SegmentSolver> solver_;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -163,7 +164,8 @@ namespace internal {
 StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta)
     : sys_(system), theta_(theta), n_(system.n()), m_(static_cast<int>(theta.size())) {
   if (sys_.is_linear()) {
-    theta_product_ = Eigen::VectorXd::Zero(m_);
+    a_ = sys_.linear()->SystemMatrix<double>(theta);
+    contraction_ = Eigen::MatrixXd::Zero(n_, n_);
     return;
   }
   Tape& tape = Tape::Active();
@@ -173,6 +175,10 @@ StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta)
   for (int i = 0; i < n_; ++i) TapeScalar::Variable(0.0);  // x: nodes m…m+n−1, shared by the stages
   adj_.assign(static_cast<size_t>(m_ + n_), 0.0);
   NewStep();
+}
+
+StageTape::~StageTape() {
+  if (!sys_.is_linear()) Tape::Active().Clear();
 }
 
 void StageTape::NewStep() {
@@ -185,7 +191,7 @@ void StageTape::NewStep() {
 
 void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
   if (sys_.is_linear()) {
-    sys_.Rhs(x, theta_, f);
+    *f = a_ * x;
     points_.push_back(x);
     return;
   }
@@ -205,12 +211,12 @@ void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
 void StageTape::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx) {
   const size_t s = static_cast<size_t>(stage);
   if (sys_.is_linear()) {
-    Eigen::VectorXd f, wft;
-    sys_.RhsVectorJacobian(points_.at(s), theta_, w, &f, wfx, &wft);
-    theta_product_ += wft;
+    *wfx = a_.transpose() * w;
+    contraction_.noalias() += w * points_.at(s).transpose();
     return;
   }
   const Tape& tape = Tape::Active();
+  if (tape.size() != start_.back()) throw std::logic_error("StageTape: the thread's tape was recorded on meanwhile");
   if (zeroed_ < tape.size()) {  // this step's nodes, once a step
     adj_.resize(static_cast<size_t>(tape.size()));
     std::fill(adj_.begin() + zeroed_, adj_.end(), 0.0);
@@ -228,7 +234,11 @@ void StageTape::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx)
 }
 
 Eigen::VectorXd StageTape::ThetaProduct() const {
-  if (sys_.is_linear()) return theta_product_;
+  if (sys_.is_linear()) {
+    const Dual c = sys_.linear()->ContractSystemMatrix<Dual>(Seeded(theta_, Eigen::MatrixXd::Identity(m_, m_)),
+                                                            contraction_);
+    return c.derivatives().size() ? Eigen::VectorXd(c.derivatives()) : Eigen::VectorXd::Zero(m_);
+  }
   return Eigen::Map<const Eigen::VectorXd>(adj_.data(), m_);
 }
 

@@ -32,6 +32,8 @@ class OdeSystem {
   bool is_linear() const { return linear_ != nullptr; }
   /// The nonlinear model (null for a linear one).
   const OdeModel* nonlinear() const { return ode_; }
+  /// The linear model (null for a nonlinear one).
+  const LinearModel* linear() const { return linear_; }
 
   void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const;
   /// f and f_x dx + f_θ dtheta (n×k).
@@ -73,12 +75,14 @@ class OdeSystem {
 /// calling thread's tape, and wᵀf_θ accumulates there over every stage swept, so a step costs one
 /// recording of f a stage (which also gives the stage's slope) and one sweep a stage, and no
 /// evaluation twice. The stages also share the nodes of x, which hold no values: each sweep reads
-/// its wᵀf_x there before the next. A linear system has no recording: each product is formed at the
-/// stage's point.
-/// The thread's tape is this object's until it is destroyed.
+/// its wᵀf_x there before the next. A linear system, f = A(θ)x, has no recording: A is formed once,
+/// wᵀf_x = Aᵀw, and wᵀf_θ = ∂⟨Σ w Xᵀ, A(θ)⟩/∂θ is contracted once, in ThetaProduct.
+/// The thread's tape is this object's until it is destroyed (which clears it); a recording made on
+/// it meanwhile by anything else is detected at the next Sweep (std::logic_error).
 class StageTape {
  public:
   StageTape(const OdeSystem& system, const Eigen::VectorXd& theta);
+  ~StageTape();
   StageTape(const StageTape&) = delete;
   StageTape& operator=(const StageTape&) = delete;
 
@@ -101,9 +105,10 @@ class StageTape {
   std::vector<int> f_node_;  // n a stage: f_i's node, −1 for a constant
   std::vector<double> adj_;
   int zeroed_ = 0;  // adj_ is zero on [m, zeroed_) but for what sweeps put there
-  // Linear systems: the stages' points, and the accumulated wᵀf_θ.
+  // Linear systems: A(θ), the stages' points, and Σ w Xᵀ over the stages swept.
+  Eigen::MatrixXd a_;
   std::vector<Eigen::VectorXd> points_;
-  Eigen::VectorXd theta_product_;
+  Eigen::MatrixXd contraction_;
 };
 
 }  // namespace internal

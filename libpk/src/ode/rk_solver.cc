@@ -163,7 +163,8 @@ struct RkSolver::Impl {
 
   // Replay mode's stepping of a values-only segment (into *steps when given): false, with x as it
   // was, when the segment is stiff at its start or spends the step budget, and RODAS4 must take it.
-  // The same segment always gives the same answer, so the tape and its replay agree.
+  // Without a carried step (FixedEndSteps) the same segment always gives the same answer, so a segment
+  // and its replay agree; with one, the steps are stored and never replayed.
   // *carry: see FixedEndSteps.
   bool ReplaySteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps, double* carry = nullptr) {
     if (Stiff(in, *x)) return false;

@@ -15,8 +15,12 @@
 // Route (b) is the discrete adjoint of the method's own steps (Impl::Backward): the exact gradient of
 // the computed loss for the accepted step sizes, with no backward integration and no error control of
 // its own. With a tape, every segment is stepped to end exactly at its end (no continuation through
-// samples), its accepted steps' starts and lengths are kept (n + 1 numbers a step), and the backward pass
-// recomputes each step's stages from its start. Segments with continuous records take route (a).
+// samples: the backward pass takes one segment at a time), its accepted steps' starts and lengths are
+// kept (n + 1 numbers a step), and the backward pass recomputes each step's stages from its start,
+// recording f there once a stage (StageTape, ode_system.h). A stored segment that continues the last
+// one (a sample between them) starts with the step the control proposed there, as stepping through
+// would; a segment that is replayed instead of stored (a steady state's cycle) starts afresh, so its
+// replay takes the same steps. Segments with continuous records take route (a).
 //
 // Stiff segments go to RODAS4 (rosenbrock.h). An explicit method's steps on a stiff system are bounded
 // by its stability region, not by accuracy: each segment is tested first, h·‖f_x(x₀)‖∞ > 1000 (the
