@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <functional>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -339,9 +340,14 @@ std::vector<std::string> DefaultEtas(const pk::Model& model) {
 struct Process {
   int rank = 0;
   std::shared_ptr<const pk::SubjectDistribution> distribution;  ///< null: one process
+  /// Under mpirun with more than one process: pk::MpiSession::AllReady. Called once, with true just
+  /// before the fit, or with false by main when this process failed before it got there.
+  std::function<bool(bool)> all_ready;
+  bool asked = false;  ///< all_ready was called
 };
 
-int Main(int argc, char** argv, const Process& process) {
+int Main(int argc, char** argv, Process* p) {
+  const Process& process = *p;
   po::options_description desc("Options");
   Lists a;
   DeclareOptions(&desc, &a);
@@ -394,6 +400,12 @@ int Main(int argc, char** argv, const Process& process) {
                 << "  |gradient| " << pk::FormatNumber(std::round(gradient * 1e4) / 1e4) << "        " << std::flush;
     };
   }
+  if (process.all_ready) {  // every process got this far: else each stops here rather than wait for it
+    p->asked = true;
+    if (!process.all_ready(true)) {
+      throw pk::InputError("another MPI process stopped before the fit (see its message); nothing was fitted");
+    }
+  }
   const pk::PopulationSummary fit = pk::FitPopulation(problem, initial, options);
   if (!quiet) std::cerr << "\n";
   const std::string dir = vm["output-dir"].as<std::string>();
@@ -422,8 +434,14 @@ int main(int argc, char** argv) {
   if (pk::LaunchedByMpi()) {
     mpi = std::make_unique<pk::MpiSession>(&argc, &argv);
     process.rank = mpi->rank();
-    if (mpi->size() > 1) process.distribution = mpi->Distribution();
+    if (mpi->size() > 1) {
+      process.distribution = mpi->Distribution();
+      process.all_ready = [&mpi](bool ready) { return mpi->AllReady(ready); };
+    }
   }
 #endif
-  return pk::cli::Run("pkpop", [&] { return Main(argc, argv, process); });
+  const int code = pk::cli::Run("pkpop", [&] { return Main(argc, argv, &process); });
+  // This process stopped before the fit (bad input, --help): tell the others, which wait for it there.
+  if (process.all_ready && !process.asked) process.all_ready(false);
+  return code;
 }

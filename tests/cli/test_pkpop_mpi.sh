@@ -35,5 +35,19 @@ if [ "$sanitized" != "ON" ]; then
     --error additive --gradient fd -j 2
 fi
 
+# A process that cannot read its input stops and says so to the others, which stop too instead of
+# waiting for it in their first MPI_Allreduce forever (before, this hung). MPMD: the second process
+# is given a data file that does not exist.
+launcher=("${mpi[@]:0:${#mpi[@]}-2}")  # the options above without -np 2
+timeout 120 "${launcher[@]}" -np 1 "$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V \
+  --error proportional -q -o "$work/stop.1" : -np 1 "$pkpop" --model 1cmt_iv --data "$work/missing.csv" --eta CL,V \
+  --error proportional -q -o "$work/stop.2" >"$work/stop.txt" 2>&1
+rc=$?
+[ $rc -eq 124 ] && fail "one process without its input: the other waited for it until the timeout"
+[ $rc -eq 0 ] && fail "one process without its input: mpirun exited 0"
+grep -q "missing.csv: cannot open" "$work/stop.txt" || fail "the failed process's message is missing: $(tail -3 "$work/stop.txt")"
+grep -q "another MPI process stopped before the fit" "$work/stop.txt" || fail "the other process did not say why it stopped"
+[ -e "$work/stop.1" ] && fail "the process with its input wrote outputs without a fit"
+
 [ $failures -eq 0 ] && echo "pkpop under MPI: all checks passed"
 exit $failures

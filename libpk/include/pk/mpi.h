@@ -5,6 +5,7 @@
 //     pk::MpiSession mpi(&argc, &argv);
 //     pk::PopulationOptions options;
 //     options.distribution = mpi.Distribution();   // every process calls FitPopulation alike
+//     if (!mpi.AllReady(true)) return 1;            // another process failed to read its input
 //     const pk::PopulationSummary fit = pk::FitPopulation(problem, initial, options);
 //     if (mpi.rank() == 0) std::cout << fit.FullReport();
 //   }
@@ -44,6 +45,11 @@ class MpiSession {
   int size() const { return size_; }
   /// The subjects of a population problem split across MPI_COMM_WORLD.
   std::shared_ptr<const SubjectDistribution> Distribution() const;
+  /// True when every process passes `ready` = true. Every process calls it once, at the same point
+  /// before the first collective step (FitPopulation): those ready to fit with true, and one that
+  /// failed before it (its input, say) with false on its way out. Otherwise the others would wait
+  /// for that one in their first MPI_Allreduce forever; this way each learns of it and can stop.
+  bool AllReady(bool ready) const;
 
  private:
   bool finalize_ = false;

@@ -63,6 +63,12 @@ MpiSession::~MpiSession() {
   if (finalize_) MPI_Finalize();
 }
 
+bool MpiSession::AllReady(bool ready) const {
+  int flag = ready ? 1 : 0;
+  Check(MPI_Allreduce(MPI_IN_PLACE, &flag, 1, MPI_INT, MPI_MIN, MPI_COMM_WORLD), "MPI_Allreduce");
+  return flag == 1;
+}
+
 std::shared_ptr<const SubjectDistribution> MpiSession::Distribution() const {
   return std::make_shared<MpiDistribution>(rank_, size_);
 }
