@@ -87,7 +87,11 @@ TEST_CASE("reader errors name file, line and column", "[reader]") {
   ExpectError("ID,TIME,AMT,II,ADDL\n1,0,10,0,3\n", 2, 4, "ADDL>0 needs II>0");
   ExpectError("ID,TIME,AMT\n1,0\n", 2, 3, "expected 3 fields");
   ExpectError("ID,TIME,AMT\n1,0,1,2\n", 2, 4, "expected 3 fields");
-  ExpectError("ID,TIME,time\n1,0,1\n", 1, 3, "duplicate column TIME");
+  ExpectError("ID,TIME,time\n1,0,1\n", 1, 3, "duplicate column TIME (also column 2)");
+  // The first column, left to right, whose name an earlier one has: A at 6, not B at 7 (B sorts first).
+  ExpectError("ID,TIME,B,A,DV,a,b\n1,0,1,2,3,4,5\n", 1, 6, "duplicate column A (also column 4)");
+  ExpectError("ID,TIME,X,x,X\n1,0,1,2,3\n", 1, 4, "duplicate column X (also column 3)");
+  ExpectError("ID,TIME,,ID\n1,0,1,2\n", 1, 3, "empty column name");  // the empty name comes first
   ExpectError("ID,TIME,EVID\n1,0,7\n", 2, 3, "EVID must be 0, 1, 2, 3 or 4");
   ExpectError("ID,TIME,AMT,SS,II\n1,0,10,3,12\n", 2, 4, "SS must be 0, 1 or 2");
   ExpectError("ID,TIME,AMT,RATE\n1,0,10,-3\n", 2, 4, "RATE must be positive, 0, -1");
