@@ -220,6 +220,18 @@ list Estimates(const PopulationProblem& problem, const PopulationSummary& fit) {
                           {"rse", Sig(e.rse_pct, 3)}, {"cv", Text(cv)}, {"shrinkage", Text(shrinkage)},
                           {"flag", Text(flag)}, {"class", Text(e.at_boundary ? "bad" : "")}});
   }
+  // NONMEM's $SIGMA holds variances: each σ² with SE(σ²) = 2σ·SE(σ) and twice the RSE, as report.txt.
+  for (const PopulationEstimate& e : fit.estimates) {
+    if (e.name.rfind("SIGMA_", 0) != 0) continue;
+    rows.push_back(object{{"name", Text(e.name + "²")},
+                          {"estimate", Sig(e.estimate * e.estimate, 4)},
+                          {"se", Sig(2 * e.estimate * e.se, 3)},
+                          {"rse", Sig(2 * e.rse_pct, 3)},
+                          {"cv", Text("")},
+                          {"shrinkage", Text("")},
+                          {"flag", Text(std::string(e.fixed ? "fixed; " : "") + "as NONMEM's $SIGMA, a variance")},
+                          {"class", Text("")}});
+  }
   return rows;
 }
 

@@ -21,6 +21,8 @@ grep -q "{{" "$work/dom.html" && fail "a mustache tag was left unrendered"
 grep -q "ETA_CL against WT" "$work/dom.html" || fail "no plot of η(CL) against WT"
 grep -q "CWRES against TIME" "$work/dom.html" || fail "no CWRES against TIME"
 grep -q "730.8947" "$work/dom.html" || fail "the OFV card"
+# σ and, as NONMEM's $SIGMA, σ² with SE(σ²) = 2σ·SE(σ): 0.1282² = 0.01642.
+grep -q "SIGMA_PROP²</td><td>0.0164" "$work/dom.html" || fail "no σ² row (NONMEM's \$SIGMA) in the estimates table"
 for f in gof_dv_pred.svg gof_cwres_time.svg eta_CL_WT.svg; do
   grep -q "^$f," "$work/pheno/MANIFEST" || fail "$f is not in the output set's MANIFEST"
 done
