@@ -334,6 +334,18 @@ pk::PopulationProblem BolusProblem(std::shared_ptr<const pk::Dataset> data) {
   return pk::PopulationProblem(pk::MakeModel("1cmt_iv"), std::move(data), {"CL", "V"}, o);
 }
 
+// A nonlinear model on the ODE propagator (pkpop's rtol 1e-9): 1cmt_iv_emax on emax_synthetic (both
+// outputs), η on CL and EMAX, proportional error.
+pk::PopulationProblem EmaxProblem(const std::string& data_dir) {
+  pk::ObjectiveOptions ode;
+  ode.error_model = pk::MakeResidualError("proportional");
+  ode.ode.relative_tolerance = 1e-9;
+  ode.ode.absolute_tolerance = 1e-11;
+  return pk::PopulationProblem(pk::MakeModel("1cmt_iv_emax"),
+                               std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/emax_synthetic.csv")),
+                               {"CL", "EMAX"}, ode);
+}
+
 void PopulationCase(const char* name, const pk::PopulationProblem& problem, const pk::PopulationParameters& start) {
   pk::PopulationOptions options;
   options.covariance = false;
@@ -396,13 +408,7 @@ void LaplaceHessian(const std::string& data_dir) {
   p.theta = Eigen::Vector3d(1.5, 2.8, 32);
   p.sigma = Eigen::Vector2d(0.3, 0.1);
   LaplaceHessianCase("theophylline 3 η (Φ/Γ)", oral, p);
-  pk::ObjectiveOptions ode = o;
-  ode.error_model = pk::MakeResidualError("proportional");
-  ode.ode.relative_tolerance = 1e-9;
-  ode.ode.absolute_tolerance = 1e-11;
-  const pk::PopulationProblem emax(pk::MakeModel("1cmt_iv_emax"),
-                                   std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/emax_synthetic.csv")),
-                                   {"CL", "EMAX"}, ode);
+  const pk::PopulationProblem emax = EmaxProblem(data_dir);
   LaplaceHessianCase("emax (ODE)", emax, emax.DefaultParameters());
 }
 
@@ -428,16 +434,9 @@ void PopulationEstimation(const std::string& data_dir) {
   PopulationCase("pheno_pop.pkm", pk::PopulationProblem(file, pheno, {"ETA_CL", "ETA_V"}, o), file_start);
   start.theta << 3, 15;
   PopulationCase("bolus 120x19", BolusProblem(std::make_shared<pk::Dataset>(SimulatedBolus(120))), start);
-  // A nonlinear model on the ODE propagator (Dormand–Prince, pkpop's rtol 1e-9): 1cmt_iv_emax on
-  // emax_synthetic (both outputs), η on CL and EMAX, from the catalogue's defaults. The implicit
-  // gradient's second order is integrated with the ODEs (ode/second_order.h).
-  pk::ObjectiveOptions ode;
-  ode.error_model = pk::MakeResidualError("proportional");
-  ode.ode.relative_tolerance = 1e-9;
-  ode.ode.absolute_tolerance = 1e-11;
-  const pk::PopulationProblem emax(pk::MakeModel("1cmt_iv_emax"),
-                                   std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/emax_synthetic.csv")),
-                                   {"CL", "EMAX"}, ode);
+  // EmaxProblem on Dormand–Prince from the catalogue's defaults. The implicit gradient's second order
+  // is integrated with the ODEs (ode/second_order.h).
+  const pk::PopulationProblem emax = EmaxProblem(data_dir);
   PopulationCase("emax (ODE)", emax, emax.DefaultParameters());
 }
 }  // namespace

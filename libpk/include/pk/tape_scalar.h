@@ -13,7 +13,6 @@
 #define PK_TAPE_SCALAR_H_
 
 #include <cmath>
-#include <cstddef>
 #include <utility>
 #include <vector>
 
@@ -49,7 +48,7 @@ class Tape {
     std::swap(size_, other.size_);
     std::swap(capacity_, other.capacity_);
   }
-  int size() const { return static_cast<int>(size_); }
+  int size() const { return size_; }
   PK_TAPE_INLINE int Push(int a, double da, int b = -1, double db = 0) {
     // Written field by field into storage kept between recordings: a Node
     // built on the stack and copied stalled store forwarding here.
@@ -62,7 +61,7 @@ class Tape {
     n.b = b;
     n.da = da;
     n.db = db;
-    return static_cast<int>(size_++);
+    return size_++;
   }
   /// Back-propagates the adjoints in `adj` (one per node, seeded by the caller).
   /// Nodes below `first` must have no parents (the independent variables,
@@ -114,11 +113,8 @@ class Tape {
   }
 
   std::vector<Node> nodes_;  // nodes_[0, size_) are the recording; nodes_.size() == capacity_
-  // Wider than int on purpose: a node's int fields, and a TapeScalar's, then cannot alias them, so
-  // a recording inlined into a model keeps them in registers instead of reloading them after every
-  // store (a store-to-load chain through size_ that set the pace of recording).
-  std::ptrdiff_t size_ = 0;
-  std::ptrdiff_t capacity_ = 0;
+  int size_ = 0;
+  int capacity_ = 0;
 };
 
 class TapeScalar {

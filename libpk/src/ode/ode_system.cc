@@ -142,24 +142,16 @@ void OdeSystem::ObserveDirectional(int key, const Eigen::VectorXd& x, const Eige
 double OdeSystem::ObserveGradient(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* gx,
                                   Eigen::VectorXd* gtheta) const {
   if (ode_) return ode_->OutputGradient(key, x, theta, gx, gtheta);
-  // y = c(θ)ᵀx: g_x = c, and g_θ from c on duals, one direction a parameter.
+  // y = c(θ)ᵀx: g_x = c, and g_θ as the directional derivatives along each parameter.
   *gx = linear_->OutputRow<double>(key, theta).transpose();
-  const Eigen::Matrix<Dual, 1, Eigen::Dynamic> cd =
-      linear_->OutputRow<Dual>(key, Seeded(theta, Eigen::MatrixXd::Identity(m_, m_)));
-  *gtheta = Eigen::VectorXd::Zero(m_);
-  for (int j = 0; j < n_; ++j) {
-    if (x(j) != 0 && cd(j).derivatives().size()) *gtheta += x(j) * cd(j).derivatives();
-  }
-  return gx->dot(x);
+  double y = 0;
+  Eigen::RowVectorXd dy;
+  ObserveDirectional(key, x, theta, Eigen::MatrixXd::Zero(n_, m_), Eigen::MatrixXd::Identity(m_, m_), &y, &dy);
+  *gtheta = dy.transpose();
+  return y;
 }
 
 int OdeSystem::central_key() const { return ode_ ? 1 : model_.central_compartment(); }
-
-}  // namespace internal
-}  // namespace pk
-
-namespace pk {
-namespace internal {
 
 StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta)
     : sys_(system), theta_(theta), n_(system.n()), m_(static_cast<int>(theta.size())) {

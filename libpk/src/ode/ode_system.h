@@ -104,7 +104,7 @@ class StageTape {
   std::vector<int> start_;  // a stage's first node, and one past its last at the end
   std::vector<int> f_node_;  // n a stage: f_i's node, −1 for a constant
   std::vector<double> adj_;
-  int zeroed_ = 0;  // adj_ is zero on [m, zeroed_) but for what sweeps put there
+  int zeroed_ = 0;  // adj_ is zero on [m + n, zeroed_) but for what sweeps put there
   // Linear systems: A(θ), the stages' points, and Σ w Xᵀ over the stages swept.
   Eigen::MatrixXd a_;
   std::vector<Eigen::VectorXd> points_;

@@ -25,10 +25,10 @@
 // Stiff segments go to RODAS4 (rosenbrock.h). An explicit method's steps on a stiff system are bounded
 // by its stability region, not by accuracy: each segment is tested first, h·‖f_x(x₀)‖∞ > 1000 (the
 // row-sum norm bounds the spectral radius; Dormand–Prince is stable to about 3.3 on the negative
-// axis), and every 25 steps, h·‖f_x(x)‖∞ > 2.5 (a step held by that boundary) at four checks in a row. Such a segment is done
-// from its start by RODAS4 in every route; one that also integrates a quadrature (continuous loss,
-// AUC) by a CvodesSolver kept for the purpose. The tests read only the segment and its steps, so a
-// replay decides alike.
+// axis), and every 25 steps, h·‖f_x(x)‖∞ > 2.5 (a step held by that boundary) at four checks in a
+// row. Such a segment is done from its start by RODAS4 in every route; one that also integrates a
+// quadrature (continuous loss, AUC) by a CvodesSolver kept for the purpose. The tests read only the
+// segment and its steps, so a replay decides alike.
 #ifndef PK_SRC_ODE_RK_SOLVER_H_
 #define PK_SRC_ODE_RK_SOLVER_H_
 
