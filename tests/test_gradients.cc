@@ -183,6 +183,7 @@ namespace {
 // ∂ŷ/∂p by the forward route (the least-squares residual Jacobian is −∂ŷ/∂p).
 Eigen::MatrixXd PredictionJacobian(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free) {
   const auto ev = obj.Evaluate(values, free, pk::Objective::Need::kJacobian, pk::GradientRoute::kForward);
+  INFO(ev.message);
   REQUIRE(ev.ok);
   return -ev.jacobian.topRows(ev.predictions.size());
 }
@@ -271,12 +272,6 @@ TEST_CASE("exact second derivatives refuse what they cannot differentiate", "[gr
   std::string why;
   CHECK_FALSE(obj.SecondDerivatives(values, free, {{0, 0}}, &second, &why));  // ALAG1 is free
   CHECK_THAT(why, Catch::Contains("model parameters only"));
-  // The ODE propagator's second order has no steady state.
-  const Scenario& ss = Scenarios()[3];
-  REQUIRE(std::string(ss.name) == "ss1 bolus");
-  const pk::Objective on_ode(pk::MakeModel("1cmt_iv_mm"), pk_test::ScenarioData(ss), 0, pk::ObjectiveOptions());
-  CHECK_FALSE(on_ode.SecondDerivatives(on_ode.DefaultValues(), {0, 1}, {{0, 1}}, &second, &why));
-  CHECK_THAT(why, Catch::Contains("steady states"));
 }
 
 namespace {
@@ -362,7 +357,7 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
   tight.ode.absolute_tolerance = 1e-14;
   int compared = 0;
   for (const Scenario& sc : pk_test::OdeScenarios()) {
-    if (!sc.extra_free.empty() || std::string(sc.name).find("ss") != std::string::npos) continue;
+    if (!sc.extra_free.empty()) continue;  // F, ALAG, R and D move events: no second order
     for (const pk::Propagator integrator : {pk::Propagator::kRungeKutta, pk::Propagator::kOde}) {
       if (pk_test::kSanitized && integrator == pk::Propagator::kOde) continue;  // the route is the same
       tight.propagator = integrator;

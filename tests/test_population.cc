@@ -1327,17 +1327,62 @@ TEST_CASE("an ID that comes back is another subject in the population outputs", 
   CHECK(last == 3);
 }
 
-TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the second order is not covered",
+TEST_CASE("steady states on the ODE propagator: the implicit gradient serves and agrees with differences of the OFV",
           "[population]") {
-  // Steady-state doses (SS=1): the ODE propagator's second-order sensitivities do not cover them, and
-  // differences of its integrated J would carry its error over the step.
+  // SS=1 doses of a Michaelis–Menten model: the second-order sensitivities start from the stacked
+  // system's periodic steady state (ode/second_order.h), so no subject's second order is differenced.
   const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
-      "ID,TIME,AMT,II,SS,DV\n1,0,100,12,1,.\n1,1,0,0,0,4\n1,6,0,0,0,2.5\n2,0,100,12,1,.\n2,2,0,0,0,3\n2,8,0,0,0,1.6\n"
-      "3,0,100,12,1,.\n3,1,0,0,0,5\n3,10,0,0,0,1.2\n",
+      "ID,TIME,AMT,II,SS,DV\n1,0,100,12,1,.\n1,1,0,0,0,3.6\n1,3,0,0,0,2.2\n1,6,0,0,0,1.6\n1,10,0,0,0,0.55\n"
+      "2,0,100,12,1,.\n2,1,0,0,0,2.9\n2,3,0,0,0,2.7\n2,6,0,0,0,1.35\n2,10,0,0,0,0.7\n"
+      "3,0,100,12,1,.\n3,1,0,0,0,3.3\n3,3,0,0,0,2.3\n3,6,0,0,0,1.55\n3,10,0,0,0,0.5\n"
+      "4,0,100,12,1,.\n4,1,0,0,0,3.0\n4,3,0,0,0,2.6\n4,6,0,0,0,1.4\n4,10,0,0,0,0.66\n",
       "ss.csv"));
   pk::ObjectiveOptions o;
   o.error_model = pk::MakeResidualError("proportional");
-  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv_mm"), data, {"VMAX"}, o);
+  o.ode.relative_tolerance = 1e-12;
+  o.ode.absolute_tolerance = 1e-15;
+  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv_mm"), data, {"VMAX", "V"}, o);
+  pk::PopulationParameters p = problem.DefaultParameters();
+  p.sigma = Eigen::VectorXd::Constant(1, 0.2);
+  for (pk::PopulationMethod m : {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
+    INFO(pk::ToString(m));
+    CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
+  }
+  pk::PopulationOptions options;
+  options.max_iterations = 3;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, p, options);
+  INFO(fit.gradient);
+  CHECK_THAT(fit.gradient, Catch::Contains("implicit function theorem"));
+  CHECK_THAT(fit.gradient, !Catch::Contains("differences"));
+}
+
+namespace {
+
+// A nonlinear model file whose bioavailability varies between subjects (F1 = exp(ETA_F) in $PK): a
+// computed dose modifier moves the doses, which second-order sensitivities do not follow.
+pk::PopulationProblem VaryingBioavailability() {
+  const auto model = pk::ParseModel(
+      "$PROBLEM mm_f  1cmt IV, Michaelis-Menten, a bioavailability that varies\n$PARAM\nVMAX = 20\nKM = 3\nV = 30\n"
+      "$OMEGA\nETA_V ~ 0.1\nETA_F ~ 0.02\n$CMT\nCENTRAL dose central\n$PK\nF1 = exp(ETA_F)\nVI = V * exp(ETA_V)\n"
+      "$ODE\nd/dt(CENTRAL) = -VMAX * CENTRAL / (KM * VI + CENTRAL)\n$OUTPUT\nCP = CENTRAL / VI\n",
+      "mm_f.pkm", pk::RandomEffects::kParameters);
+  REQUIRE_FALSE(model->is_linear());
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,DV\n1,0,100,.\n1,1,0,3\n1,6,0,1.5\n2,0,100,.\n2,2,0,2.6\n2,8,0,0.8\n"
+      "3,0,100,.\n3,1,0,3.5\n3,10,0,0.6\n",
+      "f.csv"));
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  return pk::PopulationProblem(model, data, {"ETA_V", "ETA_F"}, o);
+}
+
+}  // namespace
+
+TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the second order is not covered",
+          "[population]") {
+  // Differences of the integrated J would carry its error over the step.
+  const pk::PopulationProblem problem = VaryingBioavailability();
   pk::PopulationParameters p = problem.DefaultParameters();
   p.sigma = Eigen::VectorXd::Constant(1, 0.2);
   pk::PopulationOptions options;
@@ -1346,7 +1391,7 @@ TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the 
   const pk::PopulationSummary fit = pk::FitPopulation(problem, p, options);
   INFO(fit.gradient);
   CHECK_THAT(fit.gradient, Catch::Contains("from evaluation 1 central differences of the OFV") &&
-                               Catch::Contains("steady states"));
+                               Catch::Contains("computed dose modifier"));
   options.gradient = pk::PopulationGradient::kImplicit;  // asked for: kept, and the differenced points counted
   const pk::PopulationSummary asked = pk::FitPopulation(problem, p, options);
   INFO(asked.gradient);
@@ -1458,20 +1503,16 @@ TEST_CASE("½∇²l from the second-order sensitivities equals differences of th
 
 TEST_CASE("Laplace's H is differenced only where the route has no second derivatives, and says why",
           "[population]") {
-  // Steady-state doses on the ODE propagator: no second-order sensitivities there.
-  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(
-      "ID,TIME,AMT,II,SS,DV\n1,0,100,12,1,.\n1,1,0,0,0,4\n1,6,0,0,0,2.5\n", "ss.csv"));
-  pk::ObjectiveOptions o;
-  o.error_model = pk::MakeResidualError("proportional");
-  const pk::PopulationProblem ss(pk::MakeModel("1cmt_iv_mm"), data, {"VMAX"}, o);
-  pk::PopulationParameters p = ss.DefaultParameters();
+  // A computed dose modifier that reads an η: no second-order sensitivities there.
+  const pk::PopulationProblem varying = VaryingBioavailability();
+  pk::PopulationParameters p = varying.DefaultParameters();
   p.sigma = Eigen::VectorXd::Constant(1, 0.2);
   const pk::internal::PopulationPoint point =
-      pk::internal::PopulationPoint::Make(p, *ss.options().error_model, pk::PopulationMethod::kLaplace);
+      pk::internal::PopulationPoint::Make(p, *varying.options().error_model, pk::PopulationMethod::kLaplace);
   const pk::internal::SubjectMode differenced =
-      pk::internal::SolveSubject(ss.impl().subjects[0], point, Eigen::VectorXd::Zero(1));
+      pk::internal::SolveSubject(varying.impl().subjects[0], point, Eigen::VectorXd::Zero(2));
   REQUIRE(differenced.ok);
-  CHECK_THAT(differenced.hessian_differenced, Catch::Contains("steady states"));
+  CHECK_THAT(differenced.hessian_differenced, Catch::Contains("computed dose modifier"));
   // On Φ/Γ it is exact, and the OFV_i is the differenced one's to their error.
   const Case c = Cases().at("pheno_prop");
   const pk::PopulationProblem pheno = Problem(c);

@@ -235,9 +235,13 @@ class OdePropagator {
       // 1e-8. (With one tolerance instead of a thousandth, the error of x*,
       // which the steady-state gradient (I − P_x)⁻¹∂P/∂p amplifies, put the
       // forward and adjoint gradients of 2cmt_iv_mm at SS=1 1.3e-7 apart.)
+      // Or once a step inside the region of quadratic convergence fails to halve the one before: x
+      // is then at the integration's own noise (CVODES at rtol 1e-12 moves x* by about 10⁻¹⁰ from
+      // one cycle to the next, ten tolerances, and Newton would wander there until its limit).
       const double rate = std::min(1.0, step / last_step);
+      const bool stagnated = with_parameters && rate >= 0.5 && step <= std::sqrt(Tolerance(x) * x.lpNorm<Eigen::Infinity>());
       last_step = step;
-      const bool converged = step <= Tolerance(x) || rate * step <= 1e-3 * Tolerance(x);
+      const bool converged = step <= Tolerance(x) || rate * step <= 1e-3 * Tolerance(x) || stagnated;
       if (it > 0 && converged && (with_parameters || !sens_)) break;
       if (it >= options_.max_newton_iterations) {
         throw NumericalFailure("no periodic steady state: Newton on x = P(x) did not converge (" + CycleHint(x) + ")");

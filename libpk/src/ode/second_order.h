@@ -17,7 +17,12 @@
 // controlled as x and s are; the result is the derivative of the exact solution to the requested
 // tolerance (not the discrete derivative of the computed ŷ: at rtol 1e-8 they differ by about that).
 // Stiff segments are stepped by the same explicit method, which costs steps but not accuracy.
-// Steady states and continuous records are not covered (NumericalFailure).
+//
+// Steady states. A dosing cycle's map P is nonlinear in x but, at its fixed point x*, affine in s
+// and w with the one matrix P_x: s(T) = P_x s(0) + b_s and w(T) = P_x w(0) + b_w(s(0)). So
+// s* = (I − P_x)⁻¹ b_s and w* = (I − P_x)⁻¹ b_w(s*), with x* by Newton on x = P(x) and P_x from n
+// directions in x₀ integrated with it. A constant infusion's: f(x*) + u = 0, s* = −f_x⁻¹ f_θ θ_p,
+// w* = −f_x⁻¹ f''[d_k, d_l]. Continuous records are not covered (NumericalFailure).
 #ifndef PK_SRC_ODE_SECOND_ORDER_H_
 #define PK_SRC_ODE_SECOND_ORDER_H_
 
@@ -35,7 +40,7 @@ namespace internal {
 
 /// (*out)[i] = ∂²ŷ/∂p_k∂p_l over the samples (o.sample_of_record's order) for pairs[i] = (k, l),
 /// indices into the `num_free` parameters that `sets` seed. Throws NumericalFailure where the
-/// route does not apply (a steady state, a continuous record, a linear system) or fails.
+/// route does not apply (a continuous record, a linear system) or fails.
 void OdeSecondOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
                                  int num_free, const std::vector<std::pair<int, int>>& pairs,
                                  std::vector<Eigen::VectorXd>* out);

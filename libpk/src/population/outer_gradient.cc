@@ -11,8 +11,8 @@
 // ∇²l (all the formula needs) are then exact given ŷ's first and second derivatives. The first derivatives J = ∂ŷ/∂φ are the exact
 // forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are exact too on Φ/Γ (the
 // second-order sensitivities of exact/second_order.h) and integrated with the state on the ODE
-// propagator (ode/second_order.h). Where neither applies (a steady state on the ODE propagator, a
-// parameter a computed dose modifier reads) they are central differences of J, Richardson-extrapolated.
+// propagator (ode/second_order.h), steady states included. Where neither applies (a parameter that a
+// computed dose modifier reads) they are central differences of J, Richardson-extrapolated.
 // The residual variance v(ŷ, σ) enters by its own second-order Taylor model, its second
 // derivatives differences of its exact first ones.
 #include "population/outer_gradient.h"
