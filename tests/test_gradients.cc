@@ -403,6 +403,104 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
   CHECK(compared > (pk_test::kSanitized ? 50 : 100));  // the sanitizer build checks a subset
 }
 
+namespace {
+
+// ∂³ŷ/∂p_a∂p_b∂p_c by Richardson-extrapolated central differences, in p_c, of the exact second
+// derivatives of pair (a, b).
+Eigen::VectorXd SecondDifferences(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free,
+                                  int a, int b, int c) {
+  Eigen::VectorXd d[2];
+  std::string why;
+  for (int level = 0; level < 2; ++level) {
+    const auto fc = static_cast<size_t>(c);
+    const double h = 1e-3 * std::max(std::abs(values(free[fc])), 0.1) / (1 << level);
+    Eigen::VectorXd plus = values, minus = values;
+    plus(free[fc]) += h;
+    minus(free[fc]) -= h;
+    std::vector<Eigen::VectorXd> up, down;
+    REQUIRE(obj.SecondDerivatives(plus, free, {{a, b}}, &up, &why));
+    REQUIRE(obj.SecondDerivatives(minus, free, {{a, b}}, &down, &why));
+    d[level] = (up[0] - down[0]) / (2 * h);
+  }
+  return (4 * d[1] - d[0]) / 3;
+}
+
+// Every sorted triple of `free`'s positions against differences of the second derivatives; returns
+// how many were compared.
+int CheckThirdDerivatives(const pk::Objective& obj, const Eigen::VectorXd& values, const std::vector<int>& free,
+                          double tolerance) {
+  std::vector<std::array<int, 3>> triples;
+  const int p = static_cast<int>(free.size());
+  for (int a = 0; a < p; ++a) {
+    for (int b = a; b < p; ++b) {
+      for (int c = b; c < p; ++c) triples.push_back({a, b, c});
+    }
+  }
+  std::vector<Eigen::VectorXd> third;
+  std::string why;
+  INFO(why);
+  REQUIRE(obj.ThirdDerivatives(values, free, triples, &third, &why));
+  REQUIRE(third.size() == triples.size());
+  // A triple whose derivative vanishes is compared on the scale of the others, each taken per unit of
+  // relative change of its parameters (∂³ŷ·|p_a p_b p_c|, the differences' own scale).
+  const auto unit = [&](const std::array<int, 3>& t) {
+    double u = 1;
+    for (int i : t) u *= std::max(std::abs(values(free[static_cast<size_t>(i)])), 0.1);
+    return u;
+  };
+  double largest = 0;
+  for (size_t t = 0; t < triples.size(); ++t) largest = std::max(largest, unit(triples[t]) * third[t].cwiseAbs().maxCoeff());
+  for (size_t t = 0; t < triples.size(); ++t) {
+    const auto [a, b, c] = triples[t];
+    const Eigen::VectorXd want = SecondDifferences(obj, values, free, a, b, c);
+    const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-6 * largest / unit(triples[t]));
+    INFO("triple " << a << "," << b << "," << c << "\nexact " << third[t].transpose() << "\nfd    " << want.transpose());
+    CHECK((third[t] - want).cwiseAbs().maxCoeff() / scale < tolerance);
+  }
+  return static_cast<int>(triples.size());
+}
+
+}  // namespace
+
+TEST_CASE("third derivatives of the predictions agree with differences of the second ones", "[gradient][second-order]") {
+  int compared = 0;
+  // Linear models on Φ/Γ: catalogue ones and a file with η in its rates (derived coefficients).
+  std::vector<std::pair<std::string, std::shared_ptr<const pk::Model>>> linear;
+  for (const char* name : {"1cmt_iv", "1cmt_oral", "2cmt_oral"}) linear.emplace_back(name, pk::MakeModel(name));
+  linear.emplace_back("eta_rates.pkm", pk::ParseModel(kEtaRates, "eta_rates.pkm", pk::RandomEffects::kParameters));
+  for (const auto& [name, model] : linear) {
+    for (const Scenario& sc : Scenarios()) {
+      if (!sc.extra_free.empty()) continue;
+      INFO(name << " / " << sc.name);
+      const pk::Objective obj(model, pk_test::ScenarioData(sc), 0, pk::ObjectiveOptions());
+      Eigen::VectorXd values;
+      std::vector<int> free;
+      pk_test::ScenarioValues(obj, sc, &values, &free);
+      for (int i : free) {
+        if (model->is_eta(i)) values(i) = i % 2 ? 0.15 : -0.2;
+      }
+      compared += CheckThirdDerivatives(obj, values, free, 1e-6);
+    }
+  }
+  // Nonlinear models on the ODE propagator, steady states included.
+  pk::ObjectiveOptions tight;
+  tight.ode.relative_tolerance = 1e-12;
+  tight.ode.absolute_tolerance = 1e-14;
+  for (const Scenario& sc : pk_test::OdeScenarios()) {
+    if (!sc.extra_free.empty()) continue;
+    for (const char* name : {"1cmt_iv_mm", "1cmt_iv_emax"}) {
+      INFO(name << " / " << sc.name);
+      const pk::Objective obj(pk::MakeModel(name), pk_test::ScenarioData(sc), 0, tight);
+      Eigen::VectorXd values;
+      std::vector<int> free;
+      pk_test::ScenarioValues(obj, sc, &values, &free);
+      if (free.size() > 3) free.resize(3);  // 1cmt_iv_emax: the PK parameters and E0's neighbour
+      compared += CheckThirdDerivatives(obj, values, free, 1e-5);
+    }
+  }
+  CHECK(compared > 300);
+}
+
 TEST_CASE("hyper-dual numbers give a function's value, two directional derivatives and the mixed one", "[second-order]") {
   using pk::internal::HyperDualNumber;
   // f(x, y) = x^y · log(x) / sqrt(x + y) + exp(-x y), along u = (1, 0.5) (ε₁) and v = (0.3, -2) (ε₂).
@@ -424,4 +522,44 @@ TEST_CASE("hyper-dual numbers give a function's value, two directional derivativ
   CHECK(z.e1() == 0);
   CHECK(z.e12() == 2);  // ∂²(x²)/∂x² · u_x v_x
   CHECK(std::isfinite(z.e2()));
+}
+
+TEST_CASE("third-order hyper-dual numbers give every mixed derivative along three directions", "[second-order]") {
+  // f(x, y) as above, along u (ε₁), v (ε₂) and w (ε₃). Each pair's part must equal HyperDual's for
+  // that pair, and the ε₁ε₂ε₃ part the central difference, along w, of HyperDual's mixed part.
+  const auto f = [](auto x, auto y) { return pow(x, y) * log(x) / sqrt(x + y) + exp(-(x * y)) + pow(x, 2.5) / y; };
+  const double x0 = 1.7, y0 = 0.6, d[3][2] = {{1, 0.5}, {0.3, -2}, {-0.7, 1.1}};
+  pk::HyperDual3 x(x0), y(y0);
+  for (int k = 0; k < 3; ++k) {
+    x.part(1 << k) = d[k][0];
+    y.part(1 << k) = d[k][1];
+  }
+  const pk::HyperDual3 r = f(x, y);
+  using pk::HyperDual;
+  const auto pair = [&](int a, int b, double shift) {  // HyperDual along a and b, at a shift along the third
+    const int c = 3 - a - b;
+    const double xs = x0 + shift * d[c][0], ys = y0 + shift * d[c][1];
+    return f(HyperDual(xs, d[a][0], d[b][0], 0), HyperDual(ys, d[a][1], d[b][1], 0));
+  };
+  CHECK(r.value() == Approx(pair(0, 1, 0).value()).epsilon(1e-15));
+  for (const auto& [a, b] : {std::pair<int, int>{0, 1}, {0, 2}, {1, 2}}) {
+    const HyperDual p = pair(a, b, 0);
+    CHECK(r.part(1 << a) == Approx(p.e1()).epsilon(1e-14));
+    CHECK(r.part(1 << b) == Approx(p.e2()).epsilon(1e-14));
+    CHECK(r.part((1 << a) | (1 << b)) == Approx(p.e12()).epsilon(1e-14));
+  }
+  const double h = 1e-5;
+  const double third = (pair(0, 1, h).e12() - pair(0, 1, -h).e12()) / (2 * h);
+  CHECK(r.part(7) == Approx(third).epsilon(1e-8));
+  CHECK(std::abs(r.part(7)) > 0.1);
+  // x³ along three directions: 6·u·v·w exactly; a base of 0 with a moving exponent stays finite.
+  const pk::HyperDual3 cube = pow(x, 3.0);
+  CHECK(cube.part(7) == Approx(6 * d[0][0] * d[1][0] * d[2][0]).epsilon(1e-14));
+  pk::HyperDual3 zero(0.0), two(2.0);
+  zero.part(1) = zero.part(2) = zero.part(4) = 1;
+  two.part(1) = 0.5;
+  const pk::HyperDual3 z = pow(zero, two);
+  CHECK(z.part(3) == 2);
+  CHECK(z.part(7) == 0);  // x² has no third derivative
+  for (int s = 0; s < 8; ++s) CHECK(std::isfinite(z.part(s)));
 }

@@ -65,6 +65,13 @@ struct DerivedCoefficients {
   std::function<void(const Eigen::VectorXd& theta, const Eigen::VectorXd& u, const Eigen::VectorXd& v,
                      Eigen::VectorXd* psi, Eigen::VectorXd* psi_u, Eigen::VectorXd* psi_v, Eigen::VectorXd* psi_uv)>
       evaluate_second;
+  /// Along three directions of θ (the columns of `directions`, m × 3): (*parts)[S] is ψ's part S
+  /// of pk::HyperDual3, its mixed derivative along the directions in the bit mask S (0: ψ itself,
+  /// 7: ∂³ψ[u, v, w]); eight vectors. Optional: without it a model has no third-order
+  /// sensitivities (the Laplace gradient then differences the OFV).
+  std::function<void(const Eigen::VectorXd& theta, const Eigen::MatrixXd& directions,
+                     std::vector<Eigen::VectorXd>* parts)>
+      evaluate_third;
 };
 
 class LinearModel final : public Model {

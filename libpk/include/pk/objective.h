@@ -39,6 +39,7 @@
 #ifndef PK_OBJECTIVE_H_
 #define PK_OBJECTIVE_H_
 
+#include <array>
 #include <memory>
 #include <string>
 #include <utility>
@@ -212,11 +213,20 @@ class Objective {
   /// nor one a computed modifier reads). A linear model's are exact: the state's second derivatives
   /// run through the block-triangular exponential as the first ones do (docs/gradients.md). A
   /// nonlinear model's are forward sensitivities of the sensitivity system, integrated with x to
-  /// the ODE tolerances (docs/ode_routes.md); no steady states there. False, with `why`, otherwise
+  /// the ODE tolerances (docs/ode_routes.md), steady states included. False, with `why`, otherwise
   /// or on numerical failure.
   bool SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
                          const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                          std::string* why) const;
+
+  /// Third derivatives of the predictions: (*third)[i] = ∂³ŷ/∂p_a∂p_b∂p_c over the samples for
+  /// triples[i] = {a, b, c}, positions in `free`, with SecondDerivatives' restrictions. The
+  /// population's Laplace gradient needs them (the exact ½∇²l in its OFV holds ∂²ŷ). Exact on
+  /// Φ/Γ (the block-triangular exponential over every subset of the three directions) and
+  /// integrated with x on the ODE propagator. False, with `why`, otherwise or on numerical failure.
+  bool ThirdDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
+                        const std::vector<std::array<int, 3>>& triples, std::vector<Eigen::VectorXd>* third,
+                        std::string* why) const;
 
   /// Throws pk::InputError (file, line, column) when a dose needs a modifier
   /// these values do not supply or supply out of range (R<n>, D<n>, F<n>, ALAG<n>).

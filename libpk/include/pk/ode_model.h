@@ -5,7 +5,7 @@
 // tape (pk::TapeScalar) and swept forward for f_x and f_θ and backward for the
 // adjoint's λᵀf_x and λᵀf_θ; g's directional derivatives come from forward mode
 // (pk::Dual), its gradient at an adjoint's sample from the tape. So both Rhs and
-// Output must compile with T = double, pk::Dual, pk::HyperDual and pk::TapeScalar.
+// Output must compile with T = double, pk::Dual, pk::HyperDual, pk::HyperDual3 and pk::TapeScalar.
 // The input u is the vector of infusion rates into each compartment and adds
 // to f; boluses are jumps of x. Such a model is propagated by the ODE propagator
 // (Dormand–Prince or CVODES, docs/ode_routes.md); linear catalogue models can use
@@ -78,6 +78,15 @@ struct SecondDirections {
   const double* dx12 = nullptr;
 };
 
+/// Three first-order directions and their mixed parts, indexed by bit mask as pk::HyperDual3's
+/// parts: dx[1], dx[2], dx[4] the directions in x, dx[3], dx[5], dx[6] the state's second-order
+/// parts along their pairs, dx[7] its third-order part; dtheta[1], dtheta[2], dtheta[4] the
+/// directions in θ (θ is linear in the parameters: no mixed parts). A null pointer is zero.
+struct ThirdDirections {
+  const double* dx[8] = {nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr};
+  const double* dtheta[8] = {nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr};
+};
+
 namespace internal {
 class StageTape;  // records f at a one-step method's stages (libpk/src/ode/ode_system.h)
 }  // namespace internal
@@ -122,6 +131,13 @@ class OdeModel : public Model {
   /// The same for output `output`: g_x dx12 + g''[d₁, d₂].
   virtual double OutputSecondDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
                                          const SecondDirections& d) const = 0;
+  /// The mixed third derivative of f along `d` (n): the ε₁ε₂ε₃ part of f on pk::HyperDual3, the
+  /// right-hand side of the third-order sensitivity ∂³x/∂p_i∂p_j∂p_k.
+  virtual void RhsThirdDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const ThirdDirections& d,
+                                   Eigen::VectorXd* f123) const = 0;
+  /// The same for output `output`.
+  virtual double OutputThirdDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                        const ThirdDirections& d) const = 0;
 
  protected:
   explicit OdeModel(const OdeModelSpec& spec);
@@ -187,6 +203,26 @@ class AutoDiffOdeModel final : public OdeModel {
     return f_.Output(output, xs.data(), ts.data()).e12();
   }
 
+  void RhsThirdDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const ThirdDirections& d,
+                           Eigen::VectorXd* f123) const override {
+    const int n = num_compartments();
+    thread_local std::vector<HyperDual3> xs, ts, fs;
+    SeedThird(x, d.dx, &xs);
+    SeedThird(theta, d.dtheta, &ts);
+    fs.assign(static_cast<size_t>(n), HyperDual3());
+    f_.Rhs(xs.data(), ts.data(), fs.data());
+    f123->resize(n);
+    for (int i = 0; i < n; ++i) (*f123)(i) = fs[static_cast<size_t>(i)].part(7);
+  }
+
+  double OutputThirdDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
+                                const ThirdDirections& d) const override {
+    thread_local std::vector<HyperDual3> xs, ts;
+    SeedThird(x, d.dx, &xs);
+    SeedThird(theta, d.dtheta, &ts);
+    return f_.Output(output, xs.data(), ts.data()).part(7);
+  }
+
  protected:
   void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const override { f_.Rhs(x, theta, f); }
   TapeScalar RecordOutput(int output, const TapeScalar* x, const TapeScalar* theta) const override {
@@ -199,6 +235,15 @@ class AutoDiffOdeModel final : public OdeModel {
     out->resize(static_cast<size_t>(v.size()));
     for (Eigen::Index i = 0; i < v.size(); ++i) {
       (*out)[static_cast<size_t>(i)] = HyperDual(v(i), d1[i], d2[i], d12 == nullptr ? 0.0 : d12[i]);
+    }
+  }
+
+  static void SeedThird(const Eigen::VectorXd& v, const double* const* parts, std::vector<HyperDual3>* out) {
+    out->resize(static_cast<size_t>(v.size()));
+    for (Eigen::Index i = 0; i < v.size(); ++i) {
+      HyperDual3& h = (*out)[static_cast<size_t>(i)];
+      h = HyperDual3(v(i));
+      for (int s = 1; s < 8; ++s) h.part(s) = parts[s] == nullptr ? 0.0 : parts[s][i];
     }
   }
 

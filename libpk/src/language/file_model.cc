@@ -128,6 +128,24 @@ DerivedCoefficients Coefficients(const CompiledModel& m, int n) {
       (*psi)(k) = x.value(), (*psi_u)(k) = x.e1(), (*psi_v)(k) = x.e2(), (*psi_uv)(k) = x.e12();
     }
   };
+  derived.evaluate_third = [program, n](const Eigen::VectorXd& theta, const Eigen::MatrixXd& directions,
+                                        std::vector<Eigen::VectorXd>* parts) {
+    const Eigen::Index p = theta.size(), q = program->num_roots();
+    thread_local std::vector<HyperDual3> seeded, out, zeros;
+    seeded.assign(static_cast<size_t>(p), HyperDual3());
+    for (Eigen::Index j = 0; j < p; ++j) {
+      HyperDual3& t = seeded[static_cast<size_t>(j)];
+      t = HyperDual3(theta(j));
+      for (int d = 0; d < 3; ++d) t.part(1 << d) = directions(j, d);
+    }
+    zeros.assign(static_cast<size_t>(n), HyperDual3(0.0));
+    out.resize(static_cast<size_t>(q));
+    program->Run<HyperDual3>(zeros.data(), seeded.data(), out.data(), &Slots<HyperDual3>());
+    parts->assign(8, Eigen::VectorXd(q));
+    for (Eigen::Index k = 0; k < q; ++k) {
+      for (int s = 0; s < 8; ++s) (*parts)[static_cast<size_t>(s)](k) = out[static_cast<size_t>(k)].part(s);
+    }
+  };
   return derived;
 }
 

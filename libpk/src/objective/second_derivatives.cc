@@ -1,39 +1,56 @@
-// Objective::SecondDerivatives: ∂²ŷ/∂p_a∂p_b from Φ/Γ (exact/second_order.h) or from the ODE
-// propagator's second-order sensitivities (ode/second_order.h).
+// Objective::SecondDerivatives and ThirdDerivatives: ∂²ŷ and ∂³ŷ from Φ/Γ's block-triangular
+// exponential (exact/second_order.h, exact/third_order.h) or from the ODE propagator's
+// sensitivities of the sensitivity system (ode/second_order.h).
 #include <algorithm>
 
 #include "exact/second_order.h"
+#include "exact/third_order.h"
 #include "numerical_failure.h"
 #include "ode/second_order.h"
 #include "objective/prediction.h"
 #include "pk/objective.h"
 
 namespace pk {
+namespace {
+
+// Whether the higher derivatives can be taken in `free` (model parameters that no computed dose
+// modifier reads); `why` otherwise.
+bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int>& free, std::string* why) {
+  const int m = d.model->num_parameters();
+  for (const int i : free) {
+    if (i < 0 || i >= m) {
+      *why = "exact higher derivatives are taken in model parameters only (not F, ALAG, R, D or σ)";
+      return false;
+    }
+    const std::vector<int>& computed = d.layout.computed_reads();
+    if (std::binary_search(computed.begin(), computed.end(), i)) {
+      *why = "exact higher derivatives do not follow a computed dose modifier (" + d.layout.name(i) +
+             " is read by an F, ALAG, R, D or X0 of $PK, or by a zero-order input K0 of d/dt)";
+      return false;
+    }
+  }
+  return true;
+}
+
+bool AllFinite(const std::vector<Eigen::VectorXd>& out, const char* order, std::string* why) {
+  for (const Eigen::VectorXd& v : out) {
+    if (!v.allFinite()) {
+      *why = std::string("a ") + order + " derivative is not finite";
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
 
 bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
                                   const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                                   std::string* why) const {
   const internal::ObjectiveState& d = *impl_;
-  // A linear model takes the block-triangular exponential whichever propagator predicts; a
-  // nonlinear one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
-  const bool ode = d.linear == nullptr;
-  const int m = d.model->num_parameters();
-  for (const int i : free) {
-    if (i < 0 || i >= m) {
-      *why = "exact second derivatives are taken in model parameters only (not F, ALAG, R, D or σ)";
-      return false;
-    }
-  }
-  for (const int i : free) {
-    const std::vector<int>& computed = d.layout.computed_reads();
-    if (std::binary_search(computed.begin(), computed.end(), i)) {
-      *why = "exact second derivatives do not follow a computed dose modifier (" + d.layout.name(i) +
-             " is read by an F, ALAG, R, D or X0 of $PK, or by a zero-order input K0 of d/dt)";
-      return false;
-    }
-  }
+  if (!HigherOrderApplies(d, free, why)) return false;
+  const int p = static_cast<int>(free.size());
   for (const auto& ab : pairs) {
-    const int p = static_cast<int>(free.size());
     if (ab.first < 0 || ab.first >= p || ab.second < 0 || ab.second >= p) {
       *why = "a pair names a position outside the free list";
       return false;
@@ -43,7 +60,9 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
   internal::PreparedSubject s = d.prepared;
   internal::RebindParameters(d.layout, values.head(d.L()), &s);
   try {
-    if (ode) {
+    // A linear model takes the block-triangular exponential whichever propagator predicts; a
+    // nonlinear one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
+    if (d.linear == nullptr) {
       internal::OdeSecondOrderSensitivities(d.ode, s, internal::DualSets(s, d.layout, fp), fp.num_model(), pairs, second);
     } else {
       internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.layout, fp), fp.num_model(),
@@ -53,13 +72,38 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
     *why = e.what();
     return false;
   }
-  for (const Eigen::VectorXd& v : *second) {
-    if (!v.allFinite()) {
-      *why = "a second derivative is not finite";
-      return false;
+  return AllFinite(*second, "second", why);
+}
+
+bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
+                                 const std::vector<std::array<int, 3>>& triples, std::vector<Eigen::VectorXd>* third,
+                                 std::string* why) const {
+  const internal::ObjectiveState& d = *impl_;
+  if (!HigherOrderApplies(d, free, why)) return false;
+  const int p = static_cast<int>(free.size());
+  for (const auto& t : triples) {
+    for (int i : t) {
+      if (i < 0 || i >= p) {
+        *why = "a triple names a position outside the free list";
+        return false;
+      }
     }
   }
-  return true;
+  const internal::FreeParameters fp(free, d.L());
+  internal::PreparedSubject s = d.prepared;
+  internal::RebindParameters(d.layout, values.head(d.L()), &s);
+  try {
+    if (d.linear == nullptr) {
+      internal::OdeThirdOrderSensitivities(d.ode, s, internal::DualSets(s, d.layout, fp), fp.num_model(), triples, third);
+    } else {
+      internal::ThirdOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.layout, fp), fp.num_model(),
+                                        triples, third);
+    }
+  } catch (const internal::NumericalFailure& e) {
+    *why = e.what();
+    return false;
+  }
+  return AllFinite(*third, "third", why);
 }
 
 }  // namespace pk

@@ -26,6 +26,7 @@
 #ifndef PK_SRC_ODE_SECOND_ORDER_H_
 #define PK_SRC_ODE_SECOND_ORDER_H_
 
+#include <array>
 #include <utility>
 #include <vector>
 
@@ -44,6 +45,13 @@ namespace internal {
 void OdeSecondOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
                                  int num_free, const std::vector<std::pair<int, int>>& pairs,
                                  std::vector<Eigen::VectorXd>* out);
+
+/// (*out)[t] = ∂³ŷ/∂p_i∂p_j∂p_k over the samples for triples[t] = {i, j, k}: the stacked state
+/// carries the pairs within the triples and, for each triple, z_ijk with z' = f_x z + (the rest of
+/// f's ε₁ε₂ε₃ part on pk::HyperDual3), the same construction one order up. Throws as above.
+void OdeThirdOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
+                                int num_free, const std::vector<std::array<int, 3>>& triples,
+                                std::vector<Eigen::VectorXd>* out);
 
 }  // namespace internal
 }  // namespace pk
