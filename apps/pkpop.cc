@@ -67,8 +67,9 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "hold at its initial value: a θ or σ name, or OMEGA(NAME) for the Ω block of η_NAME (comma-separated)")(
       "propagator", po::value<std::string>()->default_value("auto"), "exact, ode, rk or auto (as pkfit)")(
       "gradient", po::value<std::string>()->default_value("auto"),
-      "the outer gradient: implicit (the modes' implicit function theorem; FOCE, FOCEI), fd (central differences "
-      "of the OFV, as NONMEM) or auto (implicit for FOCE and FOCEI, fd for Laplace)")(
+      "the outer gradient: implicit (the modes' implicit function theorem, exact second- and, for Laplace, "
+      "third-order sensitivities), fd (central differences of the OFV, as NONMEM) or auto (implicit, and fd "
+      "from a point where the exact derivatives do not reach)")(
       "conditional-hessian", po::value<std::string>()->default_value("exact"),
       "½∇²l of each subject's conditional objective (Laplace's H; Newton's matrix on the ODE propagator): exact "
       "(from the second-order sensitivities) or differences (of the exact gradient, as NONMEM; a check)")(

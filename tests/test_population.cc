@@ -1501,6 +1501,46 @@ TEST_CASE("½∇²l from the second-order sensitivities equals differences of th
   }
 }
 
+TEST_CASE("Laplace's outer gradient (third-order sensitivities) equals differences of the OFV", "[population]") {
+  // OFV_i holds log det of the exact ½∇²l, which holds ∂²ŷ: its gradient needs ∂³ŷ (exact on Φ/Γ,
+  // integrated with the ODEs) and ∂³V/∂ŷ²∂(ŷ, σ).
+  const auto cases = Cases();
+  SECTION("Φ/Γ: additive, combined with a block, exponential, proportional") {
+    for (const char* name : {"theo_add", "theo_comb_block", "theo_exp", "pheno_prop"}) {
+      INFO(name);
+      const Case& c = cases.at(name);
+      pk::PopulationStructure s;
+      if (std::string(name) == "theo_comb_block") s.omega_blocks = {1, 2};
+      CheckOuterGradient(Problem(c), Parameters(c), s, pk::PopulationMethod::kLaplace, 1e-5);
+    }
+  }
+  SECTION("censored samples (M3)") {
+    Case c = cases.at("theo_comb_block");
+    c.data = "theophylline_blq";
+    const pk::PopulationProblem problem = Problem(c);
+    REQUIRE(problem.num_censored() == 27);
+    pk::PopulationStructure s;
+    s.omega_blocks = {1, 2};
+    CheckOuterGradient(problem, Parameters(c), s, pk::PopulationMethod::kLaplace, 1e-5);
+  }
+  SECTION("a model file with covariates on Φ/Γ (derived coefficients), and a nonlinear model on the ODE propagator") {
+    const pk::PopulationProblem pheno = FileProblem(PhenoFileText(), "proportional", 1e-8);
+    pk::PopulationParameters p;
+    p.theta = Eigen::Vector3d(4.69555e-03, 9.84258e-01, 1.58920e-01);
+    p.omega = Diagonal({2.93508e-02, 2.79060e-02});
+    p.sigma = Eigen::VectorXd::Constant(1, std::sqrt(1.32410e-02));
+    CheckOuterGradient(pheno, p, pk::PopulationStructure(), pk::PopulationMethod::kLaplace, 1e-5);
+    pk::ObjectiveOptions o;
+    o.error_model = pk::MakeResidualError("combined");
+    o.ode.relative_tolerance = 1e-12;
+    o.ode.absolute_tolerance = 1e-15;
+    const pk::PopulationProblem mm(pk::MakeModel("1cmt_oral_mm"), Data("theophylline"), {"VMAX", "V"}, o);
+    pk::PopulationParameters q = mm.DefaultParameters();
+    q.sigma = Eigen::Vector2d(0.3, 0.1);
+    CheckOuterGradient(mm, q, pk::PopulationStructure(), pk::PopulationMethod::kLaplace, 1e-5);
+  }
+}
+
 TEST_CASE("Laplace's H is differenced only where the route has no second derivatives, and says why",
           "[population]") {
   // A computed dose modifier that reads an η: no second-order sensitivities there.

@@ -3,12 +3,13 @@
 //   R = ∇²OFV                        (over the estimated natural parameters z: θ, Ω's elements, σ)
 //   S = Σ_i ∇OFV_i ∇OFV_iᵀ
 //
-// Where the outer gradient is exact (FOCE and FOCEI: the implicit function theorem on the modes,
-// outer_gradient.h), ∇OFV_i are the exact per-subject gradients at the estimate and R is the
+// Where the outer gradient is exact (the implicit function theorem on the modes, outer_gradient.h),
+// ∇OFV_i are the exact per-subject gradients at the estimate and R is the
 // central difference of the exact gradient, 1 + 2p gradients in all: a first difference of an
 // exact gradient, where NONMEM takes second differences of the OFV (1 + 2p² OFVs). The gradient
-// is in the optimiser's x (packing.h); ∇_z = Dᵀ∇_x with D = ∂x/∂z. Otherwise (Laplace, or
-// differences asked for) both come from central differences of the OFV, as NONMEM forms them.
+// is in the optimiser's x (packing.h); ∇_z = Dᵀ∇_x with D = ∂x/∂z. Otherwise (differences asked
+// for, or a subject the exact derivatives do not reach) both come from central differences of the
+// OFV, as NONMEM forms them.
 //
 // On the log-likelihood scale R_LL = R/2 and S_LL = S/4, and R_LL⁻¹S_LL R_LL⁻¹ = R⁻¹SR⁻¹: the
 // sandwich is the same on either scale. Every perturbed OFV starts its subjects' searches from

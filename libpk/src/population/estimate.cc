@@ -118,10 +118,6 @@ PopulationEngine::Result PopulationEngine::Evaluate(const PopulationParameters& 
 bool PopulationEngine::Gradient(const Packing& packing, const Eigen::VectorXd& x,
                                 const std::vector<SubjectMode>& modes, Eigen::VectorXd* gradient,
                                 Eigen::MatrixXd* per_subject, std::string* why, Differenced* differenced) const {
-  if (method_ == PopulationMethod::kLaplace) {  // its OFV_i holds log det ½∇²l: third derivatives
-    *why = "the implicit-function gradient serves FOCE and FOCEI, not Laplace";
-    return false;
-  }
   const auto& d = problem_.impl();
   const PopulationPoint point = PopulationPoint::Make(packing.Unpack(x), *d.options.error_model, method_);
   const int n = problem_.num_subjects();
@@ -232,19 +228,17 @@ Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing
   return g;
 }
 
-// kAuto: the implicit gradient for FOCE and FOCEI, on every propagator: its second-order
-// sensitivities are exact on Φ/Γ and integrated with the state on the ODE propagator
-// (ode/second_order.h). Laplace differences the OFV.
-bool UsesImplicitGradient(const PopulationOptions& o) {
-  if (o.gradient != PopulationGradient::kAuto) return o.gradient == PopulationGradient::kImplicit;
-  return o.method != PopulationMethod::kLaplace;
-}
+// kAuto: the implicit gradient for every method, on every propagator: its second- and (Laplace)
+// third-order sensitivities are exact on Φ/Γ and integrated with the state on the ODE propagator
+// (ode/second_order.h).
+bool UsesImplicitGradient(const PopulationOptions& o) { return o.gradient != PopulationGradient::kFiniteDifference; }
 
 // What the summary says of the gradient.
 std::string GradientDescription(const PopulationProblem& problem, const PopulationOptions& o) {
   if (!UsesImplicitGradient(o)) return "central differences of the OFV (modes warm-started from the centre)";
   const bool exact = ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
-  return std::string("implicit function theorem on the conditional modes (first- and second-order sensitivities ") +
+  const char* orders = o.method == PopulationMethod::kLaplace ? "first-, second- and third-order" : "first- and second-order";
+  return std::string("implicit function theorem on the conditional modes (") + orders + " sensitivities " +
          (exact ? "exact on Φ/Γ)" : "integrated with the ODEs)");
 }
 
@@ -260,6 +254,9 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   const bool switchable = options.gradient == PopulationGradient::kAuto &&
                           ResolvePropagator(engine.problem().model(), engine.problem().options().propagator) !=
                               Propagator::kExact;
+  // Laplace's gradient fails where a subject has no exact third order (a parameter a computed dose
+  // modifier reads): a property of the problem, not of the point, so `auto` stops asking for it.
+  const bool laplace_switchable = options.gradient == PopulationGradient::kAuto && options.method == PopulationMethod::kLaplace;
   int differenced_points = 0, switched_at = 0;
   std::string differenced_reason;
   double best = HUGE_VAL;
@@ -285,7 +282,13 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
           switched_at = summary->evaluations;
         }
       }
-      if (!have && implicit) ++fallbacks;
+      if (!have && implicit && laplace_switchable) {
+        implicit = false;
+        switched_at = summary->evaluations;
+        differenced_reason = why;
+      } else if (!have && implicit) {
+        ++fallbacks;
+      }
     }
     if (grad && !have) g = DifferenceGradient(engine, packing, xc, c.ofv, centre);
     for (int k = 0; grad && k < n; ++k) grad[k] = g(k);
@@ -331,8 +334,8 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   }
   if (switched_at > 0) {
     summary->gradient += "; from evaluation " + std::to_string(switched_at) +
-                         " central differences of the OFV, since the second-order sensitivities do not cover "
-                         "this problem (" + differenced_reason + ")";
+                         " central differences of the OFV, since the exact derivatives of the predictions do not "
+                         "cover this problem (" + differenced_reason + ")";
   } else if (differenced_points > 0) {
     summary->gradient += "; at " + std::to_string(differenced_points) +
                          " point(s) some subjects' second derivatives were differences of the exact first ones (" +

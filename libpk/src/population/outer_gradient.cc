@@ -1,5 +1,5 @@
-// The gradient of OFV_i with respect to the packed population parameters x, for FOCE and FOCEI,
-// by the implicit function theorem on the conditional mode (Almquist, Leander & Jirstrand,
+// The gradient of OFV_i with respect to the packed population parameters x, for FOCE, FOCEI and
+// Laplace, by the implicit function theorem on the conditional mode (Almquist, Leander & Jirstrand,
 // J Pharmacokinet Pharmacodyn 2015;42:191-209; docs/population.md):
 //
 //   OFV_i(x) = L(η̂(x), x),   L(η, x) = l(η, x) + log det Ω + log det H(η, x),   ∇_η l(η̂, x) = 0
@@ -15,14 +15,23 @@
 // computed dose modifier reads) they are central differences of J, Richardson-extrapolated.
 // The residual variance v(ŷ, σ) enters by its own second-order Taylor model, its second
 // derivatives differences of its exact first ones.
+//
+// Laplace's H is the exact ½∇²_ηη l, which holds ∂²ŷ/∂η² and ∂²v/∂ŷ²: log det H's gradient needs
+// them to first order in z, i.e. U = ∂³ŷ/∂φ_a∂φ_b∂φ_c for η'd a, b (the third-order sensitivities,
+// Objective::ThirdDerivatives) and ∂³v/∂ŷ²∂(ŷ, σ). H's terms are formed on HyperDual from them, one
+// by one as ExactConditionalHessian forms them in doubles (M3's censored samples included), and
+// only their gradients are used.
 #include "population/outer_gradient.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <map>
 #include <vector>
 
 #include <Eigen/Cholesky>
 
+#include "censoring.h"
 #include "population/hyper_dual.h"
 
 namespace pk {
@@ -98,16 +107,42 @@ bool SecondOrderByDifferences(const SubjectModel& s, const PopulationPoint& poin
   return true;
 }
 
-// v(ŷ, σ) and its first derivatives at one sample, and with `second` its second derivatives
-// (FOCEI; FOCE takes V to first order).
+// v(ŷ, σ) and its first derivatives at one sample, with `second` its second derivatives (FOCEI;
+// FOCE takes V to first order), and with `third` ∂³v/∂ŷ³ and ∂³v/∂ŷ²∂σ (Laplace's H holds ∂²v/∂ŷ²,
+// whose gradient they are).
 struct VarianceTaylor {
-  double v = 0, vy = 0, vyy = 0;
-  Eigen::VectorXd vs, vys;
+  double v = 0, vy = 0, vyy = 0, vyyy = 0;
+  Eigen::VectorXd vs, vys, vyys;
   Eigen::MatrixXd vss;
 };
 
+// ∂³v/∂ŷ³ by the second difference of the exact ∂v/∂ŷ and ∂³v/∂ŷ²∂σ_i by central differences in σ_i of
+// ∂²v/∂ŷ² (itself differenced): exact to rounding for libpk's error models, whose v is a polynomial
+// of degree 2 in ŷ and in σ; a user's model that is not gets their O(h²) error.
+void VarianceThird(const ResidualErrorModel& error, int output, double yhat, const Eigen::VectorXd& sigma,
+                   VarianceTaylor* t) {
+  const auto ns = sigma.size();
+  Eigen::VectorXd vs(ns);
+  const auto vy_at = [&](double y, const Eigen::VectorXd& s) {
+    double v, vy;
+    OutputVariance(error, output, y, s.data(), &v, &vy, vs.data());
+    return vy;
+  };
+  const double h = 1e-3 * std::max(std::abs(yhat), 1e-8);
+  t->vyyy = (vy_at(yhat + h, sigma) - 2 * vy_at(yhat, sigma) + vy_at(yhat - h, sigma)) / (h * h);
+  const auto vyy_at = [&](const Eigen::VectorXd& s) { return (vy_at(yhat + h, s) - vy_at(yhat - h, s)) / (2 * h); };
+  t->vyys.resize(ns);
+  for (Eigen::Index i = 0; i < ns; ++i) {
+    const double hs = 1e-3 * std::max(std::abs(sigma(i)), 1e-8);
+    Eigen::VectorXd sp = sigma, sm = sigma;
+    sp(i) += hs;
+    sm(i) -= hs;
+    t->vyys(i) = (vyy_at(sp) - vyy_at(sm)) / (2 * hs);
+  }
+}
+
 VarianceTaylor Variance(const ResidualErrorModel& error, int output, double yhat, const Eigen::VectorXd& sigma,
-                        bool second) {
+                        bool second, bool third = false) {
   const auto ns = sigma.size();
   VarianceTaylor t;
   auto first = [&](double y, const Eigen::VectorXd& s, double* v, double* vy, Eigen::VectorXd* vs) {
@@ -134,6 +169,7 @@ VarianceTaylor Variance(const ResidualErrorModel& error, int output, double yhat
     t.vss.col(i) = (vs1 - vs2) / (2 * hs);
   }
   t.vss = 0.5 * (t.vss + t.vss.transpose()).eval();
+  if (third) VarianceThird(error, output, yhat, sigma, &t);
   return t;
 }
 
@@ -172,11 +208,44 @@ std::vector<std::vector<HD>> LowerInverse(const std::vector<std::vector<HD>>& l,
   return inv;
 }
 
-// The predictions' expansion: J and T at φ̂ = φ(η̂), and (FOCE) ŷ and J at η = 0.
+// U[j](a·q + b, c) = ∂³ŷ_j/∂φ_ka∂φ_kb∂φ_c for the η'd parameters k_a, k_b (η positions a, b) and every
+// φ_c, from the third-order sensitivities (Objective::ThirdDerivatives). False with `why` where the
+// route has none.
+bool ExactThirdOrder(const SubjectModel& s, const Eigen::VectorXd& phi, std::vector<Eigen::MatrixXd>* u,
+                     std::string* why) {
+  const auto p = static_cast<int>(s.phi_index.size()), q = static_cast<int>(s.eta_phi.size());
+  std::map<std::array<int, 3>, int> index;  // each sorted triple once
+  std::vector<std::array<int, 3>> triples;
+  std::vector<int> slot;  // per (a, b, c): its triple
+  for (int a = 0; a < q; ++a) {
+    for (int b = 0; b < q; ++b) {
+      for (int c = 0; c < p; ++c) {
+        std::array<int, 3> t{s.eta_phi[static_cast<size_t>(a)], s.eta_phi[static_cast<size_t>(b)], c};
+        std::sort(t.begin(), t.end());
+        const auto [it, added] = index.emplace(t, static_cast<int>(triples.size()));
+        if (added) triples.push_back(t);
+        slot.push_back(it->second);
+      }
+    }
+  }
+  std::vector<Eigen::VectorXd> third;
+  if (!s.objective->ThirdDerivatives(phi, s.phi_index, triples, &third, why)) return false;
+  const Eigen::Index n = third.empty() ? 0 : third.front().size();
+  u->assign(static_cast<size_t>(n), Eigen::MatrixXd(q * q, p));
+  for (Eigen::Index j = 0; j < n; ++j) {
+    Eigen::MatrixXd& uj = (*u)[static_cast<size_t>(j)];
+    for (int r = 0, k = 0; r < q * q; ++r) {
+      for (int c = 0; c < p; ++c) uj(r, c) = third[static_cast<size_t>(slot[static_cast<size_t>(k++)])](j);
+    }
+  }
+  return true;
+}
+
+// The predictions' expansion: J and T at φ̂ = φ(η̂), (FOCE) ŷ and J at η = 0, and (Laplace) U.
 struct Expansion {
   Eigen::VectorXd phi0, y0, phi00, y00;
   Eigen::MatrixXd j0, j00;
-  std::vector<Eigen::MatrixXd> t;
+  std::vector<Eigen::MatrixXd> t, u;
 };
 
 // *differenced: why T was differenced (empty when the second-order sensitivities served).
@@ -193,6 +262,16 @@ bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::Vector
   if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) return false;
   const auto np = static_cast<Eigen::Index>(s.phi_index.size());
   if (e->t.empty()) e->t.assign(static_cast<size_t>(e->y0.size()), Eigen::MatrixXd::Zero(np, np));
+  if (p.method == PopulationMethod::kLaplace) {
+    // Laplace's H holds ∂²ŷ, exact only from the second-order sensitivities, and its gradient ∂³ŷ.
+    if (!differenced->empty()) {
+      *why = "Laplace's gradient needs exact second and third derivatives of the predictions (" + *differenced + ")";
+      return false;
+    }
+    if (!ExactThirdOrder(s, e->phi0, &e->u, why)) return false;
+    const auto q = static_cast<Eigen::Index>(eta.size());
+    if (e->u.empty()) e->u.assign(static_cast<size_t>(e->y0.size()), Eigen::MatrixXd::Zero(q * q, np));
+  }
   return true;
 }
 
@@ -257,11 +336,13 @@ void OmegaTerms(const Variables<HD>& v, HD* quad, HD* log_det_omega, std::vector
 
 // Sample j's residual variance V and ∂V/∂ŷ (vy): at φ̂ to second order (FOCEI), or at η = 0 to
 // first order (FOCE, where vy stays 0: V does not depend on η).
+// With `vyy` (Laplace) also ∂²V/∂ŷ² to first order.
 template <class HD>
 void ResidualVariance(const SubjectModel& s, const PopulationPoint& p, const Expansion& e, const Variables<HD>& v,
-                      Eigen::Index j, const HD& yhat, HD* var, HD* vy) {
+                      Eigen::Index j, const HD& yhat, HD* var, HD* vy, HD* vyy = nullptr) {
   const bool foce = p.method == PopulationMethod::kFoce;
-  const VarianceTaylor vt = Variance(*p.error, s.outputs(j), foce ? e.y00(j) : e.y0(j), p.sigma, !foce);
+  const VarianceTaylor vt =
+      Variance(*p.error, s.outputs(j), foce ? e.y00(j) : e.y0(j), p.sigma, !foce, vyy != nullptr);
   HD dy(0, v.d);
   if (foce) {
     for (size_t k = 0; k < v.dphi00.size(); ++k) dy += e.j00(j, static_cast<Eigen::Index>(k)) * v.dphi00[k];
@@ -281,6 +362,23 @@ void ResidualVariance(const SubjectModel& s, const PopulationPoint& p, const Exp
     for (size_t k = 0; k < v.dsigma.size(); ++k) second += vt.vss(ii, static_cast<Eigen::Index>(k)) * v.dsigma[i] * v.dsigma[k];
   }
   *var += 0.5 * second;
+  if (vyy == nullptr) return;
+  *vyy = dy * vt.vyyy + vt.vyy;
+  for (size_t i = 0; i < v.dsigma.size(); ++i) *vyy += vt.vyys(static_cast<Eigen::Index>(i)) * v.dsigma[i];
+}
+
+// ŷ_j as its second-order Taylor model about φ̂ (value, gradient and Hessian exact there).
+template <class HD>
+HD TaylorPrediction(const Expansion& e, const Variables<HD>& v, Eigen::Index j) {
+  const Eigen::MatrixXd& tj = e.t[static_cast<size_t>(j)];
+  const auto np = static_cast<int>(v.dphi.size());
+  HD yhat(e.y0(j), v.d);
+  for (int k = 0; k < np; ++k) {
+    HD slope(e.j0(j, k), v.d);
+    for (int c = 0; c < np; ++c) slope += 0.5 * tj(k, c) * v.dphi[static_cast<size_t>(c)];
+    yhat += slope * v.dphi[static_cast<size_t>(k)];
+  }
+  return yhat;
 }
 
 // Sample j's terms of l, (y − f)²/V + log V, and of H, g gᵀ/V + ½ v vᵀ/V² (v = 0 for FOCE), with
@@ -290,12 +388,7 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
                Eigen::Index j, HD* l, std::vector<std::vector<HD>>* h) {
   const Eigen::MatrixXd& tj = e.t[static_cast<size_t>(j)];
   const auto np = static_cast<int>(v.dphi.size()), q = static_cast<int>(v.eta.size());
-  HD yhat(e.y0(j), v.d);
-  for (int k = 0; k < np; ++k) {
-    HD slope(e.j0(j, k), v.d);
-    for (int c = 0; c < np; ++c) slope += 0.5 * tj(k, c) * v.dphi[static_cast<size_t>(c)];
-    yhat += slope * v.dphi[static_cast<size_t>(k)];
-  }
+  const HD yhat = TaylorPrediction(e, v, j);
   const bool logs = s.logs(j);
   HD var, vy;
   ResidualVariance(s, p, e, v, j, yhat, &var, &vy);
@@ -323,6 +416,88 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
   }
 }
 
+// log Φ(z) and the inverse Mills ratio m = φ(z)/Φ(z) on HD (Beal's M3): (log Φ)' = m, m' = −m(z + m),
+// m'' = −m'(z + m) − m(1 + m').
+template <class HD>
+void Censored(const HD& z, HD* log_cdf, HD* mills) {
+  double lc = 0, m = 0;
+  LogNormalCdf(z.value(), &lc, &m);
+  const double m1 = -m * (z.value() + m), m2 = -m1 * (z.value() + m) - m * (1 + m1);
+  *log_cdf = HD::Apply(z, lc, m, m1);
+  *mills = HD::Apply(z, m, m1, m2);
+}
+
+// A sample's first η-derivatives: of ŷ (dy), of f = T(ŷ) (g) and of V (dv), and of its φ (slope φ').
+template <class HD>
+struct EtaFirst {
+  std::vector<HD> dy, g, dv, slope;
+};
+
+// Sample j's l for Laplace (M3's −2 log Φ(z) where censored), and its term of the exact ½∇²_ηη l
+// (conditional.cc's ExactConditionalHessian, term by term) as functions of z = (η, x): ∂ŷ/∂φ to first
+// order about φ̂ from T, ∂²ŷ/∂φ∂φ from T and U, V's ŷ-derivatives from VarianceTaylor's. Only the
+// terms' gradients are used (log det H's), which these make exact.
+template <class HD>
+void AddLaplaceSample(const SubjectModel& s, const PopulationPoint& p, const Expansion& e, const Variables<HD>& v,
+                      Eigen::Index j, HD* l, std::vector<std::vector<HD>>* h) {
+  const Eigen::MatrixXd &tj = e.t[static_cast<size_t>(j)], &uj = e.u[static_cast<size_t>(j)];
+  const auto np = static_cast<int>(v.dphi.size()), q = static_cast<int>(v.eta.size());
+  const HD yhat = TaylorPrediction(e, v, j);
+  const bool logs = s.any_logs && s.logs(j);
+  HD var, vy, vyy;
+  ResidualVariance(s, p, e, v, j, yhat, &var, &vy, &vyy);
+  const HD r = (logs ? log(yhat) : yhat) * -1.0 + s.y(j);
+  const HD w = HD::Reciprocal(var);
+  const int sign = s.censoring.size() > 0 ? s.censoring(j) : 0;
+  HD z(0, v.d), mills(0, v.d), root_w = sqrt(w);
+  if (sign == 0) {
+    *l += r * r * w + log(var);
+  } else {
+    HD log_cdf;
+    z = r * root_w * static_cast<double>(sign);
+    Censored(z, &log_cdf, &mills);
+    *l += -2.0 * log_cdf;
+  }
+  EtaFirst<HD> d1;
+  for (int a = 0; a < q; ++a) {
+    const int k = s.eta_phi[static_cast<size_t>(a)];
+    HD slope(e.j0(j, k), v.d);
+    for (int c = 0; c < np; ++c) slope += tj(k, c) * v.dphi[static_cast<size_t>(c)];
+    d1.slope.push_back(s.eta_log[static_cast<size_t>(a)] ? v.phi[static_cast<size_t>(k)] : HD(1, v.d));
+    d1.dy.push_back(slope * d1.slope.back());
+    d1.g.push_back(logs ? d1.dy.back() / yhat : d1.dy.back());
+    d1.dv.push_back(vy * d1.dy.back());
+  }
+  for (int a = 0; a < q; ++a) {
+    for (int b = 0; b <= a; ++b) {
+      const int ka = s.eta_phi[static_cast<size_t>(a)], kb = s.eta_phi[static_cast<size_t>(b)];
+      HD second(tj(ka, kb), v.d);  // ∂²ŷ/∂φ_ka∂φ_kb to first order
+      for (int c = 0; c < np; ++c) second += uj(a * q + b, c) * v.dphi[static_cast<size_t>(c)];
+      HD yy = second * d1.slope[static_cast<size_t>(a)] * d1.slope[static_cast<size_t>(b)];
+      if (a == b && s.eta_log[static_cast<size_t>(a)]) yy += d1.dy[static_cast<size_t>(a)];
+      const HD& ga = d1.g[static_cast<size_t>(a)];
+      const HD& gb = d1.g[static_cast<size_t>(b)];
+      const HD& va = d1.dv[static_cast<size_t>(a)];
+      const HD& vb = d1.dv[static_cast<size_t>(b)];
+      const HD ff = logs ? yy / yhat - ga * gb : yy;
+      const HD vv = vyy * d1.dy[static_cast<size_t>(a)] * d1.dy[static_cast<size_t>(b)] + vy * yy;
+      const HD gv = ga * vb + va * gb;
+      HD term(0, v.d);
+      if (sign == 0) {
+        term = w * ga * gb - r * w * ff + r * w * w * gv + (r * r * w * w * w + -0.5 * w * w) * va * vb +
+               0.5 * (w - r * r * w * w) * vv;
+      } else {
+        const double sg = sign;
+        const HD dza = -sg * root_w * ga - 0.5 * z * w * va, dzb = -sg * root_w * gb - 0.5 * z * w * vb;
+        const HD d2z = -sg * root_w * ff + 0.5 * sg * w * root_w * gv + 0.75 * z * w * w * va * vb - 0.5 * z * w * vv;
+        term = mills * (z + mills) * dza * dzb - mills * d2z;
+      }
+      (*h)[static_cast<size_t>(a)][static_cast<size_t>(b)] += term;
+      if (b != a) (*h)[static_cast<size_t>(b)][static_cast<size_t>(a)] += term;
+    }
+  }
+}
+
 template <class HD>
 bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& packing, const Eigen::VectorXd& x,
                 const SubjectMode& mode, Eigen::VectorXd* gradient, std::string* differenced, std::string* why) {
@@ -332,7 +507,14 @@ bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& 
   HD l, log_det_omega, log_det_h;
   std::vector<std::vector<HD>> h;
   OmegaTerms(v, &l, &log_det_omega, &h);  // l starts as ηᵀΩ⁻¹η
-  for (Eigen::Index j = 0; j < e.y0.size(); ++j) AddSample(s, p, e, v, j, &l, &h);
+  const bool laplace = p.method == PopulationMethod::kLaplace;
+  for (Eigen::Index j = 0; j < e.y0.size(); ++j) {
+    if (laplace) {
+      AddLaplaceSample(s, p, e, v, j, &l, &h);
+    } else {
+      AddSample(s, p, e, v, j, &l, &h);
+    }
+  }
   if (!LogDet<HD>(h, &log_det_h)) {
     *why = "H is not positive definite at the mode";
     return false;

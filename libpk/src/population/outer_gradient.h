@@ -1,7 +1,7 @@
 // The gradient of a subject's OFV_i with respect to the packed population parameters x, by the
 // implicit function theorem on its conditional mode (not installed; outer_gradient.cc has the
-// formulas, docs/population.md derives them). FOCE and FOCEI only: Laplace's gradient needs third
-// derivatives of the predictions, and stays with central differences of the OFV.
+// formulas, docs/population.md derives them). FOCE and FOCEI from first and second derivatives of
+// the predictions; Laplace, whose OFV_i holds log det of the exact ½∇²l, from third ones too.
 #ifndef PK_SRC_POPULATION_OUTER_GRADIENT_H_
 #define PK_SRC_POPULATION_OUTER_GRADIENT_H_
 
@@ -18,8 +18,8 @@ namespace internal {
 /// dOFV_i/dx at x (p = packing.Unpack(x) made into a point), given the subject's mode at p.
 /// False with `why` when the predictions or their sensitivities cannot be evaluated there.
 /// *differenced says why the predictions' second derivatives were differences of the exact first
-/// ones (a steady state on the ODE propagator, a parameter a computed dose modifier reads), and is
-/// empty when the second-order sensitivities served.
+/// ones (a parameter a computed dose modifier reads), and is empty when the second-order
+/// sensitivities served. Laplace then fails (`why`): its H was differenced too.
 bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
                           const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
                           std::string* differenced, std::string* why);

@@ -330,8 +330,6 @@ bool PopulationOptions::IsValid(std::string* error) const {
     *error = "tolerances must be non-negative";
   } else if (threads < 1) {
     *error = "threads must be at least 1";
-  } else if (gradient == PopulationGradient::kImplicit && method == PopulationMethod::kLaplace) {
-    *error = "the implicit-function gradient serves FOCE and FOCEI; Laplace takes finite differences";
   } else {
     return true;
   }
