@@ -94,8 +94,10 @@ class Discretization {
     std::vector<Eigen::MatrixXd> dgamma;  // empty unless requested
   };
 
-  /// `allow_eigen` = false forces the block-exponential path (for tests).
-  Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen = true);
+  /// `allow_eigen` = false forces the block-exponential path (for tests). With `jet_parts` = 2^d > 0,
+  /// `a` is a stacked jet matrix (jet_exponential.h: the block A_{S∖T} at (S, T), parts of n_in
+  /// states, inputs into part ∅), and Φ and Γ come from the jet's exponential, not the dense one.
+  Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen = true, int jet_parts = 0);
 
   /// Whether derivatives use the eigendecomposition (computed on first use).
   bool eigen_path();
@@ -124,6 +126,7 @@ class Discretization {
 
  private:
   const Eigen::MatrixXd& DividedDifferences(double h);
+  void JetStep(double h, bool with_gamma, Step* step);
   void Decompose();
   Sensitivity BlockSensitivity(double h, const std::vector<Eigen::MatrixXd>& da);
 
@@ -132,6 +135,7 @@ class Discretization {
   int n_;
   int n_in_;
   bool allow_eigen_;
+  int jet_parts_;
   bool decomposed_ = false;
   bool eigen_ = false;
   Eigen::VectorXd lambda_;

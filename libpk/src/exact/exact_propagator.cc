@@ -24,11 +24,11 @@ ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eig
   x_ = Eigen::VectorXd::Zero(big_n);
 }
 
-ExactPropagator::ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in)
+ExactPropagator::ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in, int jet_parts)
     : n_(matrices.empty() ? n_in : static_cast<int>(matrices.front().rows())), track_auc_(false) {
   for (const Eigen::MatrixXd& a : matrices) {
     if (!a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
-    cache_.emplace_back(new Discretization(a, n_in));
+    cache_.emplace_back(new Discretization(a, n_in, true, jet_parts));
   }
   x_ = Eigen::VectorXd::Zero(n_);
 }

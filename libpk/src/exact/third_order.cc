@@ -81,7 +81,7 @@ class ThirdOrderVisitor {
   ThirdOrderVisitor(const LinearModel& model, const PreparedSubject& s, const std::vector<DualVector>& sets,
                     int num_free, const std::array<int, 3>& triple, Eigen::VectorXd* out)
       : model_(model), s_(s), n_(model.num_compartments()), extended_(AllExtended(model, sets, num_free, triple)),
-        prop_(Matrices(model, extended_), n_), out_(out) {
+        prop_(Matrices(model, extended_), n_, kParts), out_(out) {
     int count = 0;
     sample_ = SampleIndex(s, &count);
     out->setZero(count);

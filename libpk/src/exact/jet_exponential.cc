@@ -1,0 +1,74 @@
+// JetExponential: scaling and squaring of a jet (jet_exponential.h).
+#include "jet_exponential.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace pk {
+namespace internal {
+namespace {
+
+constexpr int kDegree = 10;            // Taylor degree after scaling
+constexpr double kScaledNorm = 1.0 / 16;  // Σ_S ‖X_S‖₁ after scaling
+
+// r += a·b for w×w column-major blocks, written out: Eigen's dynamic-size product costs several
+// times the arithmetic at the sizes here (w = 1–20).
+void AddProduct(const double* a, const double* b, Eigen::Index w, double* r) {
+  for (Eigen::Index j = 0; j < w; ++j) {
+    for (Eigen::Index k = 0; k < w; ++k) {
+      const double bkj = b[j * w + k];
+      if (bkj == 0) continue;
+      for (Eigen::Index i = 0; i < w; ++i) r[j * w + i] += a[k * w + i] * bkj;
+    }
+  }
+}
+
+// *out = x·y over the subsets (out must not alias x or y; its parts keep their size). Parts of x
+// that are zero (`zero`) are skipped: a direction that A does not depend on twice, say.
+void Multiply(const Jet& x, const std::vector<char>& zero, const Jet& y, Jet* out) {
+  const int parts = static_cast<int>(x.size());
+  const Eigen::Index w = x.front().rows();
+  for (int s = 0; s < parts; ++s) {
+    Eigen::MatrixXd& r = (*out)[static_cast<size_t>(s)];
+    r.setZero();
+    for (int t = s;; t = (t - 1) & s) {
+      if (!zero[static_cast<size_t>(t)]) AddProduct(x[static_cast<size_t>(t)].data(), y[static_cast<size_t>(s & ~t)].data(), w, r.data());
+      if (t == 0) break;
+    }
+  }
+}
+
+std::vector<char> ZeroParts(const Jet& x) {
+  std::vector<char> zero;
+  for (const Eigen::MatrixXd& part : x) zero.push_back(part.isZero(0.0) ? 1 : 0);
+  return zero;
+}
+
+}  // namespace
+
+Jet JetExponential(Jet x) {
+  const auto w = x.front().rows();
+  double norm = 0;
+  for (const Eigen::MatrixXd& part : x) norm += part.cwiseAbs().colwise().sum().maxCoeff();
+  const int squarings = norm > kScaledNorm ? static_cast<int>(std::ceil(std::log2(norm / kScaledNorm))) : 0;
+  const double scale = std::ldexp(1.0, -squarings);
+  for (Eigen::MatrixXd& part : x) part *= scale;
+  // Horner: E = I + X(I + X/2(I + … (I + X/k)…)).
+  const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(w, w);
+  Jet e(x.size(), Eigen::MatrixXd::Zero(w, w)), product(x.size(), Eigen::MatrixXd(w, w));
+  e[0] = identity;
+  const std::vector<char> zero = ZeroParts(x);
+  for (int k = kDegree; k >= 1; --k) {
+    Multiply(x, zero, e, &product);
+    for (size_t s = 0; s < e.size(); ++s) e[s] = product[s] / k;
+    e[0] += identity;
+  }
+  for (int i = 0; i < squarings; ++i) {
+    Multiply(e, ZeroParts(e), e, &product);
+    std::swap(e, product);
+  }
+  return e;
+}
+
+}  // namespace internal
+}  // namespace pk
