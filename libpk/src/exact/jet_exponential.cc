@@ -38,11 +38,17 @@ void Multiply(const Jet& x, const std::vector<char>& zero, const Jet& y, Jet* ou
   }
 }
 
-std::vector<char> ZeroParts(const Jet& x) {
-  std::vector<char> zero;
-  for (const Eigen::MatrixXd& part : x) zero.push_back(part.isZero(0.0) ? 1 : 0);
-  return zero;
+void ZeroParts(const Jet& x, std::vector<char>* zero) {
+  zero->resize(x.size());
+  for (size_t s = 0; s < x.size(); ++s) (*zero)[s] = x[s].isZero(0.0) ? 1 : 0;
 }
+
+// Scratch kept per thread: a fit takes thousands of these exponentials of a few small parts each,
+// where allocating the parts would cost more than the arithmetic.
+struct Scratch {
+  Jet product;
+  std::vector<char> zero;
+};
 
 }  // namespace
 
@@ -53,18 +59,22 @@ Jet JetExponential(Jet x) {
   const int squarings = norm > kScaledNorm ? static_cast<int>(std::ceil(std::log2(norm / kScaledNorm))) : 0;
   const double scale = std::ldexp(1.0, -squarings);
   for (Eigen::MatrixXd& part : x) part *= scale;
+  thread_local Scratch scratch;
+  Jet& product = scratch.product;
+  product.resize(x.size());
+  for (Eigen::MatrixXd& part : product) part.resize(w, w);
   // Horner: E = I + X(I + X/2(I + … (I + X/k)…)).
-  const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(w, w);
-  Jet e(x.size(), Eigen::MatrixXd::Zero(w, w)), product(x.size(), Eigen::MatrixXd(w, w));
-  e[0] = identity;
-  const std::vector<char> zero = ZeroParts(x);
+  Jet e(x.size(), Eigen::MatrixXd::Zero(w, w));
+  e[0].setIdentity();
+  ZeroParts(x, &scratch.zero);
   for (int k = kDegree; k >= 1; --k) {
-    Multiply(x, zero, e, &product);
+    Multiply(x, scratch.zero, e, &product);
     for (size_t s = 0; s < e.size(); ++s) e[s] = product[s] / k;
-    e[0] += identity;
+    e[0].diagonal().array() += 1;
   }
   for (int i = 0; i < squarings; ++i) {
-    Multiply(e, ZeroParts(e), e, &product);
+    ZeroParts(e, &scratch.zero);
+    Multiply(e, scratch.zero, e, &product);
     std::swap(e, product);
   }
   return e;
