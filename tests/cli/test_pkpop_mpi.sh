@@ -33,6 +33,9 @@ compare pheno --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL
 if [ "$sanitized" != "ON" ]; then
   compare theo --model 1cmt_oral --data "$root/datasets/theophylline.csv" --eta KA,CL,V --block CL,V --method foce \
     --error additive --gradient fd -j 2
+  # Laplace with censored samples (M3) and its exact gradient (third-order sensitivities).
+  compare theo_m3 --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --eta KA,CL,V --method laplace \
+    --error additive
 fi
 
 # A process that cannot read its input stops and says so to the others, which stop too instead of
