@@ -9,6 +9,7 @@
 #include <Eigen/Cholesky>
 
 #include "censoring.h"
+#include "population/half_hessian_term.h"
 #include "pk/error.h"
 
 namespace pk {
@@ -229,12 +230,12 @@ bool EtaSecondDerivatives(const SubjectModel& s, const Eigen::VectorXd& phi, std
 }
 
 // One sample's derivatives in η: of the prediction (dy, yy), of f = T(ŷ) (g, ff) and of the
-// residual variance V (dv, vv; zero when V is held at its η = 0 value, FOCE), and M3's ∂z (dz).
+// residual variance V (dv, vv; zero when V is held at its η = 0 value, FOCE).
 // Kept per thread and reused from sample to sample: the Hessian is formed at every mode of every
 // outer evaluation, on a few samples each, where allocating would cost more than the arithmetic.
 struct SampleDerivatives {
   Eigen::VectorXd slope;  // φ'_a = ∂φ_a/∂η_a: φ_a for a log-normal η, 1 for a file's η parameter
-  Eigen::VectorXd dy, g, dv, dz;
+  Eigen::VectorXd dy, g, dv;
   Eigen::MatrixXd yy, ff, vv;
 };
 
@@ -282,26 +283,6 @@ void SampleEtaDerivatives(const SubjectModel& s, const PopulationPoint& p, const
   }
 }
 
-// Sample j's term of ½∇²l, element (a, b), from its derivatives: for a value
-// ½∂²[r²/V + log V] with ∂r = −g; for a censored sample (M3) ½∂²[−2 log Φ(z)] = m(z + m) ∂z∂zᵀ − m ∂²z,
-// z = sign·r/√V, m = φ(z)/Φ(z), ∂z = −sign·g/√V − ½ z ∂V/V (d.dz) and
-// ∂²z = −sign·∂²f/√V + ½ sign (g∂Vᵀ + ∂V gᵀ)/V^{3/2} + ¾ z ∂V∂Vᵀ/V² − ½ z ∂²V/V.
-struct SampleTerm {
-  double r = 0, w = 0;          // residual and 1/V
-  double sign = 0, z = 0, m = 0;  // M3 (sign ≠ 0)
-  double operator()(const SampleDerivatives& d, Eigen::Index a, Eigen::Index b) const {
-    const double gv = d.g(a) * d.dv(b) + d.dv(a) * d.g(b), vv = d.dv(a) * d.dv(b);
-    if (sign == 0) {
-      return w * d.g(a) * d.g(b) - r * w * d.ff(a, b) + r * w * w * gv + (r * r * w * w * w - 0.5 * w * w) * vv +
-             0.5 * (w - r * r * w * w) * d.vv(a, b);
-    }
-    const double root_w = std::sqrt(w);
-    const double d2z = -sign * root_w * d.ff(a, b) + 0.5 * sign * w * root_w * gv + 0.75 * z * w * w * vv -
-                       0.5 * z * w * d.vv(a, b);
-    return m * (z + m) * d.dz(a) * d.dz(b) - m * d2z;
-  }
-};
-
 }  // namespace
 
 bool ExactConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
@@ -321,19 +302,16 @@ bool ExactConditionalHessian(const SubjectModel& s, const PopulationPoint& p, co
   Eigen::MatrixXd& h = *half_hessian;
   for (Eigen::Index j = 0; j < c.yhat.size(); ++j) {
     SampleEtaDerivatives(s, p, second, c, fixed_variance != nullptr, j, &d);
-    SampleTerm term;
-    term.r = s.y(j) - c.f(j);
-    term.w = 1 / c.variance(j);
+    SampleScale<double> k{s.y(j) - c.f(j), 1 / c.variance(j), 1 / std::sqrt(c.variance(j)), 0.0, 0.0, 0.0};
     if (s.censoring.size() > 0 && s.censoring(j) != 0) {
-      term.sign = s.censoring(j);
-      term.z = term.sign * term.r * std::sqrt(term.w);
+      k.sign = s.censoring(j);
+      k.z = k.sign * k.r * k.root_w;
       double log_cdf = 0;
-      LogNormalCdf(term.z, &log_cdf, &term.m);
-      d.dz = -term.sign * std::sqrt(term.w) * d.g - 0.5 * term.z * term.w * d.dv;
+      LogNormalCdf(k.z, &log_cdf, &k.m);
     }
     for (Eigen::Index a = 0; a < q; ++a) {
       for (Eigen::Index b = 0; b <= a; ++b) {
-        const double t = term(d, a, b);
+        const double t = HalfHessianTerm(k, d.g(a), d.g(b), d.dv(a), d.dv(b), d.ff(a, b), d.vv(a, b));
         h(a, b) += t;
         if (b != a) h(b, a) += t;
       }

@@ -32,6 +32,7 @@
 #include <Eigen/Cholesky>
 
 #include "censoring.h"
+#include "population/half_hessian_term.h"
 #include "population/hyper_dual.h"
 
 namespace pk {
@@ -434,7 +435,7 @@ struct EtaFirst {
 };
 
 // Sample j's l for Laplace (M3's −2 log Φ(z) where censored), and its term of the exact ½∇²_ηη l
-// (conditional.cc's ExactConditionalHessian, term by term) as functions of z = (η, x): ∂ŷ/∂φ to first
+// (half_hessian_term.h, as ExactConditionalHessian forms it in doubles) as functions of z = (η, x): ∂ŷ/∂φ to first
 // order about φ̂ from T, ∂²ŷ/∂φ∂φ from T and U, V's ŷ-derivatives from VarianceTaylor's. Only the
 // terms' gradients are used (log det H's), which these make exact.
 template <class HD>
@@ -448,14 +449,13 @@ void AddLaplaceSample(const SubjectModel& s, const PopulationPoint& p, const Exp
   ResidualVariance(s, p, e, v, j, yhat, &var, &vy, &vyy);
   const HD r = (logs ? log(yhat) : yhat) * -1.0 + s.y(j);
   const HD w = HD::Reciprocal(var);
-  const int sign = s.censoring.size() > 0 ? s.censoring(j) : 0;
-  HD z(0, v.d), mills(0, v.d), root_w = sqrt(w);
-  if (sign == 0) {
+  SampleScale<HD> scale{r, w, sqrt(w), s.censoring.size() > 0 ? s.censoring(j) : 0.0, HD(0, v.d), HD(0, v.d)};
+  if (scale.sign == 0) {
     *l += r * r * w + log(var);
   } else {
     HD log_cdf;
-    z = r * root_w * static_cast<double>(sign);
-    Censored(z, &log_cdf, &mills);
+    scale.z = r * scale.root_w * scale.sign;
+    Censored(scale.z, &log_cdf, &scale.m);
     *l += -2.0 * log_cdf;
   }
   EtaFirst<HD> d1;
@@ -481,17 +481,7 @@ void AddLaplaceSample(const SubjectModel& s, const PopulationPoint& p, const Exp
       const HD& vb = d1.dv[static_cast<size_t>(b)];
       const HD ff = logs ? yy / yhat - ga * gb : yy;
       const HD vv = vyy * d1.dy[static_cast<size_t>(a)] * d1.dy[static_cast<size_t>(b)] + vy * yy;
-      const HD gv = ga * vb + va * gb;
-      HD term(0, v.d);
-      if (sign == 0) {
-        term = w * ga * gb - r * w * ff + r * w * w * gv + (r * r * w * w * w + -0.5 * w * w) * va * vb +
-               0.5 * (w - r * r * w * w) * vv;
-      } else {
-        const double sg = sign;
-        const HD dza = -sg * root_w * ga - 0.5 * z * w * va, dzb = -sg * root_w * gb - 0.5 * z * w * vb;
-        const HD d2z = -sg * root_w * ff + 0.5 * sg * w * root_w * gv + 0.75 * z * w * w * va * vb - 0.5 * z * w * vv;
-        term = mills * (z + mills) * dza * dzb - mills * d2z;
-      }
+      const HD term = HalfHessianTerm(scale, ga, gb, va, vb, ff, vv);
       (*h)[static_cast<size_t>(a)][static_cast<size_t>(b)] += term;
       if (b != a) (*h)[static_cast<size_t>(b)][static_cast<size_t>(a)] += term;
     }
