@@ -29,30 +29,26 @@ double Sinhc(double d) {
   return std::sinh(d) / d;
 }
 
-Discretization::Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen, int jet_parts)
-    : a_(std::move(a)), n_(static_cast<int>(a_.rows())), n_in_(n_in), allow_eigen_(allow_eigen), jet_parts_(jet_parts) {
-  if (jet_parts_ > 0 && n_ != jet_parts_ * n_in_) throw std::logic_error("a jet matrix's parts have n_in states each");
+Discretization::Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen, std::shared_ptr<const JetProducts> jet)
+    : a_(std::move(a)), n_(static_cast<int>(a_.rows())), n_in_(n_in), allow_eigen_(allow_eigen), jet_(std::move(jet)) {
+  if (jet_ && n_ != jet_->parts * n_in_) throw std::logic_error("a jet matrix's parts have n_in states each");
 }
 
-// The parts of exp(hA(ε)), with Van Loan's [[A(ε), I],[0, 0]] for Γ (inputs enter part ∅ alone), written
-// out as the stacked Φ (block (S, T) = part S∖T) and Γ (block S = Γ's part S).
+// The parts of exp(hA), with Van Loan's [[A, I],[0, 0]] for Γ (inputs enter part 0 alone), written
+// out as the stacked Φ (block (t, b) = part a for each entry (t, a, b)) and Γ (block t = Γ's part t).
+// A's part a is the stacked block (a, 0): the unit's entry (a, a, 0) puts it there.
 void Discretization::JetStep(double h, bool with_gamma, Step* step) {
-  const int b = n_in_, w = with_gamma ? 2 * b : b;
-  Jet x(static_cast<size_t>(jet_parts_), Eigen::MatrixXd::Zero(w, w));
-  for (int s = 0; s < jet_parts_; ++s) x[static_cast<size_t>(s)].topLeftCorner(b, b) = a_.block(s * b, 0, b, b) * h;
+  const int parts = jet_->parts, b = n_in_, w = with_gamma ? 2 * b : b;
+  Jet x(static_cast<size_t>(parts), Eigen::MatrixXd::Zero(w, w));
+  for (int s = 0; s < parts; ++s) x[static_cast<size_t>(s)].topLeftCorner(b, b) = a_.block(s * b, 0, b, b) * h;
   if (with_gamma) x[0].topRightCorner(b, b) = Eigen::MatrixXd::Identity(b, b) * h;
-  const Jet e = JetExponential(std::move(x));
+  const Jet e = JetExponential(std::move(x), *jet_);
   ++exponentials_;
   step->phi = Eigen::MatrixXd::Zero(n_, n_);
-  for (int s = 0; s < jet_parts_; ++s) {
-    for (int t = s;; t = (t - 1) & s) {
-      step->phi.block(s * b, t * b, b, b) = e[static_cast<size_t>(s & ~t)].topLeftCorner(b, b);
-      if (t == 0) break;
-    }
-  }
+  for (const auto& [t, a, c] : jet_->entries) step->phi.block(t * b, c * b, b, b) = e[static_cast<size_t>(a)].topLeftCorner(b, b);
   if (!with_gamma) return;
   step->gamma.resize(n_, b);
-  for (int s = 0; s < jet_parts_; ++s) step->gamma.middleRows(s * b, b) = e[static_cast<size_t>(s)].topRightCorner(b, b);
+  for (int s = 0; s < parts; ++s) step->gamma.middleRows(s * b, b) = e[static_cast<size_t>(s)].topRightCorner(b, b);
 }
 
 void Discretization::Decompose() {
@@ -93,7 +89,7 @@ bool Discretization::eigen_path() {
 
 const Discretization::Step& Discretization::Get(double h, bool with_gamma) {
   Step* step = Find(steps_, h);
-  if (jet_parts_ > 0) {
+  if (jet_) {
     if (step == nullptr) {
       steps_.emplace_back(h, Step());
       step = &steps_.back().second;

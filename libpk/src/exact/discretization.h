@@ -36,10 +36,13 @@
 
 #include <cmath>
 #include <map>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/LU>
+
+#include "jet_exponential.h"
 
 namespace pk {
 namespace internal {
@@ -94,10 +97,12 @@ class Discretization {
     std::vector<Eigen::MatrixXd> dgamma;  // empty unless requested
   };
 
-  /// `allow_eigen` = false forces the block-exponential path (for tests). With `jet_parts` = 2^d > 0,
-  /// `a` is a stacked jet matrix (jet_exponential.h: the block A_{S∖T} at (S, T), parts of n_in
-  /// states, inputs into part ∅), and Φ and Γ come from the jet's exponential, not the dense one.
-  Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen = true, int jet_parts = 0);
+  /// `allow_eigen` = false forces the block-exponential path (for tests). With `jet`, `a` is a
+  /// stacked jet matrix (jet_exponential.h: the block A_a at (t, b) for each of the algebra's
+  /// entries, parts of n_in states, inputs into part 0), and Φ and Γ come from the jet's exponential,
+  /// not the dense one.
+  Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen = true,
+                 std::shared_ptr<const JetProducts> jet = nullptr);
 
   /// Whether derivatives use the eigendecomposition (computed on first use).
   bool eigen_path();
@@ -135,7 +140,7 @@ class Discretization {
   int n_;
   int n_in_;
   bool allow_eigen_;
-  int jet_parts_;
+  std::shared_ptr<const JetProducts> jet_;
   bool decomposed_ = false;
   bool eigen_ = false;
   Eigen::VectorXd lambda_;

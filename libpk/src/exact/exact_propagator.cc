@@ -24,11 +24,12 @@ ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eig
   x_ = Eigen::VectorXd::Zero(big_n);
 }
 
-ExactPropagator::ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in, int jet_parts)
+ExactPropagator::ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in,
+                                 std::shared_ptr<const JetProducts> jet)
     : n_(matrices.empty() ? n_in : static_cast<int>(matrices.front().rows())), track_auc_(false) {
   for (const Eigen::MatrixXd& a : matrices) {
     if (!a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
-    cache_.emplace_back(new Discretization(a, n_in, true, jet_parts));
+    cache_.emplace_back(new Discretization(a, n_in, true, jet));
   }
   x_ = Eigen::VectorXd::Zero(n_);
 }

@@ -33,9 +33,10 @@ class ExactPropagator {
   /// An augmented linear system, given by its matrix per set: rates and doses enter its first
   /// `n_in` states (the model's amounts); a reset clears every state, and a steady state solves for
   /// all of them (the second-order sensitivities of exact/second_order.h propagate this way).
-  /// With `jet_parts` > 0 each matrix is a stacked jet (jet_exponential.h) whose exponentials are
-  /// taken part by part.
-  ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in, int jet_parts = 0);
+  /// With `jet` each matrix is a stacked jet of that algebra (jet_exponential.h), whose
+  /// exponentials are taken part by part.
+  ExactPropagator(const std::vector<Eigen::MatrixXd>& matrices, int n_in,
+                  std::shared_ptr<const JetProducts> jet = nullptr);
 
   // The EventEngine visitor interface (see events.h).
   void Advance(double h, const Eigen::VectorXd& rate, int set);

@@ -23,17 +23,14 @@ void AddProduct(const double* a, const double* b, Eigen::Index w, double* r) {
   }
 }
 
-// *out = x·y over the subsets (out must not alias x or y; its parts keep their size). Parts of x
-// that are zero (`zero`) are skipped: a direction that A does not depend on twice, say.
-void Multiply(const Jet& x, const std::vector<char>& zero, const Jet& y, Jet* out) {
-  const int parts = static_cast<int>(x.size());
+// *out = x·y by the algebra's table (out must not alias x or y; its parts keep their size). Parts of
+// x that are zero (`zero`) are skipped: a direction that A does not depend on twice, say.
+void Multiply(const Jet& x, const std::vector<char>& zero, const Jet& y, const JetProducts& algebra, Jet* out) {
   const Eigen::Index w = x.front().rows();
-  for (int s = 0; s < parts; ++s) {
-    Eigen::MatrixXd& r = (*out)[static_cast<size_t>(s)];
-    r.setZero();
-    for (int t = s;; t = (t - 1) & s) {
-      if (!zero[static_cast<size_t>(t)]) AddProduct(x[static_cast<size_t>(t)].data(), y[static_cast<size_t>(s & ~t)].data(), w, r.data());
-      if (t == 0) break;
+  for (Eigen::MatrixXd& r : *out) r.setZero();
+  for (const auto& [t, a, b] : algebra.entries) {
+    if (!zero[static_cast<size_t>(a)]) {
+      AddProduct(x[static_cast<size_t>(a)].data(), y[static_cast<size_t>(b)].data(), w, (*out)[static_cast<size_t>(t)].data());
     }
   }
 }
@@ -52,7 +49,19 @@ struct Scratch {
 
 }  // namespace
 
-Jet JetExponential(Jet x) {
+JetProducts SubsetProducts(int directions) {
+  JetProducts algebra;
+  algebra.parts = 1 << directions;
+  for (int s = 0; s < algebra.parts; ++s) {
+    for (int t = s;; t = (t - 1) & s) {
+      algebra.entries.push_back({s, t, s & ~t});
+      if (t == 0) break;
+    }
+  }
+  return algebra;
+}
+
+Jet JetExponential(Jet x, const JetProducts& algebra) {
   const auto w = x.front().rows();
   double norm = 0;
   for (const Eigen::MatrixXd& part : x) norm += part.cwiseAbs().colwise().sum().maxCoeff();
@@ -68,13 +77,13 @@ Jet JetExponential(Jet x) {
   e[0].setIdentity();
   ZeroParts(x, &scratch.zero);
   for (int k = kDegree; k >= 1; --k) {
-    Multiply(x, scratch.zero, e, &product);
+    Multiply(x, scratch.zero, e, algebra, &product);
     for (size_t s = 0; s < e.size(); ++s) e[s] = product[s] / k;
     e[0].diagonal().array() += 1;
   }
   for (int i = 0; i < squarings; ++i) {
     ZeroParts(e, &scratch.zero);
-    Multiply(e, scratch.zero, e, &product);
+    Multiply(e, scratch.zero, e, algebra, &product);
     std::swap(e, product);
   }
   return e;

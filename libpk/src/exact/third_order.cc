@@ -1,30 +1,76 @@
-// Third-order sensitivities on Φ/Γ: the stacked system of third_order.h through the event engine.
+// Third-order sensitivities on Φ/Γ: the state's truncated Taylor series in the free parameters
+// (third_order.h) through the event engine, one pass for every triple.
 #include "third_order.h"
 
+#include <algorithm>
 #include <map>
+#include <memory>
 #include <utility>
 
 #include "../numerical_failure.h"
 #include "exact_propagator.h"
 #include "exact_routes.h"
+#include "jet_exponential.h"
 #include "pk/hyper_dual.h"
 
 namespace pk {
 namespace internal {
 namespace {
 
-constexpr int kParts = 8;  // the subsets of three directions
+using Monomial = std::vector<int>;  // its variables, sorted, with repeats: {0, 0, 2} is p₀²p₂
 
-// [θ; ψ] of one parameter set on HyperDual3, θ moving along the free parameters of `triple`.
-std::vector<HyperDual3> Extended(const LinearModel& model, const DualVector& set, int num_free,
-                                 const std::array<int, 3>& triple) {
+// The monomials of degree ≤ 3 in p variables and the truncated series' products.
+struct TaylorAlgebra {
+  std::vector<Monomial> monomials;
+  std::map<Monomial, int> index;
+  std::shared_ptr<JetProducts> products = std::make_shared<JetProducts>();
+
+  explicit TaylorAlgebra(int p) {
+    Add({});
+    for (int i = 0; i < p; ++i) Add({i});
+    for (int i = 0; i < p; ++i) {
+      for (int j = i; j < p; ++j) Add({i, j});
+    }
+    for (int i = 0; i < p; ++i) {
+      for (int j = i; j < p; ++j) {
+        for (int k = j; k < p; ++k) Add({i, j, k});
+      }
+    }
+    products->parts = static_cast<int>(monomials.size());
+    for (size_t a = 0; a < monomials.size(); ++a) {
+      for (size_t b = 0; b < monomials.size(); ++b) {
+        if (monomials[a].size() + monomials[b].size() > 3) continue;
+        Monomial t = monomials[a];
+        t.insert(t.end(), monomials[b].begin(), monomials[b].end());
+        std::sort(t.begin(), t.end());
+        products->entries.push_back({index.at(t), static_cast<int>(a), static_cast<int>(b)});
+      }
+    }
+  }
+  void Add(const Monomial& m) {
+    index.emplace(m, static_cast<int>(monomials.size()));
+    monomials.push_back(m);
+  }
+  // α! for a monomial: the product of its variables' multiplicities' factorials.
+  static double Factorial(const Monomial& m) {
+    double f = 1;
+    for (size_t i = 0, run = 1; i < m.size(); ++i) {
+      run = i > 0 && m[i] == m[i - 1] ? run + 1 : 1;
+      f *= static_cast<double>(run);
+    }
+    return f;
+  }
+};
+
+// [θ; ψ] of one parameter set on HyperDual3, θ moving along free parameters i, j, k.
+std::vector<HyperDual3> Extended(const LinearModel& model, const DualVector& set, int num_free, const Monomial& ijk) {
   const int m = model.num_parameters();
   Eigen::VectorXd theta(m);
   Eigen::MatrixXd directions(m, 3);
   for (int j = 0; j < m; ++j) {
     const Eigen::VectorXd d = Derivatives(set(j), num_free);
     theta(j) = set(j).value();
-    for (int c = 0; c < 3; ++c) directions(j, c) = d(triple[static_cast<size_t>(c)]);
+    for (int c = 0; c < 3; ++c) directions(j, c) = d(ijk[static_cast<size_t>(c)]);
   }
   std::vector<HyperDual3> e;
   for (int j = 0; j < m; ++j) {
@@ -39,55 +85,61 @@ std::vector<HyperDual3> Extended(const LinearModel& model, const DualVector& set
     derived.evaluate_third(theta, directions, &parts);
     for (int q = 0; q < derived.count; ++q) {
       HyperDual3 psi;
-      for (int s = 0; s < kParts; ++s) psi.part(s) = parts[static_cast<size_t>(s)](q);
+      for (int s = 0; s < 8; ++s) psi.part(s) = parts[static_cast<size_t>(s)](q);
       e.push_back(psi);
     }
   }
   return e;
 }
 
-// A matrix's parts: its mixed derivative along each subset of the three directions.
-using Parts = std::array<Eigen::MatrixXd, kParts>;
-
-// The sum of `terms` (LinearModel's) on the extended [θ; ψ]; an output row's terms go to row 0.
-Parts Sum(const std::vector<LinearTerm>& terms, const std::vector<HyperDual3>& e, int rows, int cols) {
-  Parts p;
-  for (Eigen::MatrixXd& m : p) m = Eigen::MatrixXd::Zero(rows, cols);
-  const auto theta = [&](int i) { return e[static_cast<size_t>(i)]; };
-  for (const LinearTerm& t : terms) {
-    const HyperDual3 x = LinearModel::TermValue<HyperDual3>(t, theta);
-    const int r = rows == 1 ? 0 : t.row;
-    for (int s = 0; s < kParts; ++s) p[static_cast<size_t>(s)](r, t.col) += x.part(s);
-  }
-  return p;
-}
-
-// M of third_order.h over z = [x_0; …; x_7]: block (S, T) = A_{S∖T} for T ⊆ S.
-Eigen::MatrixXd Augmented(const Parts& a) {
-  const auto n = a[0].rows();
-  Eigen::MatrixXd m = Eigen::MatrixXd::Zero(kParts * n, kParts * n);
-  for (int s = 0; s < kParts; ++s) {
-    for (int t = s;; t = (t - 1) & s) {
-      m.block(s * n, t * n, n, n) = a[static_cast<size_t>(s & ~t)];
-      if (t == 0) break;
+// The Taylor coefficients ∂^α M/α! of Σ `terms` (LinearModel's) in the free parameters, one matrix
+// per monomial; an output row's terms go to row 0. Each monomial of degree 3, {i, j, k}, is one
+// evaluation on HyperDual3 along i, j, k, whose eight parts are the coefficients of every monomial
+// it divides (a monomial met twice gets the same value twice).
+std::vector<Eigen::MatrixXd> Coefficients(const LinearModel& model, const std::vector<LinearTerm>& terms,
+                                          const DualVector& set, int num_free, const TaylorAlgebra& algebra, int rows,
+                                          int cols) {
+  std::vector<Eigen::MatrixXd> c(algebra.monomials.size(), Eigen::MatrixXd::Zero(rows, cols));
+  for (const Monomial& ijk : algebra.monomials) {
+    if (ijk.size() != 3) continue;
+    const std::vector<HyperDual3> e = Extended(model, set, num_free, ijk);
+    const auto theta = [&](int i) { return e[static_cast<size_t>(i)]; };
+    std::array<Eigen::MatrixXd, 8> parts;
+    for (Eigen::MatrixXd& part : parts) part = Eigen::MatrixXd::Zero(rows, cols);
+    for (const LinearTerm& t : terms) {
+      const HyperDual3 x = LinearModel::TermValue<HyperDual3>(t, theta);
+      for (int s = 0; s < 8; ++s) parts[static_cast<size_t>(s)](rows == 1 ? 0 : t.row, t.col) += x.part(s);
+    }
+    for (int s = 0; s < 8; ++s) {
+      Monomial m;
+      for (int d = 0; d < 3; ++d) {
+        if (s & (1 << d)) m.push_back(ijk[static_cast<size_t>(d)]);
+      }
+      c[static_cast<size_t>(algebra.index.at(m))] = parts[static_cast<size_t>(s)] / TaylorAlgebra::Factorial(m);
     }
   }
+  return c;
+}
+
+// M of third_order.h: block (t, b) = A_a for each of the algebra's entries (t, a, b).
+Eigen::MatrixXd Stacked(const std::vector<Eigen::MatrixXd>& a, const JetProducts& products) {
+  const auto n = a.front().rows();
+  const auto size = products.parts * n;
+  Eigen::MatrixXd m = Eigen::MatrixXd::Zero(size, size);
+  for (const auto& [t, k, b] : products.entries) m.block(t * n, b * n, n, n) = a[static_cast<size_t>(k)];
   return m;
 }
 
-// The event engine's visitor: z through M, and ∂³ŷ at the samples. M's exponentials are the jet's
-// (jet_exponential.h) from two states up; for one state the dense 8×8 exponential costs less than
-// the jet's bookkeeping (phenobarbital's Laplace fit: 87 against 97 ms; theophylline's, two states:
-// 161 against 236 ms the other way).
+// The event engine's visitor: z through M, and ŷ's degree-3 Taylor coefficients at the samples.
 class ThirdOrderVisitor {
  public:
   ThirdOrderVisitor(const LinearModel& model, const PreparedSubject& s, const std::vector<DualVector>& sets,
-                    int num_free, const std::array<int, 3>& triple, Eigen::VectorXd* out)
-      : model_(model), s_(s), n_(model.num_compartments()), extended_(AllExtended(model, sets, num_free, triple)),
-        prop_(Matrices(model, extended_), n_, n_ >= 2 ? kParts : 0), out_(out) {
+                    int num_free, const TaylorAlgebra& algebra, std::vector<Eigen::VectorXd>* out)
+      : model_(model), s_(s), n_(model.num_compartments()), num_free_(num_free), sets_(sets), algebra_(algebra),
+        prop_(Matrices(), n_, algebra.products), out_(out) {
     int count = 0;
     sample_ = SampleIndex(s, &count);
-    out->setZero(count);
+    out->assign(algebra.monomials.size(), Eigen::VectorXd::Zero(count));
   }
   void Advance(double h, const Eigen::VectorXd& u, int set) { prop_.Advance(h, u, set); }
   void Bolus(int cmt, double amount, int set) { prop_.Bolus(cmt, amount, set); }
@@ -101,42 +153,35 @@ class ThirdOrderVisitor {
     const int cmt = s_.cmt[static_cast<size_t>(r)] + 1;
     auto it = outputs_.find({set, cmt});
     if (it == outputs_.end()) {
-      const Parts c = Sum(model_.output_terms(cmt), extended_[static_cast<size_t>(set)], 1, n_);
-      it = outputs_.emplace(std::make_pair(set, cmt), c).first;
+      auto c = Coefficients(model_, model_.output_terms(cmt), sets_[static_cast<size_t>(set)], num_free_, algebra_, 1, n_);
+      it = outputs_.emplace(std::make_pair(set, cmt), std::move(c)).first;
     }
-    const Parts& c = it->second;
+    const std::vector<Eigen::MatrixXd>& c = it->second;
     const Eigen::VectorXd& z = prop_.state();
-    double y = 0;
-    for (int t = kParts - 1;; t = (t - 1) & (kParts - 1)) {
-      y += c[static_cast<size_t>((kParts - 1) & ~t)].row(0).dot(z.segment(t * n_, n_));
-      if (t == 0) break;
+    for (const auto& [t, a, b] : algebra_.products->entries) {  // y_t = Σ C_a z_b
+      (*out_)[static_cast<size_t>(t)](k) += c[static_cast<size_t>(a)].row(0).dot(z.segment(b * n_, n_));
     }
-    (*out_)(k) = y;
   }
 
  private:
-  static std::vector<std::vector<HyperDual3>> AllExtended(const LinearModel& model, const std::vector<DualVector>& sets,
-                                                          int num_free, const std::array<int, 3>& triple) {
-    std::vector<std::vector<HyperDual3>> e;
-    for (const DualVector& set : sets) e.push_back(Extended(model, set, num_free, triple));
-    return e;
-  }
-  static std::vector<Eigen::MatrixXd> Matrices(const LinearModel& model,
-                                               const std::vector<std::vector<HyperDual3>>& extended) {
-    const int n = model.num_compartments();
+  std::vector<Eigen::MatrixXd> Matrices() const {
     std::vector<Eigen::MatrixXd> m;
-    for (const std::vector<HyperDual3>& e : extended) m.push_back(Augmented(Sum(model.system_terms(), e, n, n)));
+    for (const DualVector& set : sets_) {
+      m.push_back(Stacked(Coefficients(model_, model_.system_terms(), set, num_free_, algebra_, n_, n_),
+                          *algebra_.products));
+    }
     return m;
   }
 
   const LinearModel& model_;
   const PreparedSubject& s_;
-  const int n_;
-  const std::vector<std::vector<HyperDual3>> extended_;  // per set: [θ; ψ] along the triple
+  const int n_, num_free_;
+  const std::vector<DualVector>& sets_;
+  const TaylorAlgebra& algebra_;
   ExactPropagator prop_;
-  Eigen::VectorXd* out_;
+  std::vector<Eigen::VectorXd>* out_;
   std::vector<int> sample_;
-  std::map<std::pair<int, int>, Parts> outputs_;  // (set, cmt) → C and its parts
+  std::map<std::pair<int, int>, std::vector<Eigen::MatrixXd>> outputs_;  // (set, cmt) → C's coefficients
 };
 
 }  // namespace
@@ -144,11 +189,16 @@ class ThirdOrderVisitor {
 void ThirdOrderSensitivities(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
                              const std::vector<DualVector>& sets, int num_free,
                              const std::vector<std::array<int, 3>>& triples, std::vector<Eigen::VectorXd>* out) {
-  out->assign(triples.size(), Eigen::VectorXd());
-  for (size_t i = 0; i < triples.size(); ++i) {
-    ThirdOrderVisitor visitor(model, subject, sets, num_free, triples[i], &(*out)[i]);
-    EventEngine<double, ThirdOrderVisitor> engine(subject, layout, subject.sets, &visitor);
-    engine.Run();
+  const TaylorAlgebra algebra(num_free);
+  std::vector<Eigen::VectorXd> coefficients;
+  ThirdOrderVisitor visitor(model, subject, sets, num_free, algebra, &coefficients);
+  EventEngine<double, ThirdOrderVisitor> engine(subject, layout, subject.sets, &visitor);
+  engine.Run();
+  out->clear();
+  for (const auto& triple : triples) {  // ∂³ŷ/∂p_i∂p_j∂p_k = α! times the coefficient of p_i p_j p_k
+    Monomial m(triple.begin(), triple.end());
+    std::sort(m.begin(), m.end());
+    out->push_back(coefficients[static_cast<size_t>(algebra.index.at(m))] * TaylorAlgebra::Factorial(m));
   }
 }
 

@@ -2,22 +2,24 @@
 // one order up, for the population's Laplace gradient (the log det of the exact ½∇²l moves with
 // the parameters, and ½∇²l holds ∂²ŷ).
 //
-// Along three free parameters i, j, k (directions 1, 2, 4 as bit masks), the state's derivatives
-// x_S = ∂^|S| x / ∂p_S for every subset S of them obey, from the product rule on x' = A x + u,
+// Every derivative of the state up to order 3 in the p free parameters, at once: its truncated
+// Taylor series x(p̂ + δ) = Σ_{|α| ≤ 3} x_α δ^α, x_α = ∂^α x/α!, one block per monomial (20 for
+// p = 3, 56 for p = 5). From x' = A x + u with A's own series A(p̂ + δ) = Σ A_α δ^α, matching powers
+// of δ gives
 //
-//   x_S' = Σ_{T ⊆ S} A_{S∖T} x_T          (A_∅ = A, A_S the mixed derivative of A along S),
+//   x_γ' = Σ_{α + β = γ} A_α x_β          (u and the doses enter x_0 alone: they do not depend on p),
 //
-// from 0 for S ≠ ∅, jumping only where x does (doses do not depend on p). The stacked state
-// z = [x_0; x_1; …; x_7] is the state of one linear system whose matrix M has the block A_{S∖T} at
-// (S, T) for T ⊆ S: block lower-triangular, A on its diagonal. The exact propagator steps it as it
-// steps x (e^{Mh}, Van Loan's Γ_M, steady states by the fixed point of M's interval map; Van Loan,
-// IEEE TAC 1978; the seed's §5 and its reference [1] use the same block exponential for first and
-// higher orders). At a sample y = C x,
+// from 0 for γ ≠ 0. The stacked state z = [x_γ] is the state of one linear system whose matrix M
+// has the block A_α at (α + β, β): block lower-triangular by degree, A on its diagonal. The exact
+// propagator steps it as it steps x, steady states by the fixed point of M's interval map (Van Loan,
+// IEEE TAC 1978; the seed's §5 and its reference [1] use such block exponentials for first and
+// higher orders), its exponentials those of the jet A(δ) (jet_exponential.h) rather than of the
+// dense M. At a sample y = C x, y_γ = Σ_{α + β = γ} C_α x_β and
 //
-//   ∂³ŷ/∂p_i∂p_j∂p_k = Σ_{T ⊆ 7} C_{7∖T} x_T.
+//   ∂³ŷ/∂p_i∂p_j∂p_k = γ! · y_γ,   γ = p_i p_j p_k.
 //
-// A and C with all their mixed derivatives come from one evaluation on pk::HyperDual3, through a
-// model file's derived coefficients too (DerivedCoefficients::evaluate_third).
+// A's and C's coefficients come from evaluations on pk::HyperDual3 along each triple (i, j, k),
+// through a model file's derived coefficients too (DerivedCoefficients::evaluate_third).
 #ifndef PK_SRC_EXACT_THIRD_ORDER_H_
 #define PK_SRC_EXACT_THIRD_ORDER_H_
 
