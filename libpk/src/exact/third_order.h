@@ -3,8 +3,8 @@
 // the parameters, and ½∇²l holds ∂²ŷ).
 //
 // Every derivative of the state up to order 3 in the p free parameters, at once: its truncated
-// Taylor series x(p̂ + δ) = Σ_{|α| ≤ 3} x_α δ^α, x_α = ∂^α x/α!, one block per monomial (20 for
-// p = 3, 56 for p = 5). From x' = A x + u with A's own series A(p̂ + δ) = Σ A_α δ^α, matching powers
+// Taylor series x(p̂ + δ) = Σ_α x_α δ^α, x_α = ∂^α x/α!, one block per monomial of degree ≤ 3 that
+// divides a requested triple's p_i p_j p_k (all 20 for every triple of p = 3). From x' = A x + u with A's own series A(p̂ + δ) = Σ A_α δ^α, matching powers
 // of δ gives
 //
 //   x_γ' = Σ_{α + β = γ} A_α x_β          (u and the doses enter x_0 alone: they do not depend on p),
