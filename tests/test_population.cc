@@ -1405,6 +1405,14 @@ TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the 
   INFO(with.covariance_message);
   CHECK(with.covariance_derivatives == "R from central differences of the OFV, S from central differences of each "
                                        "subject's OFV");
+  // Laplace, whose H there is differenced too: auto turns to differences of the OFV, and says why.
+  options.gradient = pk::PopulationGradient::kAuto;
+  options.method = pk::PopulationMethod::kLaplace;
+  const pk::PopulationSummary laplace = pk::FitPopulation(problem, p, options);
+  INFO(laplace.gradient);
+  CHECK_THAT(laplace.gradient, Catch::Contains("from evaluation 1 central differences of the OFV") &&
+                                   Catch::Contains("Laplace's gradient needs exact second and third derivatives") &&
+                                   Catch::Contains("computed dose modifier"));
 }
 
 namespace {
