@@ -546,7 +546,15 @@ TEST_CASE("a jet's exponential equals the dense exponential of its stacked matri
       }
     }
     const Eigen::MatrixXd dense = stacked.exp();
-    const pk::internal::Jet e = pk::internal::JetExponential(x, pk::internal::SubsetProducts(3));
+    pk::internal::JetProducts subsets;  // dual numbers in three directions: e_S e_T = e_{S∪T}, S ∩ T = ∅
+    subsets.parts = 8;
+    for (int s = 0; s < 8; ++s) {
+      for (int t = s;; t = (t - 1) & s) {
+        subsets.entries.push_back({s, t, s & ~t});
+        if (t == 0) break;
+      }
+    }
+    const pk::internal::Jet e = pk::internal::JetExponential(x, subsets);
     for (int s = 0; s < 8; ++s) {
       INFO("h " << h << ", part " << s << ": " << (e[static_cast<size_t>(s)] - dense.block(3 * s, 0, 3, 3)).cwiseAbs().maxCoeff() << " of " << dense.cwiseAbs().maxCoeff());
       const Eigen::MatrixXd want = dense.block(3 * s, 0, 3, 3);

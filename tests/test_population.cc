@@ -1411,7 +1411,7 @@ TEST_CASE("on the ODE propagator auto turns to differences of the OFV where the 
   const pk::PopulationSummary laplace = pk::FitPopulation(problem, p, options);
   INFO(laplace.gradient);
   CHECK_THAT(laplace.gradient, Catch::Contains("from evaluation 1 central differences of the OFV") &&
-                                   Catch::Contains("Laplace's gradient needs exact second and third derivatives") &&
+                                   Catch::Contains("Laplace's H at the mode was differenced") &&
                                    Catch::Contains("computed dose modifier"));
 }
 
@@ -1587,6 +1587,19 @@ TEST_CASE("Laplace's H is differenced only where the route has no second derivat
   REQUIRE(differenced_by_choice.ok);
   CHECK(differenced_by_choice.hessian_differenced == "differences asked for");
   CHECK(std::abs(differenced_by_choice.ofv - by_differences) < 1e-10);
+  {  // Then the exact gradient would be another objective's: Laplace's is refused, and marked so
+     // that `auto` turns to differences of the OFV.
+    const pk::internal::Packing packing(pheno, {}, Parameters(c));
+    const Eigen::VectorXd x = packing.Pack(Parameters(c));
+    std::vector<pk::internal::SubjectMode> modes(static_cast<size_t>(pheno.num_subjects()), differenced_by_choice);
+    for (size_t i = 1; i < modes.size(); ++i) modes[i] = pk::internal::SolveSubject(pheno.impl().subjects[i], asked, Eigen::VectorXd::Zero(2));
+    pk::internal::PopulationEngine engine(pheno, pk::PopulationMethod::kLaplace, 1);
+    Eigen::VectorXd g;
+    pk::internal::PopulationEngine::Differenced dn;
+    CHECK_FALSE(engine.Gradient(packing, x, modes, &g, nullptr, &why, &dn));
+    CHECK_THAT(why, Catch::Contains("Laplace's H at the mode was differenced (differences asked for)"));
+    CHECK(dn.subjects == pheno.num_subjects());
+  }
   // On the ODE propagator Newton's last exact matrix may serve as H at the mode: it is the one at η̂.
   pk::ObjectiveOptions mo;
   mo.error_model = pk::MakeResidualError("combined");

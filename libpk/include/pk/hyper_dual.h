@@ -111,7 +111,7 @@ inline HyperDual fabs(const HyperDual& x) { return abs(x); }
 /// bit mask of its directions: 1 = ε₁, 2 = ε₂, 4 = ε₃, 7 = ε₁ε₂ε₃.
 /// For one function of the scalar (i, j the directions of a pair):
 ///   f(x)_i = f′ x_i,   f(x)_ij = f′ x_ij + f″ x_i x_j,
-///   f(x)_123 = f′ x_123 + f″ (x_1 x_23 + x_2 x_13 + x_4 x_12) + f‴ x_1 x_2 x_4   (masks).
+///   f(x)_7 = f′ x_7 + f″ (x_1 x_6 + x_2 x_5 + x_4 x_3) + f‴ x_1 x_2 x_4   (parts by mask).
 class HyperDual3 {
  public:
   HyperDual3() = default;

@@ -222,8 +222,9 @@ class Objective {
   /// Third derivatives of the predictions: (*third)[i] = ∂³ŷ/∂p_a∂p_b∂p_c over the samples for
   /// triples[i] = {a, b, c}, positions in `free`, with SecondDerivatives' restrictions. The
   /// population's Laplace gradient needs them (the exact ½∇²l in its OFV holds ∂²ŷ). Exact on
-  /// Φ/Γ (the block-triangular exponential over every subset of the three directions) and
-  /// integrated with x on the ODE propagator. False, with `why`, otherwise or on numerical failure.
+  /// Φ/Γ (the state's truncated Taylor series in the free parameters, through the block-triangular
+  /// exponential) and integrated with x on the ODE propagator. False, with `why`, otherwise or on
+  /// numerical failure.
   bool ThirdDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
                         const std::vector<std::array<int, 3>>& triples, std::vector<Eigen::VectorXd>* third,
                         std::string* why) const;

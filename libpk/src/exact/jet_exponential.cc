@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "../numerical_failure.h"
+
 namespace pk {
 namespace internal {
 namespace {
@@ -49,22 +51,11 @@ struct Scratch {
 
 }  // namespace
 
-JetProducts SubsetProducts(int directions) {
-  JetProducts algebra;
-  algebra.parts = 1 << directions;
-  for (int s = 0; s < algebra.parts; ++s) {
-    for (int t = s;; t = (t - 1) & s) {
-      algebra.entries.push_back({s, t, s & ~t});
-      if (t == 0) break;
-    }
-  }
-  return algebra;
-}
-
 Jet JetExponential(Jet x, const JetProducts& algebra) {
   const auto w = x.front().rows();
   double norm = 0;
   for (const Eigen::MatrixXd& part : x) norm += part.cwiseAbs().colwise().sum().maxCoeff();
+  if (!std::isfinite(norm)) throw NumericalFailure("a step's matrix is not finite");
   const int squarings = norm > kScaledNorm ? static_cast<int>(std::ceil(std::log2(norm / kScaledNorm))) : 0;
   const double scale = std::ldexp(1.0, -squarings);
   for (Eigen::MatrixXd& part : x) part *= scale;

@@ -1,15 +1,13 @@
 // The exponential of a matrix over a commutative algebra of "jets" (not installed): X = Σ_a X_a e_a,
 // one w×w part per basis element e_a, multiplied by a product table, (XY)_t = Σ over the table's
-// entries (t, a, b) of X_a Y_b. Two algebras serve libpk's higher-order sensitivities:
-//
-//  * truncated Taylor series in p variables to degree 3 (exact/third_order.cc): a part per monomial,
-//    its coefficient ∂^α/α!, and (XY)_γ = Σ_{α+β=γ} X_α Y_β;
-//  * dual numbers in d directions, R[ε₁, …, ε_d]/(ε₁², …, ε_d²) (SubsetProducts): a part per subset.
+// entries (t, a, b) of X_a Y_b. exact/third_order.cc takes it for truncated Taylor series in p
+// variables to degree 3: a part per monomial, its coefficient ∂^α/α!, and (XY)_γ = Σ_{α+β=γ} X_α Y_β.
+// (Dual numbers in d directions, a part per subset, are another such algebra; the tests use them.)
 //
 // A stacked linear system whose matrix has the block A_a at (t, b) for each entry (t, a, b) is the
 // jet A written out as a square matrix, and e^{Mh} is the jet exp(hA) written out the same way.
 // Exponentiating the jet costs one w×w product per table entry and product, against (parts·w)³/w³
-// for the dense matrix: 56 against 8000 for the 20 monomials of degree ≤ 3 in three variables.
+// for the dense matrix: 84 against 8000 for the 20 monomials of degree ≤ 3 in three variables.
 //
 // Scaling and squaring with a truncated Taylor series: X/2^s with Σ_a ‖X_a‖₁ ≤ 1/16 (that sum
 // bounds the jet's own norm), the series to degree 10 (remainder below (1/16)^11/11! ≈ 1e-21 of
@@ -34,9 +32,6 @@ struct JetProducts {
   int parts = 1;
   std::vector<std::array<int, 3>> entries;
 };
-
-/// Dual numbers in `directions` directions: a part per subset (bit mask), e_S e_T = e_{S∪T} when disjoint.
-JetProducts SubsetProducts(int directions);
 
 /// exp(X) in the algebra. Every part square and of one size, x.size() == algebra.parts.
 Jet JetExponential(Jet x, const JetProducts& algebra);

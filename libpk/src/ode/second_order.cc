@@ -61,7 +61,7 @@ class HigherOrderVisitor {
       theta_.push_back(Values(set, m_));
       dtheta_.push_back(DerivativeMatrix(set, p_, m_));
     }
-    z_ = State::Zero(Full(0).size(n_));
+    z_ = State::Zero(n_ * (1 + p_ + static_cast<Eigen::Index>(pairs.size() + triples.size())));
     if (second) second->assign(pairs.size(), Eigen::VectorXd::Zero(o.num_samples));
     if (third) third->assign(triples.size(), Eigen::VectorXd::Zero(o.num_samples));
   }

@@ -254,8 +254,10 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   const bool switchable = options.gradient == PopulationGradient::kAuto &&
                           ResolvePropagator(engine.problem().model(), engine.problem().options().propagator) !=
                               Propagator::kExact;
-  // Laplace's gradient fails where a subject has no exact third order (a parameter a computed dose
-  // modifier reads): a property of the problem, not of the point, so `auto` stops asking for it.
+  // Laplace's gradient fails where a subject's second and third order cannot be exact (a parameter a
+  // computed dose modifier reads, or H differenced at the mode), which the subject's `differenced`
+  // reason marks: a property of the problem, not of the point, so `auto` stops asking for it there.
+  // Other failures (H not positive definite at a wild trial point) take differences at that point only.
   const bool laplace_switchable = options.gradient == PopulationGradient::kAuto && options.method == PopulationMethod::kLaplace;
   int differenced_points = 0, switched_at = 0;
   std::string differenced_reason;
@@ -282,7 +284,7 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
           switched_at = summary->evaluations;
         }
       }
-      if (!have && implicit && laplace_switchable) {
+      if (!have && implicit && laplace_switchable && dn.subjects > 0) {
         implicit = false;
         switched_at = summary->evaluations;
         differenced_reason = why;

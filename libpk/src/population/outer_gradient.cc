@@ -255,20 +255,20 @@ bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::Vector
   e->phi0 = IndividualValues(s, p, eta);
   if (!Sensitivities(s, e->phi0, &e->y0, &e->j0, why)) return false;
   differenced->clear();
+  const bool laplace = p.method == PopulationMethod::kLaplace;
   if (!ExactSecondOrder(s, e->phi0, &e->t, differenced)) {
     if (differenced->empty()) *differenced = "no second-order sensitivities";
+    if (laplace) {  // its H holds ∂²ŷ, exact only from the second-order sensitivities, and its gradient ∂³ŷ
+      *why = "Laplace's gradient needs exact second and third derivatives of the predictions (" + *differenced + ")";
+      return false;
+    }
     if (!SecondOrderByDifferences(s, p, e->phi0, &e->t, why)) return false;
   }
   e->phi00 = IndividualValues(s, p, Eigen::VectorXd::Zero(eta.size()));
   if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) return false;
   const auto np = static_cast<Eigen::Index>(s.phi_index.size());
   if (e->t.empty()) e->t.assign(static_cast<size_t>(e->y0.size()), Eigen::MatrixXd::Zero(np, np));
-  if (p.method == PopulationMethod::kLaplace) {
-    // Laplace's H holds ∂²ŷ, exact only from the second-order sensitivities, and its gradient ∂³ŷ.
-    if (!differenced->empty()) {
-      *why = "Laplace's gradient needs exact second and third derivatives of the predictions (" + *differenced + ")";
-      return false;
-    }
+  if (laplace) {
     if (!ExactThirdOrder(s, e->phi0, &e->u, why)) return false;
     const auto q = static_cast<Eigen::Index>(eta.size());
     if (e->u.empty()) e->u.assign(static_cast<size_t>(e->y0.size()), Eigen::MatrixXd::Zero(q * q, np));
@@ -529,6 +529,12 @@ bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& 
 bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
                           const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
                           std::string* differenced, std::string* why) {
+  if (p.method == PopulationMethod::kLaplace && !mode.hessian_differenced.empty()) {
+    // The OFV's H was differences of ∇l there: the exact gradient would be another objective's.
+    *differenced = mode.hessian_differenced;
+    *why = "Laplace's H at the mode was differenced (" + mode.hessian_differenced + ")";
+    return false;
+  }
   // The scalar's derivatives over z = (η, x) live on the stack up to 4 η and 16 variables (2 η and
   // 6 population parameters make 8), on the heap beyond.
   if (mode.eta.size() <= 4 && mode.eta.size() + x.size() <= 16) {
