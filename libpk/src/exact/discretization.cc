@@ -39,10 +39,14 @@ Discretization::Discretization(Eigen::MatrixXd a, int n_in, bool allow_eigen, st
 // A's part a is the stacked block (a, 0): the unit's entry (a, a, 0) puts it there.
 void Discretization::JetStep(double h, bool with_gamma, Step* step) {
   const int parts = jet_->parts, b = n_in_, w = with_gamma ? 2 * b : b;
-  Jet x(static_cast<size_t>(parts), Eigen::MatrixXd::Zero(w, w));
-  for (int s = 0; s < parts; ++s) x[static_cast<size_t>(s)].topLeftCorner(b, b) = a_.block(s * b, 0, b, b) * h;
-  if (with_gamma) x[0].topRightCorner(b, b) = Eigen::MatrixXd::Identity(b, b) * h;
-  const Jet e = JetExponential(std::move(x), *jet_);
+  thread_local Jet e;  // hA, then its exponential; kept so that a step allocates no parts
+  e.resize(static_cast<size_t>(parts));
+  for (int s = 0; s < parts; ++s) {
+    e[static_cast<size_t>(s)].setZero(w, w);
+    e[static_cast<size_t>(s)].topLeftCorner(b, b) = a_.block(s * b, 0, b, b) * h;
+  }
+  if (with_gamma) e[0].topRightCorner(b, b) = Eigen::MatrixXd::Identity(b, b) * h;
+  JetExponential(*jet_, &e);
   ++exponentials_;
   step->phi = Eigen::MatrixXd::Zero(n_, n_);
   for (const auto& [t, a, c] : jet_->entries) step->phi.block(t * b, c * b, b, b) = e[static_cast<size_t>(a)].topLeftCorner(b, b);

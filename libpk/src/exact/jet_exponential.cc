@@ -45,13 +45,16 @@ void ZeroParts(const Jet& x, std::vector<char>* zero) {
 // Scratch kept per thread: a fit takes thousands of these exponentials of a few small parts each,
 // where allocating the parts would cost more than the arithmetic.
 struct Scratch {
-  Jet product;
+  Jet x, product;
   std::vector<char> zero;
 };
 
 }  // namespace
 
-Jet JetExponential(Jet x, const JetProducts& algebra) {
+void JetExponential(const JetProducts& algebra, Jet* e) {
+  thread_local Scratch scratch;
+  Jet& x = scratch.x;
+  std::swap(x, *e);  // x holds X; *e, the scratch's old parts, becomes exp(X)
   const auto w = x.front().rows();
   double norm = 0;
   for (const Eigen::MatrixXd& part : x) norm += part.cwiseAbs().colwise().sum().maxCoeff();
@@ -59,25 +62,26 @@ Jet JetExponential(Jet x, const JetProducts& algebra) {
   const int squarings = norm > kScaledNorm ? static_cast<int>(std::ceil(std::log2(norm / kScaledNorm))) : 0;
   const double scale = std::ldexp(1.0, -squarings);
   for (Eigen::MatrixXd& part : x) part *= scale;
-  thread_local Scratch scratch;
   Jet& product = scratch.product;
   product.resize(x.size());
-  for (Eigen::MatrixXd& part : product) part.resize(w, w);
+  e->resize(x.size());
+  for (size_t s = 0; s < x.size(); ++s) {
+    product[s].resize(w, w);
+    (*e)[s].setZero(w, w);
+  }
   // Horner: E = I + X(I + X/2(I + … (I + X/k)…)).
-  Jet e(x.size(), Eigen::MatrixXd::Zero(w, w));
-  e[0].setIdentity();
+  (*e)[0].setIdentity();
   ZeroParts(x, &scratch.zero);
   for (int k = kDegree; k >= 1; --k) {
-    Multiply(x, scratch.zero, e, algebra, &product);
-    for (size_t s = 0; s < e.size(); ++s) e[s] = product[s] / k;
-    e[0].diagonal().array() += 1;
+    Multiply(x, scratch.zero, *e, algebra, &product);
+    for (size_t s = 0; s < e->size(); ++s) (*e)[s] = product[s] / k;
+    (*e)[0].diagonal().array() += 1;
   }
   for (int i = 0; i < squarings; ++i) {
-    ZeroParts(e, &scratch.zero);
-    Multiply(e, scratch.zero, e, algebra, &product);
-    std::swap(e, product);
+    ZeroParts(*e, &scratch.zero);
+    Multiply(*e, scratch.zero, *e, algebra, &product);
+    std::swap(*e, product);
   }
-  return e;
 }
 
 }  // namespace internal

@@ -33,8 +33,10 @@ struct JetProducts {
   std::vector<std::array<int, 3>> entries;
 };
 
-/// exp(X) in the algebra. Every part square and of one size, x.size() == algebra.parts.
-Jet JetExponential(Jet x, const JetProducts& algebra);
+/// *x = exp(*x) in the algebra, in place (its parts' storage is reused from call to call). Every
+/// part square and of one size, x->size() == algebra.parts. Throws NumericalFailure when X is not
+/// finite.
+void JetExponential(const JetProducts& algebra, Jet* x);
 
 }  // namespace internal
 }  // namespace pk

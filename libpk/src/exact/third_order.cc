@@ -27,6 +27,8 @@ struct TaylorAlgebra {
   std::vector<Monomial> monomials;
   std::map<Monomial, int> index;
   std::shared_ptr<JetProducts> products = std::make_shared<JetProducts>();
+  std::vector<int> cubes;  // the monomials of degree 3: every other one divides one of them
+  std::vector<std::array<int, 3>> cube_entries;  // the products' entries into them (the samples read only these)
 
   explicit TaylorAlgebra(const std::vector<std::array<int, 3>>& triples) {
     std::set<Monomial> closure;
@@ -53,8 +55,13 @@ struct TaylorAlgebra {
         t.insert(t.end(), monomials[b].begin(), monomials[b].end());
         std::sort(t.begin(), t.end());
         const auto it = index.find(t);
-        if (it != index.end()) products->entries.push_back({it->second, static_cast<int>(a), static_cast<int>(b)});
+        if (it == index.end()) continue;
+        products->entries.push_back({it->second, static_cast<int>(a), static_cast<int>(b)});
+        if (t.size() == 3) cube_entries.push_back(products->entries.back());
       }
+    }
+    for (size_t k = 0; k < monomials.size(); ++k) {
+      if (monomials[k].size() == 3) cubes.push_back(static_cast<int>(k));
     }
   }
   void Add(const Monomial& m) {
@@ -102,17 +109,26 @@ std::vector<HyperDual3> Extended(const LinearModel& model, const DualVector& set
   return e;
 }
 
+// [θ; ψ] of one parameter set along each of the algebra's monomials of degree 3 (`cubes`).
+using ExtendedSet = std::vector<std::vector<HyperDual3>>;
+
+ExtendedSet ExtendedAlongCubes(const LinearModel& model, const DualVector& set, int num_free,
+                               const TaylorAlgebra& algebra) {
+  ExtendedSet e;
+  for (int k : algebra.cubes) e.push_back(Extended(model, set, num_free, algebra.monomials[static_cast<size_t>(k)]));
+  return e;
+}
+
 // The Taylor coefficients ∂^α M/α! of Σ `terms` (LinearModel's) in the free parameters, one matrix
 // per monomial; an output row's terms go to row 0. Each monomial of degree 3, {i, j, k}, is one
-// evaluation on HyperDual3 along i, j, k, whose eight parts are the coefficients of every monomial
-// it divides (a monomial met twice gets the same value twice).
-std::vector<Eigen::MatrixXd> Coefficients(const LinearModel& model, const std::vector<LinearTerm>& terms,
-                                          const DualVector& set, int num_free, const TaylorAlgebra& algebra, int rows,
-                                          int cols) {
+// evaluation on HyperDual3 along i, j, k (`extended`), whose eight parts are the coefficients of
+// every monomial it divides (a monomial met twice gets the same value twice).
+std::vector<Eigen::MatrixXd> Coefficients(const std::vector<LinearTerm>& terms, const ExtendedSet& extended,
+                                          const TaylorAlgebra& algebra, int rows, int cols) {
   std::vector<Eigen::MatrixXd> c(algebra.monomials.size(), Eigen::MatrixXd::Zero(rows, cols));
-  for (const Monomial& ijk : algebra.monomials) {
-    if (ijk.size() != 3) continue;
-    const std::vector<HyperDual3> e = Extended(model, set, num_free, ijk);
+  for (size_t q = 0; q < algebra.cubes.size(); ++q) {
+    const Monomial& ijk = algebra.monomials[static_cast<size_t>(algebra.cubes[q])];
+    const std::vector<HyperDual3>& e = extended[q];
     const auto theta = [&](int i) { return e[static_cast<size_t>(i)]; };
     std::array<Eigen::MatrixXd, 8> parts;
     for (Eigen::MatrixXd& part : parts) part = Eigen::MatrixXd::Zero(rows, cols);
@@ -140,13 +156,14 @@ Eigen::MatrixXd Stacked(const std::vector<Eigen::MatrixXd>& a, const JetProducts
   return m;
 }
 
-// The event engine's visitor: z through M, and ŷ's degree-3 Taylor coefficients at the samples.
+// The event engine's visitor: z through M, and ŷ's degree-3 Taylor coefficients at the samples (the
+// coefficients of lower degree are left at 0).
 class ThirdOrderVisitor {
  public:
   ThirdOrderVisitor(const LinearModel& model, const PreparedSubject& s, const std::vector<DualVector>& sets,
                     int num_free, const TaylorAlgebra& algebra, std::vector<Eigen::VectorXd>* out)
-      : model_(model), s_(s), n_(model.num_compartments()), num_free_(num_free), sets_(sets), algebra_(algebra),
-        prop_(Matrices(), n_, algebra.products), out_(out) {
+      : model_(model), s_(s), n_(model.num_compartments()), algebra_(algebra),
+        extended_(AllExtended(model, sets, num_free, algebra)), prop_(Matrices(), n_, algebra.products), out_(out) {
     int count = 0;
     sample_ = SampleIndex(s, &count);
     out->assign(algebra.monomials.size(), Eigen::VectorXd::Zero(count));
@@ -163,31 +180,36 @@ class ThirdOrderVisitor {
     const int cmt = s_.cmt[static_cast<size_t>(r)] + 1;
     auto it = outputs_.find({set, cmt});
     if (it == outputs_.end()) {
-      auto c = Coefficients(model_, model_.output_terms(cmt), sets_[static_cast<size_t>(set)], num_free_, algebra_, 1, n_);
+      auto c = Coefficients(model_.output_terms(cmt), extended_[static_cast<size_t>(set)], algebra_, 1, n_);
       it = outputs_.emplace(std::make_pair(set, cmt), std::move(c)).first;
     }
     const std::vector<Eigen::MatrixXd>& c = it->second;
     const Eigen::VectorXd& z = prop_.state();
-    for (const auto& [t, a, b] : algebra_.products->entries) {  // y_t = Σ C_a z_b
+    for (const auto& [t, a, b] : algebra_.cube_entries) {  // y_t = Σ C_a z_b, of degree 3
       (*out_)[static_cast<size_t>(t)](k) += c[static_cast<size_t>(a)].row(0).dot(z.segment(b * n_, n_));
     }
   }
 
  private:
+  static std::vector<ExtendedSet> AllExtended(const LinearModel& model, const std::vector<DualVector>& sets,
+                                              int num_free, const TaylorAlgebra& algebra) {
+    std::vector<ExtendedSet> e;
+    for (const DualVector& set : sets) e.push_back(ExtendedAlongCubes(model, set, num_free, algebra));
+    return e;
+  }
   std::vector<Eigen::MatrixXd> Matrices() const {
     std::vector<Eigen::MatrixXd> m;
-    for (const DualVector& set : sets_) {
-      m.push_back(Stacked(Coefficients(model_, model_.system_terms(), set, num_free_, algebra_, n_, n_),
-                          *algebra_.products));
+    for (const ExtendedSet& e : extended_) {
+      m.push_back(Stacked(Coefficients(model_.system_terms(), e, algebra_, n_, n_), *algebra_.products));
     }
     return m;
   }
 
   const LinearModel& model_;
   const PreparedSubject& s_;
-  const int n_, num_free_;
-  const std::vector<DualVector>& sets_;
+  const int n_;
   const TaylorAlgebra& algebra_;
+  const std::vector<ExtendedSet> extended_;  // per set: [θ; ψ] along each cube, for A and for C
   ExactPropagator prop_;
   std::vector<Eigen::VectorXd>* out_;
   std::vector<int> sample_;
@@ -205,7 +227,7 @@ void ThirdOrderSensitivities(const LinearModel& model, const ParameterLayout& la
   EventEngine<double, ThirdOrderVisitor> engine(subject, layout, subject.sets, &visitor);
   engine.Run();
   out->clear();
-  for (const auto& triple : triples) {  // ∂³ŷ/∂p_i∂p_j∂p_k = α! times the coefficient of p_i p_j p_k
+  for (const auto& triple : triples) {  // ∂³ŷ/∂p_i∂p_j∂p_k = γ! times the coefficient of p_i p_j p_k
     Monomial m(triple.begin(), triple.end());
     std::sort(m.begin(), m.end());
     out->push_back(coefficients[static_cast<size_t>(algebra.index.at(m))] * TaylorAlgebra::Factorial(m));

@@ -42,6 +42,23 @@ bool AllFinite(const std::vector<Eigen::VectorXd>& out, const char* order, std::
   return true;
 }
 
+// Binds `values` to the subject, runs `route(subject, sets, num_model)` (which fills *out) and checks
+// what it wrote: false with `why` on a numerical failure or a value that is not finite.
+template <class Route>
+bool RunHigherOrder(const internal::ObjectiveState& d, const Eigen::VectorXd& values, const std::vector<int>& free,
+                    const char* order, const Route& route, const std::vector<Eigen::VectorXd>& out, std::string* why) {
+  const internal::FreeParameters fp(free, d.L());
+  internal::PreparedSubject s = d.prepared;
+  internal::RebindParameters(d.layout, values.head(d.L()), &s);
+  try {
+    route(s, internal::DualSets(s, d.layout, fp), fp.num_model());
+  } catch (const internal::NumericalFailure& e) {
+    *why = e.what();
+    return false;
+  }
+  return AllFinite(out, order, why);
+}
+
 }  // namespace
 
 bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
@@ -56,23 +73,16 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
       return false;
     }
   }
-  const internal::FreeParameters fp(free, d.L());
-  internal::PreparedSubject s = d.prepared;
-  internal::RebindParameters(d.layout, values.head(d.L()), &s);
-  try {
-    // A linear model takes the block-triangular exponential whichever propagator predicts; a
-    // nonlinear one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
+  // A linear model takes the block-triangular exponential whichever propagator predicts; a
+  // nonlinear one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
+  const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
     if (d.linear == nullptr) {
-      internal::OdeSecondOrderSensitivities(d.ode, s, internal::DualSets(s, d.layout, fp), fp.num_model(), pairs, second);
+      internal::OdeSecondOrderSensitivities(d.ode, s, sets, num, pairs, second);
     } else {
-      internal::SecondOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.layout, fp), fp.num_model(),
-                                         pairs, d.options.modal_propagation, second);
+      internal::SecondOrderSensitivities(*d.linear, d.layout, s, sets, num, pairs, d.options.modal_propagation, second);
     }
-  } catch (const internal::NumericalFailure& e) {
-    *why = e.what();
-    return false;
-  }
-  return AllFinite(*second, "second", why);
+  };
+  return RunHigherOrder(d, values, free, "second", route, *second, why);
 }
 
 bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
@@ -89,21 +99,14 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
       }
     }
   }
-  const internal::FreeParameters fp(free, d.L());
-  internal::PreparedSubject s = d.prepared;
-  internal::RebindParameters(d.layout, values.head(d.L()), &s);
-  try {
+  const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
     if (d.linear == nullptr) {
-      internal::OdeThirdOrderSensitivities(d.ode, s, internal::DualSets(s, d.layout, fp), fp.num_model(), triples, third);
+      internal::OdeThirdOrderSensitivities(d.ode, s, sets, num, triples, third);
     } else {
-      internal::ThirdOrderSensitivities(*d.linear, d.layout, s, internal::DualSets(s, d.layout, fp), fp.num_model(),
-                                        triples, third);
+      internal::ThirdOrderSensitivities(*d.linear, d.layout, s, sets, num, triples, third);
     }
-  } catch (const internal::NumericalFailure& e) {
-    *why = e.what();
-    return false;
-  }
-  return AllFinite(*third, "third", why);
+  };
+  return RunHigherOrder(d, values, free, "third", route, *third, why);
 }
 
 }  // namespace pk

@@ -40,6 +40,14 @@
 namespace pk {
 namespace internal {
 
+/// Whether Newton on a steady state has reached the integration's own noise: a step inside the
+/// region of quadratic convergence (below √(tolerance·|x|)) that fails to halve the one before
+/// (CVODES at rtol 1e-12 moves x* by about 10⁻¹⁰ from one cycle to the next, ten tolerances, and
+/// Newton would wander there until its limit).
+inline bool NewtonAtNoise(double step, double previous, double tolerance, double x_norm) {
+  return step >= 0.5 * previous && step <= std::sqrt(tolerance * x_norm);
+}
+
 /// Continuous records (CONT=1 samples) of one subject: per output key, the
 /// record times, values and weights per unit time, linearly interpolated.
 struct ContinuousRecords {
@@ -235,11 +243,10 @@ class OdePropagator {
       // 1e-8. (With one tolerance instead of a thousandth, the error of x*,
       // which the steady-state gradient (I − P_x)⁻¹∂P/∂p amplifies, put the
       // forward and adjoint gradients of 2cmt_iv_mm at SS=1 1.3e-7 apart.)
-      // Or once a step inside the region of quadratic convergence fails to halve the one before: x
-      // is then at the integration's own noise (CVODES at rtol 1e-12 moves x* by about 10⁻¹⁰ from
-      // one cycle to the next, ten tolerances, and Newton would wander there until its limit).
+      // Or once it is at the integration's own noise (NewtonAtNoise).
       const double rate = std::min(1.0, step / last_step);
-      const bool stagnated = with_parameters && rate >= 0.5 && step <= std::sqrt(Tolerance(x) * x.lpNorm<Eigen::Infinity>());
+      const bool stagnated =
+          with_parameters && NewtonAtNoise(step, last_step, Tolerance(x), x.lpNorm<Eigen::Infinity>());
       last_step = step;
       const bool converged = step <= Tolerance(x) || rate * step <= 1e-3 * Tolerance(x) || stagnated;
       if (it > 0 && converged && (with_parameters || !sens_)) break;

@@ -190,8 +190,8 @@ class HigherOrderVisitor {
 // x* = P(x*) by Newton, with P_x from n directions in x0 (zero in θ) integrated with x and the
 // parameter directions started at 0 beside them: on return *lu holds I − P_x at x* and *z the
 // cycle from [x*; [I 0]], whose parameter columns are b_s. Newton stops at a step of the
-// integration's tolerance, or (as the first-order propagator judges) at the integration's noise: a
-// small step that fails to halve the one before; one more cycle then runs at the x it landed on, so
+// integration's tolerance, or at the integration's noise (NewtonAtNoise, as the first-order
+// propagator judges it); one more cycle then runs at the x it landed on, so
 // that P_x and b_s belong to x* itself.
 Eigen::VectorXd HigherOrderVisitor::PeriodicState(const SteadyStateCycle<double>& cycle, const Eigen::VectorXd& theta,
                                                   const Eigen::MatrixXd& dtheta,
@@ -212,15 +212,14 @@ Eigen::VectorXd HigherOrderVisitor::PeriodicState(const SteadyStateCycle<double>
     if (!dx.allFinite()) throw NumericalFailure("no periodic steady state (I − P_x is singular)");
     x += dx;
     const double step = dx.lpNorm<Eigen::Infinity>();
-    converged = it > 0 && (step <= Tolerance(x) ||
-                           (step >= 0.5 * last && step <= std::sqrt(Tolerance(x) * x.lpNorm<Eigen::Infinity>())));
+    const double tolerance = Tolerance(x);
+    converged = it > 0 && (step <= tolerance || NewtonAtNoise(step, last, tolerance, x.lpNorm<Eigen::Infinity>()));
     last = step;
     if (!converged && it >= o_.options.max_newton_iterations) {
       throw NumericalFailure("no periodic steady state for the higher-order sensitivities: Newton did not converge");
     }
   }
 }
-
 
 // The periodic steady state of the stacked system. The cycle's map P is nonlinear in x but, once x
 // is at its fixed point x*, affine in each higher block with the one matrix P_x:

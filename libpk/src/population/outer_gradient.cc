@@ -382,13 +382,37 @@ HD TaylorPrediction(const Expansion& e, const Variables<HD>& v, Eigen::Index j) 
   return yhat;
 }
 
+// A sample's first η-derivatives as functions of z, ∂ŷ/∂φ to first order about φ̂ (from T): of ŷ
+// (dy), of f = T(ŷ) (g), of V (dv, from vy = ∂V/∂ŷ), and of the η's φ (slope φ' = ∂φ_k/∂η: φ_k for a
+// log-normal η, 1 for a file's η parameter).
+template <class HD>
+struct EtaFirst {
+  std::vector<HD> dy, g, dv, slope;
+};
+
+template <class HD>
+EtaFirst<HD> FirstEtaDerivatives(const SubjectModel& s, const Expansion& e, const Variables<HD>& v, Eigen::Index j,
+                                 const HD& yhat, const HD& vy, bool logs) {
+  const Eigen::MatrixXd& tj = e.t[static_cast<size_t>(j)];
+  const auto np = static_cast<int>(v.dphi.size()), q = static_cast<int>(v.eta.size());
+  EtaFirst<HD> d1;
+  for (int a = 0; a < q; ++a) {
+    const int k = s.eta_phi[static_cast<size_t>(a)];
+    HD slope(e.j0(j, k), v.d);
+    for (int c = 0; c < np; ++c) slope += tj(k, c) * v.dphi[static_cast<size_t>(c)];
+    d1.slope.push_back(s.eta_log[static_cast<size_t>(a)] ? v.phi[static_cast<size_t>(k)] : HD(1, v.d));
+    d1.dy.push_back(slope * d1.slope.back());
+    d1.g.push_back(logs ? d1.dy.back() / yhat : d1.dy.back());
+    d1.dv.push_back(vy * d1.dy.back());
+  }
+  return d1;
+}
+
 // Sample j's terms of l, (y − f)²/V + log V, and of H, g gᵀ/V + ½ v vᵀ/V² (v = 0 for FOCE), with
 // ŷ(z) to second order about φ̂ and ∂ŷ/∂η(z) to first order.
 template <class HD>
 void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion& e, const Variables<HD>& v,
                Eigen::Index j, HD* l, std::vector<std::vector<HD>>* h) {
-  const Eigen::MatrixXd& tj = e.t[static_cast<size_t>(j)];
-  const auto np = static_cast<int>(v.dphi.size()), q = static_cast<int>(v.eta.size());
   const HD yhat = TaylorPrediction(e, v, j);
   const bool logs = s.logs(j);
   HD var, vy;
@@ -396,18 +420,9 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
   const HD r = (logs ? log(yhat) : yhat) * -1.0 + s.y(j);
   const HD w = HD::Reciprocal(var);
   *l += r * r * w + log(var);
-  std::vector<HD> g, dv;
-  g.reserve(static_cast<size_t>(q));
-  dv.reserve(static_cast<size_t>(q));
-  for (int i = 0; i < q; ++i) {
-    const int k = s.eta_phi[static_cast<size_t>(i)];
-    HD slope(e.j0(j, k), v.d);
-    for (int c = 0; c < np; ++c) slope += tj(k, c) * v.dphi[static_cast<size_t>(c)];
-    // ∂φ_k/∂η: φ_k for a log-normal η, 1 for a file's η parameter.
-    const HD dy_deta = s.eta_log[static_cast<size_t>(i)] ? slope * v.phi[static_cast<size_t>(k)] : slope;
-    g.push_back(logs ? dy_deta / yhat : dy_deta);
-    dv.push_back(vy * dy_deta);
-  }
+  const EtaFirst<HD> d1 = FirstEtaDerivatives(s, e, v, j, yhat, vy, logs);
+  const std::vector<HD>& g = d1.g;
+  const std::vector<HD>& dv = d1.dv;
   const bool foce = p.method == PopulationMethod::kFoce;
   for (size_t a = 0; a < g.size(); ++a) {
     for (size_t b = 0; b < g.size(); ++b) {
@@ -428,16 +443,10 @@ void Censored(const HD& z, HD* log_cdf, HD* mills) {
   *mills = HD::Apply(z, m, m1, m2);
 }
 
-// A sample's first η-derivatives: of ŷ (dy), of f = T(ŷ) (g) and of V (dv), and of its φ (slope φ').
-template <class HD>
-struct EtaFirst {
-  std::vector<HD> dy, g, dv, slope;
-};
-
 // Sample j's l for Laplace (M3's −2 log Φ(z) where censored), and its term of the exact ½∇²_ηη l
-// (half_hessian_term.h, as ExactConditionalHessian forms it in doubles) as functions of z = (η, x): ∂ŷ/∂φ to first
-// order about φ̂ from T, ∂²ŷ/∂φ∂φ from T and U, V's ŷ-derivatives from VarianceTaylor's. Only the
-// terms' gradients are used (log det H's), which these make exact.
+// (half_hessian_term.h, as ExactConditionalHessian forms it in doubles) as functions of z = (η, x):
+// ∂ŷ/∂φ to first order about φ̂ from T, ∂²ŷ/∂φ∂φ from T and U, V's ŷ-derivatives from
+// VarianceTaylor's. Only the terms' gradients are used (log det H's), which these make exact.
 template <class HD>
 void AddLaplaceSample(const SubjectModel& s, const PopulationPoint& p, const Expansion& e, const Variables<HD>& v,
                       Eigen::Index j, HD* l, std::vector<std::vector<HD>>* h) {
@@ -458,16 +467,7 @@ void AddLaplaceSample(const SubjectModel& s, const PopulationPoint& p, const Exp
     Censored(scale.z, &log_cdf, &scale.m);
     *l += -2.0 * log_cdf;
   }
-  EtaFirst<HD> d1;
-  for (int a = 0; a < q; ++a) {
-    const int k = s.eta_phi[static_cast<size_t>(a)];
-    HD slope(e.j0(j, k), v.d);
-    for (int c = 0; c < np; ++c) slope += tj(k, c) * v.dphi[static_cast<size_t>(c)];
-    d1.slope.push_back(s.eta_log[static_cast<size_t>(a)] ? v.phi[static_cast<size_t>(k)] : HD(1, v.d));
-    d1.dy.push_back(slope * d1.slope.back());
-    d1.g.push_back(logs ? d1.dy.back() / yhat : d1.dy.back());
-    d1.dv.push_back(vy * d1.dy.back());
-  }
+  const EtaFirst<HD> d1 = FirstEtaDerivatives(s, e, v, j, yhat, vy, logs);
   for (int a = 0; a < q; ++a) {
     for (int b = 0; b <= a; ++b) {
       const int ka = s.eta_phi[static_cast<size_t>(a)], kb = s.eta_phi[static_cast<size_t>(b)];
