@@ -216,6 +216,38 @@ const char* const kEtaRates =
     "$ODE\nd/dt(DEPOT) = -TVKA * DEPOT\nd/dt(CENTRAL) = TVKA * DEPOT - CL / V * CENTRAL\n"
     "$OUTPUT\nCP = CENTRAL / V\n";
 
+// A model file whose dose modifiers move with η: a bioavailability, a lag and a modelled duration
+// computed in $PK (exact/moving_events.h).
+const char* const kMovingDoses =
+    "$PROBLEM moving_doses  one compartment, oral, F1, ALAG1 and D1 computed from η\n"
+    "$PARAM\nKA = 1.2\nCL = 3\nV = 30\nTLAG = 0.6\nTVD = 2.5\n"
+    "$OMEGA\nETA_F ~ 0.1\nETA_L ~ 0.1\nETA_D ~ 0.1\n"
+    "$CMT\nDEPOT dose\nCENTRAL central\n"
+    "$PK\nF1 = 1 / (1 + exp(-1 - ETA_F))\nALAG1 = TLAG * exp(ETA_L)\nD1 = TVD * exp(ETA_D)\n"
+    "$ODE\nd/dt(DEPOT) = -KA * DEPOT\nd/dt(CENTRAL) = KA * DEPOT - CL / V * CENTRAL\n"
+    "$OUTPUT\nCP = CENTRAL / V\n";
+
+// The scenarios a model's higher derivatives are checked on: every one of Scenarios() for the
+// catalogue and kEtaRates (F, ALAG, R and D estimated too); for kMovingDoses, which computes its
+// modifiers, those that estimate none, and modelled durations (RATE=-2) its D1 serves.
+std::vector<Scenario> HigherOrderScenarios(const pk::Model& model) {
+  if (model.declarations().computed_modifiers.empty()) return Scenarios();
+  std::vector<Scenario> s;
+  for (const Scenario& sc : Scenarios()) {
+    if (sc.extra_free.empty()) s.push_back(sc);
+  }
+  s.push_back({"modelled duration", "1,0,100,-2,0,0,0,1,.\n1,7,80,-2,0,0,0,1,.\n", {}, {}});
+  s.push_back({"ss1 modelled duration, then ADDL", "1,0,100,-2,8,2,1,1,.\n", {}, {}});
+  return s;
+}
+
+// η at values away from 0, so that every part of a computed modifier is exercised.
+void MoveEtas(const pk::Model& model, const std::vector<int>& free, Eigen::VectorXd* values) {
+  for (int i : free) {
+    if (model.is_eta(i)) (*values)(i) = i % 2 ? 0.15 : -0.2;
+  }
+}
+
 }  // namespace
 
 TEST_CASE("exact second derivatives of the predictions agree with differences of the exact Jacobian",
@@ -223,11 +255,14 @@ TEST_CASE("exact second derivatives of the predictions agree with differences of
   std::vector<std::pair<std::string, std::shared_ptr<const pk::Model>>> models;
   for (const char* name : {"1cmt_iv", "1cmt_oral", "2cmt_oral", "3cmt_iv"}) models.emplace_back(name, pk::MakeModel(name));
   models.emplace_back("eta_rates.pkm", pk::ParseModel(kEtaRates, "eta_rates.pkm", pk::RandomEffects::kParameters));
-  int compared = 0;
+  models.emplace_back("moving_doses.pkm", pk::ParseModel(kMovingDoses, "moving_doses.pkm", pk::RandomEffects::kParameters));
+  int compared = 0, moving = 0;
   for (const auto& [name, model] : models) {
-    for (const Scenario& sc : Scenarios()) {
-      if (!sc.extra_free.empty()) continue;  // F, ALAG, R and D move events: no second order
-     for (const bool modal : {true, false}) {  // eigen-coordinates (but steady states) or e^{Mh}
+    for (const Scenario& sc : HigherOrderScenarios(*model)) {
+     // Eigen-coordinates (but steady states) or e^{Mh}; when a dose moves, the jet engine either way.
+     const bool moves = !sc.extra_free.empty() || !model->declarations().computed_modifiers.empty();
+     for (const bool modal : {true, false}) {
+      if (moves && modal) continue;
       INFO(name << " / " << sc.name << (modal ? " / eigen-coordinates" : " / e^{Mh}"));
       pk::ObjectiveOptions options;
       options.modal_propagation = modal;
@@ -235,9 +270,7 @@ TEST_CASE("exact second derivatives of the predictions agree with differences of
       Eigen::VectorXd values;
       std::vector<int> free;
       pk_test::ScenarioValues(obj, sc, &values, &free);
-      for (int i : free) {
-        if (model->is_eta(i)) values(i) = i % 2 ? 0.15 : -0.2;
-      }
+      MoveEtas(*model, free, &values);
       std::vector<std::pair<int, int>> pairs;
       const int p = static_cast<int>(free.size());
       for (int a = 0; a < p; ++a) {
@@ -257,11 +290,13 @@ TEST_CASE("exact second derivatives of the predictions agree with differences of
         CHECK((second[k] - want).cwiseAbs().maxCoeff() / scale < 1e-7);
         CHECK((second[k] - other).cwiseAbs().maxCoeff() / scale < 1e-7);  // symmetric
         ++compared;
+        moving += moves;
       }
      }
     }
   }
   CHECK(compared > 200);
+  CHECK(moving > 150);
 }
 
 TEST_CASE("exact second derivatives refuse what they cannot differentiate", "[gradient][second-order]") {
@@ -273,8 +308,15 @@ TEST_CASE("exact second derivatives refuse what they cannot differentiate", "[gr
   pk_test::ScenarioValues(obj, lag, &values, &free);
   std::vector<Eigen::VectorXd> second;
   std::string why;
-  CHECK_FALSE(obj.SecondDerivatives(values, free, {{0, 0}}, &second, &why));  // ALAG1 is free
-  CHECK_THAT(why, Catch::Contains("model parameters only"));
+  std::vector<int> with_sigma = free;
+  with_sigma.push_back(static_cast<int>(values.size()));  // σ: beyond the layout
+  CHECK_FALSE(obj.SecondDerivatives(values, with_sigma, {{0, 0}}, &second, &why));
+  CHECK_THAT(why, Catch::Contains("not σ"));
+  // On the ODE propagator a moving dose (ALAG1 free) has none.
+  const pk::Objective ode(pk::MakeModel("1cmt_oral_mm"), pk_test::ScenarioData(lag), 0, pk::ObjectiveOptions());
+  pk_test::ScenarioValues(ode, lag, &values, &free);
+  CHECK_FALSE(ode.SecondDerivatives(values, free, {{0, 0}}, &second, &why));
+  CHECK_THAT(why, Catch::Contains("do not follow a moving dose (ALAG1 is a dose modifier)"));
 }
 
 namespace {
@@ -471,17 +513,18 @@ TEST_CASE("third derivatives of the predictions agree with differences of the se
   std::vector<std::pair<std::string, std::shared_ptr<const pk::Model>>> linear;
   for (const char* name : {"1cmt_iv", "1cmt_oral", "2cmt_oral"}) linear.emplace_back(name, pk::MakeModel(name));
   linear.emplace_back("eta_rates.pkm", pk::ParseModel(kEtaRates, "eta_rates.pkm", pk::RandomEffects::kParameters));
+  linear.emplace_back("moving_doses.pkm", pk::ParseModel(kMovingDoses, "moving_doses.pkm", pk::RandomEffects::kParameters));
   for (const auto& [name, model] : linear) {
-    for (const Scenario& sc : Scenarios()) {
-      if (!sc.extra_free.empty()) continue;
+    for (const Scenario& sc : HigherOrderScenarios(*model)) {
+      // A moving dose takes a pass per triple: the sanitizer build checks a few of those.
+      const bool moves = !sc.extra_free.empty() || !model->declarations().computed_modifiers.empty();
+      if (pk_test::kSanitized && moves && name != "moving_doses.pkm" && name != "1cmt_oral") continue;
       INFO(name << " / " << sc.name);
       const pk::Objective obj(model, pk_test::ScenarioData(sc), 0, pk::ObjectiveOptions());
       Eigen::VectorXd values;
       std::vector<int> free;
       pk_test::ScenarioValues(obj, sc, &values, &free);
-      for (int i : free) {
-        if (model->is_eta(i)) values(i) = i % 2 ? 0.15 : -0.2;
-      }
+      MoveEtas(*model, free, &values);
       compared += CheckThirdDerivatives(obj, values, free, 1e-6);
     }
   }

@@ -11,6 +11,7 @@
 #include <Eigen/Core>
 
 #include "pk/dual.h"
+#include "pk/hyper_dual.h"
 
 namespace pk {
 namespace internal {
@@ -21,6 +22,8 @@ using DualVector = Eigen::Matrix<Dual, Eigen::Dynamic, 1>;
 
 inline double Value(const Dual& x) { return x.value(); }
 inline bool IsExactlyZero(const Dual& x) { return x.value() == 0.0 && x.derivatives().isZero(0.0); }
+inline double Value(const HyperDual3& x) { return x.value(); }
+inline bool IsExactlyZero(const HyperDual3& x) { return x.value() == 0.0 && x.constant(); }
 
 /// The derivative vector of `x`, as a length-`p` vector (zero when x is a constant).
 inline Eigen::VectorXd Derivatives(const Dual& x, int p) {

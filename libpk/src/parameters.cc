@@ -64,6 +64,14 @@ void ParameterLayout::ComputeModifiers(Eigen::Matrix<Dual, Eigen::Dynamic, 1>* p
   Compute<Dual>(computed_, model_->declarations().computed_modifiers.evaluate_dual, p);
 }
 
+bool ParameterLayout::ComputeModifiers(Eigen::Matrix<HyperDual3, Eigen::Dynamic, 1>* p) const {
+  const auto& evaluate = model_->declarations().computed_modifiers.evaluate_third;
+  if (computed_.empty()) return true;
+  if (!evaluate) return false;
+  Compute<HyperDual3>(computed_, evaluate, p);
+  return true;
+}
+
 void ParameterLayout::CheckNotComputed(const std::string& name, const std::string& what) const {
   const int i = Index(name);
   if (!is_computed(i)) return;

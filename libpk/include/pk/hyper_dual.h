@@ -15,6 +15,8 @@
 
 #include <cmath>
 
+#include <Eigen/Core>
+
 namespace pk {
 
 class HyperDual {
@@ -218,5 +220,17 @@ inline HyperDual3 pow(const HyperDual3& x, const HyperDual3& y) {
 inline HyperDual3 pow(double x, const HyperDual3& y) { return pow(HyperDual3(x), y); }
 
 }  // namespace pk
+
+namespace Eigen {
+/// HyperDual3 as a scalar of Eigen matrices (the event engine runs on it when doses move with θ).
+template <>
+struct NumTraits<pk::HyperDual3> : NumTraits<double> {
+  typedef pk::HyperDual3 Real;
+  typedef pk::HyperDual3 NonInteger;
+  typedef pk::HyperDual3 Nested;
+  typedef pk::HyperDual3 Literal;
+  enum { IsComplex = 0, IsInteger = 0, IsSigned = 1, RequireInitialization = 1, ReadCost = 1, AddCost = 8, MulCost = 27 };
+};
+}  // namespace Eigen
 
 #endif  // PK_HYPER_DUAL_H_

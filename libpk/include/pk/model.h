@@ -16,6 +16,7 @@
 #include <Eigen/Core>
 
 #include "pk/dual.h"
+#include "pk/hyper_dual.h"
 
 namespace pk {
 
@@ -76,6 +77,9 @@ struct ComputedModifiers {
   /// Their values from a full model parameter vector θ (one record's set), into `values`.
   std::function<void(const double* theta, double* values)> evaluate;
   std::function<void(const Dual* theta, Dual* values)> evaluate_dual;
+  /// On pk::HyperDual3, whose mixed parts the exact higher derivatives need when a modifier moves
+  /// with the parameters. Optional: without it those derivatives are refused (and differenced).
+  std::function<void(const HyperDual3* theta, HyperDual3* values)> evaluate_third;
   bool empty() const { return names.empty(); }
 };
 

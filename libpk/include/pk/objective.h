@@ -209,12 +209,14 @@ class Objective {
                      Eigen::MatrixXd* jacobian, std::string* why) const;
 
   /// Second derivatives of the predictions: (*second)[i] = ∂²ŷ/∂p_a∂p_b over the samples for
-  /// pairs[i] = (a, b), positions in `free`, model parameters only (none of F, ALAG, R, D or σ,
-  /// nor one a computed modifier reads). A linear model's are exact: the state's second derivatives
-  /// run through the block-triangular exponential as the first ones do (docs/gradients.md). A
-  /// nonlinear model's are forward sensitivities of the sensitivity system, integrated with x to
-  /// the ODE tolerances (docs/ode_routes.md), steady states included. False, with `why`, otherwise
-  /// or on numerical failure.
+  /// pairs[i] = (a, b), positions in `free`: layout parameters (model parameters and dose
+  /// modifiers; not σ). A linear model's are exact: the state's second derivatives run through the
+  /// block-triangular exponential as the first ones do (docs/gradients.md), or, where a free
+  /// parameter moves a dose (F, ALAG, R, D, X0 or K0 estimated, or a parameter a computed modifier
+  /// reads), through the event engine on hyper-dual jets, a pass per pair. A nonlinear model's are
+  /// forward sensitivities of the sensitivity system, integrated with x to the ODE tolerances
+  /// (docs/ode_routes.md), steady states included, for parameters that move no dose. False, with
+  /// `why`, otherwise or on numerical failure.
   bool SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
                          const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                          std::string* why) const;

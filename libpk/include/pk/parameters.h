@@ -69,6 +69,9 @@ class ParameterLayout {
   /// to do without computed modifiers). On pk::Dual, their derivatives follow the parameters'.
   void ComputeModifiers(Eigen::VectorXd* p) const;
   void ComputeModifiers(Eigen::Matrix<Dual, Eigen::Dynamic, 1>* p) const;
+  /// On pk::HyperDual3: false (p unchanged) when the model has computed modifiers but no
+  /// ComputedModifiers::evaluate_third.
+  bool ComputeModifiers(Eigen::Matrix<HyperDual3, Eigen::Dynamic, 1>* p) const;
   /// Throws pk::InputError when `name` is a computed modifier; `what` says how it was given
   /// ("a data column", …) and completes "…, so WHAT cannot set it".
   void CheckNotComputed(const std::string& name, const std::string& what) const;

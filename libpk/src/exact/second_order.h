@@ -1,7 +1,8 @@
 // Exact second-order sensitivities of a linear model's predictions (not installed): the seed's §5
 // one order up.
 //
-// For free parameters p that move A(θ) and C(θ) but no event (no free F, ALAG, R or D), the first
+// For free parameters p that move A(θ) and C(θ) but no event (no free F, ALAG, R or D, no
+// parameter a computed modifier reads: moving_events.h takes those), the first
 // and second derivatives of the state, s_k = ∂x/∂p_k and w = ∂²x/∂p_k∂p_l, obey linear equations
 // driven by x itself:
 //

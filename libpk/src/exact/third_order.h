@@ -7,7 +7,7 @@
 // divides a requested triple's p_i p_j p_k (all 20 for every triple of p = 3). From x' = A x + u with A's own series A(p̂ + δ) = Σ A_α δ^α, matching powers
 // of δ gives
 //
-//   x_γ' = Σ_{α + β = γ} A_α x_β          (u and the doses enter x_0 alone: they do not depend on p),
+//   x_γ' = Σ_{α + β = γ} A_α x_β          (u and the doses enter x_0 alone: they do not depend on p; moving_events.h when they do),
 //
 // from 0 for γ ≠ 0. The stacked state z = [x_γ] is the state of one linear system whose matrix M
 // has the block A_α at (α + β, β): block lower-triangular by degree, A on its diagonal. The exact

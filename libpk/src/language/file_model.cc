@@ -79,6 +79,11 @@ ComputedModifiers Modifiers(const CompiledModel& m, int n) {
     zeros.assign(static_cast<size_t>(n), Dual(0.0));
     program->Run<Dual>(zeros.data(), theta, values, &Slots<Dual>());
   };
+  out.evaluate_third = [program, n](const HyperDual3* theta, HyperDual3* values) {
+    thread_local std::vector<HyperDual3> zeros;
+    zeros.assign(static_cast<size_t>(n), HyperDual3(0.0));
+    program->Run<HyperDual3>(zeros.data(), theta, values, &Slots<HyperDual3>());
+  };
   return out;
 }
 

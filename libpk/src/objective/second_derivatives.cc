@@ -3,6 +3,7 @@
 // sensitivities of the sensitivity system (ode/second_order.h).
 #include <algorithm>
 
+#include "exact/moving_events.h"
 #include "exact/second_order.h"
 #include "exact/third_order.h"
 #include "numerical_failure.h"
@@ -13,19 +14,30 @@
 namespace pk {
 namespace {
 
-// Whether the higher derivatives can be taken in `free` (model parameters that no computed dose
-// modifier reads); `why` otherwise.
-bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int>& free, std::string* why) {
-  const int m = d.model->num_parameters();
+// Whether a free parameter moves an event: a dose modifier itself, or a parameter a computed
+// modifier reads.
+bool MovesEvents(const internal::ObjectiveState& d, int i) {
+  const std::vector<int>& computed = d.layout.computed_reads();
+  return i >= d.model->num_parameters() || std::binary_search(computed.begin(), computed.end(), i);
+}
+
+// Whether the higher derivatives can be taken in `free` (layout parameters; on the ODE propagator,
+// none that moves an event); `why` otherwise. *moving says whether some free parameter moves one.
+bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int>& free, bool* moving,
+                        std::string* why) {
+  *moving = false;
   for (const int i : free) {
-    if (i < 0 || i >= m) {
-      *why = "exact higher derivatives are taken in model parameters only (not F, ALAG, R, D or σ)";
+    if (i < 0 || i >= d.L()) {
+      *why = "exact higher derivatives are taken in the model's parameters and dose modifiers only (not σ)";
       return false;
     }
-    const std::vector<int>& computed = d.layout.computed_reads();
-    if (std::binary_search(computed.begin(), computed.end(), i)) {
-      *why = "exact higher derivatives do not follow a computed dose modifier (" + d.layout.name(i) +
-             " is read by an F, ALAG, R, D or X0 of $PK, or by a zero-order input K0 of d/dt)";
+    if (!MovesEvents(d, i)) continue;
+    *moving = true;
+    if (d.linear == nullptr) {
+      *why = "exact higher derivatives on the ODE propagator do not follow a moving dose (" + d.layout.name(i) +
+             (i < d.model->num_parameters()
+                  ? " is read by a computed dose modifier: an F, ALAG, R, D or X0 of $PK, or a zero-order input K0 of d/dt)"
+                  : " is a dose modifier)");
       return false;
     }
   }
@@ -65,7 +77,8 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
                                   const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                                   std::string* why) const {
   const internal::ObjectiveState& d = *impl_;
-  if (!HigherOrderApplies(d, free, why)) return false;
+  bool moving = false;
+  if (!HigherOrderApplies(d, free, &moving, why)) return false;
   const int p = static_cast<int>(free.size());
   for (const auto& ab : pairs) {
     if (ab.first < 0 || ab.first >= p || ab.second < 0 || ab.second >= p) {
@@ -73,11 +86,16 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
       return false;
     }
   }
-  // A linear model takes the block-triangular exponential whichever propagator predicts; a
-  // nonlinear one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
+  // A linear model takes the block-triangular exponential whichever propagator predicts, or the
+  // event engine on jets when a dose moves (exact/moving_events.h); a nonlinear one the ODE
+  // propagator's forward second-order sensitivities (ode/second_order.h).
   const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
     if (d.linear == nullptr) {
       internal::OdeSecondOrderSensitivities(d.ode, s, sets, num, pairs, second);
+    } else if (moving) {
+      std::vector<std::array<int, 3>> directions;
+      for (const auto& [k, l] : pairs) directions.push_back({k, l, -1});
+      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, directions, second);
     } else {
       internal::SecondOrderSensitivities(*d.linear, d.layout, s, sets, num, pairs, d.options.modal_propagation, second);
     }
@@ -89,7 +107,8 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
                                  const std::vector<std::array<int, 3>>& triples, std::vector<Eigen::VectorXd>* third,
                                  std::string* why) const {
   const internal::ObjectiveState& d = *impl_;
-  if (!HigherOrderApplies(d, free, why)) return false;
+  bool moving = false;
+  if (!HigherOrderApplies(d, free, &moving, why)) return false;
   const int p = static_cast<int>(free.size());
   for (const auto& t : triples) {
     for (int i : t) {
@@ -102,6 +121,8 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
   const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
     if (d.linear == nullptr) {
       internal::OdeThirdOrderSensitivities(d.ode, s, sets, num, triples, third);
+    } else if (moving) {
+      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, triples, third);
     } else {
       internal::ThirdOrderSensitivities(*d.linear, d.layout, s, sets, num, triples, third);
     }

@@ -255,7 +255,7 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
                           ResolvePropagator(engine.problem().model(), engine.problem().options().propagator) !=
                               Propagator::kExact;
   // Laplace's gradient fails where a subject's second and third order cannot be exact (a parameter a
-  // computed dose modifier reads, or H differenced at the mode), which the subject's `differenced`
+  // computed dose modifier reads on the ODE propagator, or H differenced at the mode), which the subject's `differenced`
   // reason marks: a property of the problem, not of the point, so `auto` stops asking for it there.
   // Other failures (H not positive definite at a wild trial point) take differences at that point only.
   const bool laplace_switchable = options.gradient == PopulationGradient::kAuto && options.method == PopulationMethod::kLaplace;

@@ -12,7 +12,7 @@
 // forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are exact too on Φ/Γ (the
 // second-order sensitivities of exact/second_order.h) and integrated with the state on the ODE
 // propagator (ode/second_order.h), steady states included. Where neither applies (a parameter that a
-// computed dose modifier reads) they are central differences of J, Richardson-extrapolated.
+// computed dose modifier reads, on the ODE propagator) they are central differences of J, Richardson-extrapolated.
 // The residual variance v(ŷ, σ) enters by its own second-order Taylor model, its second
 // derivatives differences of its exact first ones.
 //
