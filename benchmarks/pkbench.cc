@@ -346,6 +346,16 @@ pk::PopulationProblem EmaxProblem(const std::string& data_dir) {
                                {"CL", "EMAX"}, ode);
 }
 
+// models/theo_lag_pop.pkm on theophylline: η on CL, and on a lag and a bioavailability computed in
+// $PK, which move the doses (the second and third orders from the event engine on jets), on Φ/Γ.
+pk::PopulationProblem TheoLagProblem(const std::string& data_dir) {
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("combined");
+  return pk::PopulationProblem(pk::LoadModelFile(data_dir + "/../models/theo_lag_pop.pkm", pk::RandomEffects::kParameters),
+                               std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/theophylline.csv")),
+                               {"ETA_CL", "ETA_LAG", "ETA_F"}, o);
+}
+
 void PopulationCase(const char* name, const pk::PopulationProblem& problem, const pk::PopulationParameters& start,
                     pk::PopulationMethod method = pk::PopulationMethod::kFocei) {
   pk::PopulationOptions options;
@@ -436,6 +446,8 @@ void PopulationEstimation(const std::string& data_dir) {
   PopulationCase("pheno_pop.pkm", pk::PopulationProblem(file, pheno, {"ETA_CL", "ETA_V"}, o), file_start);
   start.theta << 3, 15;
   PopulationCase("bolus 120x19", BolusProblem(std::make_shared<pk::Dataset>(SimulatedBolus(120))), start);
+  const pk::PopulationProblem lag = TheoLagProblem(data_dir);
+  PopulationCase("theo lag, F", lag, lag.DefaultParameters());
   // EmaxProblem on Dormand–Prince from the catalogue's defaults. The implicit gradient's second order
   // is integrated with the ODEs (ode/second_order.h).
   const pk::PopulationProblem emax = EmaxProblem(data_dir);
@@ -460,6 +472,8 @@ void LaplaceEstimation(const std::string& data_dir) {
   const auto blq = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/theophylline_blq.csv"));
   const pk::PopulationProblem theo(pk::MakeModel("1cmt_oral"), blq, {"KA", "CL", "V"}, o);
   PopulationCase("theo M3 3η", theo, theo.DefaultParameters(), pk::PopulationMethod::kLaplace);
+  const pk::PopulationProblem lag = TheoLagProblem(data_dir);
+  PopulationCase("theo lag, F", lag, lag.DefaultParameters(), pk::PopulationMethod::kLaplace);
   const pk::PopulationProblem emax = EmaxProblem(data_dir);
   PopulationCase("emax (ODE)", emax, emax.DefaultParameters(), pk::PopulationMethod::kLaplace);
 }

@@ -109,7 +109,10 @@ class MovingEventVisitor {
     x_.setZero(n_, algebra.parts);
   }
 
-  void Advance(const HD3& h, const HD3Vector& u, int set) { x_ = Apply(Step(h, u, set), x_); }
+  void Advance(const HD3& h, const HD3Vector& u, int set) {
+    Apply(Step(h, u, set), x_, &next_);
+    x_.swap(next_);
+  }
   void Bolus(int cmt, const HD3& amount, int) {
     for (int s = 0; s < algebra_.parts; ++s) x_(cmt, s) += amount.part(s);
   }
@@ -120,14 +123,13 @@ class MovingEventVisitor {
   void RecordDone(int r, int set);
 
  private:
-  // The jet [x; 1] ↦ E [x; 1] (the 1 has the unit's part only).
-  Eigen::MatrixXd Apply(const Jet& e, const Eigen::MatrixXd& x) const {
-    Eigen::MatrixXd next(n_, algebra_.parts);
-    for (int t = 0; t < algebra_.parts; ++t) next.col(t) = e[static_cast<size_t>(t)].topRightCorner(n_, 1);
+  // *next = E [x; 1] for the jet [x; 1] (the 1 has the unit's part only).
+  void Apply(const Jet& e, const Eigen::MatrixXd& x, Eigen::MatrixXd* next) const {
+    next->resize(n_, algebra_.parts);
+    for (int t = 0; t < algebra_.parts; ++t) next->col(t) = e[static_cast<size_t>(t)].topRightCorner(n_, 1);
     for (const auto& [t, a, b] : algebra_.entries) {
-      next.col(t).noalias() += e[static_cast<size_t>(a)].topLeftCorner(n_, n_) * x.col(b);
+      next->col(t).noalias() += e[static_cast<size_t>(a)].topLeftCorner(n_, n_) * x.col(b);
     }
-    return next;
   }
   // The augmented map of a bolus into `cmt`: [x; 1] ↦ [x + b e_cmt; 1].
   Jet BolusMap(int cmt, const HD3& bolus) const {
@@ -157,38 +159,49 @@ class MovingEventVisitor {
   std::map<std::pair<int, int>, Jet> outputs_;  // (set, cmt) → C as a jet
   std::vector<CachedStep> cache_;
   size_t next_evicted_ = 0;
-  Eigen::MatrixXd x_;
+  Eigen::VectorXd key_;  // Step's scratch: the key sought, and the augmented matrix
+  Jet m_;
+  Eigen::MatrixXd x_, next_;
 };
 
 // exp(h [[A, u], [0, 0]]) in the algebra, cached by exact (set, h, u): the steps between samples
 // of one subject mostly repeat.
 const Jet& MovingEventVisitor::Step(const HD3& h, const HD3Vector& u, int set) {
   const int parts = algebra_.parts;
-  Eigen::VectorXd key(1 + parts * (1 + n_));
-  key(0) = set;
+  key_.resize(1 + parts * (1 + n_));
+  key_(0) = set;
   for (int s = 0; s < parts; ++s) {
-    key(1 + s) = h.part(s);
-    for (int c = 0; c < n_; ++c) key(1 + parts + s * n_ + c) = u(c).part(s);
+    key_(1 + s) = h.part(s);
+    for (int c = 0; c < n_; ++c) key_(1 + parts + s * n_ + c) = u(c).part(s);
   }
   for (const CachedStep& c : cache_) {
-    if ((c.key.array() == key.array()).all()) return c.e;
+    if ((c.key.array() == key_.array()).all()) return c.e;
   }
-  Jet m(static_cast<size_t>(parts), Eigen::MatrixXd::Zero(n_ + 1, n_ + 1)), scaled(m);
-  for (int s = 0; s < parts; ++s) {
-    m[static_cast<size_t>(s)].topLeftCorner(n_, n_) = a_[static_cast<size_t>(set)][static_cast<size_t>(s)];
-    for (int c = 0; c < n_; ++c) m[static_cast<size_t>(s)](c, n_) = u(c).part(s);
-  }
-  for (const auto& [t, a, b] : algebra_.entries) scaled[static_cast<size_t>(t)] += m[static_cast<size_t>(a)] * h.part(b);
-  JetExponential(algebra_, &scaled);
   constexpr size_t kCapacity = 32;
+  CachedStep* slot = nullptr;
   if (cache_.size() < kCapacity) {
-    cache_.push_back({key, std::move(scaled)});
-    return cache_.back().e;
+    cache_.emplace_back();
+    slot = &cache_.back();
+  } else {
+    slot = &cache_[next_evicted_];
+    next_evicted_ = (next_evicted_ + 1) % kCapacity;
   }
-  CachedStep& slot = cache_[next_evicted_];
-  next_evicted_ = (next_evicted_ + 1) % kCapacity;
-  slot = {key, std::move(scaled)};
-  return slot.e;
+  slot->key = key_;
+  m_.resize(static_cast<size_t>(parts));
+  Jet& e = slot->e;
+  e.resize(static_cast<size_t>(parts));
+  for (int s = 0; s < parts; ++s) {
+    Eigen::MatrixXd& m = m_[static_cast<size_t>(s)];
+    m.setZero(n_ + 1, n_ + 1);
+    m.topLeftCorner(n_, n_) = a_[static_cast<size_t>(set)][static_cast<size_t>(s)];
+    for (int c = 0; c < n_; ++c) m(c, n_) = u(c).part(s);
+    e[static_cast<size_t>(s)].setZero(n_ + 1, n_ + 1);
+  }
+  for (const auto& [t, a, b] : algebra_.entries) {
+    if (h.part(b) != 0) e[static_cast<size_t>(t)] += m_[static_cast<size_t>(a)] * h.part(b);
+  }
+  JetExponential(algebra_, &e);
+  return e;
 }
 
 Eigen::MatrixXd MovingEventVisitor::SolveInParts(const Jet& k, const Eigen::MatrixXd& r, const Eigen::MatrixXd& l,
@@ -226,8 +239,8 @@ void MovingEventVisitor::SteadyState(const SteadyStateCycle<HD3>& cycle, int set
   for (const Segment<HD3>& segment : cycle.to_record) {
     to_record = Product(algebra_, Step(segment.duration, segment.rate, set), to_record);
   }
-  const Eigen::MatrixXd x = Apply(to_record, x_star);
-  x_ = add ? Eigen::MatrixXd(x_ + x) : x;
+  Apply(to_record, x_star, &next_);
+  x_ = add ? Eigen::MatrixXd(x_ + next_) : next_;
 }
 
 void MovingEventVisitor::SteadyInfusion(const HD3Vector& u, int set, bool add) {

@@ -2,6 +2,8 @@
 // exponential (exact/second_order.h, exact/third_order.h) or from the ODE propagator's
 // sensitivities of the sensitivity system (ode/second_order.h).
 #include <algorithm>
+#include <array>
+#include <utility>
 
 #include "exact/moving_events.h"
 #include "exact/second_order.h"
@@ -22,17 +24,18 @@ bool MovesEvents(const internal::ObjectiveState& d, int i) {
 }
 
 // Whether the higher derivatives can be taken in `free` (layout parameters; on the ODE propagator,
-// none that moves an event); `why` otherwise. *moving says whether some free parameter moves one.
-bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int>& free, bool* moving,
+// none that moves an event); `why` otherwise. (*moves)[a] says whether free[a] moves one.
+bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int>& free, std::vector<char>* moves,
                         std::string* why) {
-  *moving = false;
-  for (const int i : free) {
+  moves->assign(free.size(), 0);
+  for (size_t a = 0; a < free.size(); ++a) {
+    const int i = free[a];
     if (i < 0 || i >= d.L()) {
       *why = "exact higher derivatives are taken in the model's parameters and dose modifiers only (not σ)";
       return false;
     }
     if (!MovesEvents(d, i)) continue;
-    *moving = true;
+    (*moves)[a] = 1;
     if (d.linear == nullptr) {
       *why = "exact higher derivatives on the ODE propagator do not follow a moving dose (" + d.layout.name(i) +
              (i < d.model->num_parameters()
@@ -42,6 +45,36 @@ bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int
     }
   }
   return true;
+}
+
+std::array<int, 3> Directions(const std::pair<int, int>& pair) { return {pair.first, pair.second, -1}; }
+std::array<int, 3> Directions(const std::array<int, 3>& triple) { return triple; }
+
+// Runs `fixed` on the tuples (pairs or triples of free positions) none of whose directions moves a
+// dose, the stacked systems' one pass for all of them, and `jets` (exact/moving_events.h, a pass
+// each) on the others; *out in the tuples' order.
+template <class Tuple, class Fixed, class Jets>
+void SplitByMoving(const std::vector<Tuple>& tuples, const std::vector<char>& moves, const Fixed& fixed,
+                   const Jets& jets, std::vector<Eigen::VectorXd>* out) {
+  std::vector<Tuple> still;
+  std::vector<std::array<int, 3>> moving;
+  std::vector<long> where;  // ≥ 0: into still's results; < 0: −1 − the index into moving's
+  for (const Tuple& t : tuples) {
+    const std::array<int, 3> dir = Directions(t);
+    bool m = false;
+    for (int c : dir) m = m || (c >= 0 && moves[static_cast<size_t>(c)]);
+    where.push_back(m ? -1 - static_cast<long>(moving.size()) : static_cast<long>(still.size()));
+    if (m) {
+      moving.push_back(dir);
+    } else {
+      still.push_back(t);
+    }
+  }
+  std::vector<Eigen::VectorXd> a, b;
+  if (!still.empty()) fixed(still, &a);
+  if (!moving.empty()) jets(moving, &b);
+  out->clear();
+  for (long w : where) out->push_back(w >= 0 ? std::move(a[static_cast<size_t>(w)]) : std::move(b[static_cast<size_t>(-1 - w)]));
 }
 
 bool AllFinite(const std::vector<Eigen::VectorXd>& out, const char* order, std::string* why) {
@@ -77,8 +110,8 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
                                   const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                                   std::string* why) const {
   const internal::ObjectiveState& d = *impl_;
-  bool moving = false;
-  if (!HigherOrderApplies(d, free, &moving, why)) return false;
+  std::vector<char> moves;
+  if (!HigherOrderApplies(d, free, &moves, why)) return false;
   const int p = static_cast<int>(free.size());
   for (const auto& ab : pairs) {
     if (ab.first < 0 || ab.first >= p || ab.second < 0 || ab.second >= p) {
@@ -86,19 +119,21 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
       return false;
     }
   }
-  // A linear model takes the block-triangular exponential whichever propagator predicts, or the
-  // event engine on jets when a dose moves (exact/moving_events.h); a nonlinear one the ODE
-  // propagator's forward second-order sensitivities (ode/second_order.h).
+  // A linear model takes the block-triangular exponential whichever propagator predicts, and the
+  // event engine on jets for pairs along which a dose moves (exact/moving_events.h); a nonlinear
+  // one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
   const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
     if (d.linear == nullptr) {
       internal::OdeSecondOrderSensitivities(d.ode, s, sets, num, pairs, second);
-    } else if (moving) {
-      std::vector<std::array<int, 3>> directions;
-      for (const auto& [k, l] : pairs) directions.push_back({k, l, -1});
-      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, directions, second);
-    } else {
-      internal::SecondOrderSensitivities(*d.linear, d.layout, s, sets, num, pairs, d.options.modal_propagation, second);
+      return;
     }
+    const auto fixed = [&](const std::vector<std::pair<int, int>>& still, std::vector<Eigen::VectorXd>* out) {
+      internal::SecondOrderSensitivities(*d.linear, d.layout, s, sets, num, still, d.options.modal_propagation, out);
+    };
+    const auto jets = [&](const std::vector<std::array<int, 3>>& moving, std::vector<Eigen::VectorXd>* out) {
+      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
+    };
+    SplitByMoving(pairs, moves, fixed, jets, second);
   };
   return RunHigherOrder(d, values, free, "second", route, *second, why);
 }
@@ -107,8 +142,8 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
                                  const std::vector<std::array<int, 3>>& triples, std::vector<Eigen::VectorXd>* third,
                                  std::string* why) const {
   const internal::ObjectiveState& d = *impl_;
-  bool moving = false;
-  if (!HigherOrderApplies(d, free, &moving, why)) return false;
+  std::vector<char> moves;
+  if (!HigherOrderApplies(d, free, &moves, why)) return false;
   const int p = static_cast<int>(free.size());
   for (const auto& t : triples) {
     for (int i : t) {
@@ -121,11 +156,15 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
   const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
     if (d.linear == nullptr) {
       internal::OdeThirdOrderSensitivities(d.ode, s, sets, num, triples, third);
-    } else if (moving) {
-      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, triples, third);
-    } else {
-      internal::ThirdOrderSensitivities(*d.linear, d.layout, s, sets, num, triples, third);
+      return;
     }
+    const auto fixed = [&](const std::vector<std::array<int, 3>>& still, std::vector<Eigen::VectorXd>* out) {
+      internal::ThirdOrderSensitivities(*d.linear, d.layout, s, sets, num, still, out);
+    };
+    const auto jets = [&](const std::vector<std::array<int, 3>>& moving, std::vector<Eigen::VectorXd>* out) {
+      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
+    };
+    SplitByMoving(triples, moves, fixed, jets, third);
   };
   return RunHigherOrder(d, values, free, "third", route, *third, why);
 }
