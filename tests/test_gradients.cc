@@ -312,11 +312,15 @@ TEST_CASE("exact second derivatives refuse what they cannot differentiate", "[gr
   with_sigma.push_back(static_cast<int>(values.size()));  // σ: beyond the layout
   CHECK_FALSE(obj.SecondDerivatives(values, with_sigma, {{0, 0}}, &second, &why));
   CHECK_THAT(why, Catch::Contains("not σ"));
-  // On the ODE propagator a moving dose (ALAG1 free) has none.
-  const pk::Objective ode(pk::MakeModel("1cmt_oral_mm"), pk_test::ScenarioData(lag), 0, pk::ObjectiveOptions());
-  pk_test::ScenarioValues(ode, lag, &values, &free);
-  CHECK_FALSE(ode.SecondDerivatives(values, free, {{0, 0}}, &second, &why));
-  CHECK_THAT(why, Catch::Contains("do not follow a moving dose (ALAG1 is a dose modifier)"));
+  // Continuous records on the ODE propagator have none.
+  const auto cont = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,DV,CONT\n1,0,100,.,0\n1,1,0,3,1\n1,2,0,2,1\n1,3,0,1.5,0\n", "cont.csv"));
+  const pk::Objective ode(pk::MakeModel("1cmt_iv_mm"), cont, 0, pk::ObjectiveOptions());
+  values = ode.DefaultValues();
+  for (const std::vector<int>& along : {std::vector<int>{0, 1}, std::vector<int>{0, ode.ParameterIndex("F1")}}) {
+    CHECK_FALSE(ode.SecondDerivatives(values, along, {{0, 1}}, &second, &why));
+    CHECK_THAT(why, Catch::Contains("continuous records"));
+  }
 }
 
 namespace {
@@ -402,9 +406,10 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
   tight.ode.absolute_tolerance = 1e-14;
   int compared = 0;
   for (const Scenario& sc : pk_test::OdeScenarios()) {
-    if (!sc.extra_free.empty()) continue;  // F, ALAG, R and D move events: no second order
+    // F, ALAG, R, D and X0 estimated move the doses: the pairs along them take the jet engine.
     for (const pk::Propagator integrator : {pk::Propagator::kRungeKutta, pk::Propagator::kOde}) {
       if (pk_test::kSanitized && integrator == pk::Propagator::kOde) continue;  // the route is the same
+      if (integrator == pk::Propagator::kOde && !sc.extra_free.empty()) continue;  // and so is its jet pass
       tight.propagator = integrator;
       // Nonlinear models against central differences of their forward-sensitivity Jacobian.
       for (const char* name : {"1cmt_iv_mm", "1cmt_oral_mm", "1cmt_iv_emax"}) {
@@ -416,28 +421,48 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
         pk_test::ScenarioValues(obj, sc, &values, &free);
         const PairsAgainstDifferences c = AllPairs(obj, values, free);
         const std::vector<Eigen::VectorXd>& second = c.second;
+        // A derivative that vanishes (∂²/∂F1² of a model linear in the dose, say) is compared on the
+        // scale of the others, each per unit of relative change of its parameters (as
+        // CheckThirdDerivatives does): to 1e-10 of the largest, where the differences' own noise (the
+        // Jacobian's rtol 1e-12 over steps of 1e-3) is about 1e-9 of it.
+        const auto unit = [&](int a, int b) {
+          return std::max(std::abs(values(free[static_cast<size_t>(a)])), 0.1) *
+                 std::max(std::abs(values(free[static_cast<size_t>(b)])), 0.1);
+        };
+        double largest = 0;
+        for (size_t k = 0; k < c.pairs.size(); ++k) {
+          largest = std::max(largest, unit(c.pairs[k].first, c.pairs[k].second) * c.differences[k].cwiseAbs().maxCoeff());
+        }
         for (size_t k = 0; k < c.pairs.size(); ++k) {
           const auto [a, b] = c.pairs[k];
           const Eigen::VectorXd& want = c.differences[k];
-          const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-12);
+          const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-4 * largest / unit(a, b));
           INFO("pair " << a << "," << b << "\node " << second[k].transpose() << "\nfd  " << want.transpose());
           CHECK((second[k] - want).cwiseAbs().maxCoeff() / scale < 1e-6);
           ++compared;
         }
       }
-      // A linear model written as ODEs against the linear model's exact second order.
+      // A linear model written as ODEs against the linear model's exact second order (with moving
+      // doses: the two jet engines, ODE and Φ/Γ, against each other).
       INFO("1cmt_oral as ODEs / " << sc.name);
       const auto data = pk_test::ScenarioData(sc);
       const pk::Objective ode(OralOdeTwin(), data, 0, tight);
       const pk::Objective exact(pk::MakeModel("1cmt_oral"), data, 0, pk::ObjectiveOptions());
-      Eigen::VectorXd at_ode = ode.DefaultValues(), at_exact = exact.DefaultValues();
+      Eigen::VectorXd at_ode, at_exact;
+      std::vector<int> free, free_exact;
+      pk_test::ScenarioValues(ode, sc, &at_ode, &free);
+      pk_test::ScenarioValues(exact, sc, &at_exact, &free_exact);
+      REQUIRE(free == free_exact);
       at_ode.head(3) << 1.3, 2.7, 24.0;
       at_exact.head(3) = at_ode.head(3);
-      const std::vector<std::pair<int, int>> pairs = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
+      std::vector<std::pair<int, int>> pairs;
+      for (int i = 0; i < static_cast<int>(free.size()); ++i) {
+        for (int j = i; j < static_cast<int>(free.size()); ++j) pairs.emplace_back(i, j);
+      }
       std::vector<Eigen::VectorXd> a, b;
       std::string why;
-      REQUIRE(ode.SecondDerivatives(at_ode, {0, 1, 2}, pairs, &a, &why));
-      REQUIRE(exact.SecondDerivatives(at_exact, {0, 1, 2}, pairs, &b, &why));
+      REQUIRE(ode.SecondDerivatives(at_ode, free, pairs, &a, &why));
+      REQUIRE(exact.SecondDerivatives(at_exact, free, pairs, &b, &why));
       for (size_t k = 0; k < pairs.size(); ++k) {
         const double scale = std::max(b[k].cwiseAbs().maxCoeff(), 1e-12);
         CHECK((a[k] - b[k]).cwiseAbs().maxCoeff() / scale < 1e-8);
@@ -533,8 +558,9 @@ TEST_CASE("third derivatives of the predictions agree with differences of the se
   tight.ode.relative_tolerance = 1e-12;
   tight.ode.absolute_tolerance = 1e-14;
   for (const Scenario& sc : pk_test::OdeScenarios()) {
-    if (!sc.extra_free.empty()) continue;
     for (const char* name : {"1cmt_iv_mm", "1cmt_iv_emax"}) {
+      // A moving dose takes a pass per triple (ode/moving_events.h): 1cmt_iv_mm covers them.
+      if (!sc.extra_free.empty() && (name != std::string("1cmt_iv_mm") || pk_test::kSanitized)) continue;
       INFO(name << " / " << sc.name);
       const pk::Objective obj(pk::MakeModel(name), pk_test::ScenarioData(sc), 0, tight);
       Eigen::VectorXd values;
@@ -545,6 +571,46 @@ TEST_CASE("third derivatives of the predictions agree with differences of the se
     }
   }
   CHECK(compared > 300);
+}
+
+TEST_CASE("higher derivatives of a nonlinear model file whose doses move with η (ODE jets)",
+          "[gradient][second-order][ode]") {
+  // kMovingDoses with Michaelis–Menten elimination: F1, ALAG1 and D1 computed from η, on
+  // Dormand–Prince; pairs and triples along the η take ode/moving_events.h, the others
+  // second_order.h's stacked pass.
+  std::string text = kMovingDoses;
+  const auto replace = [&](const std::string& from, const std::string& to) { text.replace(text.find(from), from.size(), to); };
+  replace("CL = 3\n", "VMAX = 20\nKM = 3\n");
+  replace("CL / V * CENTRAL", "VMAX * CENTRAL / (KM * V + CENTRAL)");
+  const auto model = pk::ParseModel(text, "moving_mm.pkm", pk::RandomEffects::kParameters);
+  REQUIRE_FALSE(model->is_linear());
+  pk::ObjectiveOptions tight;
+  tight.propagator = pk::Propagator::kRungeKutta;
+  tight.ode.relative_tolerance = 1e-12;
+  tight.ode.absolute_tolerance = 1e-14;
+  int compared = 0;
+  for (const Scenario& sc : HigherOrderScenarios(*model)) {
+    if (pk_test::kSanitized && compared > 0) break;  // one scenario under the sanitizers
+    INFO(sc.name);
+    const pk::Objective obj(model, pk_test::ScenarioData(sc), 0, tight);
+    Eigen::VectorXd values;
+    std::vector<int> all;
+    pk_test::ScenarioValues(obj, sc, &values, &all);
+    MoveEtas(*model, all, &values);
+    std::vector<int> free;
+    for (const char* name : {"VMAX", "TLAG", "ETA_F", "ETA_L", "ETA_D"}) free.push_back(obj.ParameterIndex(name));
+    const PairsAgainstDifferences c = AllPairs(obj, values, free);
+    for (size_t k = 0; k < c.pairs.size(); ++k) {
+      const double scale = std::max(c.differences[k].cwiseAbs().maxCoeff(), 1e-12);
+      INFO("pair " << c.pairs[k].first << "," << c.pairs[k].second << "\node " << c.second[k].transpose() << "\nfd  "
+                   << c.differences[k].transpose());
+      CHECK((c.second[k] - c.differences[k]).cwiseAbs().maxCoeff() / scale < 1e-6);
+      ++compared;
+    }
+    free.erase(free.begin() + 1);  // the triples along VMAX and the three η
+    compared += CheckThirdDerivatives(obj, values, free, 1e-5);
+  }
+  CHECK(compared >= (pk_test::kSanitized ? 35 : 200));
 }
 
 TEST_CASE("hyper-dual numbers give a function's value, two directional derivatives and the mixed one", "[second-order]") {

@@ -215,8 +215,9 @@ class Objective {
   /// parameter moves a dose (F, ALAG, R, D, X0 or K0 estimated, or a parameter a computed modifier
   /// reads), through the event engine on hyper-dual jets, a pass per pair. A nonlinear model's are
   /// forward sensitivities of the sensitivity system, integrated with x to the ODE tolerances
-  /// (docs/ode_routes.md), steady states included, for parameters that move no dose. False, with
-  /// `why`, otherwise or on numerical failure.
+  /// (docs/ode_routes.md), steady states included, and a jet state integrated with the ODEs where
+  /// a dose moves. False, with `why`, for continuous records (ODE), a computed modifier without an
+  /// evaluation on HyperDual3, or on numerical failure.
   bool SecondDerivatives(const Eigen::VectorXd& values, const std::vector<int>& free,
                          const std::vector<std::pair<int, int>>& pairs, std::vector<Eigen::VectorXd>* second,
                          std::string* why) const;

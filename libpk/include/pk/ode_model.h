@@ -138,6 +138,11 @@ class OdeModel : public Model {
   /// The same for output `output`.
   virtual double OutputThirdDirectional(int output, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
                                         const ThirdDirections& d) const = 0;
+  /// f on pk::HyperDual3 with every part of x (n) and θ (m) given, into f (n), every part: the
+  /// higher-order sensitivities when a dose moves with the parameters carry the state as such a jet.
+  virtual void RhsJet(const HyperDual3* x, const HyperDual3* theta, HyperDual3* f) const = 0;
+  /// The same for output `output`.
+  virtual HyperDual3 OutputJet(int output, const HyperDual3* x, const HyperDual3* theta) const = 0;
 
  protected:
   explicit OdeModel(const OdeModelSpec& spec);
@@ -221,6 +226,14 @@ class AutoDiffOdeModel final : public OdeModel {
     SeedThird(x, d.dx, &xs);
     SeedThird(theta, d.dtheta, &ts);
     return f_.Output(output, xs.data(), ts.data()).part(7);
+  }
+
+  void RhsJet(const HyperDual3* x, const HyperDual3* theta, HyperDual3* f) const override {
+    for (int i = 0; i < num_compartments(); ++i) f[i] = HyperDual3();
+    f_.Rhs(x, theta, f);
+  }
+  HyperDual3 OutputJet(int output, const HyperDual3* x, const HyperDual3* theta) const override {
+    return f_.Output(output, x, theta);
   }
 
  protected:

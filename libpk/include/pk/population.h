@@ -127,18 +127,19 @@ class PopulationProblem {
 
 /// How the outer optimiser's gradient of the OFV is formed.
 enum class PopulationGradient {
-  /// kImplicit for every method, on every propagator. Where the exact derivatives do not reach (on
-  /// the ODE propagator, a parameter that a computed dose modifier reads) it turns to
-  /// kFiniteDifference from that point, and the summary says so.
+  /// kImplicit for every method, on every propagator. Where the exact derivatives do not reach (a
+  /// hand-built model whose computed dose modifiers have no ComputedModifiers::evaluate_third, or
+  /// Laplace's H differenced at the mode) it turns to kFiniteDifference from that point, and the
+  /// summary says so.
   kAuto,
   /// By the implicit function theorem on each subject's conditional mode (Almquist et al. 2015):
   /// first- and second-order sensitivities of the predictions (Laplace: third-order too, since its
   /// OFV_i holds log det of the exact ½∇²l), exact on Φ/Γ, integrated with the ODEs on the ODE
-  /// propagator (forward sensitivities of the sensitivity system), steady states included; on Φ/Γ
-  /// also where a computed dose modifier reads an η'd parameter (the event engine on jets). For
-  /// FOCE and FOCEI a parameter they cannot follow (on the ODE propagator, one a computed dose
-  /// modifier reads) takes Richardson-extrapolated differences of the exact first order instead,
-  /// and the summary says so; Laplace's gradient then falls back to differences of the OFV there.
+  /// propagator (forward sensitivities of the sensitivity system), steady states included, and
+  /// where a computed dose modifier reads an η'd parameter (the event engine on jets, on either
+  /// propagator). For FOCE and FOCEI a subject whose higher orders fail takes
+  /// Richardson-extrapolated differences of the exact first order instead, and the summary says
+  /// so; Laplace's gradient then falls back to differences of the OFV there.
   kImplicit,
   /// Central differences of the OFV, the subjects' searches started from the centre's modes
   /// (what NONMEM does). Any method; the check on the others.

@@ -7,6 +7,7 @@
 
 #include <Eigen/LU>
 
+#include "../hyper_dual_sets.h"
 #include "../numerical_failure.h"
 #include "exact_routes.h"
 #include "jet_exponential.h"
@@ -17,7 +18,7 @@ namespace internal {
 namespace {
 
 using HD3 = HyperDual3;
-using HD3Vector = Vec<HyperDual3>;
+using HD3Vector = HyperDual3Vector;
 
 // HyperDual3's product on the subsets of its first `d` directions: e_S e_T = e_{S∪T} when S and T
 // are disjoint, 0 otherwise.
@@ -30,25 +31,6 @@ JetProducts SubsetAlgebra(int d) {
     }
   }
   return algebra;
-}
-
-// One parameter set on HyperDual3 along `dir`: each entry's first parts are its derivatives along
-// the directions (the free parameters enter the layout linearly, so there are no mixed parts);
-// computed modifiers get theirs, mixed parts included, from their own evaluation.
-HD3Vector Seeded(const ParameterLayout& layout, const DualVector& set, int num_free, const std::array<int, 3>& dir) {
-  HD3Vector v(set.size());
-  for (Eigen::Index i = 0; i < set.size(); ++i) {
-    v(i) = HD3(set(i).value());
-    if (set(i).derivatives().size() == 0) continue;
-    const Eigen::VectorXd d = Derivatives(set(i), num_free);
-    for (int c = 0; c < 3; ++c) {
-      if (dir[static_cast<size_t>(c)] >= 0) v(i).part(1 << c) = d(dir[static_cast<size_t>(c)]);
-    }
-  }
-  if (!layout.ComputeModifiers(&v)) {
-    throw NumericalFailure("the model's computed dose modifiers have no third-order evaluation");
-  }
-  return v;
 }
 
 // [θ; ψ] of one set: the model parameters and the derived coefficients the terms read.
@@ -281,9 +263,9 @@ void MovingEventDerivatives(const LinearModel& model, const ParameterLayout& lay
   out->clear();
   for (const std::array<int, 3>& dir : directions) {
     std::vector<HD3Vector> seeded;
-    for (const DualVector& set : sets) seeded.push_back(Seeded(layout, set, num_free, dir));
+    for (const DualVector& set : sets) seeded.push_back(SeedAlong(layout, set, num_free, dir));
     Eigen::VectorXd y;
-    MovingEventVisitor visitor(model, subject, seeded, dir[2] < 0 ? pairs : triples, &y);
+    MovingEventVisitor visitor(model, subject, seeded, JetParts(dir) == 4 ? pairs : triples, &y);
     EventEngine<HD3, MovingEventVisitor> engine(subject, layout, seeded, &visitor);
     engine.Run();
     out->push_back(std::move(y));

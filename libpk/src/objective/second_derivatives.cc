@@ -9,6 +9,7 @@
 #include "exact/second_order.h"
 #include "exact/third_order.h"
 #include "numerical_failure.h"
+#include "ode/moving_events.h"
 #include "ode/second_order.h"
 #include "objective/prediction.h"
 #include "pk/objective.h"
@@ -23,8 +24,8 @@ bool MovesEvents(const internal::ObjectiveState& d, int i) {
   return i >= d.model->num_parameters() || std::binary_search(computed.begin(), computed.end(), i);
 }
 
-// Whether the higher derivatives can be taken in `free` (layout parameters; on the ODE propagator,
-// none that moves an event); `why` otherwise. (*moves)[a] says whether free[a] moves one.
+// Whether the higher derivatives can be taken in `free` (layout parameters); `why` otherwise.
+// (*moves)[a] says whether free[a] moves a dose.
 bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int>& free, std::vector<char>* moves,
                         std::string* why) {
   moves->assign(free.size(), 0);
@@ -34,15 +35,7 @@ bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int
       *why = "exact higher derivatives are taken in the model's parameters and dose modifiers only (not σ)";
       return false;
     }
-    if (!MovesEvents(d, i)) continue;
-    (*moves)[a] = 1;
-    if (d.linear == nullptr) {
-      *why = "exact higher derivatives on the ODE propagator do not follow a moving dose (" + d.layout.name(i) +
-             (i < d.model->num_parameters()
-                  ? " is read by a computed dose modifier: an F, ALAG, R, D or X0 of $PK, or a zero-order input K0 of d/dt)"
-                  : " is a dose modifier)");
-      return false;
-    }
+    (*moves)[a] = MovesEvents(d, i) ? 1 : 0;
   }
   return true;
 }
@@ -123,15 +116,19 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
   // event engine on jets for pairs along which a dose moves (exact/moving_events.h); a nonlinear
   // one the ODE propagator's forward second-order sensitivities (ode/second_order.h).
   const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
-    if (d.linear == nullptr) {
-      internal::OdeSecondOrderSensitivities(d.ode, s, sets, num, pairs, second);
-      return;
-    }
     const auto fixed = [&](const std::vector<std::pair<int, int>>& still, std::vector<Eigen::VectorXd>* out) {
-      internal::SecondOrderSensitivities(*d.linear, d.layout, s, sets, num, still, d.options.modal_propagation, out);
+      if (d.linear == nullptr) {
+        internal::OdeSecondOrderSensitivities(d.ode, s, sets, num, still, out);
+      } else {
+        internal::SecondOrderSensitivities(*d.linear, d.layout, s, sets, num, still, d.options.modal_propagation, out);
+      }
     };
     const auto jets = [&](const std::vector<std::array<int, 3>>& moving, std::vector<Eigen::VectorXd>* out) {
-      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
+      if (d.linear == nullptr) {
+        internal::OdeMovingEventDerivatives(d.ode, s, sets, num, moving, out);
+      } else {
+        internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
+      }
     };
     SplitByMoving(pairs, moves, fixed, jets, second);
   };
@@ -154,15 +151,19 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
     }
   }
   const auto route = [&](const internal::PreparedSubject& s, const std::vector<internal::DualVector>& sets, int num) {
-    if (d.linear == nullptr) {
-      internal::OdeThirdOrderSensitivities(d.ode, s, sets, num, triples, third);
-      return;
-    }
     const auto fixed = [&](const std::vector<std::array<int, 3>>& still, std::vector<Eigen::VectorXd>* out) {
-      internal::ThirdOrderSensitivities(*d.linear, d.layout, s, sets, num, still, out);
+      if (d.linear == nullptr) {
+        internal::OdeThirdOrderSensitivities(d.ode, s, sets, num, still, out);
+      } else {
+        internal::ThirdOrderSensitivities(*d.linear, d.layout, s, sets, num, still, out);
+      }
     };
     const auto jets = [&](const std::vector<std::array<int, 3>>& moving, std::vector<Eigen::VectorXd>* out) {
-      internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
+      if (d.linear == nullptr) {
+        internal::OdeMovingEventDerivatives(d.ode, s, sets, num, moving, out);
+      } else {
+        internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
+      }
     };
     SplitByMoving(triples, moves, fixed, jets, third);
   };

@@ -256,24 +256,9 @@ void HigherOrderVisitor::SteadyState(const SteadyStateCycle<double>& cycle, int 
 // its derivative with the block itself at 0 and the lower orders at their steady states.
 void HigherOrderVisitor::SteadyInfusion(const Eigen::VectorXd& u, int set, bool add) {
   const Stack stack = Full(set);
-  const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(n_, n_), in_x = Eigen::MatrixXd::Zero(m_, n_);
-  Eigen::VectorXd x = Eigen::VectorXd::Zero(n_), f;
-  Eigen::MatrixXd fx;
   Eigen::FullPivLU<Eigen::MatrixXd> lu;
-  for (int it = 0;; ++it) {
-    model_.RhsDirectional(x, stack.theta, identity, in_x, &f, &fx);
-    lu.compute(fx);
-    if (!lu.isInvertible()) throw NumericalFailure("no steady state for the constant infusion (f_x is singular)");
-    const Eigen::VectorXd dx = lu.solve(Eigen::VectorXd(f + u));
-    x -= dx;
-    if (!x.allFinite()) throw NumericalFailure("no steady state for the constant infusion");
-    if (dx.lpNorm<Eigen::Infinity>() <= Tolerance(x)) break;
-    if (it >= o_.options.max_newton_iterations) {
-      throw NumericalFailure("no steady state for the constant infusion: Newton did not converge");
-    }
-  }
-  model_.RhsDirectional(x, stack.theta, identity, in_x, &f, &fx);
-  lu.compute(fx);
+  const Eigen::VectorXd x = InfusionSteadyState(model_, o_.options, stack.theta, u, &lu);
+  Eigen::VectorXd f;
   State z = State::Zero(stack.size(n_));
   z.head(n_) = x;
   Eigen::MatrixXd forcing;
@@ -290,7 +275,34 @@ void HigherOrderVisitor::SteadyInfusion(const Eigen::VectorXd& u, int set, bool 
   Place(z, add);
 }
 
-void CheckRoute(const OdeSubject& o) {
+}  // namespace
+
+Eigen::VectorXd InfusionSteadyState(const OdeModel& model, const OdeOptions& options, const Eigen::VectorXd& theta,
+                                    const Eigen::VectorXd& u, Eigen::FullPivLU<Eigen::MatrixXd>* lu) {
+  const int n = model.num_compartments();
+  const Eigen::MatrixXd identity = Eigen::MatrixXd::Identity(n, n), in_x = Eigen::MatrixXd::Zero(theta.size(), n);
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(n), f;
+  Eigen::MatrixXd fx;
+  for (int it = 0;; ++it) {
+    model.RhsDirectional(x, theta, identity, in_x, &f, &fx);
+    lu->compute(fx);
+    if (!lu->isInvertible()) throw NumericalFailure("no steady state for the constant infusion (f_x is singular)");
+    const Eigen::VectorXd dx = lu->solve(Eigen::VectorXd(f + u));
+    x -= dx;
+    if (!x.allFinite()) throw NumericalFailure("no steady state for the constant infusion");
+    if (dx.lpNorm<Eigen::Infinity>() <= options.relative_tolerance * x.lpNorm<Eigen::Infinity>() + options.absolute_tolerance) {
+      break;
+    }
+    if (it >= options.max_newton_iterations) {
+      throw NumericalFailure("no steady state for the constant infusion: Newton did not converge");
+    }
+  }
+  model.RhsDirectional(x, theta, identity, in_x, &f, &fx);
+  lu->compute(fx);
+  return x;
+}
+
+void CheckHigherOrderRoute(const OdeSubject& o) {
   if (o.system->nonlinear() == nullptr) {
     throw NumericalFailure("higher-order sensitivities on the ODE propagator serve nonlinear models");
   }
@@ -299,12 +311,10 @@ void CheckRoute(const OdeSubject& o) {
   }
 }
 
-}  // namespace
-
 void OdeSecondOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
                                  int num_free, const std::vector<std::pair<int, int>>& pairs,
                                  std::vector<Eigen::VectorXd>* out) {
-  CheckRoute(o);
+  CheckHigherOrderRoute(o);
   for (const auto& [k, l] : pairs) {
     if (k < 0 || k >= num_free || l < 0 || l >= num_free) throw NumericalFailure("a pair names no free parameter");
   }
@@ -317,7 +327,7 @@ void OdeSecondOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, 
 void OdeThirdOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
                                 int num_free, const std::vector<std::array<int, 3>>& triples,
                                 std::vector<Eigen::VectorXd>* out) {
-  CheckRoute(o);
+  CheckHigherOrderRoute(o);
   // The pairs within the triples, each once, and where each triple finds its three.
   std::vector<Pair> pairs;
   std::vector<Triple> triple_pairs;

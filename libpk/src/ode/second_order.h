@@ -3,7 +3,7 @@
 // rule is forward sensitivities of the sensitivity system, not differences.
 //
 // For model parameters p that move f and g but no event (no free F, ALAG, R or D, no modifier
-// computed from p), with d_k = (s_k, ∂θ/∂p_k), s_k = ∂x/∂p_k and w_kl = ∂²x/∂p_k∂p_l,
+// computed from p: moving_events.h takes those), with d_k = (s_k, ∂θ/∂p_k), s_k = ∂x/∂p_k and w_kl = ∂²x/∂p_k∂p_l,
 //
 //   s_k'  = f_x s_k + f_θ ∂θ/∂p_k,
 //   w_kl' = f_x w_kl + f''[d_k, d_l]                   (θ is linear in p: ∂²θ/∂p_k∂p_l = 0),
@@ -31,6 +31,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/LU>
 
 #include "../autodiff.h"
 #include "../events.h"
@@ -49,6 +50,15 @@ void OdeSecondOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, 
 /// (*out)[t] = ∂³ŷ/∂p_i∂p_j∂p_k over the samples for triples[t] = {i, j, k}: the stacked state
 /// carries the pairs within the triples and, for each triple, z_ijk with z' = f_x z + (the rest of
 /// f's ε₁ε₂ε₃ part on pk::HyperDual3), the same construction one order up. Throws as above.
+/// Throws NumericalFailure where the higher orders do not apply: a linear system (Φ/Γ serves it), or
+/// continuous records.
+void CheckHigherOrderRoute(const OdeSubject& o);
+
+/// x* with f(x*, θ) + u = 0, by Newton from 0 to the options' tolerances, and *lu of f_x at x*: the
+/// higher orders' steady state of a constant infusion. Throws NumericalFailure.
+Eigen::VectorXd InfusionSteadyState(const OdeModel& model, const OdeOptions& options, const Eigen::VectorXd& theta,
+                                    const Eigen::VectorXd& u, Eigen::FullPivLU<Eigen::MatrixXd>* lu);
+
 void OdeThirdOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
                                 int num_free, const std::vector<std::array<int, 3>>& triples,
                                 std::vector<Eigen::VectorXd>* out);

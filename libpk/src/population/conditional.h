@@ -129,8 +129,8 @@ bool ConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const E
 /// (Objective::SecondDerivatives: Φ/Γ's block-triangular exponential, or the ODE propagator's
 /// second-order sensitivities), `at` being EvaluateConditional's result at η with derivatives.
 /// Censored samples (M3) enter with their full second derivatives. False, with `why`, where the
-/// subject's route has no second derivatives (a steady state on the ODE propagator, a parameter a
-/// computed dose modifier reads, on the ODE propagator): ConditionalHessian's differences then serve.
+/// subject's route has no second derivatives (a hand-built model's computed dose modifier without
+/// an evaluation on HyperDual3, a numerical failure): ConditionalHessian's differences then serve.
 bool ExactConditionalHessian(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& eta,
                              const Eigen::VectorXd* fixed_variance, const Conditional& at,
                              Eigen::MatrixXd* half_hessian, std::string* why);

@@ -153,7 +153,7 @@ bool ExactGradient(const Differences& diff, const Eigen::VectorXd& z, const std:
                             why, &differenced)) {
     return false;
   }
-  // A subject's second order differenced (on the ODE propagator, a parameter a computed dose modifier reads) leaves the gradient
+  // A subject's second order differenced (its higher orders failed) leaves the gradient
   // off by 1e-4 or so: too coarse to difference again.
   if (differenced.subjects > 0) {
     *why = "a subject's second-order sensitivities were differences (" + differenced.reason + ")";

@@ -254,8 +254,8 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   const bool switchable = options.gradient == PopulationGradient::kAuto &&
                           ResolvePropagator(engine.problem().model(), engine.problem().options().propagator) !=
                               Propagator::kExact;
-  // Laplace's gradient fails where a subject's second and third order cannot be exact (a parameter a
-  // computed dose modifier reads on the ODE propagator, or H differenced at the mode), which the subject's `differenced`
+  // Laplace's gradient fails where a subject's second and third order cannot be exact (a hand-built
+  // model's computed modifier without HyperDual3, or H differenced at the mode), which the subject's `differenced`
   // reason marks: a property of the problem, not of the point, so `auto` stops asking for it there.
   // Other failures (H not positive definite at a wild trial point) take differences at that point only.
   const bool laplace_switchable = options.gradient == PopulationGradient::kAuto && options.method == PopulationMethod::kLaplace;

@@ -11,8 +11,10 @@
 // ∇²l (all the formula needs) are then exact given ŷ's first and second derivatives. The first derivatives J = ∂ŷ/∂φ are the exact
 // forward sensitivities; the second, T = ∂J/∂φ_k for each η'd φ_k, are exact too on Φ/Γ (the
 // second-order sensitivities of exact/second_order.h) and integrated with the state on the ODE
-// propagator (ode/second_order.h), steady states included. Where neither applies (a parameter that a
-// computed dose modifier reads, on the ODE propagator) they are central differences of J, Richardson-extrapolated.
+// propagator (ode/second_order.h), steady states included, with doses that move with η on the
+// event engine on jets (exact/ and ode/moving_events.h). Where they fail (a hand-built model's
+// computed modifier without an evaluation on HyperDual3, a numerical failure) they are central
+// differences of J, Richardson-extrapolated.
 // The residual variance v(ŷ, σ) enters by its own second-order Taylor model, its second
 // derivatives differences of its exact first ones.
 //

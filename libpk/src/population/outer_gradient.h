@@ -18,7 +18,7 @@ namespace internal {
 /// dOFV_i/dx at x (p = packing.Unpack(x) made into a point), given the subject's mode at p.
 /// False with `why` when the predictions or their sensitivities cannot be evaluated there.
 /// *differenced says why the predictions' second derivatives were differences of the exact first
-/// ones (on the ODE propagator, a parameter a computed dose modifier reads), and is empty when the second-order
+/// ones (the higher orders failed: Objective::SecondDerivatives' `why`), and is empty when the second-order
 /// sensitivities served. Laplace then fails (`why`): its H was differenced too.
 bool SubjectOuterGradient(const SubjectModel& s, const PopulationPoint& p, const Packing& packing,
                           const Eigen::VectorXd& x, const SubjectMode& mode, Eigen::VectorXd* gradient,
