@@ -244,7 +244,7 @@ std::vector<Scenario> HigherOrderScenarios(const pk::Model& model) {
 // η at values away from 0, so that every part of a computed modifier is exercised.
 void MoveEtas(const pk::Model& model, const std::vector<int>& free, Eigen::VectorXd* values) {
   for (int i : free) {
-    if (model.is_eta(i)) (*values)(i) = i % 2 ? 0.15 : -0.2;
+    if (i < model.num_parameters() && model.is_eta(i)) (*values)(i) = i % 2 ? 0.15 : -0.2;
   }
 }
 

@@ -142,14 +142,11 @@ class Model {
   /// What a model file declares (bounds, units, covariates, estimated modifiers, the error
   /// model); empty for the catalogue.
   const ModelDeclarations& declarations() const { return declarations_; }
-  /// Whether parameter i is a covariate: a dataset column, never estimated.
-  bool is_covariate(int i) const {
-    return !declarations_.parameters.empty() && declarations_.parameters[static_cast<size_t>(i)].covariate;
-  }
+  /// Whether parameter i is a covariate: a dataset column, never estimated (false for an index
+  /// that is not a model parameter's).
+  bool is_covariate(int i) const { return Declared(i) && declarations_.parameters[static_cast<size_t>(i)].covariate; }
   /// Whether parameter i is a model file's random effect η (DeclaredParameter::eta).
-  bool is_eta(int i) const {
-    return !declarations_.parameters.empty() && declarations_.parameters[static_cast<size_t>(i)].eta;
-  }
+  bool is_eta(int i) const { return Declared(i) && declarations_.parameters[static_cast<size_t>(i)].eta; }
 
   /// Text for an error about a parameter name this model does not have, given the names it
   /// accepts (its parameters, with F1, ALAG1, ... or an error model's σ where they apply):
@@ -191,6 +188,8 @@ class Model {
   void set_output_names(std::vector<std::string> names) { output_names_ = std::move(names); }
 
  private:
+  bool Declared(int i) const { return i >= 0 && static_cast<size_t>(i) < declarations_.parameters.size(); }
+
   std::string name_;
   std::string description_;
   std::vector<std::string> compartment_names_;
