@@ -980,29 +980,10 @@ TEST_CASE("the outer gradient holds for η in dose modifiers computed in $PK (AL
   // amounts (the dual-number event engine), and the second and third orders come from the event
   // engine on jets (exact/moving_events.h), exactly: no subject's are differenced.
   // The lag stays well before the first samples after a dose, where the prediction has a kink.
-  const char* text = R"($PROBLEM theo_lag  1cmt oral, a lag and a bioavailability that vary between subjects
-$PARAM
-TVKA = 1.5
-TVCL = 2.8
-V = 32
-TLAG = 0.05
-$OMEGA
-ETA_CL ~ 0.07
-ETA_LAG ~ 0.04
-ETA_F ~ 0.02
-$CMT
-DEPOT dose
-CENTRAL central
-$PK
-CL = TVCL * exp(ETA_CL)
-ALAG1 = TLAG * exp(ETA_LAG)
-F1 = exp(ETA_F)
-$ODE
-d/dt(DEPOT) = -TVKA * DEPOT
-d/dt(CENTRAL) = TVKA * DEPOT - CL / V * CENTRAL
-$OUTPUT
-CP = CENTRAL / V
-)";
+  // The shipped models/theo_lag_pop.pkm: ALAG1 = TLAG·exp(ETA_LAG), F1 = exp(ETA_F).
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/theo_lag_pop.pkm");
+  REQUIRE(in);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   const pk::PopulationProblem problem = FileProblem(text, "combined", 1e-8, {}, "theophylline");
   REQUIRE(problem.model().is_linear());
   pk::PopulationParameters p = problem.DefaultParameters();
