@@ -231,7 +231,16 @@ const char* const kMovingDoses =
 // catalogue and kEtaRates (F, ALAG, R and D estimated too); for kMovingDoses, which computes its
 // modifiers, those that estimate none, and modelled durations (RATE=-2) its D1 serves.
 std::vector<Scenario> HigherOrderScenarios(const pk::Model& model) {
-  if (model.declarations().computed_modifiers.empty()) return Scenarios();
+  if (model.declarations().computed_modifiers.empty()) {
+    // Moving doses through a reset, modelled and constant rates into steady states.
+    std::vector<Scenario> s = Scenarios();
+    s.push_back({"reset with a lag", "1,0,100,0,0,0,0,1,.\n1,4,0,0,0,0,0,3,.\n1,4.5,70,0,0,0,0,1,.\n", {"ALAG1"}, {0.7}});
+    s.push_back({"ss1 constant infusion at a modelled rate", "1,0,0,-1,0,0,1,1,.\n", {"R1"}, {12.0}});
+    s.push_back({"ss2 constant infusion after a lagged dose", "1,0,50,0,0,0,0,1,.\n1,0.2,0,10,0,0,2,1,.\n", {"ALAG1"}, {0.1}});
+    s.push_back({"a constant input", "1,0,100,0,6,2,0,1,.\n", {"K0_1"}, {0.8}});
+    s.push_back({"ss1 constant infusion with a constant input", "1,0,0,10,0,0,1,1,.\n", {"K0_1"}, {0.8}});
+    return s;
+  }
   std::vector<Scenario> s;
   for (const Scenario& sc : Scenarios()) {
     if (sc.extra_free.empty()) s.push_back(sc);
@@ -246,6 +255,26 @@ void MoveEtas(const pk::Model& model, const std::vector<int>& free, Eigen::Vecto
   for (int i : free) {
     if (i < model.num_parameters() && model.is_eta(i)) (*values)(i) = i % 2 ? 0.15 : -0.2;
   }
+}
+
+// The scale each pair's second derivative is compared on: its differences' largest entry, or, for a
+// derivative that vanishes (C_ss of a constant infusion along V, say), the others' scale per unit of
+// relative change of the parameters (as CheckThirdDerivatives takes it), 1e-4 of the largest: the
+// differences' own noise sits below that.
+std::vector<double> PairScales(const Eigen::VectorXd& values, const std::vector<int>& free,
+                               const std::vector<std::pair<int, int>>& pairs,
+                               const std::vector<Eigen::VectorXd>& differences) {
+  const auto unit = [&](const std::pair<int, int>& ab) {
+    return std::max(std::abs(values(free[static_cast<size_t>(ab.first)])), 0.1) *
+           std::max(std::abs(values(free[static_cast<size_t>(ab.second)])), 0.1);
+  };
+  double largest = 0;
+  for (size_t k = 0; k < pairs.size(); ++k) largest = std::max(largest, unit(pairs[k]) * differences[k].cwiseAbs().maxCoeff());
+  std::vector<double> scales;
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    scales.push_back(std::max(differences[k].cwiseAbs().maxCoeff(), 1e-4 * largest / unit(pairs[k])));
+  }
+  return scales;
 }
 
 }  // namespace
@@ -282,10 +311,13 @@ TEST_CASE("exact second derivatives of the predictions agree with differences of
       REQUIRE(second.size() == pairs.size());
       std::vector<Eigen::MatrixXd> fd;
       for (int a = 0; a < p; ++a) fd.push_back(JacobianDifferences(obj, values, free, a));
+      std::vector<Eigen::VectorXd> differences;
+      for (const auto& [a, b] : pairs) differences.push_back(fd[static_cast<size_t>(a)].col(b));
+      const std::vector<double> scales = PairScales(values, free, pairs, differences);
       for (size_t k = 0; k < pairs.size(); ++k) {
         const auto [a, b] = pairs[k];
         const Eigen::VectorXd want = fd[static_cast<size_t>(a)].col(b), other = fd[static_cast<size_t>(b)].col(a);
-        const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-12);
+        const double scale = scales[k];
         INFO("pair " << a << "," << b << "\nexact " << second[k].transpose() << "\nfd    " << want.transpose());
         CHECK((second[k] - want).cwiseAbs().maxCoeff() / scale < 1e-7);
         CHECK((second[k] - other).cwiseAbs().maxCoeff() / scale < 1e-7);  // symmetric
@@ -421,22 +453,11 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
         pk_test::ScenarioValues(obj, sc, &values, &free);
         const PairsAgainstDifferences c = AllPairs(obj, values, free);
         const std::vector<Eigen::VectorXd>& second = c.second;
-        // A derivative that vanishes (∂²/∂F1² of a model linear in the dose, say) is compared on the
-        // scale of the others, each per unit of relative change of its parameters (as
-        // CheckThirdDerivatives does): to 1e-10 of the largest, where the differences' own noise (the
-        // Jacobian's rtol 1e-12 over steps of 1e-3) is about 1e-9 of it.
-        const auto unit = [&](int a, int b) {
-          return std::max(std::abs(values(free[static_cast<size_t>(a)])), 0.1) *
-                 std::max(std::abs(values(free[static_cast<size_t>(b)])), 0.1);
-        };
-        double largest = 0;
-        for (size_t k = 0; k < c.pairs.size(); ++k) {
-          largest = std::max(largest, unit(c.pairs[k].first, c.pairs[k].second) * c.differences[k].cwiseAbs().maxCoeff());
-        }
+        const std::vector<double> scales = PairScales(values, free, c.pairs, c.differences);
         for (size_t k = 0; k < c.pairs.size(); ++k) {
           const auto [a, b] = c.pairs[k];
           const Eigen::VectorXd& want = c.differences[k];
-          const double scale = std::max(want.cwiseAbs().maxCoeff(), 1e-4 * largest / unit(a, b));
+          const double scale = scales[k];
           INFO("pair " << a << "," << b << "\node " << second[k].transpose() << "\nfd  " << want.transpose());
           CHECK((second[k] - want).cwiseAbs().maxCoeff() / scale < 1e-6);
           ++compared;
@@ -600,8 +621,9 @@ TEST_CASE("higher derivatives of a nonlinear model file whose doses move with η
     std::vector<int> free;
     for (const char* name : {"VMAX", "TLAG", "ETA_F", "ETA_L", "ETA_D"}) free.push_back(obj.ParameterIndex(name));
     const PairsAgainstDifferences c = AllPairs(obj, values, free);
+    const std::vector<double> scales = PairScales(values, free, c.pairs, c.differences);
     for (size_t k = 0; k < c.pairs.size(); ++k) {
-      const double scale = std::max(c.differences[k].cwiseAbs().maxCoeff(), 1e-12);
+      const double scale = scales[k];
       INFO("pair " << c.pairs[k].first << "," << c.pairs[k].second << "\node " << c.second[k].transpose() << "\nfd  "
                    << c.differences[k].transpose());
       CHECK((c.second[k] - c.differences[k]).cwiseAbs().maxCoeff() / scale < 1e-6);
@@ -611,6 +633,120 @@ TEST_CASE("higher derivatives of a nonlinear model file whose doses move with η
     compared += CheckThirdDerivatives(obj, values, free, 1e-5);
   }
   CHECK(compared >= (pk_test::kSanitized ? 35 : 200));
+}
+
+namespace {
+
+// A file whose F1 and ALAG1 read η and a weight that changes between doses (two parameter sets), with
+// two outputs chosen by DVID and 40 samples at distinct intervals (more distinct steps than the jet
+// visitor caches); `nonlinear` puts Michaelis–Menten elimination on the ODE propagator instead.
+std::shared_ptr<const pk::Model> MovingCovariateModel(bool nonlinear) {
+  std::string text =
+      "$PROBLEM moving_cov  oral, F1 and ALAG1 from η and a time-varying weight, two outputs\n"
+      "$PARAM\nKA = 1.2\nCL = 3\nV = 30\nTLAG = 0.4\nKM = 2\n$COVARIATE\nWT kg\n"
+      "$OMEGA\nETA_F ~ 0.1\nETA_L ~ 0.1\n$CMT\nDEPOT dose\nCENTRAL central\n"
+      "$PK\nF1 = exp(ETA_F) * (WT / 70)^0.5\nALAG1 = TLAG * exp(ETA_L)\nCLI = CL * (WT / 70)^0.75\n"
+      "$ODE\nd/dt(DEPOT) = -KA * DEPOT\nd/dt(CENTRAL) = KA * DEPOT - CLI / V * CENTRAL * KM\n"
+      "$OUTPUT\nCP = CENTRAL / V\nAD = DEPOT\n";
+  if (nonlinear) {
+    text.replace(text.find("CLI / V * CENTRAL * KM"), 22, "CLI * CENTRAL / (V + CENTRAL / KM)");
+  }
+  return pk::ParseModel(text, "moving_cov.pkm", pk::RandomEffects::kParameters);
+}
+
+std::shared_ptr<pk::Dataset> MovingCovariateData() {
+  std::vector<std::pair<double, std::string>> rows = {{0, "1,0,100,0,0,0,0,1,.,1,60"},
+                                                      {12, "1,12,100,0,12,1,0,1,.,1,75"}};
+  for (int k = 1; k <= 40; ++k) {
+    const double t = 0.2 * std::pow(k, 1.4);
+    std::ostringstream row;
+    row << "1," << t << ",0,0,0,0,0,0," << 1 + 0.1 * k << "," << (k % 5 == 0 ? 2 : 1) << "," << (t < 10 ? 60 : 75);
+    rows.push_back({t, row.str()});
+  }
+  std::stable_sort(rows.begin(), rows.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::string csv = "ID,TIME,AMT,RATE,II,ADDL,SS,EVID,DV,DVID,WT\n";
+  for (const auto& r : rows) csv += r.second + "\n";
+  return std::make_shared<pk::Dataset>(pk::ParseDataset(csv, "moving_cov.csv"));
+}
+
+}  // namespace
+
+TEST_CASE("moving doses with a time-varying covariate, two outputs and many distinct steps (jets)",
+          "[gradient][second-order]") {
+  int compared = 0;
+  for (const bool nonlinear : {false, true}) {
+    if (pk_test::kSanitized && nonlinear) continue;
+    INFO((nonlinear ? "Michaelis-Menten on Dormand-Prince" : "linear on Φ/Γ"));
+    const auto model = MovingCovariateModel(nonlinear);
+    REQUIRE(model->is_linear() == !nonlinear);
+    pk::ObjectiveOptions options;
+    options.propagator = nonlinear ? pk::Propagator::kRungeKutta : pk::Propagator::kAuto;
+    options.ode.relative_tolerance = 1e-12;
+    options.ode.absolute_tolerance = 1e-14;
+    const pk::Objective obj(model, MovingCovariateData(), 0, options);
+    Eigen::VectorXd values = obj.DefaultValues();
+    values(obj.ParameterIndex("ETA_F")) = -0.2;
+    values(obj.ParameterIndex("ETA_L")) = 0.15;
+    std::vector<int> free;
+    for (const char* name : {"KA", "CL", "TLAG", "ETA_F", "ETA_L"}) free.push_back(obj.ParameterIndex(name));
+    const PairsAgainstDifferences c = AllPairs(obj, values, free);
+    const std::vector<double> scales = PairScales(values, free, c.pairs, c.differences);
+    for (size_t k = 0; k < c.pairs.size(); ++k) {
+      const double scale = scales[k];
+      INFO("pair " << c.pairs[k].first << "," << c.pairs[k].second << "\nexact " << c.second[k].transpose()
+                   << "\nfd    " << c.differences[k].transpose());
+      CHECK((c.second[k] - c.differences[k]).cwiseAbs().maxCoeff() / scale < (nonlinear ? 1e-6 : 1e-7));
+      ++compared;
+    }
+    if (nonlinear) free = {free[1], free[3], free[4]};
+    compared += CheckThirdDerivatives(obj, values, free, nonlinear ? 1e-5 : 1e-6);
+  }
+  CHECK(compared >= (pk_test::kSanitized ? 50 : 75));
+}
+
+TEST_CASE("a zero lag carrying a derivative: the ODE and Φ/Γ jets agree", "[gradient][second-order][ode]") {
+  // ALAG1 = 0 and free: each dose's step has length 0 with a part (a one-sided derivative, which
+  // central differences cannot check), so the two exact routes are checked against each other.
+  const Scenario sc{"zero lag", "1,0,100,0,6,2,0,1,.\n1,14,0,0,0,0,0,3,.\n1,14.5,60,0,0,0,0,1,.\n", {"ALAG1"}, {0.0}};
+  const auto data = pk_test::ScenarioData(sc);
+  pk::ObjectiveOptions tight;
+  tight.propagator = pk::Propagator::kRungeKutta;
+  tight.ode.relative_tolerance = 1e-12;
+  tight.ode.absolute_tolerance = 1e-14;
+  const pk::Objective ode(OralOdeTwin(), data, 0, tight);
+  const pk::Objective exact(pk::MakeModel("1cmt_oral"), data, 0, pk::ObjectiveOptions());
+  Eigen::VectorXd at_ode, at_exact;
+  std::vector<int> free, free_exact;
+  pk_test::ScenarioValues(ode, sc, &at_ode, &free);
+  pk_test::ScenarioValues(exact, sc, &at_exact, &free_exact);
+  at_exact.head(3) = at_ode.head(3);
+  std::vector<std::pair<int, int>> pairs;
+  std::vector<std::array<int, 3>> triples;
+  const int p = static_cast<int>(free.size());
+  for (int i = 0; i < p; ++i) {
+    for (int j = i; j < p; ++j) {
+      pairs.emplace_back(i, j);
+      for (int k = j; k < p; ++k) triples.push_back({i, j, k});
+    }
+  }
+  std::vector<Eigen::VectorXd> a, b, a3, b3;
+  std::string why;
+  REQUIRE(ode.SecondDerivatives(at_ode, free, pairs, &a, &why));
+  REQUIRE(exact.SecondDerivatives(at_exact, free, pairs, &b, &why));
+  REQUIRE(ode.ThirdDerivatives(at_ode, free, triples, &a3, &why));
+  REQUIRE(exact.ThirdDerivatives(at_exact, free, triples, &b3, &why));
+  const auto agree = [](const std::vector<Eigen::VectorXd>& x, const std::vector<Eigen::VectorXd>& y) {
+    double largest = 0;
+    for (const Eigen::VectorXd& v : y) largest = std::max(largest, v.cwiseAbs().maxCoeff());
+    for (size_t k = 0; k < y.size(); ++k) {
+      INFO("tuple " << k << "\node   " << x[k].transpose() << "\nexact " << y[k].transpose());
+      CHECK((x[k] - y[k]).cwiseAbs().maxCoeff() <= 1e-8 * std::max(y[k].cwiseAbs().maxCoeff(), 1e-4 * largest));
+    }
+  };
+  agree(a, b);
+  agree(a3, b3);
+  // The lag's own derivatives are not zero: the dose's step carries them.
+  CHECK(b[pairs.size() - 1].cwiseAbs().maxCoeff() > 0);
 }
 
 TEST_CASE("hyper-dual numbers give a function's value, two directional derivatives and the mixed one", "[second-order]") {

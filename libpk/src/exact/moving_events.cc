@@ -89,6 +89,7 @@ class MovingEventVisitor {
     sample_ = SampleIndex(s, &count);
     out->setZero(count);
     x_.setZero(n_, algebra.parts);
+    cache_.reserve(kCacheCapacity);
   }
 
   void Advance(const HD3& h, const HD3Vector& u, int set) {
@@ -125,6 +126,7 @@ class MovingEventVisitor {
   Eigen::MatrixXd SolveInParts(const Jet& k, const Eigen::MatrixXd& r, const Eigen::MatrixXd& l,
                                const char* singular) const;
 
+  static constexpr size_t kCacheCapacity = 32;
   struct CachedStep {
     Eigen::VectorXd key;  // the set, h's parts and u's parts
     Jet e;
@@ -157,18 +159,17 @@ const Jet& MovingEventVisitor::Step(const HD3& h, const HD3Vector& u, int set) {
     for (int c = 0; c < n_; ++c) key_(1 + parts + s * n_ + c) = u(c).part(s);
   }
   for (const CachedStep& c : cache_) {
-    if ((c.key.array() == key_.array()).all()) return c.e;
+    if (c.key.size() == key_.size() && (c.key.array() == key_.array()).all()) return c.e;
   }
-  constexpr size_t kCapacity = 32;
   CachedStep* slot = nullptr;
-  if (cache_.size() < kCapacity) {
-    cache_.emplace_back();
+  if (cache_.size() < kCacheCapacity) {
+    cache_.emplace_back();  // reserved: the references handed out stay valid
     slot = &cache_.back();
   } else {
     slot = &cache_[next_evicted_];
-    next_evicted_ = (next_evicted_ + 1) % kCapacity;
+    next_evicted_ = (next_evicted_ + 1) % kCacheCapacity;
   }
-  slot->key = key_;
+  slot->key.resize(0);  // no key until its exponential is in place (JetExponential may throw)
   m_.resize(static_cast<size_t>(parts));
   Jet& e = slot->e;
   e.resize(static_cast<size_t>(parts));
@@ -183,6 +184,7 @@ const Jet& MovingEventVisitor::Step(const HD3& h, const HD3Vector& u, int set) {
     if (h.part(b) != 0) e[static_cast<size_t>(t)] += m_[static_cast<size_t>(a)] * h.part(b);
   }
   JetExponential(algebra_, &e);
+  slot->key = key_;
   return e;
 }
 
@@ -262,6 +264,9 @@ void MovingEventDerivatives(const LinearModel& model, const ParameterLayout& lay
   const JetProducts pairs = SubsetAlgebra(2), triples = SubsetAlgebra(3);
   out->clear();
   for (const std::array<int, 3>& dir : directions) {
+    for (int i : dir) {
+      if (i >= num_free) throw NumericalFailure("a direction names no free parameter");
+    }
     std::vector<HD3Vector> seeded;
     for (const DualVector& set : sets) seeded.push_back(SeedAlong(layout, set, num_free, dir));
     Eigen::VectorXd y;

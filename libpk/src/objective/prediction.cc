@@ -58,13 +58,10 @@ bool ModalRoute(GradientRoute route) {
   return route == GradientRoute::kAuto || route == GradientRoute::kForward || route == GradientRoute::kAdjoint;
 }
 
-// Dose modifiers move event times and amounts; model parameters do not.
+// Whether some free parameter moves a dose.
 bool EventsDepend(const ObjectiveState& d, const FreeParameters& free) {
-  const std::vector<int>& computed = d.layout.computed_reads();  // F1 = … in $PK reads them
   bool depend = false;
-  for (int i : free.model()) {
-    depend = depend || i >= d.model->num_parameters() || std::binary_search(computed.begin(), computed.end(), i);
-  }
+  for (int i : free.model()) depend = depend || MovesDoses(d, i);
   return depend;
 }
 
@@ -175,6 +172,11 @@ bool Failed(const std::string& why, Objective::Evaluation* ev) {
 }
 
 }  // namespace
+
+bool MovesDoses(const ObjectiveState& d, int i) {
+  const std::vector<int>& computed = d.layout.computed_reads();  // F1 = … in $PK reads them
+  return i >= d.model->num_parameters() || std::binary_search(computed.begin(), computed.end(), i);
+}
 
 // Each parameter set with the free layout parameters seeded as dual numbers (those a data
 // column supplies stay constant), and the computed modifiers computed from them.

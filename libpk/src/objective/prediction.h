@@ -55,6 +55,10 @@ struct Prediction {
 
 /// Each parameter set with the free model parameters seeded as pk::Dual derivatives (those a
 /// data column supplies stay constant), and the modifiers the model computes computed from them.
+/// Whether layout parameter i moves dose amounts, rates or times: a dose modifier itself, or a
+/// model parameter that a computed modifier (F1 = … in $PK) reads.
+bool MovesDoses(const ObjectiveState& d, int i);
+
 std::vector<DualVector> DualSets(const PreparedSubject& s, const ParameterLayout& layout, const FreeParameters& free);
 
 /// ŷ into ev->predictions (emptied on failure, with ev->ok false and the message), and what

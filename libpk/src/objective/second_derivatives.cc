@@ -17,13 +17,6 @@
 namespace pk {
 namespace {
 
-// Whether a free parameter moves an event: a dose modifier itself, or a parameter a computed
-// modifier reads.
-bool MovesEvents(const internal::ObjectiveState& d, int i) {
-  const std::vector<int>& computed = d.layout.computed_reads();
-  return i >= d.model->num_parameters() || std::binary_search(computed.begin(), computed.end(), i);
-}
-
 // Whether the higher derivatives can be taken in `free` (layout parameters); `why` otherwise.
 // (*moves)[a] says whether free[a] moves a dose.
 bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int>& free, std::vector<char>* moves,
@@ -35,7 +28,7 @@ bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int
       *why = "exact higher derivatives are taken in the model's parameters and dose modifiers only (not σ)";
       return false;
     }
-    (*moves)[a] = MovesEvents(d, i) ? 1 : 0;
+    (*moves)[a] = internal::MovesDoses(d, i) ? 1 : 0;
   }
   return true;
 }

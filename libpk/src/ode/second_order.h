@@ -50,6 +50,10 @@ void OdeSecondOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, 
 /// (*out)[t] = ∂³ŷ/∂p_i∂p_j∂p_k over the samples for triples[t] = {i, j, k}: the stacked state
 /// carries the pairs within the triples and, for each triple, z_ijk with z' = f_x z + (the rest of
 /// f's ε₁ε₂ε₃ part on pk::HyperDual3), the same construction one order up. Throws as above.
+void OdeThirdOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
+                                int num_free, const std::vector<std::array<int, 3>>& triples,
+                                std::vector<Eigen::VectorXd>* out);
+
 /// Throws NumericalFailure where the higher orders do not apply: a linear system (Φ/Γ serves it), or
 /// continuous records.
 void CheckHigherOrderRoute(const OdeSubject& o);
@@ -58,10 +62,6 @@ void CheckHigherOrderRoute(const OdeSubject& o);
 /// higher orders' steady state of a constant infusion. Throws NumericalFailure.
 Eigen::VectorXd InfusionSteadyState(const OdeModel& model, const OdeOptions& options, const Eigen::VectorXd& theta,
                                     const Eigen::VectorXd& u, Eigen::FullPivLU<Eigen::MatrixXd>* lu);
-
-void OdeThirdOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, const std::vector<DualVector>& sets,
-                                int num_free, const std::vector<std::array<int, 3>>& triples,
-                                std::vector<Eigen::VectorXd>* out);
 
 }  // namespace internal
 }  // namespace pk

@@ -256,8 +256,10 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
                               Propagator::kExact;
   // Laplace's gradient fails where a subject's second and third order cannot be exact (a hand-built
   // model's computed modifier without HyperDual3, or H differenced at the mode), which the subject's `differenced`
-  // reason marks: a property of the problem, not of the point, so `auto` stops asking for it there.
-  // Other failures (H not positive definite at a wild trial point) take differences at that point only.
+  // reason marks: a property of the problem, not of the point, so `auto` stops asking for it there. A
+  // numerical failure of the higher orders themselves (a steady state's Newton, Dormand–Prince's step
+  // limit on a stiff segment) is marked the same way and treated so, conservatively. Other failures (H
+  // not positive definite at a wild trial point) take differences at that point only.
   const bool laplace_switchable = options.gradient == PopulationGradient::kAuto && options.method == PopulationMethod::kLaplace;
   int differenced_points = 0, switched_at = 0;
   std::string differenced_reason;
