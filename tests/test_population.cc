@@ -993,6 +993,12 @@ TEST_CASE("the outer gradient holds for η in dose modifiers computed in $PK (AL
     INFO(pk::ToString(m));
     CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
   }
+  // The summary says where the jets served.
+  pk::PopulationOptions options;
+  options.max_iterations = 1;
+  options.covariance = false;
+  CHECK_THAT(pk::FitPopulation(problem, p, options).gradient,
+             Catch::Contains("exact on Φ/Γ; along η that move the doses, the event engine on hyper-dual jets)"));
 }
 
 TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVARIANCE",

@@ -16,6 +16,7 @@
 #include "internal_text.h"
 #include "pk/output.h"
 #include "pk/error.h"
+#include "pk/parameters.h"
 #include "pk/propagator.h"
 #include "population/engine.h"
 #include "population/outer_gradient.h"
@@ -233,13 +234,27 @@ Eigen::VectorXd DifferenceGradient(const PopulationEngine& engine, const Packing
 // (ode/second_order.h).
 bool UsesImplicitGradient(const PopulationOptions& o) { return o.gradient != PopulationGradient::kFiniteDifference; }
 
+// Whether an η moves the doses: a dose modifier with an η of its own (a catalogue's F1), or a
+// parameter that a computed modifier reads (a model file's F1 = exp(ETA_F)).
+bool EtaMovesDoses(const PopulationProblem& problem) {
+  const Model& model = problem.model();
+  const ParameterLayout layout(model);
+  const std::vector<int>& computed = layout.computed_reads();
+  for (const std::string& name : problem.eta_names()) {
+    const int i = layout.Index(name);
+    if (i >= model.num_parameters() || std::binary_search(computed.begin(), computed.end(), i)) return true;
+  }
+  return false;
+}
+
 // What the summary says of the gradient.
 std::string GradientDescription(const PopulationProblem& problem, const PopulationOptions& o) {
   if (!UsesImplicitGradient(o)) return "central differences of the OFV (modes warm-started from the centre)";
   const bool exact = ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
   const char* orders = o.method == PopulationMethod::kLaplace ? "first-, second- and third-order" : "first- and second-order";
   return std::string("implicit function theorem on the conditional modes (") + orders + " sensitivities " +
-         (exact ? "exact on Φ/Γ)" : "integrated with the ODEs)");
+         (exact ? "exact on Φ/Γ" : "integrated with the ODEs") +
+         (EtaMovesDoses(problem) ? "; along η that move the doses, the event engine on hyper-dual jets)" : ")");
 }
 
 }  // namespace
