@@ -356,6 +356,24 @@ pk::PopulationProblem TheoLagProblem(const std::string& data_dir) {
                                {"ETA_CL", "ETA_LAG", "ETA_F"}, o);
 }
 
+// A nonlinear model whose doses move with η on the ODE propagator (pkpop's rtol 1e-9): 1cmt_oral_mm
+// as a file with η on VMAX and F1 = exp(ETA_F), on theophylline, combined error (ode/moving_events.h).
+pk::PopulationProblem MmBioavailabilityProblem(const std::string& data_dir) {
+  const char* text =
+      "$PROBLEM mm_f  one compartment, oral, Michaelis-Menten; η on VMAX and on a bioavailability\n"
+      "$PARAM\nKA = 1.5\nTVVMAX = 20\nKM = 2\nV = 30\n$OMEGA\nETA_VMAX ~ 0.1\nETA_F ~ 0.05\n"
+      "$CMT\nDEPOT dose\nCENTRAL central\n$PK\nVMAX = TVVMAX * exp(ETA_VMAX)\nF1 = exp(ETA_F)\n"
+      "$ODE\nC = CENTRAL / V\nd/dt(DEPOT) = -KA * DEPOT\nd/dt(CENTRAL) = KA * DEPOT - VMAX * C / (KM + C)\n"
+      "$OUTPUT\nCP = C\n";
+  pk::ObjectiveOptions ode;
+  ode.error_model = pk::MakeResidualError("combined");
+  ode.ode.relative_tolerance = 1e-9;
+  ode.ode.absolute_tolerance = 1e-11;
+  return pk::PopulationProblem(pk::ParseModel(text, "mm_f.pkm", pk::RandomEffects::kParameters),
+                               std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/theophylline.csv")),
+                               {"ETA_VMAX", "ETA_F"}, ode);
+}
+
 void PopulationCase(const char* name, const pk::PopulationProblem& problem, const pk::PopulationParameters& start,
                     pk::PopulationMethod method = pk::PopulationMethod::kFocei) {
   pk::PopulationOptions options;
@@ -452,6 +470,10 @@ void PopulationEstimation(const std::string& data_dir) {
   // is integrated with the ODEs (ode/second_order.h).
   const pk::PopulationProblem emax = EmaxProblem(data_dir);
   PopulationCase("emax (ODE)", emax, emax.DefaultParameters());
+  const pk::PopulationProblem mm_f = MmBioavailabilityProblem(data_dir);
+  pk::PopulationParameters mm_start = mm_f.DefaultParameters();
+  mm_start.sigma = Eigen::Vector2d(0.3, 0.1);
+  PopulationCase("MM, F1 (ODE)", mm_f, mm_start);
 }
 
 // Laplace fits by the implicit gradient (third-order sensitivities) against differences of the OFV:

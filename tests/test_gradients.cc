@@ -442,6 +442,8 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
     for (const pk::Propagator integrator : {pk::Propagator::kRungeKutta, pk::Propagator::kOde}) {
       if (pk_test::kSanitized && integrator == pk::Propagator::kOde) continue;  // the route is the same
       if (integrator == pk::Propagator::kOde && !sc.extra_free.empty()) continue;  // and so is its jet pass
+      // The sanitizer build takes the jets on one moving scenario here (the other tests cover more).
+      if (pk_test::kSanitized && !sc.extra_free.empty() && sc.name != std::string("lag")) continue;
       tight.propagator = integrator;
       // Nonlinear models against central differences of their forward-sensitivity Jacobian.
       for (const char* name : {"1cmt_iv_mm", "1cmt_oral_mm", "1cmt_iv_emax"}) {
