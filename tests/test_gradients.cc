@@ -390,6 +390,18 @@ PairsAgainstDifferences AllPairs(const pk::Objective& obj, const Eigen::VectorXd
   return c;
 }
 
+// Each of c's pairs against its differences, to `tolerance` on its PairScales scale; how many.
+int CheckPairs(const PairsAgainstDifferences& c, const Eigen::VectorXd& values, const std::vector<int>& free,
+               double tolerance) {
+  const std::vector<double> scales = PairScales(values, free, c.pairs, c.differences);
+  for (size_t k = 0; k < c.pairs.size(); ++k) {
+    INFO("pair " << c.pairs[k].first << "," << c.pairs[k].second << "\nexact " << c.second[k].transpose() << "\nfd    "
+                 << c.differences[k].transpose());
+    CHECK((c.second[k] - c.differences[k]).cwiseAbs().maxCoeff() / scales[k] < tolerance);
+  }
+  return static_cast<int>(c.pairs.size());
+}
+
 std::shared_ptr<const pk::Model> OralOdeTwin() {
   pk::OdeModelSpec spec;
   spec.name = "1cmt_oral_ode";
@@ -453,17 +465,7 @@ TEST_CASE("second-order sensitivities on the ODE propagator agree with differenc
         Eigen::VectorXd values;
         std::vector<int> free;
         pk_test::ScenarioValues(obj, sc, &values, &free);
-        const PairsAgainstDifferences c = AllPairs(obj, values, free);
-        const std::vector<Eigen::VectorXd>& second = c.second;
-        const std::vector<double> scales = PairScales(values, free, c.pairs, c.differences);
-        for (size_t k = 0; k < c.pairs.size(); ++k) {
-          const auto [a, b] = c.pairs[k];
-          const Eigen::VectorXd& want = c.differences[k];
-          const double scale = scales[k];
-          INFO("pair " << a << "," << b << "\node " << second[k].transpose() << "\nfd  " << want.transpose());
-          CHECK((second[k] - want).cwiseAbs().maxCoeff() / scale < 1e-6);
-          ++compared;
-        }
+        compared += CheckPairs(AllPairs(obj, values, free), values, free, 1e-6);
       }
       // A linear model written as ODEs against the linear model's exact second order (with moving
       // doses: the two jet engines, ODE and Φ/Γ, against each other).
@@ -622,15 +624,7 @@ TEST_CASE("higher derivatives of a nonlinear model file whose doses move with η
     MoveEtas(*model, all, &values);
     std::vector<int> free;
     for (const char* name : {"VMAX", "TLAG", "ETA_F", "ETA_L", "ETA_D"}) free.push_back(obj.ParameterIndex(name));
-    const PairsAgainstDifferences c = AllPairs(obj, values, free);
-    const std::vector<double> scales = PairScales(values, free, c.pairs, c.differences);
-    for (size_t k = 0; k < c.pairs.size(); ++k) {
-      const double scale = scales[k];
-      INFO("pair " << c.pairs[k].first << "," << c.pairs[k].second << "\node " << c.second[k].transpose() << "\nfd  "
-                   << c.differences[k].transpose());
-      CHECK((c.second[k] - c.differences[k]).cwiseAbs().maxCoeff() / scale < 1e-6);
-      ++compared;
-    }
+    compared += CheckPairs(AllPairs(obj, values, free), values, free, 1e-6);
     free.erase(free.begin() + 1);  // the triples along VMAX and the three η
     compared += CheckThirdDerivatives(obj, values, free, 1e-5);
   }
@@ -691,15 +685,7 @@ TEST_CASE("moving doses with a time-varying covariate, two outputs and many dist
     values(obj.ParameterIndex("ETA_L")) = 0.15;
     std::vector<int> free;
     for (const char* name : {"KA", "CL", "TLAG", "ETA_F", "ETA_L"}) free.push_back(obj.ParameterIndex(name));
-    const PairsAgainstDifferences c = AllPairs(obj, values, free);
-    const std::vector<double> scales = PairScales(values, free, c.pairs, c.differences);
-    for (size_t k = 0; k < c.pairs.size(); ++k) {
-      const double scale = scales[k];
-      INFO("pair " << c.pairs[k].first << "," << c.pairs[k].second << "\nexact " << c.second[k].transpose()
-                   << "\nfd    " << c.differences[k].transpose());
-      CHECK((c.second[k] - c.differences[k]).cwiseAbs().maxCoeff() / scale < (nonlinear ? 1e-6 : 1e-7));
-      ++compared;
-    }
+    compared += CheckPairs(AllPairs(obj, values, free), values, free, nonlinear ? 1e-6 : 1e-7);
     if (nonlinear) free = {free[1], free[3], free[4]};
     compared += CheckThirdDerivatives(obj, values, free, nonlinear ? 1e-5 : 1e-6);
   }

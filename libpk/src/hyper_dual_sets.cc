@@ -6,13 +6,13 @@
 namespace pk {
 namespace internal {
 
-HyperDual3Vector SeedAlong(const ParameterLayout& layout, const DualVector& set, int num_free,
+HyperDual3Vector SeedAlong(const ParameterLayout& layout, const DualVector& set,
                            const std::array<int, 3>& dir) {
   HyperDual3Vector v(set.size());
   for (Eigen::Index i = 0; i < set.size(); ++i) {
     v(i) = HyperDual3(set(i).value());
-    if (set(i).derivatives().size() == 0) continue;
-    const Eigen::VectorXd d = Derivatives(set(i), num_free);
+    const auto& d = set(i).derivatives();  // empty for a constant
+    if (d.size() == 0) continue;
     for (int c = 0; c < 3; ++c) {
       if (dir[static_cast<size_t>(c)] >= 0) v(i).part(1 << c) = d(dir[static_cast<size_t>(c)]);
     }

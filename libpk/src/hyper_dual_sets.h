@@ -16,12 +16,12 @@ namespace internal {
 
 using HyperDual3Vector = Vec<HyperDual3>;
 
-/// One parameter set on HyperDual3 along `dir` (positions among the `num_free` derivatives `set`
+/// One parameter set on HyperDual3 along `dir` (positions among the derivatives `set`
 /// carries; −1 for none): part 1 << c of each entry is its derivative along dir[c] (the free
 /// parameters enter the layout linearly, so there are no mixed parts), and the computed modifiers
 /// get theirs, mixed parts included, from their own evaluation. Throws NumericalFailure when the
 /// model's computed modifiers have no evaluation on HyperDual3.
-HyperDual3Vector SeedAlong(const ParameterLayout& layout, const DualVector& set, int num_free,
+HyperDual3Vector SeedAlong(const ParameterLayout& layout, const DualVector& set,
                            const std::array<int, 3>& dir);
 
 /// How many of dir's entries are directions (2 or 3), and so the jet's parts: 1 << that.

@@ -11,6 +11,7 @@
 #include "../numerical_failure.h"
 #include "exact_routes.h"
 #include "jet_exponential.h"
+#include "third_order.h"
 #include "pk/hyper_dual.h"
 
 namespace pk {
@@ -35,25 +36,7 @@ JetProducts SubsetAlgebra(int d) {
 
 // [θ; ψ] of one set: the model parameters and the derived coefficients the terms read.
 std::vector<HD3> Extended(const LinearModel& model, const HD3Vector& set) {
-  const int m = model.num_parameters();
-  std::vector<HD3> e(set.data(), set.data() + m);
-  const DerivedCoefficients& derived = model.derived_coefficients();
-  if (derived.count == 0) return e;
-  if (!derived.evaluate_third) throw NumericalFailure("the model's derived coefficients have no third order");
-  Eigen::VectorXd theta(m);
-  Eigen::MatrixXd directions(m, 3);
-  for (int j = 0; j < m; ++j) {
-    theta(j) = e[static_cast<size_t>(j)].value();
-    for (int c = 0; c < 3; ++c) directions(j, c) = e[static_cast<size_t>(j)].part(1 << c);
-  }
-  std::vector<Eigen::VectorXd> parts;
-  derived.evaluate_third(theta, directions, &parts);
-  for (int q = 0; q < derived.count; ++q) {
-    HD3 psi;
-    for (int s = 0; s < 8; ++s) psi.part(s) = parts[static_cast<size_t>(s)](q);
-    e.push_back(psi);
-  }
-  return e;
+  return ExtendedThird(model, std::vector<HD3>(set.data(), set.data() + model.num_parameters()));
 }
 
 // Σ `terms` as a jet of rows × cols parts; an output row's terms go to row 0.
@@ -268,7 +251,7 @@ void MovingEventDerivatives(const LinearModel& model, const ParameterLayout& lay
       if (i >= num_free) throw NumericalFailure("a direction names no free parameter");
     }
     std::vector<HD3Vector> seeded;
-    for (const DualVector& set : sets) seeded.push_back(SeedAlong(layout, set, num_free, dir));
+    for (const DualVector& set : sets) seeded.push_back(SeedAlong(layout, set, dir));
     Eigen::VectorXd y;
     MovingEventVisitor visitor(model, subject, seeded, JetParts(dir) == 4 ? pairs : triples, &y);
     EventEngine<HD3, MovingEventVisitor> engine(subject, layout, seeded, &visitor);

@@ -81,32 +81,14 @@ struct TaylorAlgebra {
 
 // [θ; ψ] of one parameter set on HyperDual3, θ moving along free parameters i, j, k.
 std::vector<HyperDual3> Extended(const LinearModel& model, const DualVector& set, int num_free, const Monomial& ijk) {
-  const int m = model.num_parameters();
-  Eigen::VectorXd theta(m);
-  Eigen::MatrixXd directions(m, 3);
-  for (int j = 0; j < m; ++j) {
+  std::vector<HyperDual3> theta;
+  for (int j = 0; j < model.num_parameters(); ++j) {
     const Eigen::VectorXd d = Derivatives(set(j), num_free);
-    theta(j) = set(j).value();
-    for (int c = 0; c < 3; ++c) directions(j, c) = d(ijk[static_cast<size_t>(c)]);
+    HyperDual3 t(set(j).value());
+    for (int c = 0; c < 3; ++c) t.part(1 << c) = d(ijk[static_cast<size_t>(c)]);  // θ is linear in p: no mixed parts
+    theta.push_back(t);
   }
-  std::vector<HyperDual3> e;
-  for (int j = 0; j < m; ++j) {
-    HyperDual3 t(theta(j));
-    for (int c = 0; c < 3; ++c) t.part(1 << c) = directions(j, c);  // θ is linear in p: no mixed parts
-    e.push_back(t);
-  }
-  const DerivedCoefficients& derived = model.derived_coefficients();
-  if (derived.count > 0) {
-    if (!derived.evaluate_third) throw NumericalFailure("the model's derived coefficients have no third order");
-    std::vector<Eigen::VectorXd> parts;
-    derived.evaluate_third(theta, directions, &parts);
-    for (int q = 0; q < derived.count; ++q) {
-      HyperDual3 psi;
-      for (int s = 0; s < 8; ++s) psi.part(s) = parts[static_cast<size_t>(s)](q);
-      e.push_back(psi);
-    }
-  }
-  return e;
+  return ExtendedThird(model, std::move(theta));
 }
 
 // [θ; ψ] of one parameter set along each of the algebra's monomials of degree 3 (`cubes`).
@@ -217,6 +199,27 @@ class ThirdOrderVisitor {
 };
 
 }  // namespace
+
+std::vector<HyperDual3> ExtendedThird(const LinearModel& model, std::vector<HyperDual3> theta) {
+  const DerivedCoefficients& derived = model.derived_coefficients();
+  if (derived.count == 0) return theta;
+  if (!derived.evaluate_third) throw NumericalFailure("the model's derived coefficients have no third order");
+  const auto m = static_cast<Eigen::Index>(theta.size());
+  Eigen::VectorXd values(m);
+  Eigen::MatrixXd directions(m, 3);
+  for (Eigen::Index j = 0; j < m; ++j) {
+    values(j) = theta[static_cast<size_t>(j)].value();
+    for (int c = 0; c < 3; ++c) directions(j, c) = theta[static_cast<size_t>(j)].part(1 << c);
+  }
+  std::vector<Eigen::VectorXd> parts;
+  derived.evaluate_third(values, directions, &parts);
+  for (int q = 0; q < derived.count; ++q) {
+    HyperDual3 psi;
+    for (int s = 0; s < 8; ++s) psi.part(s) = parts[static_cast<size_t>(s)](q);
+    theta.push_back(psi);
+  }
+  return theta;
+}
 
 void ThirdOrderSensitivities(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& subject,
                              const std::vector<DualVector>& sets, int num_free,

@@ -30,10 +30,16 @@
 
 #include "../autodiff.h"
 #include "../events.h"
+#include "pk/hyper_dual.h"
 #include "pk/linear_model.h"
 
 namespace pk {
 namespace internal {
+
+/// [θ; ψ] on HyperDual3: the model parameters θ as given (linear in the free parameters: parts
+/// 1, 2 and 4 only), then the derived coefficients ψ(θ) with every part (a model file's
+/// DerivedCoefficients::evaluate_third). Throws NumericalFailure when ψ has no third order.
+std::vector<HyperDual3> ExtendedThird(const LinearModel& model, std::vector<HyperDual3> theta);
 
 /// (*out)[t] = ∂³ŷ/∂p_i∂p_j∂p_k over the samples, in record order, for triples[t] = (i, j, k)
 /// (indices into the free parameters, which `sets` seed as pk::Dual derivatives). Throws

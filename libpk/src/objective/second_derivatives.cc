@@ -33,6 +33,18 @@ bool HigherOrderApplies(const internal::ObjectiveState& d, const std::vector<int
   return true;
 }
 
+// The pairs' (triples') derivatives along which a dose moves: the event engine on jets, on Φ/Γ or
+// with the ODEs (exact/ and ode/moving_events.h).
+void MovingDoseDerivatives(const internal::ObjectiveState& d, const internal::PreparedSubject& s,
+                           const std::vector<internal::DualVector>& sets, int num,
+                           const std::vector<std::array<int, 3>>& directions, std::vector<Eigen::VectorXd>* out) {
+  if (d.linear == nullptr) {
+    internal::OdeMovingEventDerivatives(d.ode, s, sets, num, directions, out);
+  } else {
+    internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, directions, out);
+  }
+}
+
 std::array<int, 3> Directions(const std::pair<int, int>& pair) { return {pair.first, pair.second, -1}; }
 std::array<int, 3> Directions(const std::array<int, 3>& triple) { return triple; }
 
@@ -117,11 +129,7 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
       }
     };
     const auto jets = [&](const std::vector<std::array<int, 3>>& moving, std::vector<Eigen::VectorXd>* out) {
-      if (d.linear == nullptr) {
-        internal::OdeMovingEventDerivatives(d.ode, s, sets, num, moving, out);
-      } else {
-        internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
-      }
+      MovingDoseDerivatives(d, s, sets, num, moving, out);
     };
     SplitByMoving(pairs, moves, fixed, jets, second);
   };
@@ -152,11 +160,7 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
       }
     };
     const auto jets = [&](const std::vector<std::array<int, 3>>& moving, std::vector<Eigen::VectorXd>* out) {
-      if (d.linear == nullptr) {
-        internal::OdeMovingEventDerivatives(d.ode, s, sets, num, moving, out);
-      } else {
-        internal::MovingEventDerivatives(*d.linear, d.layout, s, sets, num, moving, out);
-      }
+      MovingDoseDerivatives(d, s, sets, num, moving, out);
     };
     SplitByMoving(triples, moves, fixed, jets, third);
   };

@@ -71,9 +71,6 @@ class MovingOdeVisitor {
     for (const Segment<HD3>& segment : cycle.period) Integrate(segment.duration, segment.rate, set, z);
   }
   Eigen::VectorXd PeriodicValue(const SteadyStateCycle<HD3>& cycle, int set, Eigen::PartialPivLU<Eigen::MatrixXd>* lu) const;
-  double Tolerance(const Eigen::VectorXd& x) const {
-    return o_.options.relative_tolerance * x.lpNorm<Eigen::Infinity>() + o_.options.absolute_tolerance;
-  }
   void Place(const State& z, bool add) {
     if (add) {
       z_ += z;
@@ -147,7 +144,7 @@ Eigen::VectorXd MovingOdeVisitor::PeriodicValue(const SteadyStateCycle<HD3>& cyc
     const Eigen::VectorXd dx = lu->solve(Eigen::VectorXd(z.head(n_) - x));
     if (!dx.allFinite()) throw NumericalFailure("no periodic steady state (I − P_x is singular)");
     x += dx;
-    const double step = dx.lpNorm<Eigen::Infinity>(), tolerance = Tolerance(x);
+    const double step = dx.lpNorm<Eigen::Infinity>(), tolerance = NewtonTolerance(o_.options, x);
     converged = it > 0 && (step <= tolerance || NewtonAtNoise(step, last, tolerance, x.lpNorm<Eigen::Infinity>()));
     last = step;
     if (!converged && it >= o_.options.max_newton_iterations) {
@@ -206,7 +203,7 @@ void OdeMovingEventDerivatives(const OdeSubject& o, const PreparedSubject& s, co
       if (i >= num_free) throw NumericalFailure("a direction names no free parameter");
     }
     std::vector<HyperDual3Vector> seeded;
-    for (const DualVector& set : sets) seeded.push_back(SeedAlong(*o.layout, set, num_free, dir));
+    for (const DualVector& set : sets) seeded.push_back(SeedAlong(*o.layout, set, dir));
     Eigen::VectorXd y;
     MovingOdeVisitor visitor(o, seeded, JetParts(dir), &y);
     EventEngine<HD3, MovingOdeVisitor> engine(s, *o.layout, seeded, &visitor);

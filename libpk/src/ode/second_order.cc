@@ -104,10 +104,6 @@ class HigherOrderVisitor {
     for (const Segment<double>& seg : cycle.period) Integrate(seg.duration, seg.rate, stack, z, &last_step);
   }
 
-  double Tolerance(const Eigen::VectorXd& x) const {
-    return o_.options.relative_tolerance * x.lpNorm<Eigen::Infinity>() + o_.options.absolute_tolerance;
-  }
-
   // z_ = (or +=) z, as the first-order propagator places a steady state (SS=1 replaces, SS=2 adds).
   void Place(const State& z, bool add) {
     if (add) {
@@ -212,7 +208,7 @@ Eigen::VectorXd HigherOrderVisitor::PeriodicState(const SteadyStateCycle<double>
     if (!dx.allFinite()) throw NumericalFailure("no periodic steady state (I − P_x is singular)");
     x += dx;
     const double step = dx.lpNorm<Eigen::Infinity>();
-    const double tolerance = Tolerance(x);
+    const double tolerance = NewtonTolerance(o_.options, x);
     converged = it > 0 && (step <= tolerance || NewtonAtNoise(step, last, tolerance, x.lpNorm<Eigen::Infinity>()));
     last = step;
     if (!converged && it >= o_.options.max_newton_iterations) {
@@ -290,9 +286,7 @@ Eigen::VectorXd InfusionSteadyState(const OdeModel& model, const OdeOptions& opt
     const Eigen::VectorXd dx = lu->solve(Eigen::VectorXd(f + u));
     x -= dx;
     if (!x.allFinite()) throw NumericalFailure("no steady state for the constant infusion");
-    if (dx.lpNorm<Eigen::Infinity>() <= options.relative_tolerance * x.lpNorm<Eigen::Infinity>() + options.absolute_tolerance) {
-      break;
-    }
+    if (dx.lpNorm<Eigen::Infinity>() <= NewtonTolerance(options, x)) break;
     if (it >= options.max_newton_iterations) {
       throw NumericalFailure("no steady state for the constant infusion: Newton did not converge");
     }

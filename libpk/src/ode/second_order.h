@@ -58,6 +58,11 @@ void OdeThirdOrderSensitivities(const OdeSubject& o, const PreparedSubject& s, c
 /// continuous records.
 void CheckHigherOrderRoute(const OdeSubject& o);
 
+/// A steady-state Newton step's tolerance at x: rtol‖x‖∞ + atol.
+inline double NewtonTolerance(const OdeOptions& options, const Eigen::VectorXd& x) {
+  return options.relative_tolerance * x.lpNorm<Eigen::Infinity>() + options.absolute_tolerance;
+}
+
 /// x* with f(x*, θ) + u = 0, by Newton from 0 to the options' tolerances, and *lu of f_x at x*: the
 /// higher orders' steady state of a constant infusion. Throws NumericalFailure.
 Eigen::VectorXd InfusionSteadyState(const OdeModel& model, const OdeOptions& options, const Eigen::VectorXd& theta,
