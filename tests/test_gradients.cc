@@ -8,6 +8,7 @@
 #include "exact/jet_exponential.h"
 #include "hyper_dual_number.h"
 #include "pk/catalogue.h"
+#include "pk/linear_model.h"
 #include "pk/model_file.h"
 #include "pk/ode_model.h"
 #include "pk/objective.h"
@@ -690,6 +691,72 @@ TEST_CASE("moving doses with a time-varying covariate, two outputs and many dist
     compared += CheckThirdDerivatives(obj, values, free, nonlinear ? 1e-5 : 1e-6);
   }
   CHECK(compared >= (pk_test::kSanitized ? 50 : 75));
+}
+
+TEST_CASE("higher derivatives of an output with a baseline (its offset d(θ) by AD)", "[gradient][second-order]") {
+  // Oral with an effect compartment; E's baseline reads a time-varying weight and two η (a derived
+  // coefficient of the offset), and F1 = exp(ETA_F) moves the doses (the jets' pairs and triples).
+  const auto model = pk::ParseModel(
+      "$PROBLEM baseline_cov  oral with an effect compartment, E = E0·(WT/70)^0.3·exp(ETA_E + ETA_CL/2) + SLOPE·CE\n"
+      "$PARAM\nKA = 1.2\nCL = 3\nV = 30\nKE0 = 0.4\nE0 = 10\nSLOPE = 2\n$COVARIATE\nWT kg\n"
+      "$OMEGA\nETA_CL ~ 0.1\nETA_E ~ 0.1\nETA_F ~ 0.1\n$CMT\nDEPOT dose\nCENTRAL central\nEFFECT\n"
+      "$PK\nCLI = CL * exp(ETA_CL) * (WT / 70)^0.75\nF1 = exp(ETA_F)\n"
+      "$ODE\nC = CENTRAL / V\nd/dt(DEPOT) = -KA * DEPOT\nd/dt(CENTRAL) = KA * DEPOT - CLI * C\n"
+      "d/dt(EFFECT) = KE0 * (C - EFFECT)\n"
+      "$OUTPUT\nCP = C\nE = E0 * (WT / 70)^0.3 * exp(ETA_E + ETA_CL / 2) + SLOPE * EFFECT\n",
+      "baseline_cov.pkm", pk::RandomEffects::kParameters);
+  const auto* linear = dynamic_cast<const pk::LinearModel*>(model.get());
+  INFO(pk::WhyNotLinear(*model));
+  REQUIRE(linear != nullptr);
+  REQUIRE(linear->has_output_offsets());
+  const pk::Objective obj(model, MovingCovariateData(), 0, pk::ObjectiveOptions());
+  Eigen::VectorXd values = obj.DefaultValues();
+  values(obj.ParameterIndex("ETA_CL")) = 0.1;
+  values(obj.ParameterIndex("ETA_E")) = -0.15;
+  values(obj.ParameterIndex("ETA_F")) = -0.2;
+  std::vector<int> free;
+  for (const char* name : {"KA", "CL", "E0", "SLOPE", "ETA_CL", "ETA_E", "ETA_F"}) free.push_back(obj.ParameterIndex(name));
+  // The first order: the Jacobian against Richardson differences of the predictions.
+  const Eigen::MatrixXd jacobian = PredictionJacobian(obj, values, free);
+  for (size_t a = 0; a < free.size(); ++a) {
+    Eigen::VectorXd d[2];
+    for (int level = 0; level < 2; ++level) {
+      const double h = 1e-3 * std::max(std::abs(values(free[a])), 0.1) / (1 << level);
+      Eigen::VectorXd plus = values, minus = values, up, down;
+      plus(free[a]) += h;
+      minus(free[a]) -= h;
+      std::string why;
+      REQUIRE(obj.Sensitivities(plus, free, &up, nullptr, &why));
+      REQUIRE(obj.Sensitivities(minus, free, &down, nullptr, &why));
+      d[level] = (up - down) / (2 * h);
+    }
+    const Eigen::VectorXd want = (4 * d[1] - d[0]) / 3;
+    INFO("parameter " << a << "\nexact " << jacobian.col(static_cast<Eigen::Index>(a)).transpose() << "\nfd    "
+                      << want.transpose());
+    CHECK((jacobian.col(static_cast<Eigen::Index>(a)) - want).cwiseAbs().maxCoeff() / want.cwiseAbs().maxCoeff() <
+          1e-8);
+  }
+  // The adjoint routes (Padé and eigen-coordinates, without the moving ETA_F) against the forward one.
+  for (const bool moving : {true, false}) {
+    std::vector<int> along = free;
+    if (!moving) along.pop_back();
+    for (const bool modal : {true, false}) {
+      pk::ObjectiveOptions options;
+      options.modal_propagation = modal;
+      const pk::Objective route(model, MovingCovariateData(), 0, options);
+      const auto forward = route.Evaluate(values, along, pk::Objective::Need::kGradient, pk::GradientRoute::kForward);
+      const auto adjoint = route.Evaluate(values, along, pk::Objective::Need::kGradient, pk::GradientRoute::kAdjoint);
+      REQUIRE((forward.ok && adjoint.ok));
+      INFO("moving " << moving << ", modal " << modal << "\nforward " << forward.gradient.transpose() << "\nadjoint "
+                     << adjoint.gradient.transpose());
+      CHECK((forward.gradient - adjoint.gradient).cwiseAbs().maxCoeff() / forward.gradient.cwiseAbs().maxCoeff() <
+            1e-10);
+    }
+  }
+  int compared = CheckPairs(AllPairs(obj, values, free), values, free, 1e-7);
+  free = {free[1], free[2], free[4], free[5], free[6]};
+  compared += CheckThirdDerivatives(obj, values, free, 1e-6);
+  CHECK(compared == 28 + 35);
 }
 
 TEST_CASE("a zero lag carrying a derivative: the ODE and Φ/Γ jets agree", "[gradient][second-order][ode]") {

@@ -327,7 +327,7 @@ namespace {
 const char* const kShipped[] = {"1cmt_iv", "1cmt_oral", "2cmt_iv", "2cmt_oral", "3cmt_iv", "3cmt_oral",
                                 "1cmt_oral_transit", "tf1", "tf2", "tf3", "tf4", "1cmt_iv_mm", "1cmt_oral_mm",
                                 "2cmt_iv_mm", "1cmt_iv_emax", "1cmt_iv_parallel", "idr1", "idr2", "idr3", "idr4",
-                                "turnover", "parent_metabolite", "emax_baseline"};
+                                "turnover", "parent_metabolite", "emax_baseline", "effect_linear"};
 
 // The regimen of tests/reference/make_pd_reference.R: 100 at 0, 50 at rate 25 from 12; samples of
 // every output at `times`.
@@ -359,7 +359,7 @@ TEST_CASE("model files: the new models equal R deSolve's solution of their equat
     const size_t comma = line.find(',');
     reference[line.substr(0, comma)].push_back(std::stod(line.substr(line.rfind(',') + 1)));
   }
-  REQUIRE(reference.size() == 8);
+  REQUIRE(reference.size() == 9);
   for (const auto& kv : reference) {
     INFO(kv.first);
     const auto model = pk::LoadModelFile(ModelPath(kv.first));
@@ -553,19 +553,15 @@ std::shared_ptr<pk::Dataset> TwoOutputData(const pk_test::Scenario& sc) {
   return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), sc.name));
 }
 
-}  // namespace
-
-TEST_CASE("model files: a linear model with two outputs runs on Φ/Γ, its samples chosen by DVID",
-          "[model_file][gradient]") {
-  // parent_metabolite: CP (DVID 1) and CPM (DVID 2), each with its own combined σ. The exact
-  // route (with and without eigen-coordinates) against the same equations integrated by CVODES at
-  // rtol 1e-12, on every event type, and against central differences of its own objective.
-  const auto model = pk::LoadModelFile(ModelPath("parent_metabolite"));
+// A linear file with two outputs (DVID 1 and 2), each with its own combined σ, on every event type:
+// the exact route (with and without eigen-coordinates, forward and adjoint) against the same
+// equations integrated by CVODES at rtol 1e-12, and against central differences of its own objective.
+void CheckTwoOutputFile(const std::shared_ptr<const pk::Model>& model, const std::vector<std::string>& outputs) {
   INFO(pk::WhyNotLinear(*model));
   REQUIRE(dynamic_cast<const pk::LinearModel*>(model.get()) != nullptr);
-  REQUIRE(model->output_names() == std::vector<std::string>{"CP", "CPM"});
-  const auto error = pk::MakePerOutputError({pk::MakeResidualError("combined"), pk::MakeResidualError("combined")},
-                                            {"CP", "CPM"});
+  REQUIRE(model->output_names() == outputs);
+  const auto error =
+      pk::MakePerOutputError({pk::MakeResidualError("combined"), pk::MakeResidualError("combined")}, outputs);
   for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
     INFO(sc.name);
     const auto data = TwoOutputData(sc);
@@ -591,7 +587,8 @@ TEST_CASE("model files: a linear model with two outputs runs on Φ/Γ, its sampl
     }
     const auto want = reference.Evaluate(values, free, pk::Objective::Need::kGradient, pk::GradientRoute::kForward);
     REQUIRE(want.ok);
-    // The metabolite's samples are not its parent's: the two outputs differ at every time with drug.
+    CHECK(std::string(want.propagator) == "ode");
+    // The second output's samples are not the first's: the two differ at every time with drug.
     for (Eigen::Index j = 0; j + 1 < want.predictions.size(); j += 2) {
       if (want.predictions(j) == 0) continue;  // before a lagged first dose
       CHECK(std::fabs(want.predictions(j) - want.predictions(j + 1)) > 1e-6 * std::fabs(want.predictions(j)));
@@ -613,6 +610,15 @@ TEST_CASE("model files: a linear model with two outputs runs on Φ/Γ, its sampl
       }
     }
   }
+}
+
+}  // namespace
+
+TEST_CASE("model files: a linear model with two outputs runs on Φ/Γ, its samples chosen by DVID",
+          "[model_file][gradient]") {
+  // parent_metabolite: CP (DVID 1) and CPM (DVID 2).
+  const auto model = pk::LoadModelFile(ModelPath("parent_metabolite"));
+  CheckTwoOutputFile(model, {"CP", "CPM"});
   // A DVID the model does not have names the file, line and column, and the outputs.
   const auto bad = std::make_shared<pk::Dataset>(pk::ParseDataset(
       "ID,TIME,AMT,DV,DVID\n1,0,100,.,.\n1,1,0,2,1\n1,2,0,1,3\n", "three.csv"));
@@ -627,11 +633,57 @@ TEST_CASE("model files: a linear model with two outputs runs on Φ/Γ, its sampl
   }
 }
 
+TEST_CASE("model files: an output with a baseline runs on Φ/Γ, its offset with every derivative",
+          "[model_file][gradient]") {
+  // effect_linear: CP (DVID 1) and E = E0 + SLOPE·CE (DVID 2), whose E0 is the output's offset d(θ).
+  const auto model = pk::LoadModelFile(ModelPath("effect_linear"));
+  const auto* linear = dynamic_cast<const pk::LinearModel*>(model.get());
+  REQUIRE(linear != nullptr);
+  CHECK(linear->has_output_offsets());
+  CHECK(linear->output_offset_terms(model->num_compartments() + 1).empty());  // CP
+  CHECK(linear->output_offset_terms(model->num_compartments() + 2).size() == 1);  // E
+  CheckTwoOutputFile(model, {"CP", "E"});
+  // A bolus of 100 at 0: E = E0 + SLOPE·Ce with Ce = (D/V)·KE0/(KE0 − k)·(e^{−kt} − e^{−KE0·t}), k = CL/V;
+  // and, in the exogenous turnover (its central output CP = (KIN/KOUT + A)/V has the offset), the
+  // AUC adds KIN/KOUT/V·t: AUC = (KIN/KOUT·t + 100/KOUT·(1 − e^{−KOUT·t}))/V.
+  const double cl = 3, v = 30, ke0 = 0.5, e0 = 10, slope = 4, k = cl / v;
+  const double kin = 10, kout = 0.5, vt = 20;
+  const auto turnover = pk::ParseModel(
+      "$PROBLEM turnover_exo  the exogenous part as the state\n$PARAM\nKIN = 10\nKOUT = 0.5\nV = 20\n"
+      "$CMT\nEXOGENOUS  dose central\n$ODE\nd/dt(EXOGENOUS) = -KOUT * EXOGENOUS\n"
+      "$OUTPUT\nCP = (KIN / KOUT + EXOGENOUS) / V\n",
+      "turnover_exo.pkm");
+  const pk::Dataset data = pk::ParseDataset(
+      "ID,TIME,AMT,DVID,DV\n1,0,100,.,.\n1,1,0,2,.\n1,4,0,2,.\n1,10,0,2,.\n", "bolus.csv");
+  const pk::Dataset one_output = pk::ParseDataset("ID,TIME,AMT,DV\n1,0,100,.\n1,1,0,.\n1,4,0,.\n1,10,0,.\n", "b.csv");
+  pk::SimulationOptions options;
+  options.track_auc = true;
+  options.ode.relative_tolerance = 1e-12;
+  options.ode.absolute_tolerance = 1e-14;
+  for (pk::Propagator propagator : {pk::Propagator::kExact, pk::Propagator::kOde}) {
+    INFO(pk::ToString(propagator));
+    options.propagator = propagator;
+    const pk::SubjectSimulation sim = pk::SimulateSubject(
+        *model, data, 0, {{"CL", cl}, {"V", v}, {"KE0", ke0}, {"E0", e0}, {"SLOPE", slope}}, options);
+    const pk::SubjectSimulation exo =
+        pk::SimulateSubject(*turnover, one_output, 0, {{"KIN", kin}, {"KOUT", kout}, {"V", vt}}, options);
+    REQUIRE((sim.ok && exo.ok));
+    REQUIRE((sim.rows.size() == 3 && exo.rows.size() == 3));
+    for (size_t r = 0; r < 3; ++r) {
+      const double t = sim.rows[r].time;
+      const double ce = 100 / v * ke0 / (ke0 - k) * (std::exp(-k * t) - std::exp(-ke0 * t));
+      CHECK(sim.rows[r].pred == Approx(e0 + slope * ce).epsilon(1e-10));
+      CHECK(exo.rows[r].cp == Approx((kin / kout + 100 * std::exp(-kout * t)) / vt).epsilon(1e-10));
+      CHECK(exo.rows[r].auc == Approx((kin / kout * t + 100 / kout * (1 - std::exp(-kout * t))) / vt).epsilon(1e-9));
+    }
+  }
+}
+
 TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal to the exogenous form",
           "[model_file][gradient]") {
   // The shipped turnover.pkm, d/dt(A) = KIN − KOUT·A from the baseline X0_1 = KIN/KOUT, against the
-  // same turnover with the exogenous part as the state and the baseline in the output (which keeps
-  // it on the ODE route), at rtol 1e-12, on every event type (a reset record sets X0_1 again, as
+  // same turnover with the exogenous part as the state and the baseline in the output (the output's
+  // offset), integrated by CVODES at rtol 1e-12 and on Φ/Γ, on every event type (a reset record sets X0_1 again, as
   // NONMEM's A_0, which is where the exogenous form's reset leaves it) but the one that gives X0_1
   // (computed here).
   const auto model = pk::LoadModelFile(ModelPath("turnover"));
@@ -645,8 +697,8 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
       "$ODE\nd/dt(EXOGENOUS) = -KOUT * EXOGENOUS\n"
       "$OUTPUT\nCP = (KIN / KOUT + EXOGENOUS) / V\n",
       "turnover_exo.pkm");
-  REQUIRE(dynamic_cast<const pk::OdeModel*>(exogenous.get()) != nullptr);
-  CHECK_THAT(pk::WhyNotLinear(*exogenous), Catch::Contains("output CP has a term without an amount"));
+  INFO(pk::WhyNotLinear(*exogenous));
+  REQUIRE(dynamic_cast<const pk::LinearModel*>(exogenous.get()) != nullptr);
   for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
     if (std::string(sc.name) == "initial state") continue;
     INFO(sc.name);
@@ -654,9 +706,11 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
     pk::ObjectiveOptions exact;
     exact.error_model = pk::MakeResidualError("proportional");
     pk::ObjectiveOptions ode = exact;
+    ode.propagator = pk::Propagator::kOde;
     ode.ode.relative_tolerance = 1e-12;
     ode.ode.absolute_tolerance = 1e-14;
-    const pk::Objective objective(model, data, 0, exact), reference(exogenous, data, 0, ode);
+    const pk::Objective objective(model, data, 0, exact), reference(exogenous, data, 0, ode),
+        exogenous_exact(exogenous, data, 0, exact);
     Eigen::VectorXd values = objective.DefaultValues();
     std::vector<int> free;
     for (const char* name : {"KIN", "KOUT", "V"}) free.push_back(objective.ParameterIndex(name));
@@ -682,6 +736,13 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
       CHECK(MaxRel(got.predictions, want.predictions) < 1e-9);
       CHECK(MaxRel(got.gradient, want.gradient) < 1e-7);
       CHECK(MaxRel(got.gradient, fd) < 1e-6);
+      // The exogenous form on Φ/Γ, its baseline as the output's offset, route by route.
+      const auto offset = exogenous_exact.Evaluate(exogenous_values, free, pk::Objective::Need::kGradient, r);
+      REQUIRE(offset.ok);
+      CHECK(std::string(offset.propagator) == "exact");
+      CHECK(MaxRel(offset.predictions, want.predictions) < 1e-9);
+      CHECK(MaxRel(offset.gradient, want.gradient) < 1e-7);
+      CHECK(MaxRel(offset.gradient, got.gradient) < 1e-9);
     }
   }
   // Both a term without an amount and a K0_1 of $PK, or a d/dt that reads K0_1: the event engine

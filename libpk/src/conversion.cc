@@ -133,6 +133,10 @@ bool ModelToExponentials(const Model& model, const Eigen::VectorXd& theta, Expon
     *why = "only linear models have a sum-of-exponentials response";
     return false;
   }
+  if (!linear->output_offset_terms(model.central_compartment()).empty()) {
+    *why = "the central output has a baseline (an offset), which a sum of exponentials does not have";
+    return false;
+  }
   const Eigen::MatrixXd a = linear->SystemMatrix<double>(theta);
   const Eigen::RowVectorXd c = linear->OutputRow<double>(model.central_compartment(), theta);
   const Eigen::EigenSolver<Eigen::MatrixXd> es(a);

@@ -28,7 +28,8 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
                                                           ModelDeclarations declarations,
                                                           std::vector<std::string> signed_parameters,
                                                           DerivedCoefficients derived,
-                                                          std::vector<std::string> outputs) {
+                                                          std::vector<std::string> outputs,
+                                                          std::vector<std::vector<LinearTerm>> output_offsets) {
   const int n = static_cast<int>(compartments.size()), m = static_cast<int>(parameters.size());
   const int indexed = m + derived.count;  // a term indexes [θ; ψ]
   auto bad = [&](const std::string& what) { throw std::logic_error("model " + name + ": " + what); };
@@ -56,6 +57,19 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
   for (const auto& row : output_terms) {
     for (const LinearTerm& t : row) check(t);
   }
+  bool any_offset = false;
+  for (const auto& row : output_offsets) {
+    for (const LinearTerm& t : row) {
+      LinearTerm at = t;
+      at.row = at.col = 0;  // an offset has no place in the state
+      check(at);
+    }
+    any_offset = any_offset || !row.empty();
+  }
+  if (!output_offsets.empty() && output_offsets.size() != output_terms.size()) {
+    bad("output offsets, when given, need one row per output row");
+  }
+  if (any_offset && transfer_function_order > 0) bad("a transfer-function model's output has no offset");
   for (std::string& p : parameters) p = internal::ToUpper(p);
   std::shared_ptr<LinearModel> model(new LinearModel(std::move(name), std::move(description), std::move(compartments),
                                                      std::move(parameters), std::move(defaults), central,
@@ -68,11 +82,12 @@ std::shared_ptr<const LinearModel> LinearModel::FromTerms(std::string name, std:
   model->set_declarations(std::move(declarations));
   model->set_output_names(std::move(outputs));
   model->derived_ = std::move(derived);
+  if (any_offset) model->d_terms_ = std::move(output_offsets);
   return model;
 }
 
 double LinearModel::Output(int cmt, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
-  return OutputRow<double>(cmt, theta) * x;
+  return OutputRow<double>(cmt, theta) * x + OutputOffset<double>(cmt, theta);
 }
 
 LinearModelBuilder::LinearModelBuilder(std::string name, std::string description)

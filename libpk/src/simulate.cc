@@ -78,11 +78,12 @@ class Recorder {
   }
 
  private:
-  // A linear model's output row c(θ) for the last (key, set) asked: y = c·x costs n multiplications
-  // when neither changed since the row before, as along a grid of output times.
+  // A linear model's output row c(θ) and offset d(θ) for the last (key, set) asked: y = c·x + d
+  // costs n multiplications when neither changed since the row before, as along a grid of output times.
   struct CachedRow {
     int key = -1, set = -1;
     Eigen::RowVectorXd c;
+    double d = 0;
   };
 
   double Output(int key, const Eigen::Ref<const Eigen::VectorXd>& x, int set, CachedRow* cache) {
@@ -92,10 +93,11 @@ class Recorder {
     }
     if (cache->key != key || cache->set != set) {
       cache->c = linear_->OutputRow<double>(key, Theta(set));
+      cache->d = linear_->OutputOffset<double>(key, Theta(set));
       cache->key = key;
       cache->set = set;
     }
-    return cache->c.dot(x);
+    return cache->c.dot(x) + cache->d;
   }
 
   // The exact propagator's state carries the AUC after the amounts.

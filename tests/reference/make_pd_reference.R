@@ -40,6 +40,9 @@ models <- list(
   emax_baseline = list(p = c(CL = 3, V = 30, E0 = 10, EMAX = 50, EC50 = 1, HILL = 1.5), n = 1, dose = 1,
     rhs = function(x, p) -p[["CL"]] * x[1] / p[["V"]],
     out = function(x, p) { c <- x[1] / p[["V"]]; c(c, p[["E0"]] + hill(c, p[["EMAX"]], p[["EC50"]], p[["HILL"]])) }),
+  effect_linear = list(p = c(CL = 3, V = 30, KE0 = 0.5, E0 = 10, SLOPE = 4), n = 2, dose = 1,
+    rhs = function(x, p) { c <- x[1] / p[["V"]]; c(-p[["CL"]] * c, p[["KE0"]] * (c - x[2])) },
+    out = function(x, p) c(x[1] / p[["V"]], p[["E0"]] + p[["SLOPE"]] * x[2])),
   `1cmt_iv_parallel` = list(p = c(CL = 1, VMAX = 20, KM = 2, V = 30), n = 1, dose = 1,
     rhs = function(x, p) { c <- x[1] / p[["V"]]; -p[["CL"]] * c - p[["VMAX"]] * c / (p[["KM"]] + c) },
     out = function(x, p) x[1] / p[["V"]])

@@ -1,4 +1,4 @@
-// libpk: linear compartment models, dx/dt = A(θ) x + u, y = C(θ) x.
+// libpk: linear compartment models, dx/dt = A(θ) x + u, y = C(θ) x + d(θ).
 //
 // A LinearModel is a compartment graph. Each flow moves drug from one
 // compartment to another, or out of the system, at a first-order rate that is
@@ -95,7 +95,8 @@ class LinearModel final : public Model {
                                                       ModelDeclarations declarations = {},
                                                       std::vector<std::string> signed_parameters = {},
                                                       DerivedCoefficients derived = {},
-                                                      std::vector<std::string> outputs = {});
+                                                      std::vector<std::string> outputs = {},
+                                                      std::vector<std::vector<LinearTerm>> output_offsets = {});
 
   const std::vector<LinearTerm>& system_terms() const { return a_terms_; }
   /// ψ(θ) when terms read derived coefficients (count 0 otherwise).
@@ -107,6 +108,15 @@ class LinearModel final : public Model {
   /// The terms of the output row C_c(θ) of compartment `cmt` (1-based), or of named output k
   /// for `cmt` = n + k.
   const std::vector<LinearTerm>& output_terms(int cmt) const { return c_terms_[cmt - 1]; }
+  /// The terms of the offset d_c(θ) of the same row (their `row` and `col` are ignored): an
+  /// output's part that reads no amount, such as a baseline (E = E0 + SLOPE·CE). Empty for
+  /// every catalogue model; `output_offsets` of FromTerms, indexed as `output_terms`.
+  const std::vector<LinearTerm>& output_offset_terms(int cmt) const {
+    static const std::vector<LinearTerm> kNone;
+    return d_terms_.empty() ? kNone : d_terms_[cmt - 1];
+  }
+  /// Whether some output row has an offset d(θ).
+  bool has_output_offsets() const { return !d_terms_.empty(); }
 
   /// The value of one term, sign · θ[numerator] / θ[denominator], for any
   /// scalar type; `theta(i)` gives θ_i as that type.
@@ -148,6 +158,16 @@ class LinearModel final : public Model {
     return OutputRowOf<T>(cmt, theta);
   }
 
+  /// The offset d_c(θ) of output row `cmt` (0 when it has none), for any scalar type: the
+  /// output is y = C_c(θ) x + d_c(θ) (Output()). The propagators and routes compute C x; the
+  /// objective adds d and its derivatives by AD (libpk/src/objective/output_offsets.h).
+  template <typename T>
+  T OutputOffset(int cmt, const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
+    if (output_offset_terms(cmt).empty()) return T(0.0);
+    if (derived_.count > 0) return OutputOffsetOf<T>(cmt, ExtendedParameters<T>(theta));
+    return OutputOffsetOf<T>(cmt, theta);
+  }
+
  private:
   friend class LinearModelBuilder;
   LinearModel(std::string name, std::string description, std::vector<std::string> compartments,
@@ -184,8 +204,16 @@ class LinearModel final : public Model {
     return c;
   }
 
+  template <typename T>
+  T OutputOffsetOf(int cmt, const Eigen::Matrix<T, Eigen::Dynamic, 1>& theta) const {
+    T d(0.0);
+    for (const LinearTerm& t : d_terms_[cmt - 1]) d += TermValue<T>(t, theta);
+    return d;
+  }
+
   std::vector<LinearTerm> a_terms_;
   std::vector<std::vector<LinearTerm>> c_terms_;
+  std::vector<std::vector<LinearTerm>> d_terms_;  // empty, or one offset per row of c_terms_
   int tf_order_ = 0;
   DerivedCoefficients derived_;
 };

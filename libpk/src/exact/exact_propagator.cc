@@ -17,7 +17,11 @@ ExactPropagator::ExactPropagator(const LinearModel& model, const std::vector<Eig
     if (!theta.allFinite()) throw NumericalFailure("a model parameter is not finite");
     Eigen::MatrixXd a = Eigen::MatrixXd::Zero(big_n, big_n);
     a.topLeftCorner(n_, n_) = model.SystemMatrix<double>(theta);
-    if (track_auc) a.row(n_).head(n_) = model.OutputRow<double>(model.central_compartment(), theta);
+    if (track_auc) {
+      // AUC' = c x + d: the row integrates c x; the offset adds d·h a step (Advance).
+      a.row(n_).head(n_) = model.OutputRow<double>(model.central_compartment(), theta);
+      auc_offset_.push_back(model.OutputOffset<double>(model.central_compartment(), theta));
+    }
     if (!a.allFinite()) throw NumericalFailure("the system matrix is not finite (a volume of zero?)");
     cache_[s].reset(new Discretization(a, n_));
   }
@@ -49,6 +53,7 @@ void ExactPropagator::Advance(double h, const Eigen::VectorXd& rate, int set) {
   scratch_.noalias() = d.phi.lazyProduct(x_);
   if (input) scratch_.noalias() += d.gamma.lazyProduct(rate);
   x_.swap(scratch_);
+  if (track_auc_) x_(n_) += auc_offset_[static_cast<size_t>(set)] * h;
 }
 
 void ExactPropagator::Bolus(int cmt, double amount, int /*set*/) { x_(cmt) += amount; }

@@ -60,6 +60,7 @@ class ExactPropagator {
   const int n_;  // the states a reset clears and a steady state solves for
   const bool track_auc_;
   std::vector<std::unique_ptr<Discretization>> cache_;
+  std::vector<double> auc_offset_;  // per set, with AUC tracking: the central output's offset d(θ)
   Eigen::VectorXd x_;
   Eigen::VectorXd scratch_;  // Advance's product, swapped with x_
 };

@@ -459,7 +459,8 @@ class PredictVisitor {
   void RecordDone(int r, int set) {
     const int k = sample_[r];
     if (k < 0) return;
-    (*yhat_)(k) = model_.Output(s_.cmt[r] + 1, prop_.state(), s_.sets[set].head(model_.num_parameters()));
+    // C x alone, as on every exact route: the objective adds an output's offset (output_offsets.h).
+    (*yhat_)(k) = model_.OutputRow<double>(s_.cmt[r] + 1, s_.sets[set].head(model_.num_parameters())) * prop_.state();
   }
 
  private:

@@ -2,7 +2,8 @@
 //
 // Both run the PREDPP event engine on dual numbers (so event times, amounts
 // and rates carry ∂/∂p) and produce the predictions ŷ_k of the samples
-// (records with IsSample()) in record order.
+// (records with IsSample()) in record order: their amounts' part C x, to which the
+// objective adds an output's offset d(θ) (objective/output_offsets.h).
 //
 //  (a) Forward: propagates the state sensitivity S = ∂x/∂p alongside x,
 //        S ← Φ S + Γ ∂u/∂p + Σ_j (∂Φ/∂θ_j x + ∂Γ/∂θ_j u) ∂θ_j/∂p + (A x⁺ + u) ∂h/∂p,

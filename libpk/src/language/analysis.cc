@@ -821,24 +821,28 @@ class Analyser {
 
   // The terms of a row from a linear form: a constant, a parameter, or a derived coefficient ψ_k.
   void FormTerms(const LinearForm& form, int row, std::vector<LinearTerm>* terms) {
-    const int m = static_cast<int>(out_.parameters.size());
     for (const auto& kv : form.coef) {
       const Node& c = g_[static_cast<size_t>(kv.second)];
       if (c.op == Op::kConstant && c.value == 0) continue;
-      LinearTerm t;
-      t.row = row;
-      t.col = kv.first;
-      if (c.op == Op::kConstant) {
-        t.sign = c.value;
-      } else if (c.op == Op::kInput) {
-        t.numerator = c.input - n();
-      } else {
-        t.numerator = m + static_cast<int>(out_.derived_roots.size());
-        out_.derived_roots.push_back(kv.second);
-        out_.derived_reads.push_back(ParametersRead(kv.second));
-      }
-      terms->push_back(t);
+      terms->push_back(Term(kv.second, row, kv.first));
     }
+  }
+  // Coefficient node k at (row, col) as a term: a constant, a parameter, or a new ψ_k.
+  LinearTerm Term(int k, int row, int col) {
+    const Node& c = g_[static_cast<size_t>(k)];
+    LinearTerm t;
+    t.row = row;
+    t.col = col;
+    if (c.op == Op::kConstant) {
+      t.sign = c.value;
+    } else if (c.op == Op::kInput) {
+      t.numerator = c.input - n();
+    } else {
+      t.numerator = static_cast<int>(out_.parameters.size() + out_.derived_roots.size());
+      out_.derived_roots.push_back(k);
+      out_.derived_reads.push_back(ParametersRead(k));
+    }
+    return t;
   }
 
   // The model parameters node k reads, in order.
@@ -884,10 +888,9 @@ class Analyser {
     }
     std::vector<LinearForm> outputs(out_.outputs.size());
     for (size_t k = 0; k < outputs.size(); ++k) {
-      if (!Linearize(out_.outputs[k], &outputs[k], &why) || outputs[k].coef.empty() || outputs[k].constant >= 0) {
-        if (why.empty()) {
-          why = outputs[k].coef.empty() ? "reads no amount" : "has a term without an amount (a baseline)";
-        }
+      // An amount-free part (a baseline, E0 + SLOPE·CE) is the output's offset d_k(θ).
+      if (!Linearize(out_.outputs[k], &outputs[k], &why) || outputs[k].coef.empty()) {
+        if (why.empty()) why = "reads no amount";
         out_.declarations.why_not_linear = "output " + out_.output_names[k] + " " + why;
         return;
       }
@@ -902,7 +905,14 @@ class Analyser {
     }
     for (int c = 0; c < n(); ++c) FormTerms(rows[static_cast<size_t>(c)], c, &out_.a_terms);
     out_.c_terms.assign(outputs.size(), {});
-    for (size_t k = 0; k < outputs.size(); ++k) FormTerms(outputs[k], 0, &out_.c_terms[k]);
+    out_.d_terms.clear();
+    for (size_t k = 0; k < outputs.size(); ++k) {
+      FormTerms(outputs[k], 0, &out_.c_terms[k]);
+      const int constant = outputs[k].constant;
+      if (constant < 0 || IsZero(constant)) continue;
+      out_.d_terms.resize(outputs.size());
+      out_.d_terms[k].push_back(Term(constant, 0, -1));
+    }
     out_.declarations.why_not_linear.clear();
     out_.linear = true;
   }

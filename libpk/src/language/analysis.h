@@ -37,8 +37,9 @@ struct CompiledModel {
   std::vector<std::string> modifier_names;
   std::vector<int> modifier_roots;
   std::vector<std::vector<int>> modifier_reads;
-  /// When dx/dt = A(θ)x and every output is y_k = c_k(θ)x: the terms for LinearModel::FromTerms
-  /// (c_terms[k − 1] are output k's).
+  /// When dx/dt = A(θ)x (+ zero-order inputs) and every output is y_k = c_k(θ)x + d_k(θ): the terms
+  /// for LinearModel::FromTerms (c_terms[k − 1] are output k's, d_terms[k − 1] its offset's, empty
+  /// for none; d_terms is empty when no output has one).
   /// An entry c·θ_a/θ_b is a term of its own; any other (−CL/V with CL = TVCL·WT·exp(η), say) reads
   /// a derived coefficient: term index m + k stands for the node derived_roots[k], which reads the
   /// parameters derived_reads[k] and no amount (pk::DerivedCoefficients). Otherwise `linear` is
@@ -46,6 +47,7 @@ struct CompiledModel {
   bool linear = false;
   std::vector<LinearTerm> a_terms;
   std::vector<std::vector<LinearTerm>> c_terms;
+  std::vector<std::vector<LinearTerm>> d_terms;
   std::vector<int> derived_roots;
   std::vector<std::vector<int>> derived_reads;
 };

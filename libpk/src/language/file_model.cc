@@ -173,9 +173,16 @@ std::shared_ptr<const Model> Build(const CompiledModel& m) {
       }
     }
     rows.insert(rows.end(), m.c_terms.begin(), m.c_terms.end());
+    // Offsets (baselines) follow the rows: the central compartment's is output 1's.
+    std::vector<std::vector<LinearTerm>> offsets;
+    if (!m.d_terms.empty()) {
+      offsets.assign(static_cast<size_t>(n), {});
+      offsets[static_cast<size_t>(m.central - 1)] = m.d_terms.front();
+      offsets.insert(offsets.end(), m.d_terms.begin(), m.d_terms.end());
+    }
     return LinearModel::FromTerms(t.name, t.description, m.compartments, m.parameters, m.defaults, m.central,
                                   m.default_dose, m.a_terms, rows, 0, InitialStructure(), declarations,
-                                  m.signed_parameters, Coefficients(m, n), m.output_names);
+                                  m.signed_parameters, Coefficients(m, n), m.output_names, std::move(offsets));
   }
   OdeModelSpec spec;
   spec.name = t.name;

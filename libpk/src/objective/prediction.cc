@@ -7,6 +7,7 @@
 #include "autodiff.h"
 #include "exact/companion_route.h"
 #include "numerical_failure.h"
+#include "objective/output_offsets.h"
 
 namespace pk {
 namespace internal {
@@ -47,6 +48,7 @@ bool Prediction::ModelGradient(const Eigen::VectorXd& dl_dy, int num_model, Eige
   } else {
     gradient->setZero(num_model);
   }
+  if (offset_jacobian.size() && (adjoint || modal)) *gradient += offset_jacobian.transpose() * dl_dy;
   return true;
 }
 
@@ -164,6 +166,23 @@ void PredictRoute(const ObjectiveState& d, const Eigen::VectorXd& values, const 
   }
 }
 
+// The output offsets d(θ) (output_offsets.h), which the exact paths above leave out: ŷ += d, and
+// ∂d/∂p into the Jacobian or, on the adjoint routes, beside it for ModelGradient.
+void AddOffsets(const ObjectiveState& d, const Eigen::VectorXd& values, const FreeParameters& free,
+                Objective::Need need, Prediction* out, Eigen::VectorXd* yhat) {
+  PreparedSubject s = d.prepared;
+  RebindParameters(d.layout, values.head(d.L()), &s);
+  AddOutputOffsets(*d.linear, s, yhat);
+  const int pm = free.num_model();
+  if (need == Objective::Need::kValue || pm == 0) return;
+  Eigen::MatrixXd jd = OutputOffsetJacobian(*d.linear, s, DualSets(s, d.layout, free), pm);
+  if (out->adjoint || out->modal) {
+    out->offset_jacobian = std::move(jd);
+  } else {
+    out->jacobian.topRows(jd.rows()) += jd;
+  }
+}
+
 bool Failed(const std::string& why, Objective::Evaluation* ev) {
   ev->ok = false;
   ev->message = why;
@@ -210,6 +229,9 @@ bool Predict(const ObjectiveState& d, const Eigen::VectorXd& values, const FreeP
     if (!done) PredictRoute(d, values, free, route, events_depend, out, ev);
     if (route == GradientRoute::kFiniteDifference && need == Objective::Need::kJacobian) {
       FdJacobian(d, values, free, &out->jacobian, &ev->ode_statistics);
+    }
+    if (!IntegratesOde(d.propagator) && d.linear && d.linear->has_output_offsets()) {
+      AddOffsets(d, values, free, need, out, &ev->predictions);
     }
   } catch (const NumericalFailure& e) {
     return Failed(e.what(), ev);

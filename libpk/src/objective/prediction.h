@@ -44,6 +44,9 @@ struct Prediction {
   std::unique_ptr<OdeAdjoint> ode_adjoint;   ///< CVODES adjoint
   double continuous_loss = 0;                ///< ½∫ w (y − y_m)² of the continuous records
   Eigen::RowVectorXd continuous_gradient;    ///< its gradient (ODE forward route)
+  /// ∂d/∂p of the output offsets (output_offsets.h), for the adjoint routes; the Jacobian routes
+  /// carry it in `jacobian`. Empty when there are none.
+  Eigen::MatrixXd offset_jacobian;
 
   /// Storage for ∂ℓ/∂ŷ, kept with the modal evaluator between evaluations.
   Eigen::VectorXd* LossGradientStorage(Eigen::VectorXd* fallback);

@@ -1,6 +1,7 @@
 // Objective::SecondDerivatives and ThirdDerivatives: ∂²ŷ and ∂³ŷ from Φ/Γ's block-triangular
 // exponential (exact/second_order.h, exact/third_order.h) or from the ODE propagator's
-// sensitivities of the sensitivity system (ode/second_order.h).
+// sensitivities of the sensitivity system (ode/second_order.h), plus a linear model's output
+// offsets (objective/output_offsets.h).
 #include <algorithm>
 #include <array>
 #include <utility>
@@ -11,6 +12,7 @@
 #include "numerical_failure.h"
 #include "ode/moving_events.h"
 #include "ode/second_order.h"
+#include "objective/output_offsets.h"
 #include "objective/prediction.h"
 #include "pk/objective.h"
 
@@ -75,6 +77,17 @@ void SplitByMoving(const std::vector<Tuple>& tuples, const std::vector<char>& mo
   for (long w : where) out->push_back(w >= 0 ? std::move(a[static_cast<size_t>(w)]) : std::move(b[static_cast<size_t>(-1 - w)]));
 }
 
+// The output offsets' part (objective/output_offsets.h), which every route above leaves out.
+template <class Tuple>
+void AddOffsetPart(const internal::ObjectiveState& d, const internal::PreparedSubject& s,
+                   const std::vector<internal::DualVector>& sets, const std::vector<Tuple>& tuples,
+                   std::vector<Eigen::VectorXd>* out) {
+  if (d.linear == nullptr || !d.linear->has_output_offsets()) return;
+  std::vector<std::array<int, 3>> directions;
+  for (const Tuple& t : tuples) directions.push_back(Directions(t));
+  internal::AddOutputOffsetDerivatives(*d.linear, s, sets, directions, out);
+}
+
 bool AllFinite(const std::vector<Eigen::VectorXd>& out, const char* order, std::string* why) {
   for (const Eigen::VectorXd& v : out) {
     if (!v.allFinite()) {
@@ -132,6 +145,7 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
       MovingDoseDerivatives(d, s, sets, num, moving, out);
     };
     SplitByMoving(pairs, moves, fixed, jets, second);
+    AddOffsetPart(d, s, sets, pairs, second);
   };
   return RunHigherOrder(d, values, free, "second", route, *second, why);
 }
@@ -163,6 +177,7 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
       MovingDoseDerivatives(d, s, sets, num, moving, out);
     };
     SplitByMoving(triples, moves, fixed, jets, third);
+    AddOffsetPart(d, s, sets, triples, third);
   };
   return RunHigherOrder(d, values, free, "third", route, *third, why);
 }

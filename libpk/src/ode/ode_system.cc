@@ -120,7 +120,7 @@ void OdeSystem::SensitivityJacobians(const Eigen::VectorXd& x, const Eigen::Vect
 
 double OdeSystem::Observe(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
   if (ode_) return ode_->OutputValue(key, x, theta);
-  return linear_->OutputRow<double>(key, theta).dot(x);
+  return linear_->OutputRow<double>(key, theta).dot(x) + linear_->OutputOffset<double>(key, theta);
 }
 
 void OdeSystem::ObserveDirectional(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta,
@@ -133,10 +133,15 @@ void OdeSystem::ObserveDirectional(int key, const Eigen::VectorXd& x, const Eige
   const Eigen::RowVectorXd c = linear_->OutputRow<double>(key, theta);
   *y = c.dot(x);
   *dy = c * dx;
-  const Eigen::Matrix<Dual, 1, Eigen::Dynamic> cd = linear_->OutputRow<Dual>(key, Seeded(theta, dtheta));
+  const DualVector seeded = Seeded(theta, dtheta);
+  const Eigen::Matrix<Dual, 1, Eigen::Dynamic> cd = linear_->OutputRow<Dual>(key, seeded);
   for (int j = 0; j < n_; ++j) {
     if (x(j) != 0 && cd(j).derivatives().size()) *dy += x(j) * cd(j).derivatives().transpose();
   }
+  if (linear_->output_offset_terms(key).empty()) return;
+  const Dual offset = linear_->OutputOffset<Dual>(key, seeded);  // y = c(θ)ᵀx + d(θ)
+  *y += offset.value();
+  if (offset.derivatives().size()) *dy += offset.derivatives().transpose();
 }
 
 double OdeSystem::ObserveGradient(int key, const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* gx,
