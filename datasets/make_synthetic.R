@@ -11,6 +11,10 @@
 #                     at 0, 12, 24 and 36 h; 4 subjects; concentrations (DVID 1,
 #                     8 % proportional noise) and effects (DVID 2, additive SD 2);
 #                     W = 1/noise variance for weighted least squares.
+# effect_linear_pop.csv  effect_linear.pkm: 100 mg IV bolus; 40 subjects with
+#                     log-normal CL (ω² 0.09) and normal E0 (ω² 1); CP (DVID 1,
+#                     10 % proportional noise) and E (DVID 2, additive SD 0.5) at
+#                     0.5–24 h. Fit with models/effect_linear_pop.pkm (pkpop).
 set.seed(20261121)
 pksim <- "build/apps/pksim"
 
@@ -75,3 +79,25 @@ for (id in 1:4) {
   emax <- rbind(emax, rows)
 }
 write.csv(emax, "datasets/emax_synthetic.csv", row.names = FALSE, quote = FALSE, na = ".")
+
+## Effect compartment, linear response with a baseline: a population
+# 40 subjects, 100 mg IV bolus; CP (DVID 1, 10 % proportional noise) and E = E0 + SLOPE·Ce (DVID 2,
+# additive SD 0.5) at each time. Between subjects: CL log-normal (ω² = 0.09), E0 normal (ω² = 1).
+# Fit with models/effect_linear_pop.pkm. Its own seed: the section does not depend on those above.
+set.seed(20261127)
+times <- c(0.5, 1, 2, 4, 8, 12, 24)
+effect <- NULL
+for (id in 1:40) {
+  p <- c(CL = 3 * exp(0.3 * rnorm(1)), V = 30, KE0 = 0.5, E0 = 10 + rnorm(1), SLOPE = 4)
+  obs <- data.frame(TIME = rep(times, each = 2), DVID = rep(1:2, length(times)))
+  rows <- rbind(data.frame(ID = id, TIME = 0, AMT = 100, EVID = 1, DVID = NA),
+                data.frame(ID = id, TIME = obs$TIME, AMT = 0, EVID = 0, DVID = obs$DVID))
+  sim <- simulate("models/effect_linear.pkm", rows, p)
+  rows$DV <- NA
+  o <- rows$EVID == 0
+  conc <- rows$DVID[o] == 1
+  y <- ifelse(conc, sim$CP * (1 + 0.1 * rnorm(sum(o))), sim$E + 0.5 * rnorm(sum(o)))
+  rows$DV[o] <- signif(y, 5)
+  effect <- rbind(effect, rows)
+}
+write.csv(effect, "datasets/effect_linear_pop.csv", row.names = FALSE, quote = FALSE, na = ".")

@@ -13,6 +13,7 @@
 
 #include "pk/catalogue.h"
 #include "pk/error.h"
+#include "pk/linear_model.h"
 #include "pk/model_file.h"
 #include "pk/nonmem_files.h"
 #include "pk/ode_model.h"
@@ -999,6 +1000,26 @@ TEST_CASE("the outer gradient holds for η in dose modifiers computed in $PK (AL
   options.covariance = false;
   CHECK_THAT(pk::FitPopulation(problem, p, options).gradient,
              Catch::Contains("exact on Φ/Γ; along η that move the doses, the event engine on hyper-dual jets)"));
+}
+
+TEST_CASE("the outer gradient holds for η in an output's baseline (its offset on Φ/Γ)", "[population][model-file]") {
+  // The shipped models/effect_linear_pop.pkm: E = E0 + SLOPE·Ce with E0 = TVE0 + ETA_E0, the effect
+  // output's offset (objective/output_offsets.h), whose η-Jacobian, second and third orders come
+  // from AD of the offset beside Φ/Γ's for C x.
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/effect_linear_pop.pkm");
+  REQUIRE(in);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const pk::PopulationProblem problem = FileProblem(text, "combined", 1e-8, {}, "effect_linear_pop");
+  const auto* linear = dynamic_cast<const pk::LinearModel*>(&problem.model());
+  REQUIRE(linear != nullptr);
+  REQUIRE(linear->has_output_offsets());
+  pk::PopulationParameters p = problem.DefaultParameters();
+  p.sigma = Eigen::Vector2d(0.3, 0.1);
+  for (pk::PopulationMethod m :
+       {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei, pk::PopulationMethod::kLaplace}) {
+    INFO(pk::ToString(m));
+    CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
+  }
 }
 
 TEST_CASE("phenobarbital with covariates: the sandwich SEs equal NONMEM's $COVARIANCE",
