@@ -131,7 +131,8 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "model's further outputs, A1..An)")(
       "summary", "print Cmax, Tmax, Cmin, trough and AUC per subject and dosing interval")(
       "summary-csv", po::value<std::string>(), "write the exposure summary as CSV")(
-      "plot", po::value<std::string>(), "write concentration against time as SVG")(
+      "plot", po::value<std::string>(),
+      "write concentration against time as SVG; a model with several outputs gets a panel for each")(
       "propagator", po::value<std::string>()->default_value("auto"),
       "exact (Φ/Γ, linear models), ode (CVODES, every model), rk (Dormand-Prince 5(4), stiff "
       "models) or auto")(
@@ -179,25 +180,40 @@ pk::Dataset RegimenFromFlags(const po::variables_map& vm, const std::vector<doub
   return data;
 }
 
-// Concentration against time of one subject, for --plot.
-pk::PlotSeries PlotLine(const pk::SubjectSimulation& s) {
-  pk::PlotSeries line;
-  line.label = "ID " + pk::FormatNumber(s.id);
-  for (const pk::SimulatedRecord& r : s.rows) {
-    line.x.push_back(r.time);
-    line.y.push_back(r.cp);
+// One subject's lines for --plot: the central concentration and, for a model with several
+// outputs (an effect, a metabolite), each further output, for a panel of its own.
+std::vector<pk::PlotSeries> PlotLines(const pk::SubjectSimulation& s) {
+  const Eigen::Index outputs = std::max<Eigen::Index>(1, s.outputs.rows());
+  std::vector<pk::PlotSeries> lines(static_cast<size_t>(outputs));
+  for (Eigen::Index k = 0; k < outputs; ++k) {
+    pk::PlotSeries& line = lines[static_cast<size_t>(k)];
+    line.label = "ID " + pk::FormatNumber(s.id);
+    for (size_t i = 0; i < s.rows.size(); ++i) {
+      line.x.push_back(s.rows[i].time);
+      line.y.push_back(k == 0 ? s.rows[i].cp : s.outputs(k, static_cast<Eigen::Index>(i)));
+    }
   }
-  return line;
+  return lines;
 }
 
-std::string PlotSvg(const pk::Model& model, const std::vector<pk::PlotSeries>& series, bool log,
+// plot[k]: every subject's line of output k. One panel a output, stacked on a shared time axis,
+// as mrgsolve plots a simulation's outputs; --log applies to the concentration's.
+std::string PlotSvg(const pk::Model& model, const std::vector<std::vector<pk::PlotSeries>>& plot, bool log,
                     const pk::Units& units) {
-  pk::PlotOptions options;
-  options.title = "pksim: " + model.name();
-  options.log_y = log;
-  options.x_label = pk::WithUnit("time", units.time);
-  options.y_label = pk::WithUnit("concentration", units.concentration);
-  return pk::RenderSvg(series, options);
+  std::vector<pk::PlotOptions> panels(std::max<size_t>(1, plot.size()));
+  const std::vector<std::string>& names = model.output_names();
+  for (size_t k = 0; k < panels.size(); ++k) {
+    pk::PlotOptions& o = panels[k];
+    o.title = k == 0 ? "pksim: " + model.name() : "";
+    o.log_y = log && k == 0;
+    o.x_label = pk::WithUnit("time", units.time);
+    o.y_label = k == 0 ? pk::WithUnit(panels.size() > 1 && !names.empty() ? names[0] : "concentration",
+                                      units.concentration)
+                       : (k < names.size() ? names[k] : "output " + std::to_string(k + 1));
+    if (panels.size() > 1) o.height = 400;
+  }
+  if (panels.size() == 1) return pk::RenderSvg(plot.empty() ? std::vector<pk::PlotSeries>() : plot[0], panels[0]);
+  return pk::RenderPanelsSvg(plot, panels);
 }
 
 // Says on stderr which of the model's parameters neither --param nor a data column gives: those
@@ -299,7 +315,7 @@ int Main(int argc, char** argv) {
     if (rows) rows->Write(columns ? columns->Header() : pk::SimulationCsvHeader(*model));
     if (summary_csv) summary_csv->Write(kSummaryCsvHeader);
   };
-  std::vector<pk::PlotSeries> plot;
+  std::vector<std::vector<pk::PlotSeries>> plot;  // per output, a line per subject
   int failed = 0;
   pk::SimulationSink sink;
   if (rows) {
@@ -325,7 +341,11 @@ int Main(int argc, char** argv) {
       if (vm.count("summary")) std::cout << SummaryText(e, s, units);
       if (summary_csv) summary_csv->Write(SummaryCsvRows(e));
     }
-    if (vm.count("plot") && s.ok) plot.push_back(PlotLine(s));
+    if (vm.count("plot") && s.ok) {
+      std::vector<pk::PlotSeries> lines = PlotLines(s);
+      plot.resize(std::max(plot.size(), lines.size()));
+      for (size_t k = 0; k < lines.size(); ++k) plot[k].push_back(std::move(lines[k]));
+    }
   };
   if (!vm.count("estimates")) NoteDefaults(*model, data, values);
   if (vm.count("estimates")) {

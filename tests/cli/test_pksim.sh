@@ -48,6 +48,14 @@ grep -q "note: the catalogue's defaults for what --param and the data do not giv
 grep -q "Cmax" "$work/summary.txt" || fail "summary lacks Cmax"
 [ "$(grep -c '^1,[0-9]' "$work/sum.csv")" -eq 14 ] || fail "summary CSV should have 14 dosing intervals"
 grep -q "^<svg" "$work/plot.svg" || fail "plot is not SVG"
+# A model with two outputs: a panel for each, stacked, each with its own frame and a line per subject; E's
+# panel starts at the baseline E0 = 10 at t = 0 (the first point of its line is at the top of its range).
+"$pksim" --model "$root/models/effect_linear.pkm" --dose 100 --times 0:1:24 --plot "$work/panels.svg" >/dev/null 2>&1 ||
+  fail "two-output plot run"
+[ "$(grep -c '<svg' "$work/panels.svg")" -eq 3 ] || fail "two-output plot: expected an outer svg and two panels"
+[ "$(grep -c '<polyline' "$work/panels.svg")" -eq 2 ] || fail "two-output plot: expected one line per panel"
+grep -q '<svg y="400"' "$work/panels.svg" || fail "two-output plot: the second panel is not below the first"
+grep -q ">E<" "$work/panels.svg" && grep -q ">CP<" "$work/panels.svg" || fail "two-output plot: the outputs' names"
 
 # Bundled data: theophylline has 132 observation records.
 "$pksim" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --out "$work/theo.csv" || fail "theophylline run failed"

@@ -42,6 +42,11 @@ struct PlotOptions {
 /// only beyond three decades).
 std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& options);
 
+/// Panels stacked from top to bottom in one SVG document, panel k being RenderSvg(panels[k],
+/// options[k]): the outputs of one simulation on a shared time axis (pksim's --plot of a model with
+/// several outputs). Throws std::invalid_argument unless there is one PlotOptions per panel.
+std::string RenderPanelsSvg(const std::vector<std::vector<PlotSeries>>& panels, const std::vector<PlotOptions>& options);
+
 /// The colour of palette entry k: 20 distinct colours, then they repeat.
 const char* PaletteColour(int k);
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <sstream>
+#include <stdexcept>
 
 #include "pk/plot.h"
 
@@ -215,6 +216,27 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
           << Fill(s, colour) << "/><text x=\"" << Num(left + w + 30) << "\" y=\"" << Num(ly) << "\">" << Escape(s.label)
           << "</text>\n";
     }
+  }
+  svg << "</svg>\n";
+  return svg.str();
+}
+
+std::string RenderPanelsSvg(const std::vector<std::vector<PlotSeries>>& panels, const std::vector<PlotOptions>& options) {
+  if (panels.size() != options.size()) throw std::invalid_argument("RenderPanelsSvg: one PlotOptions per panel");
+  int width = 0, height = 0;
+  for (const PlotOptions& o : options) {
+    width = std::max(width, o.width);
+    height += o.height;
+  }
+  std::ostringstream svg;
+  svg << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << width << "\" height=\"" << height << "\" viewBox=\"0 0 "
+      << width << " " << height << "\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n";
+  int y = 0;
+  for (size_t k = 0; k < panels.size(); ++k) {
+    // Each panel is a document of its own, nested at its place: "<svg " + y + the rest.
+    const std::string panel = RenderSvg(panels[k], options[k]);
+    svg << "<svg y=\"" << y << "\" " << panel.substr(5);
+    y += options[k].height;
   }
   svg << "</svg>\n";
   return svg.str();
