@@ -641,8 +641,50 @@ TEST_CASE("model files: an output with a baseline runs on Φ/Γ, its offset with
   REQUIRE(linear != nullptr);
   CHECK(linear->has_output_offsets());
   CHECK(linear->output_offset_terms(model->num_compartments() + 1).empty());  // CP
-  CHECK(linear->output_offset_terms(model->num_compartments() + 2).size() == 1);  // E
+  // E0 is a parameter term of the offset, not a derived coefficient: the model has none.
+  const auto& baseline = linear->output_offset_terms(model->num_compartments() + 2);
+  REQUIRE(baseline.size() == 1);
+  CHECK(baseline[0].numerator == 3);  // E0
+  CHECK(baseline[0].denominator == -1);
+  CHECK(linear->derived_coefficients().count == 0);
   CheckTwoOutputFile(model, {"CP", "E"});
+  // Baselines written other ways are offsets too, each equal to its integrated twin: under a negation,
+  // an if/else on a covariate, a product with the response, and a quotient. An output that reads no
+  // amount keeps the model on the ODE routes, and says so.
+  const std::string base = "$PROBLEM b  forms of a baseline\n$PARAM\nCL = 3\nV = 30\nKE0 = 0.5\nE0 = 10\nS = 4\n"
+                           "$COVARIATE\nWT kg\n$CMT\nCENTRAL dose central\nEFFECT\n$ODE\nC = CENTRAL / V\n"
+                           "d/dt(CENTRAL) = -CL * WT / 70 * C\nd/dt(EFFECT) = KE0 * (C - EFFECT)\n$OUTPUT\nCP = C\nE = ";
+  const auto wt_data = std::make_shared<pk::Dataset>(pk::ParseDataset(
+      "ID,TIME,AMT,DVID,DV,WT\n1,0,100,.,.,60\n1,1,0,2,12,60\n1,3,0,2,15,80\n1,6,0,1,2,80\n1,6,0,2,16,80\n"
+      "1,12,0,2,13,90\n",
+      "wt.csv"));
+  for (const char* e : {"-(-E0 - S * EFFECT)", "ifelse(WT > 70, E0 * WT / 70 + S * EFFECT, E0 + S * EFFECT)",
+                        "E0 * (1 + S * EFFECT)", "(E0 * V + S * EFFECT * V) / V"}) {
+    INFO(e);
+    const auto form = pk::ParseModel(base + e + "\n", "b.pkm");
+    const auto* lf = dynamic_cast<const pk::LinearModel*>(form.get());
+    INFO(pk::WhyNotLinear(*form));
+    REQUIRE(lf != nullptr);
+    CHECK(lf->has_output_offsets());
+    pk::ObjectiveOptions o;
+    o.error_model = pk::MakeResidualError("proportional");
+    pk::ObjectiveOptions integrated = o;
+    integrated.propagator = pk::Propagator::kOde;
+    integrated.ode.relative_tolerance = 1e-12;
+    integrated.ode.absolute_tolerance = 1e-14;
+    const pk::Objective exact(form, wt_data, 0, o), ode(form, wt_data, 0, integrated);
+    std::vector<int> free = {0, 1, 2, 3, 4};
+    for (int k : exact.sigma_indices()) free.push_back(k);
+    const Eigen::VectorXd values = exact.DefaultValues();
+    const auto a = exact.Evaluate(values, free, pk::Objective::Need::kGradient, pk::GradientRoute::kAdjoint);
+    const auto b = ode.Evaluate(values, free, pk::Objective::Need::kGradient, pk::GradientRoute::kForward);
+    REQUIRE((a.ok && b.ok));
+    CHECK(MaxRel(a.predictions, b.predictions) < 1e-9);
+    CHECK(MaxRel(a.gradient, b.gradient) < 1e-7);
+  }
+  const auto none = pk::ParseModel(base + "E0 * S\n", "none.pkm");
+  CHECK(dynamic_cast<const pk::OdeModel*>(none.get()) != nullptr);
+  CHECK_THAT(pk::WhyNotLinear(*none), Catch::Contains("output E reads no amount"));
   // A bolus of 100 at 0: E = E0 + SLOPE·Ce with Ce = (D/V)·KE0/(KE0 − k)·(e^{−kt} − e^{−KE0·t}), k = CL/V;
   // and, in the exogenous turnover (its central output CP = (KIN/KOUT + A)/V has the offset), the
   // AUC adds KIN/KOUT/V·t: AUC = (KIN/KOUT·t + 100/KOUT·(1 − e^{−KOUT·t}))/V.

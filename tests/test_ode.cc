@@ -678,6 +678,37 @@ TEST_CASE("continuous records (CONT=1): the seed's dF/dt part, by forward, adjoi
   CHECK(jac.message.find("CONT") != std::string::npos);
 }
 
+TEST_CASE("continuous records of a linear model: auto integrates them, exact refuses them", "[ode][continuous]") {
+  // Φ/Γ has no continuous part of F: under auto a linear model's subject with CONT=1 rows takes
+  // Dormand–Prince, whose objective it then is; --propagator exact names the column.
+  const auto model = pk::MakeModel("1cmt_iv");
+  std::ostringstream csv;
+  csv << "ID,TIME,AMT,EVID,CONT,DV\n1,0,100,1,.,.\n";
+  for (int k = 1; k <= 24; ++k) csv << "1," << 0.5 * k << ",0,0," << (k % 4 == 0 ? 0 : 1) << "," << 3 * std::exp(-0.08 * k) << "\n";
+  const auto data = Parse(csv.str());
+  pk::ObjectiveOptions automatic, rk, exact;
+  rk.propagator = pk::Propagator::kRungeKutta;
+  exact.propagator = pk::Propagator::kExact;
+  const pk::Objective a(model, data, 0, automatic), b(model, data, 0, rk);
+  const auto ea = a.Evaluate(a.DefaultValues(), {0, 1}, pk::Objective::Need::kGradient);
+  const auto eb = b.Evaluate(b.DefaultValues(), {0, 1}, pk::Objective::Need::kGradient);
+  REQUIRE((ea.ok && eb.ok));
+  CHECK(a.has_continuous_records());
+  CHECK(std::string(ea.propagator) == "rk");
+  CHECK(ea.value == eb.value);
+  CHECK(ea.gradient == eb.gradient);
+  try {
+    pk::Objective(model, data, 0, exact);
+    FAIL("the exact propagator took a continuous record");
+  } catch (const pk::InputError& e) {
+    CHECK(e.column() == 5);
+    CHECK_THAT(e.message(), Catch::Contains("need the ODE propagator"));
+  }
+  // Without CONT rows the same model stays on Φ/Γ.
+  const pk::Objective c(model, Parse("ID,TIME,AMT,EVID,CONT,DV\n1,0,100,1,.,.\n1,1,0,0,0,3\n"), 0, automatic);
+  CHECK(std::string(c.Evaluate(c.DefaultValues(), {0, 1}, pk::Objective::Need::kValue).propagator) == "exact");
+}
+
 TEST_CASE("a continuous effect record identifies the PD parameters", "[ode][fit][continuous]") {
   const auto model = pk::MakeModel("1cmt_iv_emax");
   const pk::ParameterValues truth = {{"CL", 4},   {"V", 25},    {"KE0", 0.7}, {"E0", 8},

@@ -12,12 +12,8 @@
 
 namespace pk {
 namespace internal {
-namespace {
 
-using HD = HyperDualNumber;
-
-// [θ; ψ] of one parameter set with θ moving along free parameters k (ε₁) and l (ε₂).
-std::vector<HD> Extended(const LinearModel& model, const DualVector& set, int num_free, int k, int l) {
+std::vector<HyperDual> ExtendedSecond(const LinearModel& model, const DualVector& set, int num_free, int k, int l) {
   const int m = model.num_parameters();
   Eigen::VectorXd theta(m), u(m), v(m);
   for (int j = 0; j < m; ++j) {
@@ -26,7 +22,7 @@ std::vector<HD> Extended(const LinearModel& model, const DualVector& set, int nu
     u(j) = d(k);
     v(j) = d(l);
   }
-  std::vector<HD> e;
+  std::vector<HyperDual> e;
   for (int j = 0; j < m; ++j) e.emplace_back(theta(j), u(j), v(j), 0.0);
   const DerivedCoefficients& derived = model.derived_coefficients();
   if (derived.count > 0) {
@@ -36,6 +32,10 @@ std::vector<HD> Extended(const LinearModel& model, const DualVector& set, int nu
   }
   return e;
 }
+
+namespace {
+
+using HD = HyperDualNumber;
 
 // A matrix with its derivatives along k and l and its mixed second derivative.
 struct Parts {
@@ -108,7 +108,7 @@ class SecondOrderVisitor {
   static std::vector<std::vector<HD>> AllExtended(const LinearModel& model, const std::vector<DualVector>& sets,
                                                   int num_free, int k, int l) {
     std::vector<std::vector<HD>> e;
-    for (const DualVector& set : sets) e.push_back(Extended(model, set, num_free, k, l));
+    for (const DualVector& set : sets) e.push_back(ExtendedSecond(model, set, num_free, k, l));
     return e;
   }
   static std::vector<Eigen::MatrixXd> Matrices(const LinearModel& model, const std::vector<std::vector<HD>>& extended) {
@@ -309,7 +309,7 @@ class ModalSecondOrderVisitor {
     p.extended.reserve(pairs_.size());
     p.b2.reserve(pairs_.size());
     for (const auto& [k, l] : pairs_) {
-      p.extended.push_back(Extended(model_, set, p_, k, l));
+      p.extended.push_back(ExtendedSecond(model_, set, p_, k, l));
       const Parts a = Sum(model_.system_terms(), p.extended.back(), n_, n_);
       p.b1[static_cast<size_t>(k)] = m.w * SMat(a.dk) * m.v;  // the pairs cover every parameter
       p.b1[static_cast<size_t>(l)] = m.w * SMat(a.dl) * m.v;

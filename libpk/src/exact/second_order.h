@@ -36,10 +36,15 @@
 
 #include "../autodiff.h"
 #include "../events.h"
+#include "pk/hyper_dual.h"
 #include "pk/linear_model.h"
 
 namespace pk {
 namespace internal {
+
+/// [θ; ψ] of one parameter set on pk::HyperDual, θ moving along free parameters k (ε₁) and l (ε₂)
+/// (positions among the derivatives `set` carries): ψ's parts from DerivedCoefficients::evaluate_second.
+std::vector<HyperDual> ExtendedSecond(const LinearModel& model, const DualVector& set, int num_free, int k, int l);
 
 /// (*out)[i] = ∂²ŷ/∂p_k∂p_l over the samples, in record order, for pairs[i] = (k, l) (indices
 /// into the free parameters, which `sets` seed as pk::Dual derivatives). With

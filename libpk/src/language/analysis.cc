@@ -669,8 +669,11 @@ class Analyser {
     return true;
   }
 
-  // The terms of `k` (a row of A or C) as LinearTerms, or false with the reason.
-  bool Terms(int k, int row, const std::string& what, std::vector<LinearTerm>* terms) {
+  // The terms of `k` (a row of A or C) as LinearTerms, or false with the reason. An output's
+  // amount-free monomials go to `offsets` (its baseline); a d/dt has none (a zero-order input is
+  // the second stage's, DetectLinearCoefficients).
+  bool Terms(int k, int row, const std::string& what, std::vector<LinearTerm>* terms,
+             std::vector<LinearTerm>* offsets = nullptr) {
     Polynomial p;
     if (!Expand(k, &p)) {
       out_.declarations.why_not_linear = what + " is not linear in the amounts with coefficients c·θa/θb";
@@ -678,7 +681,7 @@ class Analyser {
     }
     for (Monomial& m : p) {
       if (m.c == 0) continue;
-      if (m.state < 0) {
+      if (m.state < 0 && offsets == nullptr) {
         out_.declarations.why_not_linear = what + " has a term without an amount (a zero-order input)";
         return false;
       }
@@ -695,7 +698,7 @@ class Analyser {
         }
         *slot = kv.first;
       }
-      terms->push_back(t);
+      (m.state < 0 ? offsets : terms)->push_back(t);
     }
     return true;
   }
@@ -708,10 +711,15 @@ class Analyser {
                         &out_.a_terms);
     }
     out_.c_terms.assign(out_.outputs.size(), {});
+    std::vector<std::vector<LinearTerm>> offsets(out_.outputs.size());
+    bool any_offset = false;
     for (size_t k = 0; k < out_.outputs.size() && monomials; ++k) {
-      monomials = Terms(out_.outputs[k], 0, "output " + out_.output_names[k], &out_.c_terms[k]);
+      monomials = Terms(out_.outputs[k], 0, "output " + out_.output_names[k], &out_.c_terms[k], &offsets[k]) &&
+                  !out_.c_terms[k].empty();  // an output that reads no amount: the second stage says so
+      any_offset = any_offset || !offsets[k].empty();
     }
     if (monomials) {
+      if (any_offset) out_.d_terms = std::move(offsets);
       out_.linear = true;
       return;
     }

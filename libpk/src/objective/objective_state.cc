@@ -27,6 +27,14 @@ ObjectiveState::ObjectiveState(std::shared_ptr<const Model> m, std::shared_ptr<c
   propagator = ResolvePropagator(*model, options.propagator);
   // Dose modifiers (R, D, ...) are checked when values are given (Objective::CheckValues).
   prepared = PrepareSubject(*model, layout, *data, subject, layout.Defaults(), false);
+  // A continuous record (CONT=1) is an integral Φ/Γ does not take: `auto` integrates a linear
+  // model's subject that has one, as it does a nonlinear model's.
+  const int cont = data->ExtraColumn("CONT");
+  if (options.propagator == Propagator::kAuto && !IntegratesOde(propagator) && cont >= 0) {
+    for (const Record& r : prepared.records()) {
+      if (r.IsSample() && r.extra[static_cast<size_t>(cont)] == 1) propagator = Propagator::kRungeKutta;
+    }
+  }
   if (IntegratesOde(propagator)) {
     ode_system.reset(new OdeSystem(*model));
     ode.system = ode_system.get();

@@ -4,6 +4,7 @@
 #include <utility>
 
 #include "exact/exact_routes.h"
+#include "exact/second_order.h"
 #include "exact/third_order.h"
 #include "pk/hyper_dual.h"
 
@@ -39,6 +40,16 @@ std::vector<HyperDual3> SeedParameters(const DualVector& set, int m, const std::
   return theta;
 }
 
+// The offset of row `key` on [θ; ψ] of any scalar type.
+template <typename T, typename Extended>
+T OffsetOn(const LinearModel& model, int key, const Extended& extended) {
+  T d(0.0);
+  for (const LinearTerm& term : model.output_offset_terms(key)) {
+    d = d + LinearModel::TermValue<T>(term, [&](int i) { return extended[static_cast<size_t>(i)]; });
+  }
+  return d;
+}
+
 }  // namespace
 
 void AddOutputOffsets(const LinearModel& model, const PreparedSubject& s, Eigen::VectorXd* yhat) {
@@ -69,24 +80,24 @@ Eigen::MatrixXd OutputOffsetJacobian(const LinearModel& model, const PreparedSub
   return jacobian;
 }
 
-void AddOutputOffsetDerivatives(const LinearModel& model, const PreparedSubject& s,
-                                const std::vector<DualVector>& sets,
-                                const std::vector<std::array<int, 3>>& directions, std::vector<Eigen::VectorXd>* out) {
+void AddOutputOffsetDerivatives(const LinearModel& model, const PreparedSubject& s, const std::vector<DualVector>& sets,
+                                int num_free, const std::vector<std::array<int, 3>>& directions,
+                                std::vector<Eigen::VectorXd>* out) {
   const int m = model.num_parameters();
   for (size_t t = 0; t < directions.size(); ++t) {
     const std::array<int, 3>& dir = directions[t];
-    const int part = dir[2] < 0 ? 3 : 7;  // ∂²d along dir[0], dir[1]; or ∂³d along all three
-    std::map<std::pair<int, int>, double> done;
+    std::map<std::pair<int, int>, double> done;  // per (key, set)
     ForEachOffsetSample(model, s, [&](int k, int key, int set) {
       auto it = done.find({key, set});
       if (it == done.end()) {
-        const std::vector<HyperDual3> extended =
-            ExtendedThird(model, SeedParameters(sets[static_cast<size_t>(set)], m, dir));
-        HyperDual3 d(0.0);
-        for (const LinearTerm& term : model.output_offset_terms(key)) {
-          d = d + LinearModel::TermValue<HyperDual3>(term, [&](int i) { return extended[static_cast<size_t>(i)]; });
+        const DualVector& theta = sets[static_cast<size_t>(set)];
+        double part = 0;
+        if (dir[2] < 0) {  // ∂²d along dir[0], dir[1]: ψ's second order (evaluate_second) suffices
+          part = OffsetOn<HyperDual>(model, key, ExtendedSecond(model, theta, num_free, dir[0], dir[1])).e12();
+        } else {  // ∂³d along all three
+          part = OffsetOn<HyperDual3>(model, key, ExtendedThird(model, SeedParameters(theta, m, dir))).part(7);
         }
-        it = done.emplace(std::make_pair(key, set), d.part(part)).first;
+        it = done.emplace(std::make_pair(key, set), part).first;
       }
       (*out)[t](k) += it->second;
     });

@@ -80,12 +80,12 @@ void SplitByMoving(const std::vector<Tuple>& tuples, const std::vector<char>& mo
 // The output offsets' part (objective/output_offsets.h), which every route above leaves out.
 template <class Tuple>
 void AddOffsetPart(const internal::ObjectiveState& d, const internal::PreparedSubject& s,
-                   const std::vector<internal::DualVector>& sets, const std::vector<Tuple>& tuples,
+                   const std::vector<internal::DualVector>& sets, int num, const std::vector<Tuple>& tuples,
                    std::vector<Eigen::VectorXd>* out) {
   if (d.linear == nullptr || !d.linear->has_output_offsets()) return;
   std::vector<std::array<int, 3>> directions;
   for (const Tuple& t : tuples) directions.push_back(Directions(t));
-  internal::AddOutputOffsetDerivatives(*d.linear, s, sets, directions, out);
+  internal::AddOutputOffsetDerivatives(*d.linear, s, sets, num, directions, out);
 }
 
 bool AllFinite(const std::vector<Eigen::VectorXd>& out, const char* order, std::string* why) {
@@ -145,7 +145,7 @@ bool Objective::SecondDerivatives(const Eigen::VectorXd& values, const std::vect
       MovingDoseDerivatives(d, s, sets, num, moving, out);
     };
     SplitByMoving(pairs, moves, fixed, jets, second);
-    AddOffsetPart(d, s, sets, pairs, second);
+    AddOffsetPart(d, s, sets, num, pairs, second);
   };
   return RunHigherOrder(d, values, free, "second", route, *second, why);
 }
@@ -177,7 +177,7 @@ bool Objective::ThirdDerivatives(const Eigen::VectorXd& values, const std::vecto
       MovingDoseDerivatives(d, s, sets, num, moving, out);
     };
     SplitByMoving(triples, moves, fixed, jets, third);
-    AddOffsetPart(d, s, sets, triples, third);
+    AddOffsetPart(d, s, sets, num, triples, third);
   };
   return RunHigherOrder(d, values, free, "third", route, *third, why);
 }
