@@ -180,6 +180,11 @@ pk::Dataset RegimenFromFlags(const po::variables_map& vm, const std::vector<doub
   return data;
 }
 
+// --plot draws the first kPlotSubjects subjects, each line at most kPlotPoints points (a peak kept
+// exactly): its memory and the SVG's size are bounded, however many rows the simulation writes.
+constexpr int kPlotSubjects = 100;
+constexpr int kPlotPoints = 4000;
+
 // One subject's lines for --plot: the central concentration and, for a model with several
 // outputs (an effect, a metabolite), each further output, for a panel of its own.
 std::vector<pk::PlotSeries> PlotLines(const pk::SubjectSimulation& s) {
@@ -192,6 +197,7 @@ std::vector<pk::PlotSeries> PlotLines(const pk::SubjectSimulation& s) {
       line.x.push_back(s.rows[i].time);
       line.y.push_back(k == 0 ? s.rows[i].cp : s.outputs(k, static_cast<Eigen::Index>(i)));
     }
+    line = pk::DecimateLine(line, kPlotPoints);
   }
   return lines;
 }
@@ -199,12 +205,16 @@ std::vector<pk::PlotSeries> PlotLines(const pk::SubjectSimulation& s) {
 // plot[k]: every subject's line of output k. One panel a output, stacked on a shared time axis,
 // as mrgsolve plots a simulation's outputs; --log applies to the concentration's.
 std::string PlotSvg(const pk::Model& model, const std::vector<std::vector<pk::PlotSeries>>& plot, bool log,
-                    const pk::Units& units) {
+                    const pk::Units& units, int subjects) {
   std::vector<pk::PlotOptions> panels(std::max<size_t>(1, plot.size()));
   const std::vector<std::string>& names = model.output_names();
+  const size_t drawn = plot.empty() ? 0 : plot[0].size();
   for (size_t k = 0; k < panels.size(); ++k) {
     pk::PlotOptions& o = panels[k];
-    o.title = k == 0 ? "pksim: " + model.name() : "";
+    o.title = k > 0 ? "" : "pksim: " + model.name();
+    if (k == 0 && static_cast<size_t>(subjects) > drawn) {
+      o.title += " (the first " + std::to_string(drawn) + " of " + std::to_string(subjects) + " subjects)";
+    }
     o.log_y = log && k == 0;
     o.x_label = pk::WithUnit("time", units.time);
     o.y_label = k == 0 ? pk::WithUnit(panels.size() > 1 && !names.empty() ? names[0] : "concentration",
@@ -315,7 +325,8 @@ int Main(int argc, char** argv) {
     if (rows) rows->Write(columns ? columns->Header() : pk::SimulationCsvHeader(*model));
     if (summary_csv) summary_csv->Write(kSummaryCsvHeader);
   };
-  std::vector<std::vector<pk::PlotSeries>> plot;  // per output, a line per subject
+  std::vector<std::vector<pk::PlotSeries>> plot;  // per output, a line per subject (the first kPlotSubjects)
+  int simulated = 0;
   int failed = 0;
   pk::SimulationSink sink;
   if (rows) {
@@ -341,7 +352,8 @@ int Main(int argc, char** argv) {
       if (vm.count("summary")) std::cout << SummaryText(e, s, units);
       if (summary_csv) summary_csv->Write(SummaryCsvRows(e));
     }
-    if (vm.count("plot") && s.ok) {
+    if (s.ok) ++simulated;  // what the plot could draw
+    if (vm.count("plot") && s.ok && (plot.empty() || plot[0].size() < kPlotSubjects)) {
       std::vector<pk::PlotSeries> lines = PlotLines(s);
       plot.resize(std::max(plot.size(), lines.size()));
       for (size_t k = 0; k < lines.size(); ++k) plot[k].push_back(std::move(lines[k]));
@@ -361,7 +373,13 @@ int Main(int argc, char** argv) {
   start();
   if (rows) rows->Commit();
   if (summary_csv) summary_csv->Commit();
-  if (vm.count("plot")) pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, plot, vm.count("log") > 0, units));
+  if (vm.count("plot")) {
+    const size_t drawn = plot.empty() ? 0 : plot[0].size();
+    if (static_cast<size_t>(simulated) > drawn) {
+      std::cerr << "pksim: note: --plot draws the first " << drawn << " of " << simulated << " subjects simulated\n";
+    }
+    pk::WriteFileAtomically(vm["plot"].as<std::string>(), PlotSvg(*model, plot, vm.count("log") > 0, units, simulated));
+  }
   return failed > 0 ? 1 : 0;
 }
 

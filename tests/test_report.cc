@@ -1,5 +1,6 @@
 // The report library (pk::report): the LOWESS smoother against R's lowess(), the axes of the SVG
 // plots; and the units of parameters (pk/units.h) and a dataset's units row.
+#include <algorithm>
 #include <cmath>
 #include <regex>
 #include <set>
@@ -115,6 +116,26 @@ TEST_CASE("LOWESS equals R's lowess() (tests/reference/make_lowess_reference.R)"
     CHECK(pk::Lowess({1, 2}, {1, 2}).y.empty());
     CHECK(pk::Lowess({1, 2}, {1, 2}).x.empty());
   }
+}
+
+TEST_CASE("plots: a decimated line keeps its order, its peak and trough, and at most the points asked", "[report][plot]") {
+  pk::PlotSeries line{"ID 1", {}, {}};
+  for (int i = 0; i < 100000; ++i) {
+    const double t = 0.001 * i;
+    line.x.push_back(t);
+    line.y.push_back(std::exp(-0.3 * t) - std::exp(-2 * t) + (i == 4321 ? 5.0 : 0.0) - (i == 77777 ? 3.0 : 0.0));
+  }
+  const pk::PlotSeries d = pk::DecimateLine(line, 4000);
+  REQUIRE(d.x.size() == d.y.size());
+  CHECK(d.x.size() <= 4000);
+  CHECK(d.x.size() >= 2000);
+  CHECK(std::is_sorted(d.x.begin(), d.x.end()));
+  CHECK(*std::max_element(d.y.begin(), d.y.end()) == *std::max_element(line.y.begin(), line.y.end()));
+  CHECK(*std::min_element(d.y.begin(), d.y.end()) == *std::min_element(line.y.begin(), line.y.end()));
+  CHECK(std::find(d.x.begin(), d.x.end(), line.x[4321]) != d.x.end());  // the spike, at its time
+  CHECK(d.label == "ID 1");
+  CHECK(pk::DecimateLine(d, 4000).x == d.x);  // short enough: as it is
+  CHECK_THROWS_AS(pk::DecimateLine(line, 3), std::invalid_argument);
 }
 
 TEST_CASE("plots: log ticks at 1-2-5, every marker inside the frame, a bounded log range", "[report][plot]") {

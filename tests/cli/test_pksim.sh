@@ -56,6 +56,14 @@ grep -q "^<svg" "$work/plot.svg" || fail "plot is not SVG"
 [ "$(grep -c '<polyline' "$work/panels.svg")" -eq 2 ] || fail "two-output plot: expected one line per panel"
 grep -q '<svg y="400"' "$work/panels.svg" || fail "two-output plot: the second panel is not below the first"
 grep -q ">E<" "$work/panels.svg" && grep -q ">CP<" "$work/panels.svg" || fail "two-output plot: the outputs' names"
+# Many subjects: the plot draws the first 100 and says so, on stderr and in its title.
+awk 'BEGIN { print "ID,TIME,AMT"; for (id = 1; id <= 150; ++id) printf "%d,0,100\n", id }' > "$work/many.csv"
+"$pksim" --model 1cmt_iv --data "$work/many.csv" --times 0:1:24 --out "$work/many_out.csv" --plot "$work/many.svg" \
+  2>"$work/many.err" || fail "150-subject plot run"
+[ "$(grep -c '<polyline' "$work/many.svg")" -eq 100 ] || fail "150 subjects: expected 100 lines"
+grep -q "the first 100 of 150 subjects" "$work/many.svg" || fail "150 subjects: the plot's title"
+grep -q "note: --plot draws the first 100 of 150 subjects simulated" "$work/many.err" || fail "150 subjects: the note"
+[ "$(tail -n +2 "$work/many_out.csv" | wc -l)" -eq 3750 ] || fail "150 subjects: every row is still written"
 
 # Bundled data: theophylline has 132 observation records.
 "$pksim" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --out "$work/theo.csv" || fail "theophylline run failed"

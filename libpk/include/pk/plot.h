@@ -47,6 +47,12 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
 /// several outputs). Throws std::invalid_argument unless there is one PlotOptions per panel.
 std::string RenderPanelsSvg(const std::vector<std::vector<PlotSeries>>& panels, const std::vector<PlotOptions>& options);
 
+/// A line of at most `max_points` points (at least 4) that draws as the original does at widths
+/// below max_points/2 pixels: the points split into max_points/2 consecutive runs, each run's
+/// lowest and highest y kept in their order, so a peak (Cmax) and a trough stay exact. A line with
+/// no more points than that is returned as it is.
+PlotSeries DecimateLine(const PlotSeries& line, int max_points);
+
 /// The colour of palette entry k: 20 distinct colours, then they repeat.
 const char* PaletteColour(int k);
 

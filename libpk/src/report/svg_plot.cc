@@ -221,6 +221,31 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
   return svg.str();
 }
 
+PlotSeries DecimateLine(const PlotSeries& line, int max_points) {
+  const size_t n = std::min(line.x.size(), line.y.size());
+  if (max_points < 4) throw std::invalid_argument("DecimateLine: at least 4 points");
+  if (n <= static_cast<size_t>(max_points)) return line;
+  PlotSeries out = line;
+  out.x.clear();
+  out.y.clear();
+  // Consecutive runs of points, not ranges of x: a reset record may take time back.
+  const size_t buckets = static_cast<size_t>(max_points) / 2;
+  for (size_t b = 0; b < buckets; ++b) {
+    const size_t begin = b * n / buckets, end = (b + 1) * n / buckets;
+    size_t lo = begin, hi = begin;
+    for (size_t i = begin; i < end; ++i) {
+      if (line.y[i] < line.y[lo]) lo = i;
+      if (line.y[i] > line.y[hi]) hi = i;
+    }
+    out.x.push_back(line.x[std::min(lo, hi)]);
+    out.y.push_back(line.y[std::min(lo, hi)]);
+    if (lo == hi) continue;
+    out.x.push_back(line.x[std::max(lo, hi)]);
+    out.y.push_back(line.y[std::max(lo, hi)]);
+  }
+  return out;
+}
+
 std::string RenderPanelsSvg(const std::vector<std::vector<PlotSeries>>& panels, const std::vector<PlotOptions>& options) {
   if (panels.size() != options.size()) throw std::invalid_argument("RenderPanelsSvg: one PlotOptions per panel");
   int width = 0, height = 0;
