@@ -1611,6 +1611,84 @@ TEST_CASE("Laplace's outer gradient (third-order sensitivities) equals differenc
   }
 }
 
+TEST_CASE("the conditional mode on CVODES: a decrease below a few times l's noise ends the search",
+          "[population][ode][release-only]") {
+  // effect_linear_pop.pkm forced onto CVODES at pkpop's tolerances: next to the FOCEI estimate (TVCL
+  // moved by the covariance step's difference), a subject's scoring step predicted a decrease of
+  // 1.1 times l's noise (10·rtol·(N + |l|)), which no halving of the line search could resolve, and
+  // the search stopped "without progress": no standard errors. It now ends there, converged, at
+  // Φ/Γ's mode to the noise.
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/effect_linear_pop.pkm");
+  REQUIRE(in);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto model = pk::ParseModel(text, "effect_linear_pop.pkm", pk::RandomEffects::kParameters);
+  pk::ObjectiveOptions o;
+  o.propagator = pk::Propagator::kOde;
+  o.ode.relative_tolerance = 1e-9;
+  o.ode.absolute_tolerance = 1e-11;
+  o.error_model = pk::MakePerOutputError({pk::MakeResidualError("proportional"), pk::MakeResidualError("additive")},
+                                         {"CP", "E"});
+  pk::ObjectiveOptions exact = o;
+  exact.propagator = pk::Propagator::kExact;
+  const pk::PopulationProblem problem(model, Data("effect_linear_pop"), {"ETA_CL", "ETA_E0"}, o),
+      reference(model, Data("effect_linear_pop"), {"ETA_CL", "ETA_E0"}, exact);
+  pk::PopulationParameters p = problem.DefaultParameters();
+  p.theta << 3.05088, 30.3551, 0.498098, 9.8628, 4.15073;
+  p.omega = Diagonal({0.0922945, 0.706653});
+  p.sigma = Eigen::Vector2d(0.0973696, 0.439921);
+  const auto point = [&](double tvcl) {
+    pk::PopulationParameters q = p;
+    q.theta(0) = tvcl;
+    return pk::internal::PopulationPoint::Make(q, *o.error_model, pk::PopulationMethod::kFocei);
+  };
+  const double h = std::cbrt(1e-8) * p.theta(0);  // covariance.cc's step on CVODES at rtol 1e-9
+  int solved = 0;
+  for (int i = 0; i < problem.num_subjects(); i += 5) {  // every fifth subject: 3 s, not 15
+    const pk::internal::SubjectMode centre = pk::internal::SolveSubject(problem.impl().subjects[i], point(p.theta(0)),
+                                                                        Eigen::VectorXd::Zero(2));
+    REQUIRE(centre.ok);
+    for (const double tvcl : {p.theta(0) + h, p.theta(0) - h}) {
+      const pk::internal::SubjectMode moved = pk::internal::SolveSubject(problem.impl().subjects[i], point(tvcl), centre.eta);
+      const pk::internal::SubjectMode want =
+          pk::internal::SolveSubject(reference.impl().subjects[i], point(tvcl), Eigen::VectorXd::Zero(2));
+      INFO("subject " << i << ", TVCL " << tvcl << ": " << moved.message);
+      REQUIRE(want.ok);
+      CHECK(moved.ok);
+      if (!moved.ok) continue;
+      CHECK(std::abs(moved.ofv - want.ofv) < 1e-4);  // CVODES's global error: about 100·rtol of l
+      CHECK((moved.eta - want.eta).cwiseAbs().maxCoeff() < 1e-3);
+      ++solved;
+    }
+  }
+  CHECK(solved == 16);
+  // The two searches of a pkpop run there (--propagator ode, started at the estimate) that stopped
+  // "without progress" before kResolvable (conditional.cc): ID 34 and ID 31, at the run's points and
+  // η starts to the bit.
+  pk::internal::PopulationPoint run;
+  run.omega_inverse = Eigen::Vector2d(0x1.5ab75a1353176p+3, 0x1.6a456a8dc128fp+0).asDiagonal();
+  run.log_det_omega = -0x1.5d7030a461791p+1;
+  run.sigma = Eigen::Vector2d(0x1.8ed36cf9fe5e5p-4, 0x1.c27aa68f4b62p-2);
+  run.error = o.error_model.get();
+  run.method = pk::PopulationMethod::kFocei;
+  const double thetas[2][5] = {
+      {0x1.86833c60029f1p+1, 0x1.e5ae7d566cf4p+4, 0x1.ff26b6c755ac7p-2, 0x1.3b9c0ebedfa44p+3, 0x1.09a58f7121ab5p+2},
+      {0x1.8a6af2bd215e1p+1, 0x1.e5ae7d566cf4p+4, 0x1.fe0d66f0cfe15p-2, 0x1.3b9c0ebedfa44p+3, 0x1.09a58f7121ab5p+2}};
+  const Eigen::Vector2d starts[2] = {{0x1.50ebd84af2f43p-3, 0x1.0d264b9067ca7p-1},
+                                     {-0x1.e67e8a282d261p-4, 0x1.b7051a93a0b81p-2}};
+  const int subjects[2] = {33, 30};
+  for (int k = 0; k < 2; ++k) {
+    run.theta = Eigen::Map<const Eigen::VectorXd>(thetas[k], 5);
+    const pk::internal::SubjectMode moved = pk::internal::SolveSubject(problem.impl().subjects[subjects[k]], run, starts[k]);
+    const pk::internal::SubjectMode want =
+        pk::internal::SolveSubject(reference.impl().subjects[subjects[k]], run, Eigen::VectorXd::Zero(2));
+    INFO("subject index " << subjects[k] << ": " << moved.message);
+    REQUIRE(want.ok);
+    REQUIRE(moved.ok);
+    CHECK(std::abs(moved.ofv - want.ofv) < 1e-4);
+    CHECK((moved.eta - want.eta).cwiseAbs().maxCoeff() < 1e-3);
+  }
+}
+
 TEST_CASE("Laplace's H is differenced only where the route has no second derivatives, and says why",
           "[population]") {
   // A computed dose modifier that reads an η, without an evaluation on HyperDual3: no second-order
