@@ -192,15 +192,16 @@ void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
     points_.push_back(x);
     return;
   }
-  thread_local std::vector<TapeScalar> xs, fs;
-  xs.resize(static_cast<size_t>(n_));
-  for (int i = 0; i < n_; ++i) xs[static_cast<size_t>(i)] = TapeScalar::OnTape(x(i), m_ + i);
-  fs.assign(static_cast<size_t>(n_), TapeScalar());
-  sys_.nonlinear()->RecordRhs(xs.data(), theta_vars_.data(), fs.data());
+  xs_.resize(static_cast<size_t>(n_));
+  for (int i = 0; i < n_; ++i) xs_[static_cast<size_t>(i)] = TapeScalar::OnTape(x(i), m_ + i);
+  fs_.assign(static_cast<size_t>(n_), TapeScalar());
+  sys_.nonlinear()->RecordRhs(xs_.data(), theta_vars_.data(), fs_.data());
   f->resize(n_);
+  const size_t first = f_node_.size();
+  f_node_.resize(first + static_cast<size_t>(n_));
   for (int i = 0; i < n_; ++i) {
-    (*f)(i) = fs[static_cast<size_t>(i)].value();
-    f_node_.push_back(fs[static_cast<size_t>(i)].index());
+    (*f)(i) = fs_[static_cast<size_t>(i)].value();
+    f_node_[first + static_cast<size_t>(i)] = fs_[static_cast<size_t>(i)].index();
   }
   start_.push_back(Tape::Active().size());
 }

@@ -103,6 +103,7 @@ class StageTape {
   std::vector<TapeScalar> theta_vars_;  // nodes 0…m−1 of the thread's tape, shared by every stage
   std::vector<int> start_;  // a stage's first node, and one past its last at the end
   std::vector<int> f_node_;  // n a stage: f_i's node, −1 for a constant
+  std::vector<TapeScalar> xs_, fs_;  // Record's x and f, kept between stages
   std::vector<double> adj_;
   int zeroed_ = 0;  // adj_ is zero on [m + n, zeroed_) but for what sweeps put there
   // Linear systems: A(θ), the stages' points, and Σ w Xᵀ over the stages swept.
