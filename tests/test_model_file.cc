@@ -26,6 +26,14 @@ namespace {
 
 std::string ModelPath(const std::string& name) { return std::string(PK_SOURCE_DIR) + "/models/" + name + ".pkm"; }
 
+// `o` on CVODES at rtol 1e-12 (atol 1e-14): the integrated reference of an exact route.
+pk::ObjectiveOptions CvodesTwin(pk::ObjectiveOptions o) {
+  o.propagator = pk::Propagator::kOde;
+  o.ode.relative_tolerance = 1e-12;
+  o.ode.absolute_tolerance = 1e-14;
+  return o;
+}
+
 const std::vector<std::string>& LinearTwins() {
   static const std::vector<std::string> names = {"1cmt_iv", "1cmt_oral", "2cmt_iv", "2cmt_oral", "3cmt_iv",
                                                  "3cmt_oral", "1cmt_oral_transit", "tf1", "tf2", "tf3", "tf4"};
@@ -498,10 +506,7 @@ TEST_CASE("model files: linear models whose coefficients are expressions run on 
   for (int subject : {0, 1}) {
     pk::ObjectiveOptions exact;
     exact.error_model = pk::MakeResidualError("proportional");
-    pk::ObjectiveOptions ode = exact;
-    ode.propagator = pk::Propagator::kOde;
-    ode.ode.relative_tolerance = 1e-12;
-    ode.ode.absolute_tolerance = 1e-14;
+    const pk::ObjectiveOptions ode = CvodesTwin(exact);
     const pk::Objective objective(model, data, subject, exact);
     const pk::Objective reference(model, data, subject, ode);
     Eigen::VectorXd values = objective.DefaultValues();
@@ -567,10 +572,7 @@ void CheckTwoOutputFile(const std::shared_ptr<const pk::Model>& model, const std
     const auto data = TwoOutputData(sc);
     pk::ObjectiveOptions exact;
     exact.error_model = error;
-    pk::ObjectiveOptions ode = exact;
-    ode.propagator = pk::Propagator::kOde;
-    ode.ode.relative_tolerance = 1e-12;
-    ode.ode.absolute_tolerance = 1e-14;
+    const pk::ObjectiveOptions ode = CvodesTwin(exact);
     const pk::Objective objective(model, data, 0, exact), reference(model, data, 0, ode);
     CHECK(objective.sample_outputs() == std::vector<int>{1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2, 1, 2});
     Eigen::VectorXd values = objective.DefaultValues();
@@ -668,10 +670,7 @@ TEST_CASE("model files: an output with a baseline runs on Φ/Γ, its offset with
     CHECK(lf->has_output_offsets());
     pk::ObjectiveOptions o;
     o.error_model = pk::MakeResidualError("proportional");
-    pk::ObjectiveOptions integrated = o;
-    integrated.propagator = pk::Propagator::kOde;
-    integrated.ode.relative_tolerance = 1e-12;
-    integrated.ode.absolute_tolerance = 1e-14;
+    const pk::ObjectiveOptions integrated = CvodesTwin(o);
     const pk::Objective exact(form, wt_data, 0, o), ode(form, wt_data, 0, integrated);
     std::vector<int> free = {0, 1, 2, 3, 4};
     for (int k : exact.sigma_indices()) free.push_back(k);
@@ -747,10 +746,7 @@ TEST_CASE("model files: a zero-order input in d/dt runs on Φ/Γ as K0_n, equal 
     const auto data = pk_test::ScenarioData(sc);
     pk::ObjectiveOptions exact;
     exact.error_model = pk::MakeResidualError("proportional");
-    pk::ObjectiveOptions ode = exact;
-    ode.propagator = pk::Propagator::kOde;
-    ode.ode.relative_tolerance = 1e-12;
-    ode.ode.absolute_tolerance = 1e-14;
+    const pk::ObjectiveOptions ode = CvodesTwin(exact);
     const pk::Objective objective(model, data, 0, exact), reference(exogenous, data, 0, ode),
         exogenous_exact(exogenous, data, 0, exact);
     Eigen::VectorXd values = objective.DefaultValues();
@@ -882,10 +878,7 @@ TEST_CASE("model files: dose modifiers computed in $PK follow covariates, with e
   // Derivatives through the modifiers: every route against central differences, and the exact
   // routes against the same equations on CVODES.
   const Eigen::VectorXd fd = pk_test::CentralDifferences(file, values, all);
-  pk::ObjectiveOptions ode = options;
-  ode.propagator = pk::Propagator::kOde;
-  ode.ode.relative_tolerance = 1e-12;
-  ode.ode.absolute_tolerance = 1e-14;
+  const pk::ObjectiveOptions ode = CvodesTwin(options);
   const pk::Objective reference(model, ModifierData(false), 0, ode);
   for (pk::GradientRoute r : {pk::GradientRoute::kForward, pk::GradientRoute::kAdjoint}) {
     for (const pk::Objective* o : {&file, &reference}) {

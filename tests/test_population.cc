@@ -718,14 +718,17 @@ pk::PopulationProblem FileProblem(const std::string& text, const std::string& er
   return pk::PopulationProblem(model, Data(data), etas, o);
 }
 
-// NONMEM's phenobarbital example as shipped (models/pheno_pop.pkm).
-std::string PhenoFileText() {
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/pheno_pop.pkm");
+// A shipped model file's text (models/NAME.pkm).
+std::string ShippedModelText(const std::string& name) {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/" + name + ".pkm");
   REQUIRE(in.good());
   std::stringstream text;
   text << in.rdbuf();
   return text.str();
 }
+
+// NONMEM's phenobarbital example as shipped (models/pheno_pop.pkm).
+std::string PhenoFileText() { return ShippedModelText("pheno_pop"); }
 
 }  // namespace
 
@@ -982,9 +985,7 @@ TEST_CASE("the outer gradient holds for η in dose modifiers computed in $PK (AL
   // engine on jets (exact/moving_events.h), exactly: no subject's are differenced.
   // The lag stays well before the first samples after a dose, where the prediction has a kink.
   // The shipped models/theo_lag_pop.pkm: ALAG1 = TLAG·exp(ETA_LAG), F1 = exp(ETA_F).
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/theo_lag_pop.pkm");
-  REQUIRE(in);
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string text = ShippedModelText("theo_lag_pop");
   const pk::PopulationProblem problem = FileProblem(text, "combined", 1e-8, {}, "theophylline");
   REQUIRE(problem.model().is_linear());
   pk::PopulationParameters p = problem.DefaultParameters();
@@ -1006,9 +1007,7 @@ TEST_CASE("the outer gradient holds for η in an output's baseline (its offset o
   // The shipped models/effect_linear_pop.pkm: E = E0 + SLOPE·Ce with E0 = TVE0 + ETA_E0, the effect
   // output's offset (objective/output_offsets.h), whose η-Jacobian, second and third orders come
   // from AD of the offset beside Φ/Γ's for C x.
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/effect_linear_pop.pkm");
-  REQUIRE(in);
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string text = ShippedModelText("effect_linear_pop");
   const pk::PopulationProblem problem = FileProblem(text, "combined", 1e-8, {}, "effect_linear_pop");
   const auto* linear = dynamic_cast<const pk::LinearModel*>(&problem.model());
   REQUIRE(linear != nullptr);
@@ -1618,9 +1617,7 @@ TEST_CASE("the conditional mode on CVODES: a decrease below a few times l's nois
   // 1.1 times l's noise (10·rtol·(N + |l|)), which no halving of the line search could resolve, and
   // the search stopped "without progress": no standard errors. It now ends there, converged, at
   // Φ/Γ's mode to the noise.
-  std::ifstream in(std::string(PK_SOURCE_DIR) + "/models/effect_linear_pop.pkm");
-  REQUIRE(in);
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string text = ShippedModelText("effect_linear_pop");
   const auto model = pk::ParseModel(text, "effect_linear_pop.pkm", pk::RandomEffects::kParameters);
   pk::ObjectiveOptions o;
   o.propagator = pk::Propagator::kOde;
