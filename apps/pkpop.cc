@@ -16,6 +16,7 @@
 
 #include "cli.h"
 #include "pop_html.h"
+#include "pop_simulation.h"
 #include "pk/catalogue.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
@@ -85,6 +86,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "or s (4S⁻¹)")(
       "output-dir,o", po::value<std::string>()->default_value("pkpop_out"), "where the results go")(
       "quiet,q", "no progress line and no table on stdout");
+  pk::cli::AddPopulationSimulationOptions(desc);
   pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
 }
 
@@ -306,7 +308,7 @@ std::string CovarianceCsv(const pk::PopulationSummary& fit) {
 }
 
 void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
-                  const pk::cli::PopulationReportContext& context) {
+                  const pk::cli::PopulationReportContext& context, const pk::cli::PopulationSimulationRequest& simulation) {
   std::filesystem::create_directories(dir);
   pk::RemoveStaleTemporaries(dir);
   pk::BeginOutputSet(dir);
@@ -318,10 +320,21 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
       {"pkpop.ext", pk::NonmemExtTable(fit)},          {"pkpop.phi", pk::NonmemPhiTable(fit)}};
   const auto report = pk::cli::PopulationReport(problem, fit, context);
   files.insert(files.end(), report.begin(), report.end());
+  if (context.vpc) {
+    files.push_back({"vpc.csv", pk::VpcCsv(*context.vpc)});
+    files.push_back({"vpc.svg", pk::cli::VpcSvg(*context.vpc, problem.model())});
+  }
   std::vector<std::string> names;
   for (const auto& [name, text] : files) {
     pk::WriteFileAtomically(dir + "/" + name, text);
     names.push_back(name);
+  }
+  if (simulation.simulate > 0) {  // written as it is simulated: the largest file of the set
+    const int failed = pk::cli::WriteSimtab(dir + "/simtab.csv", problem, fit.parameters, simulation);
+    if (failed > 0) {
+      std::cerr << "pkpop: note: " << failed << " subject-replicates could not be simulated and are not in simtab.csv\n";
+    }
+    names.push_back("simtab.csv");
   }
   pk::CompleteOutputSet(dir, names, "pkpop");
 }
@@ -394,6 +407,7 @@ int Main(int argc, char** argv, Process* p) {
     Blocks(problem.eta_names(), a.block, &options.structure);
   }
   const pk::PopulationParameters initial = Initial(problem, a, &options.structure);
+  const pk::cli::PopulationSimulationRequest simulation = pk::cli::ParsePopulationSimulation(vm, options.threads);
   const bool quiet = vm.count("quiet") > 0 || process.rank > 0;  // process 0 alone speaks and writes
   if (!quiet) {
     options.progress = [](int evaluation, double ofv, double gradient) {
@@ -415,14 +429,25 @@ int Main(int argc, char** argv, Process* p) {
   context.error = pk::DescribeErrorModel(*objective.error_model);
   context.dataset_path = vm["data"].as<std::string>();
   for (int k = 0; k < argc; ++k) context.command_line += (k ? " " : "") + std::string(argv[k]);
-  if (process.rank == 0) WriteOutputs(dir, problem, fit, context);
+  // The VPC at the estimates; its failure (a PRED at pcVPC's lower bound) loses nothing of the fit.
+  std::string vpc_failure;
+  if (simulation.vpc && process.rank == 0) {
+    try {
+      context.vpc = pk::ComputeVpc(problem, fit.parameters, *simulation.vpc);
+    } catch (const std::exception& e) {
+      vpc_failure = e.what();
+    }
+  }
+  if (process.rank == 0) WriteOutputs(dir, problem, fit, context, simulation);
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
               << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "
                  "covariance.csv, report.txt, pkpop.ext and pkpop.phi: NONMEM's .ext and .phi)\n";
   }
+  if (context.vpc && !quiet) std::cout << "\n" << context.vpc->BriefReport();
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
-  return fit.converged ? 0 : 1;
+  if (!vpc_failure.empty()) std::cerr << "pkpop: the VPC failed: " << vpc_failure << "\n";
+  return fit.converged && vpc_failure.empty() ? 0 : 1;
 }
 
 }  // namespace

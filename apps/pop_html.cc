@@ -15,6 +15,7 @@
 #include "pk/simulate.h"
 #include "pk/version.h"
 #include "pop_report_template.h"
+#include "pop_simulation.h"
 
 namespace pk {
 namespace cli {
@@ -289,6 +290,11 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   GoodnessOfFit(problem, fit, &gof, &files);
   Covariates(problem, fit, &covariates, &files);
   page["gof"] = gof;
+  page["has_vpc"] = data(c.vpc.has_value());
+  if (c.vpc) {
+    page["vpc_svg"] = Text(VpcSvg(*c.vpc, problem.model()));
+    page["vpc_note"] = Text(c.vpc->BriefReport());
+  }
   page["has_covariates"] = data(!covariates.empty());
   page["covariate_plots"] = covariates;
   page["panels"] = Panels(problem, fit);

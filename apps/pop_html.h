@@ -2,17 +2,20 @@
 #ifndef PK_APPS_POP_HTML_H_
 #define PK_APPS_POP_HTML_H_
 
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "pk/population.h"
+#include "pk/vpc.h"
 
 namespace pk {
 namespace cli {
 
 struct PopulationReportContext {
   std::string model, error, dataset_path, command_line;
+  std::optional<VpcSummary> vpc;  ///< a VPC section when present
 };
 
 /// report.html and the plots it shows (gof_*.svg, eta_*.svg), as (file name, contents) pairs.

@@ -101,6 +101,36 @@ head -1 "$work/blq/sdtab.csv" | grep -qx "ID,TIME,DVID,DV,PRED,IPRED,RES,WRES,CW
 [ "$(awk -F, '$11 == 1 && $7 == "" && $9 == "" && $10 == ""' "$work/blq/sdtab.csv" | wc -l)" -eq 27 ] ||
   fail "the 27 censored rows should have CENS=1 and empty RES, CWRES and IWRES"
 
+# A VPC and simulated replicates at the estimates (the phenobarbital file; Φ/Γ, so quick): vpc.csv,
+# vpc.svg, simtab.csv in the output set; a seed gives the same numbers, and another seed others.
+vpc_run() {  # output directory, then further options
+  local out=$1; shift
+  "$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --no-covariance -q \
+    -o "$out" "$@" 2>"$out.err" || fail "the VPC run $* exited non-zero: $(cat "$out.err")"
+}
+vpc_run "$work/vpc" --vpc 50 --simulate 3 --seed 11
+for f in vpc.csv vpc.svg simtab.csv; do
+  grep -q "^$f," "$work/vpc/MANIFEST" || fail "$f is not in the MANIFEST"
+done
+head -1 "$work/vpc/vpc.csv" | grep -qx "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER" ||
+  fail "vpc.csv header: $(head -1 "$work/vpc/vpc.csv")"
+# 10 bins (Jenks) × 3 percentiles; the bins hold all 155 samples; each interval holds its median.
+[ "$(tail -n +2 "$work/vpc/vpc.csv" | wc -l)" -eq 30 ] || fail "vpc.csv: expected 30 rows"
+awk -F, 'NR > 1 && $7 == 50 { n += $6 } NR > 1 && !($9 <= $10 && $10 <= $11) { bad = 1 } END { exit bad || n != 155 }' \
+  "$work/vpc/vpc.csv" || fail "vpc.csv: bins or intervals are wrong"
+grep -q "<polygon" "$work/vpc/vpc.svg" || fail "vpc.svg has no bands"
+grep -q "Visual predictive check" "$work/vpc/report.html" || fail "report.html has no VPC section"
+head -1 "$work/vpc/simtab.csv" | grep -qx "REP,ID,TIME,DVID,DV,IPRED,PRED,ETA_CL,ETA_V" ||
+  fail "simtab.csv header: $(head -1 "$work/vpc/simtab.csv")"
+[ "$(tail -n +2 "$work/vpc/simtab.csv" | wc -l)" -eq 465 ] || fail "simtab.csv: expected 3 × 155 rows"
+vpc_run "$work/vpc_again" --vpc 50 --simulate 3 --seed 11 -j 2
+cmp -s "$work/vpc/vpc.csv" "$work/vpc_again/vpc.csv" || fail "the same seed (and two threads) changed vpc.csv"
+cmp -s "$work/vpc/simtab.csv" "$work/vpc_again/simtab.csv" || fail "the same seed changed simtab.csv"
+vpc_run "$work/vpc_other" --vpc 50 --seed 12 --pcvpc --vpc-bins 0,24,48,96,400
+cmp -s "$work/vpc/vpc.csv" "$work/vpc_other/vpc.csv" && fail "another seed gave the same vpc.csv"
+[ "$(tail -n +2 "$work/vpc_other/vpc.csv" | wc -l)" -eq 12 ] || fail "vpc.csv with 4 given bins: expected 12 rows"
+grep -q "Prediction-corrected VPC" "$work/vpc_other/vpc.svg" || fail "the pcVPC's title"
+
 # Input errors exit with 2 and say what is wrong.
 expect_error() {  # expected message, then arguments
   local msg=$1; shift
@@ -121,6 +151,11 @@ expect_error "27 censored samples (CENS): their likelihood (Beal's M3) needs --m
   --model 1cmt_oral --data "$root/datasets/theophylline_blq.csv" --error additive
 expect_error "--omega CL:V: the two η are not in one Ω block" "${pheno[@]}" --omega CL:V=0.01
 expect_error "initial Ω block of CL is not positive definite" "${pheno[@]}" --block CL,V --omega CL:V=1
+expect_error "--vpc: expected 0 to 100000 replicates" "${pheno[@]}" --vpc -1
+expect_error "need --vpc N" "${pheno[@]}" --pcvpc
+expect_error "--vpc: the bin edges must increase" "${pheno[@]}" --vpc 10 --vpc-bins 0,5,5
+expect_error "--vpc: the percentiles must increase" "${pheno[@]}" --vpc 10 --vpc-percentiles 95,5
+expect_error "--seed: expected a whole number" "${pheno[@]}" --simulate 2 --seed -3
 
 [ $failures -eq 0 ] && echo "pkpop CLI: all checks passed"
 exit $failures

@@ -24,6 +24,11 @@ struct PlotSeries {
   bool reference = false;
   /// An explicit colour ("#rrggbb"); empty: the series' place in the palette.
   std::string colour;
+  /// A band (a VPC's simulated interval): the region between y and upper at each x, filled
+  /// translucent in the series' colour, without markers or outline. Empty: not a band.
+  std::vector<double> upper;
+  /// A line drawn dashed in its own colour (a VPC's simulated median).
+  bool dashed = false;
 };
 
 struct PlotOptions {

@@ -25,7 +25,6 @@
 namespace pk {
 namespace internal {
 
-void CheckSizes(const PopulationProblem& problem, const PopulationParameters& p);
 void CheckMethod(const PopulationProblem& problem, PopulationMethod method);
 
 PopulationEngine::PopulationEngine(const PopulationProblem& problem, PopulationMethod method, int threads,

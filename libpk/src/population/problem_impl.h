@@ -24,6 +24,11 @@ struct PopulationProblem::Impl {
   int num_censored = 0;  ///< samples with CENS ≠ 0 (Beal's M3; Laplace only)
 };
 
+namespace internal {
+/// Throws pk::InputError when the parameters' sizes do not match the problem.
+void CheckSizes(const PopulationProblem& problem, const PopulationParameters& p);
+}  // namespace internal
+
 }  // namespace pk
 
 #endif  // PK_SRC_POPULATION_PROBLEM_IMPL_H_

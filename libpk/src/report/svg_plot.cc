@@ -138,6 +138,20 @@ std::string ColourOf(const PlotSeries& s, int k) {
   return s.reference ? "#555555" : PaletteColour(k);
 }
 
+// A band's polygon: along upper, then back along y, over the points both ends of which are drawn.
+template <typename Px, typename Py, typename Shown>
+std::string Band(const PlotSeries& s, const std::string& colour, const Px& px, const Py& py, const Shown& shown) {
+  std::vector<size_t> drawn;
+  for (size_t i = 0; i < std::min({s.x.size(), s.y.size(), s.upper.size()}); ++i) {
+    if (shown(i) && std::isfinite(s.upper[i])) drawn.push_back(i);
+  }
+  if (drawn.empty()) return "";
+  std::string points;
+  for (size_t i : drawn) points += Num(px(s.x[i]), 6) + "," + Num(py(s.upper[i]), 6) + " ";
+  for (auto it = drawn.rbegin(); it != drawn.rend(); ++it) points += Num(px(s.x[*it]), 6) + "," + Num(py(s.y[*it]), 6) + " ";
+  return "<polygon fill=\"" + colour + "\" fill-opacity=\"0.3\" stroke=\"none\" points=\"" + points + "\"/>\n";
+}
+
 }  // namespace
 
 const char* PaletteColour(int k) { return kColours[((k % kNumColours) + kNumColours) % kNumColours]; }
@@ -151,6 +165,7 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
       if (!ax.Usable(s.x[i]) || !ay.Usable(s.y[i])) continue;
       ax.Add(s.x[i]);
       ay.Add(s.y[i]);
+      if (i < s.upper.size() && ay.Usable(s.upper[i])) ay.Add(s.upper[i]);
       if (s.markers) {
         ax.marker_lo = std::min(ax.marker_lo, s.x[i]);
         ay.marker_lo = std::min(ay.marker_lo, s.y[i]);
@@ -196,7 +211,9 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
     const PlotSeries& s = series[k];
     const std::string colour = ColourOf(s, static_cast<int>(k));
     const auto shown = [&](size_t i) { return ax.Usable(s.x[i]) && ay.Usable(s.y[i]); };
-    if (s.markers) {
+    if (!s.upper.empty()) {
+      svg << Band(s, colour, px, py, shown);
+    } else if (s.markers) {
       for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
         if (!shown(i)) continue;
         svg << "<circle cx=\"" << Num(px(s.x[i])) << "\" cy=\"" << Num(py(s.y[i])) << "\" r=\"" << (small ? 3 : 3.5)
@@ -204,7 +221,7 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
       }
     } else {
       svg << "<polyline fill=\"none\" stroke=\"" << colour << "\" stroke-width=\"" << (s.reference ? 1.2 : 1.6) << "\""
-          << (s.reference && s.colour.empty() ? " stroke-dasharray=\"5,4\"" : "") << " points=\"";
+          << ((s.reference && s.colour.empty()) || s.dashed ? " stroke-dasharray=\"5,4\"" : "") << " points=\"";
       for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
         if (shown(i)) svg << Num(px(s.x[i]), 6) << "," << Num(py(s.y[i]), 6) << " ";
       }
@@ -212,8 +229,15 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
     }
     if (options.legend && series.size() <= 24) {
       const double ly = top + 10 + 16 * static_cast<double>(legend_row++);
-      svg << "<rect x=\"" << Num(left + w + 12) << "\" y=\"" << Num(ly - 8) << "\" width=\"12\" height=\"8\" "
-          << Fill(s, colour) << "/><text x=\"" << Num(left + w + 30) << "\" y=\"" << Num(ly) << "\">" << Escape(s.label)
+      if (s.markers || !s.upper.empty()) {  // a swatch
+        svg << "<rect x=\"" << Num(left + w + 12) << "\" y=\"" << Num(ly - 8) << "\" width=\"12\" height=\"8\" "
+            << Fill(s, colour) << (s.upper.empty() ? "" : " fill-opacity=\"0.3\"") << "/>";
+      } else {  // a stretch of the line, dashed as it is
+        svg << "<line x1=\"" << Num(left + w + 10) << "\" y1=\"" << Num(ly - 4) << "\" x2=\"" << Num(left + w + 26)
+            << "\" y2=\"" << Num(ly - 4) << "\" stroke=\"" << colour << "\" stroke-width=\"2\""
+            << ((s.reference && s.colour.empty()) || s.dashed ? " stroke-dasharray=\"4,3\"" : "") << "/>";
+      }
+      svg << "<text x=\"" << Num(left + w + 30) << "\" y=\"" << Num(ly) << "\">" << Escape(s.label)
           << "</text>\n";
     }
   }

@@ -1,0 +1,197 @@
+// pkpop's simulations at the estimates (pop_simulation.h).
+#include "pop_simulation.h"
+
+#include <cmath>
+#include <map>
+#include <sstream>
+
+#include "cli.h"
+#include "pk/error.h"
+#include "pk/output.h"
+#include "pk/plot.h"
+#include "pk/population_simulation.h"
+
+namespace po = boost::program_options;
+
+namespace pk {
+namespace cli {
+namespace {
+
+std::vector<std::string> Commas(const std::string& text) {
+  std::vector<std::string> out;
+  std::stringstream ss(text);
+  for (std::string item; std::getline(ss, item, ',');) out.push_back(item);
+  return out;
+}
+
+double Number(const std::string& option, const std::string& text) {
+  double v = 0;
+  if (!ParseNumber(text, &v)) throw InputError(option + ": '" + text + "' is not a number");
+  return v;
+}
+
+// --vpc-bins: auto, a count, or edges.
+void ParseBins(const std::string& text, VpcOptions* o) {
+  if (text == "auto") return;
+  const std::vector<std::string> items = Commas(text);
+  if (items.size() == 1) {
+    const double count = Number("--vpc-bins", items[0]);
+    if (!(count >= 1 && count <= 1000 && count == std::floor(count))) {
+      throw InputError("--vpc-bins: a count of bins is a whole number from 1 to 1000, not '" + text + "'");
+    }
+    o->max_bins = static_cast<int>(count);
+    return;
+  }
+  for (const std::string& item : items) o->bin_edges.push_back(Number("--vpc-bins", item));
+}
+
+std::string Ordinal(double p) {
+  const std::string n = FormatNumber(p);
+  const long whole = std::lround(p);
+  if (p != static_cast<double>(whole)) return n + "th";
+  const long last = whole % 10, tens = whole % 100;
+  return n + (tens >= 11 && tens <= 13 ? "th" : last == 1 ? "st" : last == 2 ? "nd" : last == 3 ? "rd" : "th");
+}
+
+}  // namespace
+
+void AddPopulationSimulationOptions(po::options_description* desc) {
+  desc->add_options()(
+      "vpc", po::value<int>()->default_value(0),
+      "after the fit, a visual predictive check from this many replicates of the data simulated at the estimates "
+      "(vpc.csv, vpc.svg and a section of report.html); 0: none")(
+      "vpc-bins", po::value<std::string>()->default_value("auto"),
+      "the VPC's time bins: auto (each distinct time up to 10 a DVID, else Jenks' natural breaks into 10), a "
+      "count N (the same with N), or edges T0,T1,...")(
+      "vpc-percentiles", po::value<std::string>()->default_value("5,50,95"), "the percentiles the VPC compares")(
+      "vpc-interval", po::value<double>()->default_value(90), "the simulated percentiles' interval, %")(
+      "pcvpc", "prediction-corrected VPC (Bergstrand et al. 2011): each value scaled by its bin's median PRED over its own")(
+      "vpc-lower-bound", po::value<double>()->default_value(0), "pcVPC: the data's lower bound")(
+      "simulate", po::value<int>()->default_value(0),
+      "after the fit, this many replicates of the data simulated at the estimates into simtab.csv (REP, ID, TIME, "
+      "DVID, DV, IPRED, PRED and the drawn η), as NONMEM's $SIMULATION")(
+      "seed", po::value<std::string>()->default_value("1"), "the simulations' seed (an integer up to 2^64 − 1)");
+}
+
+PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& vm, int threads) {
+  PopulationSimulationRequest r;
+  const std::string seed = vm["seed"].as<std::string>();
+  if (seed.empty() || seed.size() > 20 || seed.find_first_not_of("0123456789") != std::string::npos) {
+    throw InputError("--seed: expected a whole number from 0 to 18446744073709551615, not '" + seed + "'");
+  }
+  try {
+    r.seed = std::stoull(seed);
+  } catch (const std::exception&) {
+    throw InputError("--seed: '" + seed + "' is above 18446744073709551615");
+  }
+  r.simulate = vm["simulate"].as<int>();
+  if (r.simulate < 0 || r.simulate > 100000) throw InputError("--simulate: expected 0 to 100000 replicates");
+  const int replicates = vm["vpc"].as<int>();
+  if (replicates < 0 || replicates > 100000) throw InputError("--vpc: expected 0 to 100000 replicates");
+  const bool vpc_only = !vm["vpc-bins"].defaulted() || !vm["vpc-percentiles"].defaulted() ||
+                        !vm["vpc-interval"].defaulted() || vm.count("pcvpc") || !vm["vpc-lower-bound"].defaulted();
+  if (replicates == 0) {
+    if (vpc_only) throw InputError("--vpc-bins, --vpc-percentiles, --vpc-interval, --pcvpc and --vpc-lower-bound need --vpc N");
+    return r;
+  }
+  VpcOptions o;
+  o.replicates = replicates;
+  o.seed = r.seed;
+  o.threads = std::max(1, threads);
+  ParseBins(vm["vpc-bins"].as<std::string>(), &o);
+  o.percentiles.clear();
+  for (const std::string& p : Commas(vm["vpc-percentiles"].as<std::string>())) o.percentiles.push_back(Number("--vpc-percentiles", p));
+  o.interval = vm["vpc-interval"].as<double>();
+  o.prediction_corrected = vm.count("pcvpc") > 0;
+  o.lower_bound = vm["vpc-lower-bound"].as<double>();
+  std::string why;
+  if (!o.IsValid(&why)) throw InputError("--vpc: " + why);
+  r.vpc = o;
+  return r;
+}
+
+int WriteSimtab(const std::string& path, const PopulationProblem& problem, const PopulationParameters& parameters,
+                const PopulationSimulationRequest& request) {
+  const SimulationDesign design = MakeSimulationDesign(problem, parameters);
+  AtomicFile file(path);
+  std::string header = "REP,ID,TIME,DVID,DV,IPRED,PRED";
+  for (const std::string& n : problem.eta_names()) header += "," + EtaLabel(n);
+  file.Write(header + "\n");
+  PopulationSimulationOptions options;
+  options.replicates = request.simulate;
+  options.seed = request.seed;
+  options.threads = request.vpc ? request.vpc->threads : 1;
+  int failed = 0;
+  const auto number = [](double v) { return std::isfinite(v) ? FormatNumber(v) : std::string(); };
+  SimulatePopulation(problem, parameters, options, [&](const SimulatedReplicate& r) {
+    std::string text;
+    const std::string rep = std::to_string(r.replicate + 1);
+    for (size_t i = 0; i < r.subjects.size(); ++i) {
+      const SimulatedSubject& s = r.subjects[i];
+      const SimulationDesign::Subject& d = design.subjects[i];
+      if (!s.ok) {
+        ++failed;
+        continue;
+      }
+      std::string etas;
+      for (Eigen::Index k = 0; k < s.eta.size(); ++k) etas += "," + number(s.eta(k));
+      for (size_t j = 0; j < d.time.size(); ++j) {
+        const auto jj = static_cast<Eigen::Index>(j);
+        text += rep + "," + number(d.id) + "," + number(d.time[j]) + "," + std::to_string(d.dvid[j]) + "," +
+                number(s.dv(jj)) + "," + number(s.ipred(jj)) + "," + number(d.pred(jj)) + etas + "\n";
+      }
+    }
+    file.Write(text);
+  });
+  file.Commit();
+  return failed;
+}
+
+std::string VpcSvg(const VpcSummary& vpc, const Model& model) {
+  std::map<int, std::vector<const VpcBin*>> panels;
+  for (const VpcBin& b : vpc.bins) panels[b.dvid].push_back(&b);
+  std::vector<std::vector<PlotSeries>> all;
+  std::vector<PlotOptions> options;
+  const std::string interval = FormatNumber(vpc.interval) + "% PI";
+  for (const auto& [dvid, bins] : panels) {
+    std::vector<PlotSeries> series;
+    PlotSeries points{"observed", {}, {}, true};
+    points.hollow = true;
+    points.colour = "#9a9a9a";
+    for (const VpcObservation& o : vpc.observations) {
+      if (o.dvid == dvid) points.x.push_back(o.time), points.y.push_back(o.value);
+    }
+    for (size_t k = 0; k < vpc.percentiles.size(); ++k) {
+      const bool median = vpc.percentiles[k] == 50;
+      PlotSeries band{"sim. " + Ordinal(vpc.percentiles[k]) + " (" + interval + ")", {}, {}};
+      PlotSeries observed{"obs. " + Ordinal(vpc.percentiles[k]), {}, {}};
+      band.colour = median ? "#d62728" : "#1f77b4";
+      observed.colour = "#111111";
+      observed.dashed = !median;
+      for (const VpcBin* b : bins) {
+        band.x.push_back(b->time);
+        band.y.push_back(b->simulated_lower[k]);
+        band.upper.push_back(b->simulated_upper[k]);
+        observed.x.push_back(b->time);
+        observed.y.push_back(b->observed[k]);
+      }
+      series.insert(series.begin() + static_cast<std::ptrdiff_t>(k), band);  // bands beneath the lines and points
+      series.push_back(observed);
+    }
+    series.insert(series.begin() + static_cast<std::ptrdiff_t>(vpc.percentiles.size()), points);
+    PlotOptions o;
+    const std::vector<std::string>& names = model.output_names();
+    const std::string name = dvid >= 1 && static_cast<size_t>(dvid) <= names.size() ? names[static_cast<size_t>(dvid - 1)] : "";
+    o.title = std::string(vpc.prediction_corrected ? "Prediction-corrected VPC" : "VPC") +
+              (panels.size() > 1 ? " · DVID " + std::to_string(dvid) + (name.empty() ? "" : " (" + name + ")") : "") +
+              " · " + std::to_string(vpc.replicates) + " replicates";
+    o.y_label = vpc.prediction_corrected ? "prediction-corrected DV" : "DV";
+    o.width = 900;
+    all.push_back(std::move(series));
+    options.push_back(o);
+  }
+  return RenderPanelsSvg(all, options);
+}
+
+}  // namespace cli
+}  // namespace pk

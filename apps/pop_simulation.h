@@ -1,0 +1,43 @@
+// pkpop's simulations at the estimates (parsing and I/O only): --simulate's simtab.csv, and the
+// visual predictive check's vpc.csv and plots (the numbers come from pk/population_simulation.h and
+// pk/vpc.h).
+#ifndef PK_APPS_POP_SIMULATION_H_
+#define PK_APPS_POP_SIMULATION_H_
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <boost/program_options.hpp>
+
+#include "pk/population.h"
+#include "pk/vpc.h"
+
+namespace pk {
+namespace cli {
+
+/// What pkpop simulates after the fit.
+struct PopulationSimulationRequest {
+  int simulate = 0;  ///< replicates for simtab.csv (0: none)
+  std::uint64_t seed = 1;
+  std::optional<VpcOptions> vpc;  ///< none without --vpc
+};
+
+void AddPopulationSimulationOptions(boost::program_options::options_description* desc);
+/// From the parsed options, checked before any fitting (pk::InputError, exit 2).
+PopulationSimulationRequest ParsePopulationSimulation(const boost::program_options::variables_map& vm, int threads);
+
+/// simtab.csv, written as replicates are simulated (memory holds one): REP,ID,TIME,DVID,DV,IPRED,PRED
+/// and the drawn η. Subjects that could not be simulated are left out; returns how many.
+int WriteSimtab(const std::string& path, const PopulationProblem& problem, const PopulationParameters& parameters,
+                const PopulationSimulationRequest& request);
+
+/// The VPC's plot: a panel per DVID (the output's name in its title when the model has several).
+std::string VpcSvg(const VpcSummary& vpc, const Model& model);
+
+}  // namespace cli
+}  // namespace pk
+
+#endif  // PK_APPS_POP_SIMULATION_H_

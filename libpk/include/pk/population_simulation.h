@@ -1,0 +1,89 @@
+// libpk: simulation from a population model, as NONMEM's $SIMULATION: replicates of a dataset's
+// design (its doses, sample times, covariates and outputs), each subject's random effects drawn
+// anew and each sample's residual error added:
+//
+//   η_i ~ N(0, Ω)                        (η_i = L z, Ω = LLᵀ, z standard normal)
+//   ŷ_ij = f_ij(θ, η_i)                   (IPRED; PRED is f_ij(θ, 0))
+//   T(y_ij) = T(ŷ_ij) + √V_ij ε_ij,  ε_ij ~ N(0, 1),  V_ij = v(ŷ_ij, σ)
+//
+// with T and v the residual-error model's (pk/residual_error.h): y = ŷ + √V ε for the additive,
+// proportional and combined errors (NONMEM's Y = F + F·EPS(1) + EPS(2) has the same distribution),
+// log y = log ŷ + σ ε for the exponential. A simulated value is never censored (CENS is ignored),
+// and an additive error can make it negative, as in NONMEM.
+//
+// The random numbers are reproducible: subject i of replicate r draws from streams of its own,
+// derived from (seed, r, i), one for η and one for ε. So a replicate does not depend on the number
+// of threads or of replicates, a subject's η not on its number of samples, and
+// residual_error = false leaves every η as it was.
+//
+//   pk::PopulationSimulationOptions options;
+//   options.seed = 20261127;
+//   pk::SimulatePopulation(problem, fit.parameters, options, [](const pk::SimulatedReplicate& r) { ... });
+#ifndef PK_POPULATION_SIMULATION_H_
+#define PK_POPULATION_SIMULATION_H_
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/population.h"
+
+namespace pk {
+
+struct PopulationSimulationOptions {
+  int replicates = 1;
+  std::uint64_t seed = 1;      ///< NONMEM's $SIMULATION (seed)
+  bool residual_error = true;  ///< false: DV = IPRED
+  int threads = 1;             ///< a replicate's subjects on this many threads; no effect on the values
+
+  bool IsValid(std::string* error) const;
+};
+
+/// The samples a simulation reproduces: the problem's observation records, subject by subject.
+struct SimulationDesign {
+  struct Subject {
+    double id = 0;
+    int subject = -1;          ///< position in the dataset (Dataset::subjects)
+    std::vector<double> time;  ///< per sample
+    std::vector<int> dvid;     ///< per sample: the output it measures
+    std::vector<int> censored; ///< per sample: the data's CENS (0 a value)
+    Eigen::VectorXd dv;        ///< per sample: the data's DV (natural scale)
+    Eigen::VectorXd pred;      ///< per sample: f(θ, η = 0) (NaN where it cannot be evaluated)
+  };
+  std::vector<Subject> subjects;
+};
+
+/// One subject of one replicate.
+struct SimulatedSubject {
+  bool ok = true;
+  std::string message;     ///< why the subject could not be simulated (its predictions at the drawn η)
+  Eigen::VectorXd eta;     ///< the drawn η (Ω's order)
+  Eigen::VectorXd ipred;   ///< f(θ, η) per sample
+  Eigen::VectorXd dv;      ///< the simulated observations
+};
+
+struct SimulatedReplicate {
+  int replicate = 0;  ///< 0-based
+  std::vector<SimulatedSubject> subjects;  ///< in SimulationDesign::subjects order
+  int failed = 0;     ///< subjects that could not be simulated
+};
+
+/// The design of `problem` at `parameters` (PRED included). Throws pk::InputError when the
+/// parameters do not fit the problem (sizes, a σ or θ that is not positive).
+SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const PopulationParameters& parameters);
+
+/// Simulates options.replicates replicates of the problem's design at `parameters`, handing each to
+/// `consume` in order as it is done (memory holds one replicate). A subject whose predictions cannot
+/// be evaluated at its η is reported in its SimulatedSubject, and the others go on. Throws
+/// pk::InputError for invalid options, an Ω that is not positive semi-definite, or parameters that
+/// do not fit the problem.
+void SimulatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
+                        const PopulationSimulationOptions& options,
+                        const std::function<void(const SimulatedReplicate&)>& consume);
+
+}  // namespace pk
+
+#endif  // PK_POPULATION_SIMULATION_H_

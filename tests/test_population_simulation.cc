@@ -1,0 +1,462 @@
+// Simulation from a population model and visual predictive checks: the drawn η against Ω, the
+// residuals against the error models, IPRED and PRED against the closed form, reproducibility, and
+// the VPC's statistics against R (tests/reference/make_vpc_reference.R).
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <numeric>
+#include <sstream>
+
+#include "pk/catalogue.h"
+#include "pk/error.h"
+#include "pk/output.h"
+#include "pk/population.h"
+#include "pk/population_simulation.h"
+#include "pk/residual_error.h"
+#include "pk/vpc.h"
+#include "test_util.h"
+
+namespace {
+
+// `subjects` subjects of 1cmt_iv: 100 at time 0 and samples at `times` (DV 1, a placeholder).
+std::shared_ptr<pk::Dataset> Design(int subjects, const std::vector<double>& times, double dose_time = 0) {
+  std::string text = "ID,TIME,AMT,EVID,MDV,DV\n";
+  for (int id = 1; id <= subjects; ++id) {
+    std::string samples;
+    for (double t : times) samples += std::to_string(id) + "," + pk::FormatNumber(t) + ",0,0,0,1\n";
+    const std::string dose = std::to_string(id) + "," + pk::FormatNumber(dose_time) + ",100,1,1,.\n";
+    text += dose_time > 0 ? samples + dose : dose + samples;
+  }
+  return std::make_shared<pk::Dataset>(pk::ParseDataset(text, "design.csv"));
+}
+
+pk::PopulationParameters Truth(double sigma) {
+  pk::PopulationParameters p;
+  p.theta.resize(2);
+  p.theta << 3, 30;  // CL, V
+  p.omega.resize(2, 2);
+  p.omega << 0.09, 0.03, 0.03, 0.04;
+  p.sigma = Eigen::VectorXd::Constant(1, sigma);
+  return p;
+}
+
+pk::PopulationProblem Problem(const std::shared_ptr<pk::Dataset>& data, const std::string& error) {
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError(error);
+  return pk::PopulationProblem(pk::MakeModel("1cmt_iv"), data, {"CL", "V"}, o);
+}
+
+std::vector<pk::SimulatedReplicate> Run(const pk::PopulationProblem& problem, const pk::PopulationParameters& p,
+                                        const pk::PopulationSimulationOptions& o) {
+  std::vector<pk::SimulatedReplicate> out;
+  pk::SimulatePopulation(problem, p, o, [&](const pk::SimulatedReplicate& r) { out.push_back(r); });
+  return out;
+}
+
+bool Same(const pk::SimulatedReplicate& a, const pk::SimulatedReplicate& b) {
+  if (a.subjects.size() != b.subjects.size()) return false;
+  for (size_t i = 0; i < a.subjects.size(); ++i) {
+    const auto &x = a.subjects[i], &y = b.subjects[i];
+    if (x.ok != y.ok || x.eta != y.eta || x.ipred != y.ipred || x.dv != y.dv) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+TEST_CASE("population simulation draws η from Ω, and IPRED and PRED are the model's at η", "[population][simulation]") {
+  const std::vector<double> times = {1, 4, 12};
+  const auto data = Design(1000, times);
+  const pk::PopulationProblem problem = Problem(data, "proportional");
+  const pk::PopulationParameters p = Truth(0.1);
+  pk::PopulationSimulationOptions o;
+  o.seed = 42;
+  o.threads = 2;
+  o.replicates = 40;  // 40 000 draws: 5 SE of ω² is 3% of it
+  const std::vector<pk::SimulatedReplicate> sims = Run(problem, p, o);
+  REQUIRE(sims.size() == 40);
+  const pk::SimulationDesign design = pk::MakeSimulationDesign(problem, p);
+  const double n = 40.0 * 1000;
+  Eigen::Matrix2d second = Eigen::Matrix2d::Zero();
+  for (const pk::SimulatedReplicate& r : sims) {
+  REQUIRE(r.failed == 0);
+  for (size_t i = 0; i < r.subjects.size(); ++i) {
+    const pk::SimulatedSubject& s = r.subjects[i];
+    REQUIRE(s.ok);
+    second += s.eta * s.eta.transpose() / n;
+    const double cl = 3 * std::exp(s.eta(0)), v = 30 * std::exp(s.eta(1));
+    for (size_t j = 0; j < times.size(); ++j) {
+      const auto jj = static_cast<Eigen::Index>(j);
+      CHECK(pk_test::RelDiff(s.ipred(jj), 100 / v * std::exp(-cl / v * times[j])) < 1e-12);
+      CHECK(pk_test::RelDiff(design.subjects[i].pred(jj), 100 / 30.0 * std::exp(-0.1 * times[j])) < 1e-12);
+      CHECK(design.subjects[i].time[j] == times[j]);
+    }
+  }
+  }
+  // E[ηηᵀ] = Ω, each entry within 5 standard errors: Var(η_a η_b) = Ω_aa Ω_bb + Ω_ab².
+  for (int a = 0; a < 2; ++a) {
+    for (int b = 0; b < 2; ++b) {
+      const double se = std::sqrt((p.omega(a, a) * p.omega(b, b) + p.omega(a, b) * p.omega(a, b)) / n);
+      INFO("Ω(" << a << "," << b << ") " << p.omega(a, b) << ", drawn " << second(a, b) << ", SE " << se);
+      CHECK(std::fabs(second(a, b) - p.omega(a, b)) < 5 * se);
+    }
+  }
+}
+
+TEST_CASE("population simulation adds ε as each error model defines it", "[population][simulation]") {
+  const std::vector<double> times = {1, 4, 12};
+  const auto data = Design(1000, times);
+  struct Case {
+    std::string error;
+    std::vector<double> sigma;
+    std::function<double(double)> variance;  // of T(y) at ŷ
+    bool log;
+  };
+  const std::vector<Case> cases = {
+      {"additive", {0.2}, [](double) { return 0.04; }, false},
+      {"proportional", {0.15}, [](double y) { return 0.0225 * y * y; }, false},
+      {"combined", {0.1, 0.2}, [](double y) { return 0.01 + 0.04 * y * y; }, false},
+      {"exponential", {0.25}, [](double) { return 0.0625; }, true}};
+  for (const Case& c : cases) {
+    INFO(c.error);
+    const pk::PopulationProblem problem = Problem(data, c.error);
+    pk::PopulationParameters p = Truth(0);
+    p.sigma = Eigen::Map<const Eigen::VectorXd>(c.sigma.data(), static_cast<Eigen::Index>(c.sigma.size()));
+    pk::PopulationSimulationOptions o;
+    o.seed = 7;
+    o.replicates = 40;  // 120 000 samples: 5 SE of the variance is 2% of it
+    double sum = 0, squares = 0, count = 0;
+    for (const pk::SimulatedReplicate& r : Run(problem, p, o))
+    for (const pk::SimulatedSubject& s : r.subjects) {
+      REQUIRE(s.ok);
+      for (Eigen::Index j = 0; j < s.dv.size(); ++j) {
+        const double z = c.log ? (std::log(s.dv(j)) - std::log(s.ipred(j))) / std::sqrt(c.variance(s.ipred(j)))
+                               : (s.dv(j) - s.ipred(j)) / std::sqrt(c.variance(s.ipred(j)));
+        sum += z;
+        squares += z * z;
+        ++count;
+      }
+    }
+    const double mean = sum / count, variance = squares / count - mean * mean;
+    INFO("standardised residuals: mean " << mean << ", variance " << variance << " over " << count);
+    CHECK(std::fabs(mean) < 5 / std::sqrt(count));
+    CHECK(std::fabs(variance - 1) < 5 * std::sqrt(2 / count));
+  }
+}
+
+TEST_CASE("population simulation is reproducible: seed, threads, replicates, residual error",
+          "[population][simulation]") {
+  const auto data = Design(40, {0.5, 2, 8});
+  const pk::PopulationProblem problem = Problem(data, "combined");
+  pk::PopulationParameters p = Truth(0.1);
+  p.sigma = Eigen::Vector2d(0.05, 0.1);
+  pk::PopulationSimulationOptions o;
+  o.seed = 123456789012345ULL;
+  o.replicates = 3;
+  const auto three = Run(problem, p, o);
+  REQUIRE(three.size() == 3);
+  for (int k = 0; k < 3; ++k) CHECK(three[static_cast<size_t>(k)].replicate == k);
+  o.replicates = 1;
+  const auto one = Run(problem, p, o);
+  CHECK(Same(one[0], three[0]));            // a replicate does not depend on how many follow
+  CHECK_FALSE(Same(three[0], three[1]));    // the replicates differ
+  o.threads = 3;
+  CHECK(Same(Run(problem, p, o)[0], one[0]));  // nor on the threads
+  o.seed += 1;
+  CHECK_FALSE(Same(Run(problem, p, o)[0], one[0]));
+  o.seed -= 1;
+  o.residual_error = false;  // the same η, and DV = IPRED
+  const auto plain = Run(problem, p, o)[0];
+  for (size_t i = 0; i < plain.subjects.size(); ++i) {
+    CHECK(plain.subjects[i].eta == one[0].subjects[i].eta);
+    CHECK(plain.subjects[i].dv == plain.subjects[i].ipred);
+    CHECK(plain.subjects[i].ipred == one[0].subjects[i].ipred);
+  }
+}
+
+TEST_CASE("a subject that cannot be simulated is reported, and the others are simulated", "[population][simulation]") {
+  // Subject 2 has a sample before its dose: ŷ = 0 there, whose logarithm the exponential error takes.
+  std::string text = "ID,TIME,AMT,EVID,MDV,DV\n1,0,100,1,1,.\n1,2,0,0,0,3\n2,0,0,0,0,1\n2,1,100,1,1,.\n2,2,0,0,0,3\n";
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(text, "bad.csv"));
+  pk::ObjectiveOptions eo;
+  eo.error_model = pk::MakeResidualError("exponential");
+  // An individual fit would refuse subject 2's sample (log of 0); the population problem binds it.
+  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv"), data, {"CL", "V"}, eo);
+  pk::PopulationSimulationOptions o;
+  const pk::SimulatedReplicate r = Run(problem, Truth(0.1), o)[0];
+  REQUIRE(r.subjects.size() == 2);
+  CHECK(r.subjects[0].ok);
+  CHECK_FALSE(r.subjects[1].ok);
+  CHECK(r.subjects[1].message.find("not positive") != std::string::npos);
+  CHECK(r.failed == 1);
+  o.replicates = 0;
+  CHECK_THROWS_AS(Run(problem, Truth(0.1), o), pk::InputError);
+  pk::PopulationParameters bad = Truth(0.1);
+  bad.omega(0, 1) = bad.omega(1, 0) = 0.5;  // |ρ| > 1
+  o.replicates = 1;
+  CHECK_THROWS_WITH(Run(problem, bad, o), Catch::Contains("positive semi-definite"));
+}
+
+TEST_CASE("a singular Ω (a variance fixed at 0) draws that η as 0", "[population][simulation]") {
+  const pk::PopulationProblem problem = Problem(Design(50, {1, 4}), "proportional");
+  pk::PopulationParameters p = Truth(0.1);
+  p.omega << 0.09, 0, 0, 0;
+  const pk::SimulatedReplicate r = Run(problem, p, {})[0];
+  double spread = 0;
+  for (const auto& s : r.subjects) {
+    REQUIRE(s.ok);
+    CHECK(s.eta(1) == 0);
+    spread += s.eta(0) * s.eta(0);
+  }
+  CHECK(spread > 0);
+}
+
+TEST_CASE("Percentile is R's quantile(type = 7)", "[vpc]") {
+  // R: quantile(c(1, 2, 3, 4), c(.05, .5, .95), type = 7) = 1.15, 2.5, 3.85; quantile(c(10, 1, 7), .25) = 4.
+  std::vector<double> v = {4, 2, 1, 3};
+  CHECK(pk::Percentile(&v, 5) == Approx(1.15).epsilon(1e-15));
+  CHECK(pk::Percentile(&v, 50) == Approx(2.5).epsilon(1e-15));
+  CHECK(pk::Percentile(&v, 95) == Approx(3.85).epsilon(1e-15));
+  v = {10, 1, 7};
+  CHECK(pk::Percentile(&v, 25) == Approx(4).epsilon(1e-15));
+  v = {5};
+  CHECK(pk::Percentile(&v, 90) == 5);
+  v.clear();
+  CHECK(std::isnan(pk::Percentile(&v, 50)));
+}
+
+namespace {
+
+// tests/reference/vpc_input.csv: replicate 0 (observed) as a design, the others as simulations.
+struct VpcInput {
+  pk::SimulationDesign design;
+  std::vector<std::vector<std::vector<double>>> replicates;  // [replicate][subject][sample]
+};
+
+VpcInput ReadVpcInput() {
+  std::ifstream in(std::string(PK_SOURCE_DIR) + "/tests/reference/vpc_input.csv");
+  REQUIRE(in.good());
+  std::string line;
+  std::getline(in, line);
+  REQUIRE(line == "REP,SUBJECT,SAMPLE,TIME,DVID,PRED,DV");
+  std::vector<std::vector<double>> rows;
+  while (std::getline(in, line)) {
+    std::vector<double> row;
+    std::stringstream ss(line);
+    for (std::string f; std::getline(ss, f, ',');) row.push_back(std::strtod(f.c_str(), nullptr));
+    REQUIRE(row.size() == 7);
+    rows.push_back(row);
+  }
+  VpcInput out;
+  for (const auto& r : rows) {
+    const auto rep = static_cast<size_t>(r[0]), subject = static_cast<size_t>(r[1]), sample = static_cast<size_t>(r[2]);
+    if (rep == 0) {
+      if (out.design.subjects.size() <= subject) out.design.subjects.resize(subject + 1);
+      auto& s = out.design.subjects[subject];
+      REQUIRE(s.time.size() == sample);
+      s.id = static_cast<double>(subject + 1);
+      s.subject = static_cast<int>(subject);
+      s.time.push_back(r[3]);
+      s.dvid.push_back(static_cast<int>(r[4]));
+      s.censored.push_back(0);
+      s.pred.conservativeResize(static_cast<Eigen::Index>(sample + 1));
+      s.pred(static_cast<Eigen::Index>(sample)) = r[5];
+      s.dv.conservativeResize(static_cast<Eigen::Index>(sample + 1));
+      s.dv(static_cast<Eigen::Index>(sample)) = r[6];
+      continue;
+    }
+    if (out.replicates.size() < rep) out.replicates.resize(rep);
+    auto& subjects = out.replicates[rep - 1];
+    if (subjects.size() <= subject) subjects.resize(subject + 1);
+    REQUIRE(subjects[subject].size() == sample);
+    subjects[subject].push_back(r[6]);
+  }
+  return out;
+}
+
+}  // namespace
+
+TEST_CASE("VPC statistics equal R's, plain and prediction-corrected", "[vpc]") {
+  const VpcInput input = ReadVpcInput();
+  REQUIRE(input.replicates.size() == 30);
+  const auto reference = [] {
+    std::ifstream in(std::string(PK_SOURCE_DIR) + "/tests/reference/vpc_reference.csv");
+    std::string line;
+    std::getline(in, line);
+    std::vector<std::vector<double>> rows;
+    while (std::getline(in, line)) {
+      std::vector<double> row;
+      std::stringstream ss(line);
+      for (std::string f; std::getline(ss, f, ',');) row.push_back(std::strtod(f.c_str(), nullptr));
+      rows.push_back(row);
+    }
+    return rows;
+  }();
+  REQUIRE(reference.size() == 36);  // 2 corrections × 2 DVID × 3 bins × 3 percentiles
+  for (int corrected = 0; corrected < 2; ++corrected) {
+    pk::VpcOptions o;
+    o.bin_edges = {0, 3, 8, 30};
+    o.percentiles = {10, 50, 90};
+    o.interval = 80;
+    o.prediction_corrected = corrected == 1;
+    pk::VpcAccumulator vpc(input.design, o);
+    for (const auto& r : input.replicates) vpc.Add(r);
+    const pk::VpcSummary s = vpc.Finish();
+    CHECK(s.replicates == 30);
+    REQUIRE(s.bins.size() == 6);
+    size_t row = 0;
+    for (const auto& ref : reference) {
+      if (static_cast<int>(ref[0]) != corrected) continue;
+      const int dvid = static_cast<int>(ref[1]), bin = static_cast<int>(ref[2]) - 1, k = static_cast<int>(row++ % 3);
+      const pk::VpcBin& b = s.bins[static_cast<size_t>((dvid - 1) * 3 + bin)];
+      INFO("corrected " << corrected << ", DVID " << dvid << ", bin " << bin + 1 << ", percentile " << ref[4]);
+      REQUIRE(b.dvid == dvid);
+      CHECK(b.observations == static_cast<int>(ref[3]));
+      CHECK(s.percentiles[static_cast<size_t>(k)] == ref[4]);
+      CHECK(pk_test::RelDiff(b.time, ref[5]) < 1e-14);
+      CHECK(pk_test::RelDiff(b.observed[static_cast<size_t>(k)], ref[6]) < 1e-13);
+      CHECK(pk_test::RelDiff(b.simulated_lower[static_cast<size_t>(k)], ref[7]) < 1e-13);
+      CHECK(pk_test::RelDiff(b.simulated_median[static_cast<size_t>(k)], ref[8]) < 1e-13);
+      CHECK(pk_test::RelDiff(b.simulated_upper[static_cast<size_t>(k)], ref[9]) < 1e-13);
+    }
+    CHECK(row == 18);
+  }
+}
+
+namespace {
+
+// Σ count·(t − group mean)² over the groups that `starts` (each group's first index) make.
+double SplitCost(const std::vector<double>& t, const std::vector<int>& count, const std::vector<size_t>& starts) {
+  double cost = 0;
+  for (size_t g = 0; g < starts.size(); ++g) {
+    const size_t a = starts[g], b = g + 1 < starts.size() ? starts[g + 1] : t.size();
+    double n = 0, m = 0;
+    for (size_t i = a; i < b; ++i) n += count[i], m += count[i] * t[i];
+    m /= n;
+    for (size_t i = a; i < b; ++i) cost += count[i] * (t[i] - m) * (t[i] - m);
+  }
+  return cost;
+}
+
+}  // namespace
+
+TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared deviation of all splits", "[vpc]") {
+  // Designs of 11 distinct times (some repeated), binned into 4: the bins' within-bin squared
+  // deviation is the least of every split into 4 consecutive groups (enumerated here).
+  for (int trial = 0; trial < 5; ++trial) {
+    std::vector<double> t;
+    std::vector<int> count;
+    unsigned state = 12345u + static_cast<unsigned>(trial);
+    const auto next = [&] { return (state = state * 1103515245u + 12345u) >> 16; };
+    double time = 0;
+    for (int i = 0; i < 11; ++i) {
+      time += 0.1 + static_cast<double>(next() % 1000) / 100;
+      t.push_back(time);
+      count.push_back(1 + static_cast<int>(next() % 4));
+    }
+    pk::SimulationDesign design;
+    auto& s = design.subjects;
+    s.resize(1);
+    for (size_t i = 0; i < t.size(); ++i) {
+      for (int c = 0; c < count[i]; ++c) {
+        s[0].time.push_back(t[i]);
+        s[0].dvid.push_back(1);
+        s[0].censored.push_back(0);
+      }
+    }
+    s[0].dv = Eigen::VectorXd::Ones(static_cast<Eigen::Index>(s[0].time.size()));
+    s[0].pred = s[0].dv;
+    pk::VpcOptions o;
+    o.max_bins = 4;
+    const pk::VpcSummary vpc = pk::VpcAccumulator(design, o).Finish();
+    REQUIRE(vpc.bins.size() == 4);
+    std::vector<size_t> found;
+    for (const pk::VpcBin& b : vpc.bins) {
+      found.push_back(static_cast<size_t>(std::lower_bound(t.begin(), t.end(), b.lower) - t.begin()));
+      CHECK(b.observations > 0);
+    }
+    double best = HUGE_VAL;
+    for (size_t a = 1; a < 11; ++a) {
+      for (size_t b = a + 1; b < 11; ++b) {
+        for (size_t c = b + 1; c < 11; ++c) best = std::min(best, SplitCost(t, count, {0, a, b, c}));
+      }
+    }
+    INFO("trial " << trial);
+    CHECK(SplitCost(t, count, found) == Approx(best).epsilon(1e-12));
+    int total = 0;
+    for (const pk::VpcBin& b : vpc.bins) total += b.observations;
+    CHECK(total == std::accumulate(count.begin(), count.end(), 0));
+  }
+}
+
+TEST_CASE("a VPC of the model's own data keeps the percentiles in their intervals, one with Ω too small does not",
+          "[vpc][population][simulation]") {
+  // Data simulated from the truth (seed 1), then VPCs at the truth and at an Ω a tenth of it (seed 2).
+  const std::vector<double> times = {0.5, 1, 2, 4, 8, 12, 24};
+  const auto design_data = Design(150, times);
+  const pk::PopulationParameters truth = Truth(0.1);
+  pk::PopulationSimulationOptions so;
+  so.seed = 1;
+  const pk::SimulatedReplicate data_sim = Run(Problem(design_data, "proportional"), truth, so)[0];
+  std::string text = "ID,TIME,AMT,EVID,MDV,DV\n";
+  for (size_t i = 0; i < data_sim.subjects.size(); ++i) {
+    const std::string id = std::to_string(i + 1);
+    text += id + ",0,100,1,1,.\n";
+    for (size_t j = 0; j < times.size(); ++j) {
+      text += id + "," + pk::FormatNumber(times[j]) + ",0,0,0," +
+              pk::FormatNumber(data_sim.subjects[i].dv(static_cast<Eigen::Index>(j))) + "\n";
+    }
+  }
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(text, "observed.csv"));
+  const pk::PopulationProblem problem = Problem(data, "proportional");
+  pk::VpcOptions o;
+  o.replicates = 100;
+  o.seed = 2;
+  o.threads = 2;
+  const pk::VpcSummary good = pk::ComputeVpc(problem, truth, o);
+  REQUIRE(good.bins.size() == times.size());  // each distinct time a bin
+  INFO(good.BriefReport());
+  CHECK(good.compared == 21);
+  CHECK(good.outside <= 3);  // 10% of 21 expected by chance
+  pk::PopulationParameters narrow = truth;
+  narrow.omega *= 0.1;
+  const pk::VpcSummary bad = pk::ComputeVpc(problem, narrow, o);
+  INFO(bad.BriefReport());
+  int tails_outside = 0;
+  for (const pk::VpcBin& b : bad.bins) {
+    for (size_t k : {size_t{0}, size_t{2}}) {  // the 5th and 95th percentiles
+      tails_outside += b.observed[k] < b.simulated_lower[k] || b.observed[k] > b.simulated_upper[k];
+    }
+  }
+  CHECK(tails_outside >= 10);  // of 14
+  // pcVPC of the same data: the correction changes the values, and the truth still passes.
+  o.prediction_corrected = true;
+  const pk::VpcSummary pc = pk::ComputeVpc(problem, truth, o);
+  CHECK(pc.outside <= 3);
+  CHECK(pc.observations.size() == good.observations.size());
+}
+
+TEST_CASE("VPC options are checked", "[vpc]") {
+  std::string why;
+  pk::VpcOptions o;
+  CHECK(o.IsValid(&why));
+  const std::vector<std::function<void(pk::VpcOptions*)>> bad = {
+      [](pk::VpcOptions* x) { x->replicates = 0; },
+      [](pk::VpcOptions* x) { x->percentiles = {50, 5}; },
+      [](pk::VpcOptions* x) { x->percentiles = {0, 50}; },
+      [](pk::VpcOptions* x) { x->percentiles.clear(); },
+      [](pk::VpcOptions* x) { x->interval = 100; },
+      [](pk::VpcOptions* x) { x->bin_edges = {1}; },
+      [](pk::VpcOptions* x) { x->bin_edges = {0, 2, 2}; },
+      [](pk::VpcOptions* x) { x->max_bins = 0; },
+      [](pk::VpcOptions* x) { x->threads = 0; }};
+  for (const auto& change : bad) {
+    pk::VpcOptions x;
+    change(&x);
+    CHECK_FALSE(x.IsValid(&why));
+    CHECK_FALSE(why.empty());
+  }
+}
