@@ -176,6 +176,17 @@ std::string EtaLabel(const std::string& eta_name) {
   return eta_name.rfind("ETA", 0) == 0 ? eta_name : "ETA_" + eta_name;
 }
 
+std::uint64_t ParseSeed(const std::string& seed) {
+  if (seed.empty() || seed.size() > 20 || seed.find_first_not_of("0123456789") != std::string::npos) {
+    throw InputError("--seed: expected a whole number from 0 to 18446744073709551615, not '" + seed + "'");
+  }
+  try {
+    return std::stoull(seed);
+  } catch (const std::exception&) {
+    throw InputError("--seed: '" + seed + "' is above 18446744073709551615");
+  }
+}
+
 std::string Quote(const std::string& s) {
   if (s.find_first_of(",\"\r\n") == std::string::npos) return s;
   std::string out = "\"";

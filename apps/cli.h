@@ -3,6 +3,7 @@
 #define PK_APPS_CLI_H_
 
 #include <functional>
+#include <cstdint>
 #include <string>
 #include <utility>
 #include <vector>
@@ -60,6 +61,9 @@ std::string Today();
 /// An η's column label: ETA_CL for the log-normal η on CL; a model file's η keeps its own name
 /// when that already starts with ETA (ETA_CL, not ETA_ETA_CL).
 std::string EtaLabel(const std::string& eta_name);
+
+/// --seed's value: a whole number from 0 to 2^64 − 1; throws pk::InputError otherwise.
+std::uint64_t ParseSeed(const std::string& text);
 /// A CSV text field, quoted (RFC 4180) when it holds a comma, a quote or a line end: a covariance's
 /// name OMEGA(V,CL) is one field.
 std::string Quote(const std::string& s);

@@ -1,6 +1,7 @@
 // pksim: simulate a dosing regimen or a NONMEM-style dataset.
 #include <algorithm>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <optional>
@@ -16,6 +17,8 @@
 #include "pk/ode_model.h"
 #include "pk/dataset.h"
 #include "pk/error.h"
+#include "pk/population_estimates.h"
+#include "pk/population_simulation.h"
 #include "pk/estimates.h"
 #include "pk/exposure.h"
 #include "pk/objective.h"
@@ -42,7 +45,10 @@ const char* const kUsage =
     "  pksim --model 1cmt_iv --dose 1000 --duration 2 --times 0:0.1:24 --param CL=4 --out sim.csv\n"
     "  pksim --model 1cmt_oral --data datasets/theophylline.csv --param KA=1.5 --times 0:0.25:25\n"
     "  pksim --model 1cmt_oral --estimates pkfit_out/estimates.csv --dose 320 --ii 12 --doses 10 \\\n"
-    "        --times 0:1:120 --summary    (each fitted subject on a new regimen)\n";
+    "        --times 0:1:120 --summary    (each fitted subject on a new regimen)\n"
+    "  pksim --model models/pheno_pop.pkm --population pkpop_out --dose 30 --ii 12 --doses 10 \\\n"
+    "        --times 0:1:120 --param WT=1.2 --param APGAR=7 --subjects 1000 --seed 7 --out sims.csv\n"
+    "        (1000 virtual neonates, each its η from the fit's Ω and residual error from its σ)\n";
 
 // The --summary text of one subject.
 // " mg/L" when the unit is known, "" otherwise.
@@ -141,7 +147,15 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "log", "logarithmic concentration axis for --plot")(
       "units", po::value<std::string>(),
       "units for --plot's axes, e.g. time=h,amt=mg,conc=mg/L (a units row in --data also gives them)")(
-      "jobs,j", po::value<int>()->default_value(0), "worker threads (0 = all cores); the output does not depend on it");
+      "jobs,j", po::value<int>()->default_value(0), "worker threads (0 = all cores); the output does not depend on it")(
+      "population", po::value<std::string>(),
+      "simulate with variability from a pkpop run (its population_estimates.csv, or its output directory): each "
+      "subject's η drawn from Ω, its parameters θ·exp(η) (a model file's η parameters set), and each output "
+      "given a residual error from σ (columns DV, DV_<OUTPUT>); the η are columns too")(
+      "replicates", po::value<int>()->default_value(1), "--population: the dataset or regimen this many times (REP)")(
+      "subjects", po::value<int>(), "--population: simulate the regimen (one subject) for this many subjects, IDs 1..N")(
+      "seed", po::value<std::string>()->default_value("1"), "--population: the seed; the output does not depend on -j")(
+      "no-residual-error", "--population: no residual error (no DV columns)");
   pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
 }
 
@@ -247,6 +261,38 @@ void NoteDefaults(const pk::Model& model, const pk::Dataset& data, const pk::Par
   }
 }
 
+// --population and its options.
+struct Variability {
+  pk::PopulationEstimates estimates;
+  pk::VariabilityOptions options;
+  std::vector<std::string> labels;  // the η columns' names
+};
+
+std::optional<Variability> ParseVariability(const po::variables_map& vm, const pk::Model& model) {
+  const bool given = !vm["replicates"].defaulted() || vm.count("subjects") || !vm["seed"].defaulted() ||
+                     vm.count("no-residual-error");
+  if (!vm.count("population")) {
+    if (given) throw pk::InputError("--replicates, --subjects, --seed and --no-residual-error need --population");
+    return std::nullopt;
+  }
+  if (vm.count("estimates")) throw pk::InputError("give --population or --estimates, not both");
+  std::string path = vm["population"].as<std::string>();
+  if (std::filesystem::is_directory(path)) path += "/population_estimates.csv";
+  pk::CheckOutputSet(path, "pkpop", "pkpop.ext");  // not half of an interrupted run
+  Variability v;
+  v.estimates = pk::ReadPopulationEstimates(path, model);
+  v.options.replicates = vm["replicates"].as<int>();
+  if (v.options.replicates < 1 || v.options.replicates > 100000) throw pk::InputError("--replicates: expected 1 to 100000");
+  if (vm.count("subjects")) {
+    v.options.subjects = vm["subjects"].as<int>();
+    if (v.options.subjects < 1 || v.options.subjects > 10000000) throw pk::InputError("--subjects: expected 1 to 10000000");
+  }
+  v.options.seed = pk::cli::ParseSeed(vm["seed"].as<std::string>());
+  v.options.residual_error = !vm.count("no-residual-error");
+  for (const std::string& e : v.estimates.etas) v.labels.push_back(pk::cli::EtaLabel(e));
+  return v;
+}
+
 // Where the rows go as subjects finish: a file written whole or not at all, or standard output.
 class Output {
  public:
@@ -280,7 +326,11 @@ int Main(int argc, char** argv) {
     return 0;
   }
   if (!vm.count("model")) throw pk::InputError("--model is required (see --list-models)");
-  const auto model = pk::MakeModel(vm["model"].as<std::string>());
+  // With --population a model file's η are parameters, which each subject's draw sets.
+  const bool population = vm.count("population") > 0;
+  const auto model = pk::MakeModel(vm["model"].as<std::string>(),
+                                   population ? pk::RandomEffects::kParameters : pk::RandomEffects::kZero);
+  const std::optional<Variability> variability = ParseVariability(vm, *model);
   const pk::ParameterValues values = pk::cli::ParseAssignments(lists.params, "--param");
   pk::ParameterLayout(*model).Resolve(values);  // an unknown name is an error before anything runs
   const std::vector<double> grid = pk::cli::ParseTimes(lists.times);
@@ -318,7 +368,15 @@ int Main(int argc, char** argv) {
   // The headers go out with the first subject, so that a run the library refuses writes nothing.
   bool started = false;
   std::optional<pk::SimulationColumns> columns;
-  if (vm.count("columns")) columns.emplace(*model, vm["columns"].as<std::string>());
+  if (variability) {
+    const bool dv = variability->options.residual_error, reps = variability->options.replicates > 1;
+    columns.emplace(*model,
+                    vm.count("columns") ? vm["columns"].as<std::string>()
+                                        : pk::SimulationColumns::DefaultList(*model, variability->labels, dv, reps),
+                    variability->labels, dv);
+  } else if (vm.count("columns")) {
+    columns.emplace(*model, vm["columns"].as<std::string>());
+  }
   const auto start = [&] {
     if (started) return;
     started = true;
@@ -359,8 +417,10 @@ int Main(int argc, char** argv) {
       for (size_t k = 0; k < lines.size(); ++k) plot[k].push_back(std::move(lines[k]));
     }
   };
-  if (!vm.count("estimates")) NoteDefaults(*model, data, values);
-  if (vm.count("estimates")) {
+  if (!vm.count("estimates") && !variability) NoteDefaults(*model, data, values);
+  if (variability) {
+    pk::SimulateEachWithVariability(*model, data, variability->estimates, values, sim_options, variability->options, sink);
+  } else if (vm.count("estimates")) {
     const std::string path = vm["estimates"].as<std::string>();
     pk::CheckOutputSet(path, "pkfit", "fit_details.csv");  // not half of an interrupted run
     const auto estimates = pk::ReadEstimates(path, *model);

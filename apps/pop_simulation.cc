@@ -75,15 +75,7 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
 
 PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& vm, int threads) {
   PopulationSimulationRequest r;
-  const std::string seed = vm["seed"].as<std::string>();
-  if (seed.empty() || seed.size() > 20 || seed.find_first_not_of("0123456789") != std::string::npos) {
-    throw InputError("--seed: expected a whole number from 0 to 18446744073709551615, not '" + seed + "'");
-  }
-  try {
-    r.seed = std::stoull(seed);
-  } catch (const std::exception&) {
-    throw InputError("--seed: '" + seed + "' is above 18446744073709551615");
-  }
+  r.seed = ParseSeed(vm["seed"].as<std::string>());
   r.simulate = vm["simulate"].as<int>();
   if (r.simulate < 0 || r.simulate > 100000) throw InputError("--simulate: expected 0 to 100000 replicates");
   const int replicates = vm["vpc"].as<int>();

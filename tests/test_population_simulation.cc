@@ -14,6 +14,7 @@
 #include "pk/error.h"
 #include "pk/output.h"
 #include "pk/population.h"
+#include "pk/population_estimates.h"
 #include "pk/population_simulation.h"
 #include "pk/residual_error.h"
 #include "pk/vpc.h"
@@ -459,4 +460,134 @@ TEST_CASE("VPC options are checked", "[vpc]") {
     CHECK_FALSE(x.IsValid(&why));
     CHECK_FALSE(why.empty());
   }
+}
+
+TEST_CASE("population estimates are read back from pkpop's table", "[simulation][reader]") {
+  const auto model = pk::MakeModel("1cmt_oral");
+  const pk::PopulationEstimates p = pk::ParsePopulationEstimates(
+      "PARAMETER,ESTIMATE,SE,RSE_PCT,FIXED,AT_BOUNDARY\nKA,1.5,,,0,0\ncl,3,0.1,3.3,0,0\nV,30,,,0,0\n"
+      "OMEGA(CL),0.09,,,0,0\nOMEGA(V),0.04,,,0,0\n\"OMEGA(V,CL)\",0.02,,,0,0\nSIGMA_PROP,0.1,,,0,0\nOFV,100,,,,\n",
+      "est.csv", *model);
+  CHECK(p.theta.at("CL") == 3);
+  CHECK(p.theta.at("KA") == 1.5);
+  REQUIRE(p.etas == std::vector<std::string>{"CL", "V"});
+  CHECK(p.eta_log_normal == std::vector<bool>{true, true});
+  CHECK(p.omega(0, 0) == 0.09);
+  CHECK(p.omega(1, 1) == 0.04);
+  CHECK(p.omega(0, 1) == 0.02);
+  CHECK(p.omega(1, 0) == 0.02);
+  CHECK(p.sigma_names == std::vector<std::string>{"SIGMA_PROP"});
+  CHECK(p.sigma(0) == 0.1);
+  const auto refused = [&](const std::string& body, const std::string& message) {
+    INFO(body);
+    CHECK_THROWS_WITH(pk::ParsePopulationEstimates("PARAMETER,ESTIMATE\n" + body, "est.csv", *model),
+                      Catch::Contains(message));
+  };
+  refused("Q,1\nOMEGA(CL),0.1\n", "est.csv:2:1: 'Q' is not a parameter of model 1cmt_oral");
+  refused("CL,3\nOMEGA(CL),-0.1\n", "est.csv:3:1: OMEGA(CL): a variance is not negative");
+  refused("CL,3\n\"OMEGA(V,CL)\",0.01\nOMEGA(CL),0.1\n", "est.csv:3:1: OMEGA(V,CL): V has no variance");
+  refused("CL,3\nOMEGA(CL),0.1\nSIGMA_ADD,-1\n", "est.csv:4:1: SIGMA_ADD: σ is a standard deviation");
+  refused("CL,3\nCL,4\nOMEGA(CL),0.1\n", "est.csv:3:1: CL is given twice");
+  refused("CL,3\n", "no OMEGA");
+  refused("CL,x\nOMEGA(CL),0.1\n", "est.csv:2:2: ESTIMATE: 'x' is not a number");
+  CHECK(pk::PopulationErrorModel(*model, p)->name() == std::string("proportional"));
+  pk::PopulationEstimates both = p;
+  both.sigma_names = {"SIGMA_PROP", "SIGMA_ADD"};
+  CHECK(pk::PopulationErrorModel(*model, both)->name() == std::string("combined"));
+  both.sigma_names = {"SIGMA_X"};
+  CHECK_THROWS_WITH(pk::PopulationErrorModel(*model, both), Catch::Contains("no error model has the σ SIGMA_X"));
+}
+
+TEST_CASE("a dataset simulated with variability draws SimulatePopulation's η and ε", "[simulation]") {
+  // The same design through both: pksim --population on the fitted data gives pkpop --simulate's numbers.
+  const std::vector<double> times = {0.5, 2, 6, 12};
+  const auto data = Design(30, times);
+  const pk::PopulationProblem problem = Problem(data, "combined");
+  pk::PopulationParameters p = Truth(0);
+  p.sigma = Eigen::Vector2d(0.05, 0.15);  // SIGMA_ADD, SIGMA_PROP
+  pk::PopulationSimulationOptions po;
+  po.seed = 99;
+  po.replicates = 2;
+  const auto expected = Run(problem, p, po);
+  pk::PopulationEstimates e;
+  e.source = "truth";
+  e.theta = {{"CL", 3}, {"V", 30}};
+  e.etas = {"CL", "V"};
+  e.eta_log_normal = {true, true};
+  e.omega = p.omega;
+  e.sigma_names = {"SIGMA_PROP", "SIGMA_ADD"};  // in another order than the error model's
+  e.sigma = Eigen::Vector2d(0.15, 0.05);
+  pk::VariabilityOptions vo;
+  vo.seed = 99;
+  vo.replicates = 2;
+  pk::SimulationOptions so;
+  so.jobs = 2;
+  std::vector<pk::SubjectSimulation> got;
+  pk::SimulationSink sink;
+  sink.consume = [&](pk::SubjectSimulation&& s, std::string&&) { got.push_back(std::move(s)); };
+  pk::SimulateEachWithVariability(*pk::MakeModel("1cmt_iv"), *data, e, {}, so, vo, sink);
+  REQUIRE(got.size() == 60);
+  for (size_t k = 0; k < got.size(); ++k) {
+    const pk::SubjectSimulation& s = got[k];
+    const pk::SimulatedSubject& x = expected[k / 30].subjects[k % 30];
+    INFO("replicate " << k / 30 << ", subject " << k % 30);
+    REQUIRE(s.ok);
+    CHECK(s.replicate == static_cast<int>(k / 30));
+    CHECK(s.eta == x.eta);
+    REQUIRE(s.observations.cols() == static_cast<Eigen::Index>(times.size()));
+    for (Eigen::Index j = 0; j < s.observations.cols(); ++j) {
+      CHECK(pk_test::RelDiff(s.rows[static_cast<size_t>(j)].cp, x.ipred(j)) < 1e-13);
+      CHECK(pk_test::RelDiff(s.observations(0, j), x.dv(j)) < 1e-12);
+    }
+  }
+}
+
+TEST_CASE("a regimen simulated for N subjects: each its own η, φ = θ·exp(η), ε on every row", "[simulation]") {
+  const auto regimen = std::make_shared<pk::Dataset>(
+      pk::ParseDataset("ID,TIME,AMT,EVID,MDV\n1,0,100,1,1\n1,1,0,2,1\n1,6,0,2,1\n1,24,0,2,1\n", "regimen.csv"));
+  pk::PopulationEstimates e;
+  e.source = "est";
+  e.theta = {{"CL", 3}, {"V", 30}};
+  e.etas = {"CL"};
+  e.eta_log_normal = {true};
+  e.omega = Eigen::MatrixXd::Constant(1, 1, 0.2);
+  e.sigma_names = {"SIGMA_LOG"};
+  e.sigma = Eigen::VectorXd::Constant(1, 0.3);
+  pk::VariabilityOptions vo;
+  vo.subjects = 400;
+  std::vector<pk::SubjectSimulation> got;
+  pk::SimulationSink sink;
+  sink.consume = [&](pk::SubjectSimulation&& s, std::string&&) { got.push_back(std::move(s)); };
+  pk::SimulateEachWithVariability(*pk::MakeModel("1cmt_iv"), *regimen, e, {{"V", 25}}, {}, vo, sink);
+  REQUIRE(got.size() == 400);
+  double eta2 = 0, z2 = 0, n = 0;
+  for (size_t i = 0; i < got.size(); ++i) {
+    const pk::SubjectSimulation& s = got[i];
+    REQUIRE(s.ok);
+    CHECK(s.id == static_cast<double>(i + 1));
+    eta2 += s.eta(0) * s.eta(0);
+    const double cl = 3 * std::exp(s.eta(0)), v = 25;  // --param V=25 overrides θ
+    for (size_t j = 0; j < s.rows.size(); ++j) {
+      const double t = s.rows[j].time, cp = 100 / v * std::exp(-cl / v * t);
+      CHECK(pk_test::RelDiff(s.rows[j].cp, cp) < 1e-12);
+      const double z = std::log(s.observations(0, static_cast<Eigen::Index>(j)) / cp) / 0.3;
+      z2 += z * z;
+      ++n;
+    }
+  }
+  CHECK(got[0].eta(0) != got[1].eta(0));
+  CHECK(std::fabs(eta2 / 400 - 0.2) < 5 * 0.2 * std::sqrt(2.0 / 400));
+  CHECK(std::fabs(z2 / n - 1) < 5 * std::sqrt(2 / n));
+  vo.residual_error = false;
+  got.clear();
+  vo.subjects = 2;
+  pk::SimulateEachWithVariability(*pk::MakeModel("1cmt_iv"), *regimen, e, {}, {}, vo, sink);
+  REQUIRE(got.size() == 2);
+  CHECK(got[0].observations.size() == 0);
+  vo.subjects = 0;
+  e.sigma_names.clear();
+  e.sigma.resize(0);
+  vo.residual_error = true;
+  CHECK_THROWS_WITH(pk::SimulateEachWithVariability(*pk::MakeModel("1cmt_iv"), *regimen, e, {}, {}, vo, sink),
+                    Catch::Contains("no σ"));
 }

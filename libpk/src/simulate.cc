@@ -13,6 +13,7 @@
 #include "ode/ode_propagator.h"
 #include "ordered_parallel.h"
 #include "output_times.h"
+#include "simulation/stream.h"
 
 namespace pk {
 namespace {
@@ -207,11 +208,12 @@ int Jobs(const SimulationOptions& options, int subjects) {
   return std::max(1, std::min(options.jobs > 0 ? options.jobs : cores, subjects));
 }
 
-// Hands simulate(i) for i = 0..n-1 to `sink` in order, rendered on the workers. Subjects go to the
-// workers in chunks: one subject of a hundred rows takes tens of microseconds, about what handing it
-// between threads costs.
-void Stream(int n, const SimulationOptions& options, const std::function<SubjectSimulation(int)>& simulate,
-            const SimulationSink& sink) {
+}  // namespace
+
+// Subjects go to the workers in chunks: one subject of a hundred rows takes tens of microseconds,
+// about what handing it between threads costs.
+void internal::StreamSimulations(int n, const SimulationOptions& options,
+                                 const std::function<SubjectSimulation(int)>& simulate, const SimulationSink& sink) {
   using Done = std::vector<std::pair<SubjectSimulation, std::string>>;
   const int jobs = Jobs(options, n);
   const int chunk = jobs == 1 ? 1 : std::max(1, std::min(32, n / (16 * jobs)));
@@ -231,6 +233,8 @@ void Stream(int n, const SimulationOptions& options, const std::function<Subject
       });
 }
 
+namespace {
+
 // The estimates of a subject, without the residual-error σ, under `overrides`.
 ParameterValues Merged(const ParameterValues& estimates, const ParameterValues& overrides) {
   ParameterValues merged;
@@ -246,7 +250,7 @@ ParameterValues Merged(const ParameterValues& estimates, const ParameterValues& 
 void SimulateEach(const Model& model, const Dataset& data, const ParameterValues& values,
                   const SimulationOptions& options, const SimulationSink& sink) {
   internal::CheckColumns(model, data, false);
-  Stream(static_cast<int>(data.subjects.size()), options,
+  internal::StreamSimulations(static_cast<int>(data.subjects.size()), options,
          [&](int i) { return SimulateSubject(model, data, i, values, options); }, sink);
 }
 
@@ -269,7 +273,7 @@ void SimulateEachWithEstimates(const Model& model, const Dataset& data, const st
       throw InputError(data.source + ": a regimen to repeat has one subject, not " +
                        std::to_string(data.subjects.size()));
     }
-    Stream(static_cast<int>(estimates.size()), options, [&](int k) {
+    internal::StreamSimulations(static_cast<int>(estimates.size()), options, [&](int k) {
       SubjectSimulation sim = SimulateSubject(model, data, 0, Merged(estimates[k].second, overrides), options);
       sim.id = estimates[k].first;
       return sim;
@@ -278,7 +282,7 @@ void SimulateEachWithEstimates(const Model& model, const Dataset& data, const st
   }
   std::unordered_map<double, int> by_id;
   for (int k = 0; k < static_cast<int>(estimates.size()); ++k) by_id.emplace(estimates[k].first, k);
-  Stream(static_cast<int>(data.subjects.size()), options, [&](int i) {
+  internal::StreamSimulations(static_cast<int>(data.subjects.size()), options, [&](int i) {
     const auto it = by_id.find(data.subjects[i].id);
     if (it != by_id.end()) {
       return SimulateSubject(model, data, i, Merged(estimates[it->second].second, overrides), options);

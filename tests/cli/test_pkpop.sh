@@ -2,7 +2,7 @@
 # Command-line tests of pkpop: a population fit on bundled data, its output set, thread
 # independence, fixed parameters, and error exits.
 set -uo pipefail
-pkpop=$1; root=$2; work=$3
+pkpop=$1; root=$2; work=$3; pksim=$4
 rm -rf "$work"; mkdir -p "$work"
 failures=0
 fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
@@ -130,6 +130,32 @@ vpc_run "$work/vpc_other" --vpc 50 --seed 12 --pcvpc --vpc-bins 0,24,48,96,400
 cmp -s "$work/vpc/vpc.csv" "$work/vpc_other/vpc.csv" && fail "another seed gave the same vpc.csv"
 [ "$(tail -n +2 "$work/vpc_other/vpc.csv" | wc -l)" -eq 12 ] || fail "vpc.csv with 4 given bins: expected 12 rows"
 grep -q "Prediction-corrected VPC" "$work/vpc_other/vpc.svg" || fail "the pcVPC's title"
+
+# pksim --population simulates with that run's θ, Ω and σ: on the fitted data and seed, the η of
+# simtab.csv exactly and its DV to rounding; a regimen for 20 subjects, each its own η.
+"$pksim" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --population "$work/vpc" \
+  --seed 11 --replicates 3 --out "$work/pksim_pop.csv" 2>"$work/pksim_pop.err" ||
+  fail "pksim --population exited non-zero: $(cat "$work/pksim_pop.err")"
+head -1 "$work/pksim_pop.csv" | grep -qx "REP,ID,TIME,EVID,CP,DV,A1,ETA_CL,ETA_V" ||
+  fail "pksim --population header: $(head -1 "$work/pksim_pop.csv")"
+cmp -s <(awk -F, 'NR > 1 { print $1, $2, $3, $8, $9 }' "$work/vpc/simtab.csv") \
+       <(awk -F, 'NR > 1 { print $1, $2, $3, $8, $9 }' "$work/pksim_pop.csv") ||
+  fail "pksim --population drew other η than pkpop --simulate"
+paste -d, <(tail -n +2 "$work/vpc/simtab.csv") <(tail -n +2 "$work/pksim_pop.csv") |
+  awk -F, '{ d = ($5 - $15) / $5; if (d < 0) d = -d; if (d > 1e-12) bad = 1 } END { exit bad }' ||
+  fail "pksim --population's DV differ from simtab.csv's"
+"$pksim" --model "$root/models/pheno_pop.pkm" --population "$work/vpc" --dose 30 --ii 12 --doses 4 --times 0:6:48 \
+  --param WT=1.2 --param APGAR=7 --subjects 20 --seed 5 --out "$work/pksim_regimen.csv" 2>"$work/pksim_regimen.err" ||
+  fail "pksim --population with a regimen exited non-zero: $(cat "$work/pksim_regimen.err")"
+[ "$(awk -F, 'NR > 1 { print $1 }' "$work/pksim_regimen.csv" | sort -u | wc -l)" -eq 20 ] ||
+  fail "the regimen for 20 subjects"
+[ "$(awk -F, 'NR > 1 { print $7 }' "$work/pksim_regimen.csv" | sort -u | wc -l)" -eq 20 ] ||
+  fail "the 20 subjects should each have an η of their own"
+"$pksim" --model 1cmt_iv --dose 1 --times 1 --seed 3 >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "need --population" "$work/err.txt" || fail "--seed without --population: $(cat "$work/err.txt")"
+"$pksim" --model 1cmt_iv --dose 1 --times 1 --population "$work/vpc" >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "population_estimates.csv:2:1: 'TVCL' is not a parameter of model 1cmt_iv" "$work/err.txt" ||
+  fail "a population of another model: $(cat "$work/err.txt")"
 
 # Input errors exit with 2 and say what is wrong.
 expect_error() {  # expected message, then arguments

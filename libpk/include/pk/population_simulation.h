@@ -24,12 +24,16 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "pk/population.h"
+#include "pk/population_estimates.h"
+#include "pk/residual_error.h"
+#include "pk/simulate.h"
 
 namespace pk {
 
@@ -83,6 +87,38 @@ SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const Po
 void SimulatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
                         const PopulationSimulationOptions& options,
                         const std::function<void(const SimulatedReplicate&)>& consume);
+
+// ---- New designs: a dataset or regimen simulated with a population's variability (pksim --population).
+
+/// Each subject of a dataset (or N copies of a one-subject regimen) simulated with its own η drawn
+/// from a population's Ω, on the same streams as SimulatePopulation (so the fitted data's design
+/// gives pkpop --simulate's η), and each output at every row given a residual error.
+struct VariabilityOptions {
+  int replicates = 1;
+  std::uint64_t seed = 1;
+  bool residual_error = true;
+  /// 0: the dataset's subjects. N > 0: the dataset is one subject (a regimen), simulated as N
+  /// subjects with IDs 1…N, each its own η.
+  int subjects = 0;
+
+  bool IsValid(std::string* error) const;
+};
+
+/// The residual-error model of a population's σ: the model file's $ERROR when it declares one, else
+/// the catalogue's whose σ the population names (SIGMA_ADD: additive, SIGMA_PROP: proportional,
+/// both: combined, SIGMA_LOG: exponential). Throws pk::InputError when none has those σ.
+std::shared_ptr<const ResidualErrorModel> PopulationErrorModel(const Model& model, const PopulationEstimates& population);
+
+/// Simulates every subject of every replicate, handing each to `sink` in order (replicate by
+/// replicate), with SubjectSimulation::replicate, ::eta and ::observations set. Subject i's
+/// parameters are `overrides`, else the population's θ, with each η applied: φ = θ·exp(η) for a
+/// log-normal η, the η parameter itself for a model file's. Data columns named like a parameter
+/// still override it record by record, as in any simulation. Throws pk::InputError for invalid
+/// options, an Ω that is not positive semi-definite, residual error without σ, or a regimen of more
+/// than one subject to copy.
+void SimulateEachWithVariability(const Model& model, const Dataset& data, const PopulationEstimates& population,
+                                 const ParameterValues& overrides, const SimulationOptions& options,
+                                 const VariabilityOptions& variability, const SimulationSink& sink);
 
 }  // namespace pk
 

@@ -77,6 +77,12 @@ struct SubjectSimulation {
   /// rows[i].cp); 0 × rows.size() for a catalogue linear model, which names none.
   Eigen::MatrixXd outputs;
   std::vector<DoseEntry> doses;
+  /// With variability (pk::SimulateEachWithVariability): the replicate (0-based), the subject's drawn
+  /// η, and, with residual error, column i the simulated observation of each output after rows[i]
+  /// (row 0 the central concentration's, as outputs; one row for a catalogue linear model).
+  int replicate = 0;
+  Eigen::VectorXd eta;
+  Eigen::MatrixXd observations;
 };
 
 /// Simulates one subject. For a nonlinear model, `pred` is the output named by

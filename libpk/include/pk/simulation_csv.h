@@ -29,6 +29,15 @@ class SimulationColumns {
   /// nonlinear model's further outputs by name, A1..An. Throws pk::InputError for an unknown or
   /// repeated name, listing the columns `model` has.
   SimulationColumns(const Model& model, const std::string& list);
+  /// The same for a simulation with variability (pk::SimulateEachWithVariability), which also has
+  /// REP (the replicate, from 1), the η (named `etas`: ETA_CL, …) and, with `observations`, each
+  /// output's simulated observation: DV for the first (CP), DV_<NAME> for the others.
+  SimulationColumns(const Model& model, const std::string& list, const std::vector<std::string>& etas,
+                    bool observations);
+  /// Every column of such a simulation: ID,TIME,EVID,CP, the outputs, DV and DV_<NAME> (with
+  /// observations), A1..An, the η; REP first when `replicates`.
+  static std::string DefaultList(const Model& model, const std::vector<std::string>& etas, bool observations,
+                                 bool replicates);
 
   /// The header line, with its '\n'.
   std::string Header() const;
@@ -36,10 +45,10 @@ class SimulationColumns {
   void Append(const SubjectSimulation& simulation, std::string* out) const;
 
  private:
-  enum class Kind { kId, kTime, kEvid, kCp, kOutput, kAmount };
+  enum class Kind { kId, kTime, kEvid, kCp, kOutput, kAmount, kReplicate, kEta, kObservation };
   struct Column {
     Kind kind;
-    int index;  // output k (0-based, 1.. for the further outputs) or compartment c (0-based)
+    int index;  // output k (0-based, 1.. for the further outputs), compartment c or η k (0-based)
     std::string name;
   };
   std::vector<Column> columns_;

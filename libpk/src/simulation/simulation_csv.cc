@@ -116,13 +116,41 @@ std::vector<std::string> Split(const std::string& list) {
 
 }  // namespace
 
-SimulationColumns::SimulationColumns(const Model& model, const std::string& list) {
+namespace {
+
+// The name of output k's simulated observation: DV for the first, DV_<NAME> for the others.
+std::string ObservationName(const Model& model, int k) {
+  return k == 0 ? "DV" : "DV_" + internal::ToUpper(model.output_names()[static_cast<size_t>(k)]);
+}
+
+}  // namespace
+
+SimulationColumns::SimulationColumns(const Model& model, const std::string& list)
+    : SimulationColumns(model, list, {}, false) {}
+
+std::string SimulationColumns::DefaultList(const Model& model, const std::vector<std::string>& etas, bool observations,
+                                           bool replicates) {
+  std::string list = std::string(replicates ? "REP," : "") + "ID,TIME,EVID,CP";
+  for (int k = 1; k < model.num_outputs(); ++k) list += "," + model.output_names()[static_cast<size_t>(k)];
+  for (int k = 0; observations && k < std::max(model.num_outputs(), 1); ++k) list += "," + ObservationName(model, k);
+  for (int c = 1; c <= model.num_compartments(); ++c) list += ",A" + std::to_string(c);
+  for (const std::string& e : etas) list += "," + e;
+  return list;
+}
+
+SimulationColumns::SimulationColumns(const Model& model, const std::string& list, const std::vector<std::string>& etas,
+                                     bool observations) {
   std::vector<Column> all = {{Kind::kId, 0, "ID"}, {Kind::kTime, 0, "TIME"}, {Kind::kEvid, 0, "EVID"},
                              {Kind::kCp, 0, "CP"}};
   for (int k = 1; k < model.num_outputs(); ++k) {
     all.push_back({Kind::kOutput, k, internal::ToUpper(model.output_names()[static_cast<size_t>(k)])});
   }
   for (int c = 0; c < model.num_compartments(); ++c) all.push_back({Kind::kAmount, c, "A" + std::to_string(c + 1)});
+  if (!etas.empty()) all.push_back({Kind::kReplicate, 0, "REP"});
+  for (size_t k = 0; k < etas.size(); ++k) all.push_back({Kind::kEta, static_cast<int>(k), internal::ToUpper(etas[k])});
+  for (int k = 0; observations && k < std::max(model.num_outputs(), 1); ++k) {
+    all.push_back({Kind::kObservation, k, ObservationName(model, k)});
+  }
   std::vector<std::string> names;
   for (const Column& c : all) names.push_back(c.name);
   for (const std::string& name : Split(list)) {
@@ -148,6 +176,13 @@ std::string SimulationColumns::Header() const {
 
 void SimulationColumns::Append(const SubjectSimulation& s, std::string* out) const {
   if (!HasRows(s, "SimulationColumns::Append")) return;
+  for (const Column& c : columns_) {
+    if ((c.kind == Kind::kEta && c.index >= s.eta.size()) ||
+        (c.kind == Kind::kObservation && (c.index >= s.observations.rows() ||
+                                          s.observations.cols() != static_cast<Eigen::Index>(s.rows.size())))) {
+      throw std::invalid_argument("SimulationColumns::Append: " + c.name + " needs a simulation with variability");
+    }
+  }
   char id[48];
   const size_t id_size = static_cast<size_t>(internal::WriteNumber(s.id, id) - id);
   const size_t longest = (id_size + 25) * columns_.size() + 1;
@@ -168,6 +203,9 @@ void SimulationColumns::Append(const SubjectSimulation& s, std::string* out) con
         case Kind::kCp: p = internal::WriteNumber(r.cp, p); break;
         case Kind::kOutput: p = internal::WriteNumber(s.outputs(c.index, col), p); break;
         case Kind::kAmount: p = internal::WriteNumber(s.amounts(c.index, col), p); break;
+        case Kind::kReplicate: p = internal::WriteNumber(s.replicate + 1, p); break;
+        case Kind::kEta: p = internal::WriteNumber(s.eta(c.index), p); break;
+        case Kind::kObservation: p = internal::WriteNumber(s.observations(c.index, col), p); break;
       }
     }
     *p++ = '\n';
