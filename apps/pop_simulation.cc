@@ -67,6 +67,9 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
       "vpc-interval", po::value<double>()->default_value(90), "the simulated percentiles' interval, %")(
       "pcvpc", "prediction-corrected VPC (Bergstrand et al. 2011): each value scaled by its bin's median PRED over its own")(
       "vpc-lower-bound", po::value<double>()->default_value(0), "pcVPC: the data's lower bound")(
+      "vpc-lloq", po::value<double>(),
+      "a limit of quantification for every DVID: observed and simulated values below it count as censored (default: "
+      "the limits of the data's CENS=1 rows)")(
       "simulate", po::value<int>()->default_value(0),
       "after the fit, this many replicates of the data simulated at the estimates into simtab.csv (REP, ID, TIME, "
       "DVID, DV, IPRED, PRED and the drawn η), as NONMEM's $SIMULATION")(
@@ -76,14 +79,20 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
 PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& vm, int threads) {
   PopulationSimulationRequest r;
   r.seed = ParseSeed(vm["seed"].as<std::string>());
+  r.threads = std::max(1, threads);
   r.simulate = vm["simulate"].as<int>();
   if (r.simulate < 0 || r.simulate > 100000) throw InputError("--simulate: expected 0 to 100000 replicates");
   const int replicates = vm["vpc"].as<int>();
   if (replicates < 0 || replicates > 100000) throw InputError("--vpc: expected 0 to 100000 replicates");
   const bool vpc_only = !vm["vpc-bins"].defaulted() || !vm["vpc-percentiles"].defaulted() ||
-                        !vm["vpc-interval"].defaulted() || vm.count("pcvpc") || !vm["vpc-lower-bound"].defaulted();
+                        !vm["vpc-interval"].defaulted() || vm.count("pcvpc") || !vm["vpc-lower-bound"].defaulted() ||
+                        vm.count("vpc-lloq");
   if (replicates == 0) {
-    if (vpc_only) throw InputError("--vpc-bins, --vpc-percentiles, --vpc-interval, --pcvpc and --vpc-lower-bound need --vpc N");
+    if (vpc_only) {
+      throw InputError("--vpc-bins, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound and --vpc-lloq need "
+                       "--vpc N");
+    }
+    if (r.simulate == 0 && !vm["seed"].defaulted()) throw InputError("--seed needs --vpc N or --simulate N");
     return r;
   }
   VpcOptions o;
@@ -96,6 +105,7 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   o.interval = vm["vpc-interval"].as<double>();
   o.prediction_corrected = vm.count("pcvpc") > 0;
   o.lower_bound = vm["vpc-lower-bound"].as<double>();
+  if (vm.count("vpc-lloq")) o.lloq = vm["vpc-lloq"].as<double>();
   std::string why;
   if (!o.IsValid(&why)) throw InputError("--vpc: " + why);
   r.vpc = o;
@@ -112,7 +122,7 @@ int WriteSimtab(const std::string& path, const PopulationProblem& problem, const
   PopulationSimulationOptions options;
   options.replicates = request.simulate;
   options.seed = request.seed;
-  options.threads = request.vpc ? request.vpc->threads : 1;
+  options.threads = request.threads;
   int failed = 0;
   const auto number = [](double v) { return std::isfinite(v) ? FormatNumber(v) : std::string(); };
   SimulatePopulation(problem, parameters, options, [&](const SimulatedReplicate& r) {
@@ -181,6 +191,24 @@ std::string VpcSvg(const VpcSummary& vpc, const Model& model) {
     o.width = 900;
     all.push_back(std::move(series));
     options.push_back(o);
+    if (!vpc.limits) continue;
+    // Censored data: the fraction of each bin below the limit, observed against simulated (PsN's BLQ panel).
+    PlotSeries band{"sim. (" + interval + ")", {}, {}}, observed{"observed", {}, {}};
+    band.colour = "#1f77b4";
+    observed.colour = "#111111";
+    for (const VpcBin* b : bins) {
+      band.x.push_back(b->time);
+      band.y.push_back(b->censored_lower);
+      band.upper.push_back(b->censored_upper);
+      observed.x.push_back(b->time);
+      observed.y.push_back(b->censored_observed);
+    }
+    PlotOptions f = o;
+    f.title = "Fraction below the limit of quantification" + (panels.size() > 1 ? " · DVID " + std::to_string(dvid) : "");
+    f.y_label = "fraction BLQ";
+    f.height = 300;
+    all.push_back({band, observed});
+    options.push_back(f);
   }
   return RenderPanelsSvg(all, options);
 }

@@ -22,6 +22,7 @@ namespace cli {
 struct PopulationSimulationRequest {
   int simulate = 0;  ///< replicates for simtab.csv (0: none)
   std::uint64_t seed = 1;
+  int threads = 1;
   std::optional<VpcOptions> vpc;  ///< none without --vpc
 };
 

@@ -18,6 +18,8 @@
 //   7. Model files against their catalogue twins: fitting time from the same start.
 //   8. Population estimation (FOCEI): phenobarbital and 120 simulated subjects; the implicit-function
 //      outer gradient against central differences, its cost over one OFV, and two threads.
+//  10. Population simulation at the FOCEI estimates: one simulated replicate of the data against one
+//      OFV evaluation, and a VPC of 200 replicates on one thread and two.
 //
 // Timing: the cases compared in a table are timed in interleaved rounds and
 // their ratios are medians over the rounds (see Interleaved()).
@@ -53,6 +55,8 @@
 #include "pk/objective.h"
 #include "pk/ode_model.h"
 #include "pk/population.h"
+#include "pk/population_simulation.h"
+#include "pk/vpc.h"
 #include "pk/residual_error.h"
 #include "population/engine.h"
 
@@ -499,6 +503,42 @@ void LaplaceEstimation(const std::string& data_dir) {
   const pk::PopulationProblem emax = EmaxProblem(data_dir);
   PopulationCase("emax (ODE)", emax, emax.DefaultParameters(), pk::PopulationMethod::kLaplace);
 }
+// Simulation at population estimates and the VPC (population.md): one replicate of the data's design
+// (η and ε drawn, the predictions at η) against one OFV evaluation from the modes, and a VPC of 200
+// replicates, on one thread and on two.
+void PopulationSimulationCase(const char* name, const pk::PopulationProblem& problem) {
+  pk::PopulationOptions options;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, problem.DefaultParameters(), options);
+  const pk::internal::PopulationEngine engine(problem, pk::PopulationMethod::kFocei, 1);
+  std::vector<Eigen::VectorXd> etas;
+  for (const auto& s : fit.subjects) etas.push_back(s.eta);
+  pk::PopulationSimulationOptions one;
+  pk::VpcOptions vpc, vpc2;
+  vpc2.threads = 2;
+  const Timing t = Interleaved({[&] { g_sink = engine.Evaluate(fit.parameters, etas, false).ofv; },
+                                [&] {
+                                  pk::SimulatePopulation(problem, fit.parameters, one, [](const pk::SimulatedReplicate& r) {
+                                    g_sink = r.subjects[0].dv(0);
+                                  });
+                                },
+                                [&] { g_sink = pk::ComputeVpc(problem, fit.parameters, vpc).outside; },
+                                [&] { g_sink = pk::ComputeVpc(problem, fit.parameters, vpc2).outside; }});
+  std::printf("%-14s %9d %11.3f %13.2f %13.1f %9.2f\n", name, problem.num_subjects(), t.base_seconds * 1e3,
+              t.ratios[1], t.base_seconds * t.ratios[2] * 1e3, t.ratios[3] / t.ratios[2]);
+  std::fflush(stdout);
+}
+
+void PopulationSimulation(const std::string& data_dir) {
+  std::printf("\n== population simulation and VPC at the FOCEI estimates ==\n");
+  std::printf("%-14s %9s %11s %13s %13s %9s\n", "data", "subjects", "OFV (ms)", "replicate/OFV", "VPC 200 (ms)",
+              "2 thr/1");
+  const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
+  PopulationSimulationCase("phenobarbital", BolusProblem(pheno));
+  PopulationSimulationCase("bolus 120x19", BolusProblem(std::make_shared<pk::Dataset>(SimulatedBolus(120))));
+  PopulationSimulationCase("emax (ODE)", EmaxProblem(data_dir));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -822,5 +862,6 @@ int main(int argc, char** argv) {
   if (only == 0 || only == 8) LaplaceEstimation(data_dir);
   // ---- 6. Simulation throughput and memory.
   if (only == 0 || only == 6) SimulationThroughput(g_min_time < 0.05 ? 10000 : 100000);
+  if (only == 0 || only == 10) PopulationSimulation(data_dir);
   return 0;
 }

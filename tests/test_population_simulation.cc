@@ -18,6 +18,7 @@
 #include "pk/population_simulation.h"
 #include "pk/residual_error.h"
 #include "pk/vpc.h"
+#include "simulation/normal_stream.h"
 #include "test_util.h"
 
 namespace {
@@ -165,7 +166,19 @@ TEST_CASE("population simulation is reproducible: seed, threads, replicates, res
   CHECK(Same(one[0], three[0]));            // a replicate does not depend on how many follow
   CHECK_FALSE(Same(three[0], three[1]));    // the replicates differ
   o.threads = 3;
-  CHECK(Same(Run(problem, p, o)[0], one[0]));  // nor on the threads
+  CHECK(Same(Run(problem, p, o)[0], one[0]));  // nor on the threads: a replicate's subjects on three
+  o.replicates = 6;
+  o.threads = 1;
+  const auto serial = Run(problem, p, o);
+  o.threads = 2;  // whole replicates on two threads, delivered in order
+  const auto parallel = Run(problem, p, o);
+  REQUIRE(parallel.size() == 6);
+  for (size_t r = 0; r < 6; ++r) {
+    CHECK(parallel[r].replicate == static_cast<int>(r));
+    CHECK(Same(parallel[r], serial[r]));
+  }
+  o.replicates = 1;
+  o.threads = 1;
   o.seed += 1;
   CHECK_FALSE(Same(Run(problem, p, o)[0], one[0]));
   o.seed -= 1;
@@ -199,6 +212,20 @@ TEST_CASE("a subject that cannot be simulated is reported, and the others are si
   bad.omega(0, 1) = bad.omega(1, 0) = 0.5;  // |ρ| > 1
   o.replicates = 1;
   CHECK_THROWS_WITH(Run(problem, bad, o), Catch::Contains("positive semi-definite"));
+}
+
+TEST_CASE("Ω's factor: Cholesky, or pivoted LDLᵀ for a singular Ω", "[simulation]") {
+  Eigen::MatrixXd block(3, 3);  // a rank-1 block beside a variance fixed at 0
+  block << 0.04, 0, 0.06, 0, 0, 0, 0.06, 0, 0.09;
+  for (const Eigen::MatrixXd& omega : {Eigen::MatrixXd(Eigen::Vector2d(0.09, 0.04).asDiagonal()),
+                                       Eigen::MatrixXd(Eigen::Vector2d(0, 0.09).asDiagonal()), block}) {
+    INFO(omega);
+    const Eigen::MatrixXd f = pk::internal::OmegaFactor(omega);
+    CHECK((f * f.transpose() - omega).cwiseAbs().maxCoeff() < 1e-16);
+  }
+  Eigen::Matrix2d asymmetric;
+  asymmetric << 0.09, 0.01, 0.02, 0.04;
+  CHECK_THROWS_WITH(pk::internal::OmegaFactor(asymmetric), Catch::Contains("not symmetric"));
 }
 
 TEST_CASE("a singular Ω (a variance fixed at 0) draws that η as 0", "[population][simulation]") {
@@ -296,13 +323,14 @@ TEST_CASE("VPC statistics equal R's, plain and prediction-corrected", "[vpc]") {
     }
     return rows;
   }();
-  REQUIRE(reference.size() == 36);  // 2 corrections × 2 DVID × 3 bins × 3 percentiles
-  for (int corrected = 0; corrected < 2; ++corrected) {
+  REQUIRE(reference.size() == 54);  // 3 corrections × 2 DVID × 3 bins × 3 percentiles
+  for (int corrected = 0; corrected < 3; ++corrected) {  // none, lb = 0, lb = 0.5
     pk::VpcOptions o;
     o.bin_edges = {0, 3, 8, 30};
     o.percentiles = {10, 50, 90};
     o.interval = 80;
-    o.prediction_corrected = corrected == 1;
+    o.prediction_corrected = corrected > 0;
+    o.lower_bound = corrected == 2 ? 0.5 : 0;
     pk::VpcAccumulator vpc(input.design, o);
     for (const auto& r : input.replicates) vpc.Add(r);
     const pk::VpcSummary s = vpc.Finish();
@@ -344,16 +372,34 @@ double SplitCost(const std::vector<double>& t, const std::vector<int>& count, co
 
 }  // namespace
 
+namespace {
+
+// The least SplitCost of every split of t into k consecutive groups (each non-empty).
+double BestSplit(const std::vector<double>& t, const std::vector<int>& count, size_t k, std::vector<size_t> starts = {0}) {
+  if (starts.size() == k) return SplitCost(t, count, starts);
+  double best = HUGE_VAL;
+  for (size_t a = starts.back() + 1; a + (k - starts.size()) <= t.size(); ++a) {
+    std::vector<size_t> more = starts;
+    more.push_back(a);
+    best = std::min(best, BestSplit(t, count, k, more));
+  }
+  return best;
+}
+
+}  // namespace
+
 TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared deviation of all splits", "[vpc]") {
-  // Designs of 11 distinct times (some repeated), binned into 4: the bins' within-bin squared
-  // deviation is the least of every split into 4 consecutive groups (enumerated here).
-  for (int trial = 0; trial < 5; ++trial) {
+  // Designs of u distinct times (some repeated) binned into k: the bins' within-bin squared
+  // deviation is the least of every split into k consecutive groups (enumerated here); u = k + 1
+  // and u = k + 2 are the smallest cases that reach the dynamic programme.
+  const std::pair<size_t, int> cases[] = {{5, 4}, {6, 4}, {11, 4}, {11, 4}, {11, 4}, {12, 6}, {13, 3}, {9, 2}};
+  unsigned state = 12345u;
+  const auto next = [&] { return (state = state * 1103515245u + 12345u) >> 16; };
+  for (const auto& [u, k] : cases) {
     std::vector<double> t;
     std::vector<int> count;
-    unsigned state = 12345u + static_cast<unsigned>(trial);
-    const auto next = [&] { return (state = state * 1103515245u + 12345u) >> 16; };
     double time = 0;
-    for (int i = 0; i < 11; ++i) {
+    for (size_t i = 0; i < u; ++i) {
       time += 0.1 + static_cast<double>(next() % 1000) / 100;
       t.push_back(time);
       count.push_back(1 + static_cast<int>(next() % 4));
@@ -371,26 +417,97 @@ TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared devia
     s[0].dv = Eigen::VectorXd::Ones(static_cast<Eigen::Index>(s[0].time.size()));
     s[0].pred = s[0].dv;
     pk::VpcOptions o;
-    o.max_bins = 4;
+    o.max_bins = k;
     const pk::VpcSummary vpc = pk::VpcAccumulator(design, o).Finish();
-    REQUIRE(vpc.bins.size() == 4);
+    INFO("u " << u << ", k " << k);
+    REQUIRE(vpc.bins.size() == static_cast<size_t>(k));
     std::vector<size_t> found;
     for (const pk::VpcBin& b : vpc.bins) {
       found.push_back(static_cast<size_t>(std::lower_bound(t.begin(), t.end(), b.lower) - t.begin()));
       CHECK(b.observations > 0);
     }
-    double best = HUGE_VAL;
-    for (size_t a = 1; a < 11; ++a) {
-      for (size_t b = a + 1; b < 11; ++b) {
-        for (size_t c = b + 1; c < 11; ++c) best = std::min(best, SplitCost(t, count, {0, a, b, c}));
-      }
-    }
-    INFO("trial " << trial);
-    CHECK(SplitCost(t, count, found) == Approx(best).epsilon(1e-12));
+    CHECK(SplitCost(t, count, found) == Approx(BestSplit(t, count, static_cast<size_t>(k))).epsilon(1e-12));
     int total = 0;
     for (const pk::VpcBin& b : vpc.bins) total += b.observations;
     CHECK(total == std::accumulate(count.begin(), count.end(), 0));
   }
+}
+
+TEST_CASE("censored observations and simulated values below the limit count as −∞ in a VPC", "[vpc]") {
+  // One time, ten subjects: three censored at the limit 1 (CENS = 1), seven values 2…8.
+  pk::SimulationDesign design;
+  design.subjects.resize(10);
+  for (int i = 0; i < 10; ++i) {
+    auto& s = design.subjects[static_cast<size_t>(i)];
+    s.id = i + 1;
+    s.time = {4};
+    s.dvid = {1};
+    s.censored = {i < 3 ? 1 : 0};
+    s.dv = Eigen::VectorXd::Constant(1, i < 3 ? 1.0 : i - 1.0);
+    s.pred = Eigen::VectorXd::Constant(1, 5.0);
+  }
+  pk::VpcOptions o;
+  o.percentiles = {10, 50, 90};
+  pk::VpcAccumulator vpc(design, o);
+  std::vector<std::vector<double>> same(10), low(10, std::vector<double>{0.5}), high(10, std::vector<double>{3});
+  for (int i = 0; i < 10; ++i) same[static_cast<size_t>(i)] = {i < 3 ? 0.9 : i - 1.0};
+  vpc.Add(same);  // the data again: the same percentiles
+  vpc.Add(low);   // everything below the limit
+  vpc.Add(high);  // nothing below it
+  const pk::VpcSummary v = vpc.Finish();
+  REQUIRE(v.bins.size() == 1);
+  const pk::VpcBin& b = v.bins[0];
+  CHECK(v.limits);
+  CHECK(v.censored == 3);
+  // Type 7 over −∞ ×3, 2…8: the 10th percentile interpolates from −∞ (below the limit), the
+  // median is 3.5, the 90th 7.1.
+  CHECK(std::isinf(b.observed[0]));
+  CHECK(b.observed[0] < 0);
+  CHECK(b.observed[1] == Approx(3.5).epsilon(1e-15));
+  CHECK(b.observed[2] == Approx(7.1).epsilon(1e-15));
+  CHECK(b.censored_observed == Approx(0.3));
+  // The replicates' censored fractions 0.3, 1, 0: interval 5%…95% by type 7 = 0.03, 0.93; median 0.3.
+  CHECK(b.censored_lower == Approx(0.03));
+  CHECK(b.censored_median == Approx(0.3));
+  CHECK(b.censored_upper == Approx(0.93));
+  // The median's replicates: 3.5, −∞, 3 → its interval runs from below the limit to 3.45.
+  CHECK(std::isinf(b.simulated_lower[1]));
+  CHECK(b.simulated_median[1] == Approx(3));
+  CHECK(b.simulated_upper[1] == Approx(3.45));
+  const std::string csv = pk::VpcCsv(v);
+  INFO(csv);
+  CHECK(csv.find("BLQ_OBSERVED") != std::string::npos);
+  CHECK(csv.find("1,1,4,4,4,10,10,,") != std::string::npos);  // −∞ is an empty field
+  CHECK(csv.find("nan") == std::string::npos);
+  CHECK(csv.find("inf") == std::string::npos);
+  // A limit for every DVID: the uncensored 2 and 3 fall below 3.5 too.
+  o.lloq = 3.5;
+  pk::VpcAccumulator with_lloq(design, o);
+  CHECK(with_lloq.Finish().censored == 5);
+}
+
+TEST_CASE("pcVPC leaves out the samples whose PRED is not above the lower bound", "[vpc]") {
+  pk::SimulationDesign design;
+  design.subjects.resize(4);
+  for (int i = 0; i < 4; ++i) {
+    auto& s = design.subjects[static_cast<size_t>(i)];
+    s.id = i + 1;
+    s.time = {0, 2};
+    s.dvid = {1, 1};
+    s.censored = {0, 0};
+    s.dv = Eigen::Vector2d(0.1, 2 + i);
+    s.pred = Eigen::Vector2d(i == 3 ? std::nan("") : 0.0, 4);  // pre-dose PRED 0; one not evaluable
+  }
+  pk::VpcOptions o;
+  o.prediction_corrected = true;
+  const pk::VpcSummary v = pk::VpcAccumulator(design, o).Finish();
+  CHECK(v.uncorrectable == 4);
+  CHECK(v.observations.size() == 4);
+  CHECK(v.BriefReport().find("4 observations whose PRED is not above the lower bound") != std::string::npos);
+  for (auto& s : design.subjects) s.pred(1) = -1;
+  CHECK_THROWS_WITH(pk::VpcAccumulator(design, o), Catch::Contains("no observation has a PRED above the lower bound"));
+  design.subjects[0].dv.resize(1);
+  CHECK_THROWS_WITH(pk::VpcAccumulator(design, o), Catch::Contains("unequal sizes"));
 }
 
 TEST_CASE("a VPC of the model's own data keeps the percentiles in their intervals, one with Ω too small does not",
@@ -421,7 +538,9 @@ TEST_CASE("a VPC of the model's own data keeps the percentiles in their interval
   REQUIRE(good.bins.size() == times.size());  // each distinct time a bin
   INFO(good.BriefReport());
   CHECK(good.compared == 21);
-  CHECK(good.outside <= 3);  // 10% of 21 expected by chance
+  // 10% of 21 expected by chance (2.1), with cells correlated; more than 5 has a chance of about 2%
+  // under a right model. (These seeds give 2.)
+  CHECK(good.outside <= 5);
   pk::PopulationParameters narrow = truth;
   narrow.omega *= 0.1;
   const pk::VpcSummary bad = pk::ComputeVpc(problem, narrow, o);
@@ -432,11 +551,11 @@ TEST_CASE("a VPC of the model's own data keeps the percentiles in their interval
       tails_outside += b.observed[k] < b.simulated_lower[k] || b.observed[k] > b.simulated_upper[k];
     }
   }
-  CHECK(tails_outside >= 10);  // of 14
+  CHECK(tails_outside >= 10);  // of 14 (these seeds: every one); by chance, about 1.4
   // pcVPC of the same data: the correction changes the values, and the truth still passes.
   o.prediction_corrected = true;
   const pk::VpcSummary pc = pk::ComputeVpc(problem, truth, o);
-  CHECK(pc.outside <= 3);
+  CHECK(pc.outside <= 5);
   CHECK(pc.observations.size() == good.observations.size());
 }
 

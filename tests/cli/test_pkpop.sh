@@ -182,6 +182,7 @@ expect_error "need --vpc N" "${pheno[@]}" --pcvpc
 expect_error "--vpc: the bin edges must increase" "${pheno[@]}" --vpc 10 --vpc-bins 0,5,5
 expect_error "--vpc: the percentiles must increase" "${pheno[@]}" --vpc 10 --vpc-percentiles 95,5
 expect_error "--seed: expected a whole number" "${pheno[@]}" --simulate 2 --seed -3
+expect_error "--seed needs --vpc N or --simulate N" "${pheno[@]}" --seed 3
 
 [ $failures -eq 0 ] && echo "pkpop CLI: all checks passed"
 exit $failures

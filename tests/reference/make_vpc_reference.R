@@ -1,8 +1,9 @@
 # A VPC's statistics computed independently of libpk, for tests/test_population_simulation.cc.
 # Writes vpc_input.csv (an observed design and 30 replicates of simulated values, random numbers
 # from R's own generator: the statistics, not a model, are under test) and vpc_reference.csv (the
-# VPC with bin edges 0, 3, 8, 30 and the 10th, 50th, 90th percentiles, their 80% interval, plain
-# and prediction-corrected with lower bound 0), percentiles by R's quantile(type = 7).
+# VPC with bin edges 0, 3, 8, 30 and the 10th, 50th, 90th percentiles, their 80% interval: plain
+# (CORRECTED 0), prediction-corrected with lower bound 0 (1) and with lower bound 0.5 (2)),
+# percentiles by R's quantile(type = 7).
 # Run from the repository root: Rscript tests/reference/make_vpc_reference.R
 set.seed(20261127)
 subjects <- 20
@@ -27,19 +28,20 @@ edges <- c(0, 3, 8, 30)
 percentiles <- c(10, 50, 90)
 interval <- 80
 bin_of <- function(t) findInterval(t, edges, rightmost.closed = TRUE)
-pc_values <- function(d, bins) {  # Bergstrand 2011 with lb = 0: y * PRED_bin / PRED
+pc_values <- function(d, bins, lb) {  # Bergstrand 2011: lb + (y - lb) (PRED_bin - lb) / (PRED - lb)
   observed <- input[input$REP == 0, ]
   pred_bin <- tapply(observed$PRED, list(observed$DVID, bin_of(observed$TIME)), median)
-  d$DV * pred_bin[cbind(as.character(d$DVID), as.character(bins))] / d$PRED
+  lb + (d$DV - lb) * (pred_bin[cbind(as.character(d$DVID), as.character(bins))] - lb) / (d$PRED - lb)
 }
 out <- list()
-for (corrected in c(0, 1)) {
+for (corrected in c(0, 1, 2)) {
+  lb <- if (corrected == 2) 0.5 else 0
   for (dvid in sort(unique(input$DVID))) {
     for (b in seq_len(length(edges) - 1)) {
       observed <- input[input$REP == 0, ]
       values_of <- function(d) {
         keep <- d$DVID == dvid & bin_of(d$TIME) == b
-        v <- if (corrected == 1) pc_values(d, bin_of(d$TIME)) else d$DV
+        v <- if (corrected > 0) pc_values(d, bin_of(d$TIME), lb) else d$DV
         v[keep]
       }
       obs <- values_of(observed)

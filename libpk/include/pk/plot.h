@@ -27,7 +27,7 @@ struct PlotSeries {
   /// A band (a VPC's simulated interval): the region between y and upper at each x, filled
   /// translucent in the series' colour, without markers or outline. Empty: not a band.
   std::vector<double> upper;
-  /// A line drawn dashed in its own colour (a VPC's simulated median).
+  /// A line drawn dashed in its own colour (a VPC's observed outer percentiles).
   bool dashed = false;
 };
 

@@ -75,8 +75,9 @@ struct SimulatedReplicate {
   int failed = 0;     ///< subjects that could not be simulated
 };
 
-/// The design of `problem` at `parameters` (PRED included). Throws pk::InputError when the
-/// parameters do not fit the problem (sizes, a σ or θ that is not positive).
+/// The design of `problem` at `parameters` (PRED included; NaN for a subject whose PRED cannot be
+/// evaluated). Throws pk::InputError when the parameters do not fit the problem (sizes, a σ that
+/// is negative or not finite).
 SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const PopulationParameters& parameters);
 
 /// Simulates options.replicates replicates of the problem's design at `parameters`, handing each to
@@ -106,7 +107,8 @@ struct VariabilityOptions {
 
 /// The residual-error model of a population's σ: the model file's $ERROR when it declares one, else
 /// the catalogue's whose σ the population names (SIGMA_ADD: additive, SIGMA_PROP: proportional,
-/// both: combined, SIGMA_LOG: exponential). Throws pk::InputError when none has those σ.
+/// both: combined, SIGMA_LOG: exponential) when the file's $ERROR has other σ (a run with pkpop
+/// --error). Throws pk::InputError when none has those σ.
 std::shared_ptr<const ResidualErrorModel> PopulationErrorModel(const Model& model, const PopulationEstimates& population);
 
 /// Simulates every subject of every replicate, handing each to `sink` in order (replicate by

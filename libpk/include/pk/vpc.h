@@ -6,8 +6,8 @@
 // their interval (90% by default: the 5th and 95th percentiles of the R simulated values) and median.
 // A model that describes the data keeps each observed percentile inside its interval in most bins.
 //
-// Percentiles are R's quantile(type = 7): of n sorted values x₁…x_n, P% is x_k + (h − k + 1)(x_{k+1} −
-// x_k) with h = 1 + (n − 1)P/100 and k = ⌊h⌋.
+// Percentiles are R's quantile(type = 7): of n sorted values x₁…x_n, P% is x_k + (h − k)(x_{k+1} − x_k)
+// with h = 1 + (n − 1)P/100 and k = ⌊h⌋.
 //
 // Prediction correction (pcVPC; Bergstrand et al., AAPS J 2011;13:143-151): each observed and
 // simulated value y of a sample with population prediction PRED (f(θ, η = 0)) in bin b becomes
@@ -15,8 +15,17 @@
 //   pcY = lb + (y − lb)·(PRED_b − lb)/(PRED − lb),   PRED_b the median PRED of the bin's samples,
 //
 // with lb the lower bound of the data (0 by default), which removes the spread that the design
-// (doses, times, covariates) puts into a bin. Censored samples (CENS ≠ 0) are left out of both
-// sides; a subject of a replicate that could not be simulated is left out of that replicate.
+// (doses, times, covariates) puts into a bin. A sample whose PRED is not above lb (a pre-dose
+// sample, PRED 0) or cannot be evaluated is left out of a pcVPC, and counted.
+//
+// Censored data (CENS = 1: below the limit DV, NONMEM's M3 rows) stay in: such an observation,
+// and any simulated value below its sample's limit, counts as −∞ (above an upper limit, CENS = −1,
+// as +∞), so the observed and simulated percentiles see the same censoring. A percentile that falls
+// among the censored values is "below the limit" (−∞: no number in the table, nothing drawn). A
+// sample's lower limit is its own DV when it is censored, else the smallest limit of its DVID's
+// censored samples, or VpcOptions::lloq when given. Each bin also gets the fraction of its values
+// below the limit, observed against the simulated interval (PsN's BLQ panel). A subject of a
+// replicate that could not be simulated is left out of that replicate.
 //
 // Bins: given edges (a sample at an edge belongs to the bin above it; the last edge closes the last
 // bin), or automatic: each distinct time its own bin when a DVID has at most max_bins of them,
@@ -45,7 +54,10 @@ struct VpcOptions {
   std::vector<double> bin_edges;                  ///< increasing; empty: automatic
   int max_bins = 10;                              ///< automatic binning, per DVID
   bool prediction_corrected = false;              ///< pcVPC
-  double lower_bound = 0;                         ///< pcVPC's lb, below every value and PRED
+  double lower_bound = 0;                         ///< pcVPC's lb
+  /// A lower limit of quantification for every DVID (PsN's -lloq): values below it count as
+  /// censored. NaN: the data's CENS = 1 rows give the limits.
+  double lloq = std::numeric_limits<double>::quiet_NaN();
   int threads = 1;
 
   bool IsValid(std::string* error) const;
@@ -67,8 +79,11 @@ struct VpcBin {
   int observations = 0;
   double pred_median = std::numeric_limits<double>::quiet_NaN();  ///< PRED_b (pcVPC)
   /// Per percentile (VpcOptions::percentiles order): the data's, and the simulated one's interval
-  /// and median over the replicates (NaN where the bin holds no value).
+  /// and median over the replicates (NaN where the bin holds no value; −∞ below the limit).
   std::vector<double> observed, simulated_lower, simulated_median, simulated_upper;
+  /// The fraction of the bin's values below the limit: observed, and the simulated interval and
+  /// median (0 without censoring).
+  double censored_observed = 0, censored_lower = 0, censored_median = 0, censored_upper = 0;
 };
 
 struct VpcSummary {
@@ -80,7 +95,10 @@ struct VpcSummary {
   std::string binning;  ///< how the bins were chosen
   std::vector<VpcBin> bins;  ///< by DVID, then time
   std::vector<VpcObservation> observations;
-  int censored = 0;           ///< samples left out (CENS ≠ 0)
+  int censored = 0;           ///< observations below or above a limit (CENS ≠ 0, or below VpcOptions::lloq)
+  bool limits = false;        ///< some DVID has a limit: the bins' censored fractions mean something
+  int outside_edges = 0;      ///< observations outside the given bin edges, left out
+  int uncorrectable = 0;      ///< pcVPC: observations whose PRED is not above lb or not finite, left out
   int failed_simulations = 0; ///< subject-replicates that could not be simulated
   /// Observed percentiles outside their simulated interval, of those with a value.
   int outside = 0, compared = 0;
@@ -104,14 +122,17 @@ class VpcAccumulator {
  private:
   struct Sample {
     int subject, index, bin;
-    double pc_scale;  // (PRED_b − lb)/(PRED − lb), 1 without prediction correction
+    double pc_scale;      // (PRED_b − lb)/(PRED − lb), 1 without prediction correction
+    double lower, upper;  // the sample's limits (−∞, +∞ without)
   };
+  void Bin(const SimulationDesign& design);
   void AddValue(const Sample& s, double y, std::vector<std::vector<double>>* by_bin) const;
   VpcOptions options_;
   VpcSummary summary_;
   std::vector<Sample> samples_;
-  /// [bin][percentile] → the replicates' simulated percentile
+  /// [bin][percentile] → the replicates' simulated percentile; [bin] → their censored fractions
   std::vector<std::vector<std::vector<double>>> simulated_;
+  std::vector<std::vector<double>> simulated_censored_;
   std::vector<std::vector<double>> scratch_;
 };
 
@@ -120,7 +141,8 @@ class VpcAccumulator {
 VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParameters& parameters,
                       const VpcOptions& options);
 
-/// R's quantile(x, p/100, type = 7) of unsorted values; NaN for none. Reorders `values`.
+/// R's quantile(x, p/100, type = 7) of unsorted values; NaN for none. Reorders `values`. Infinite
+/// values (censored ones) sort to their ends, and a percentile that interpolates towards one is it.
 double Percentile(std::vector<double>* values, double p);
 
 /// The VPC as a table, one row per bin and percentile:

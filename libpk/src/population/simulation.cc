@@ -2,8 +2,10 @@
 // residual-error model, on each subject's design.
 #include "pk/population_simulation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <exception>
+#include <limits>
 #include <string>
 
 #include <Eigen/Cholesky>
@@ -12,6 +14,7 @@
 #include "pk/output.h"
 #include "pk/residual_error.h"
 #include "population/conditional.h"
+#include "ordered_parallel.h"
 #include "population/problem_impl.h"
 #include "simulation/normal_stream.h"
 
@@ -161,17 +164,27 @@ void SimulatePopulation(const PopulationProblem& problem, const PopulationParame
   const Eigen::MatrixXd factor = internal::OmegaFactor(parameters.omega);
   const auto& subjects = problem.impl().subjects;
   const int n = static_cast<int>(subjects.size());
-  for (int r = 0; r < options.replicates; ++r) {
+  // Replicate r, its subjects on `threads` threads.
+  const auto simulate = [&](int r, int threads) {
     SimulatedReplicate replicate;
     replicate.replicate = r;
     replicate.subjects.resize(static_cast<size_t>(n));
-    internal::ParallelFor(n, options.threads, [&](int i) {
+    internal::ParallelFor(n, threads, [&](int i) {
       replicate.subjects[static_cast<size_t>(i)] =
           internal::SimulateSubject(subjects[static_cast<size_t>(i)], point, factor, options, r, i);
     });
     for (const SimulatedSubject& s : replicate.subjects) replicate.failed += s.ok ? 0 : 1;
-    consume(replicate);
+    return replicate;
+  };
+  // Whole replicates on the threads when there are enough of them (a replicate of a small design
+  // takes less than starting a thread), delivered in order, a few held at once; else the subjects.
+  if (options.replicates >= 2 * options.threads) {
+    internal::OrderedParallel<SimulatedReplicate>(
+        options.replicates, options.threads, 4 * options.threads, [&](int r) { return simulate(r, 1); },
+        [&](int, SimulatedReplicate&& r) { consume(r); });
+    return;
   }
+  for (int r = 0; r < options.replicates; ++r) consume(simulate(r, options.threads));
 }
 
 }  // namespace pk

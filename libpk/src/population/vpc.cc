@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <limits>
 #include <map>
 #include <sstream>
@@ -23,46 +24,64 @@ struct Times {
 };
 
 // Jenks' natural breaks over distinct times with multiplicities: the split into k consecutive
-// groups that minimises Σ over groups of Σ count·(t − group mean)², by dynamic programming
-// (Fisher 1958), O(k·u²) for u distinct times. Returns the index of each group's first time.
-std::vector<size_t> NaturalBreaks(const Times& t, int k) {
-  const size_t u = t.time.size();
-  // Prefix sums of count, count·t and count·t² give any group's squared deviation at once.
-  std::vector<double> w(u + 1, 0), s(u + 1, 0), ss(u + 1, 0);
-  for (size_t i = 0; i < u; ++i) {
-    w[i + 1] = w[i] + t.count[i];
-    s[i + 1] = s[i] + t.count[i] * t.time[i];
-    ss[i + 1] = ss[i] + t.count[i] * t.time[i] * t.time[i];
-  }
-  const auto cost = [&](size_t a, size_t b) {  // times [a, b)
-    const double n = w[b] - w[a], m = s[b] - s[a];
-    return std::max(0.0, ss[b] - ss[a] - m * m / n);
-  };
-  const auto groups = static_cast<size_t>(k);
-  const double inf = std::numeric_limits<double>::infinity();
-  // best[g][b]: the least cost of the first b times in g + 1 groups; from[g][b]: its last group's start.
-  std::vector<std::vector<double>> best(groups, std::vector<double>(u + 1, inf));
-  std::vector<std::vector<size_t>> from(groups, std::vector<size_t>(u + 1, 0));
-  for (size_t b = 1; b <= u; ++b) best[0][b] = cost(0, b);
-  for (size_t g = 1; g < groups; ++g) {
-    for (size_t b = g + 1; b <= u; ++b) {
-      for (size_t a = g; a < b; ++a) {
-        const double c = best[g - 1][a] + cost(a, b);
-        if (c < best[g][b]) {
-          best[g][b] = c;
-          from[g][b] = a;
-        }
-      }
+// groups that minimises Σ over groups of Σ count·(t − group mean)² (Fisher 1958), by dynamic
+// programming over the groups. This cost satisfies the quadrangle inequality, so the best start of
+// the last group does not decrease with the number of times it covers (Wang & Song, R Journal
+// 2011, Ckmeans.1d.dp): each layer is filled by divide and conquer, O(k·u·log u) for u distinct
+// times. Returns the index of each group's first time.
+class NaturalBreaks {
+ public:
+  explicit NaturalBreaks(const Times& t) : u_(t.time.size()), w_(u_ + 1, 0), s_(u_ + 1, 0), ss_(u_ + 1, 0) {
+    // Prefix sums of count, count·t and count·t² give any group's squared deviation at once.
+    for (size_t i = 0; i < u_; ++i) {
+      w_[i + 1] = w_[i] + t.count[i];
+      s_[i + 1] = s_[i] + t.count[i] * t.time[i];
+      ss_[i + 1] = ss_[i] + t.count[i] * t.time[i] * t.time[i];
     }
   }
-  std::vector<size_t> starts(groups, 0);
-  size_t b = u;
-  for (size_t g = groups; g-- > 1;) {
-    starts[g] = from[g][b];
-    b = starts[g];
+
+  std::vector<size_t> Starts(size_t groups) {
+    const double inf = std::numeric_limits<double>::infinity();
+    // best[g][b]: the least cost of the first b times in g + 1 groups; from[g][b]: its last group's start.
+    best_.assign(groups, std::vector<double>(u_ + 1, inf));
+    from_.assign(groups, std::vector<size_t>(u_ + 1, 0));
+    for (size_t b = 1; b <= u_; ++b) best_[0][b] = Cost(0, b);
+    for (size_t g = 1; g < groups; ++g) Layer(g, g + 1, u_, g, u_ - 1);
+    std::vector<size_t> starts(groups, 0);
+    size_t b = u_;
+    for (size_t g = groups; g-- > 1;) {
+      starts[g] = from_[g][b];
+      b = starts[g];
+    }
+    return starts;
   }
-  return starts;
-}
+
+ private:
+  double Cost(size_t a, size_t b) const {  // times [a, b)
+    const double n = w_[b] - w_[a], m = s_[b] - s_[a];
+    return std::max(0.0, ss_[b] - ss_[a] - m * m / n);
+  }
+  // best[g][b] for b in [lo, hi], whose last groups start in [a_lo, a_hi].
+  void Layer(size_t g, size_t lo, size_t hi, size_t a_lo, size_t a_hi) {
+    if (lo > hi) return;
+    const size_t mid = lo + (hi - lo) / 2;
+    size_t arg = a_lo;
+    for (size_t a = a_lo; a <= std::min(a_hi, mid - 1); ++a) {
+      const double c = best_[g - 1][a] + Cost(a, mid);
+      if (c < best_[g][mid]) {
+        best_[g][mid] = c;
+        arg = a;
+      }
+    }
+    from_[g][mid] = arg;
+    if (mid > lo) Layer(g, lo, mid - 1, a_lo, arg);
+    Layer(g, mid + 1, hi, arg, a_hi);
+  }
+  size_t u_;
+  std::vector<double> w_, s_, ss_;
+  std::vector<std::vector<double>> best_;
+  std::vector<std::vector<size_t>> from_;
+};
 
 // Bin edges for one DVID's distinct times: given ones, or midpoints between the groups' times.
 std::vector<double> AutomaticEdges(const Times& t, int max_bins) {
@@ -71,7 +90,7 @@ std::vector<double> AutomaticEdges(const Times& t, int max_bins) {
   if (u <= static_cast<size_t>(max_bins)) {
     for (size_t i = 1; i < u; ++i) edges.push_back(0.5 * (t.time[i - 1] + t.time[i]));
   } else {
-    const std::vector<size_t> starts = NaturalBreaks(t, max_bins);
+    const std::vector<size_t> starts = NaturalBreaks(t).Starts(static_cast<size_t>(max_bins));
     for (size_t g = 1; g < starts.size(); ++g) edges.push_back(0.5 * (t.time[starts[g] - 1] + t.time[starts[g]]));
   }
   edges.push_back(t.time.back());  // the last bin is closed: [lower, upper]
@@ -98,7 +117,11 @@ double Percentile(std::vector<double>* values, double p) {
   const double low = v[k];
   if (k + 1 >= v.size()) return low;
   const double high = *std::min_element(v.begin() + static_cast<std::ptrdiff_t>(k) + 1, v.end());
-  return low + (h - static_cast<double>(k)) * (high - low);
+  const double fraction = h - static_cast<double>(k);
+  if (fraction == 0 || low == high) return low;
+  if (std::isinf(low)) return low;    // towards censored values below: below the limit
+  if (std::isinf(high)) return high;  // towards censored values above
+  return low + fraction * (high - low);
 }
 
 bool VpcOptions::IsValid(std::string* error) const {
@@ -120,32 +143,101 @@ bool VpcOptions::IsValid(std::string* error) const {
   if (bin_edges.size() == 1) return fail("one bin edge makes no bin: give at least two");
   if (max_bins < 1) return fail("max_bins must be at least 1, not " + std::to_string(max_bins));
   if (!std::isfinite(lower_bound)) return fail("the lower bound must be finite");
+  if (std::isinf(lloq)) return fail("the LLOQ must be finite (or NaN: none)");
   if (threads < 1) return fail("threads must be at least 1, not " + std::to_string(threads));
   return true;
 }
 
+namespace {
+
+// Throws unless every per-sample vector of the design's subjects has one entry per sample.
+void CheckDesign(const SimulationDesign& design) {
+  for (const SimulationDesign::Subject& s : design.subjects) {
+    const size_t n = s.time.size();
+    if (s.dvid.size() != n || s.censored.size() != n || static_cast<size_t>(s.dv.size()) != n ||
+        static_cast<size_t>(s.pred.size()) != n) {
+      throw InputError("VPC: subject " + FormatNumber(s.id) + " of the design has per-sample vectors of unequal sizes");
+    }
+  }
+}
+
+// Per DVID, the limits the data's censored samples give: the smallest lower, the largest upper.
+struct Limits {
+  double lower = -std::numeric_limits<double>::infinity(), upper = std::numeric_limits<double>::infinity();
+};
+
+std::map<int, Limits> DataLimits(const SimulationDesign& design, double lloq) {
+  std::map<int, Limits> out;
+  for (const SimulationDesign::Subject& s : design.subjects) {
+    for (size_t j = 0; j < s.time.size(); ++j) {
+      Limits& l = out[s.dvid[j]];
+      const double dv = s.dv(static_cast<Eigen::Index>(j));
+      if (s.censored[j] > 0) l.lower = std::isinf(l.lower) ? dv : std::min(l.lower, dv);
+      if (s.censored[j] < 0) l.upper = std::isinf(l.upper) ? dv : std::max(l.upper, dv);
+    }
+  }
+  if (!std::isnan(lloq)) {
+    for (auto& entry : out) entry.second.lower = lloq;
+  }
+  return out;
+}
+
+}  // namespace
+
 VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions& options) : options_(options) {
   std::string why;
   if (!options.IsValid(&why)) throw InputError("VPC: " + why);
+  CheckDesign(design);
   summary_.percentiles = options.percentiles;
   summary_.interval = options.interval;
   summary_.prediction_corrected = options.prediction_corrected;
   summary_.seed = options.seed;
-  // The values, and each DVID's distinct times.
-  std::map<int, std::map<double, int>> times;
+  const std::map<int, Limits> limits = DataLimits(design, options.lloq);
   for (size_t i = 0; i < design.subjects.size(); ++i) {
     const SimulationDesign::Subject& s = design.subjects[i];
     for (size_t j = 0; j < s.time.size(); ++j) {
-      if (s.censored[j] != 0) {
-        ++summary_.censored;
-        continue;
-      }
-      ++times[s.dvid[j]][s.time[j]];
-      samples_.push_back({static_cast<int>(i), static_cast<int>(j), -1, 1.0});
+      Limits l = limits.at(s.dvid[j]);
+      const double dv = s.dv(static_cast<Eigen::Index>(j));
+      if (s.censored[j] > 0) l.lower = dv;  // its own limit
+      if (s.censored[j] < 0) l.upper = dv;
+      summary_.limits = summary_.limits || std::isfinite(l.lower);
+      samples_.push_back({static_cast<int>(i), static_cast<int>(j), -1, 1.0, l.lower, l.upper});
     }
   }
-  if (samples_.empty()) throw InputError("VPC: the data have no observed values");
-  // Bins per DVID.
+  if (samples_.empty()) throw InputError("VPC: the data have no observations");
+  Bin(design);
+  // The observed side: censored observations at ∓∞, as simulated values beyond their limits.
+  std::vector<std::vector<double>> by_bin(summary_.bins.size());
+  for (const Sample& s : samples_) {
+    const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
+    const auto j = static_cast<size_t>(s.index);
+    const double inf = std::numeric_limits<double>::infinity();
+    const double dv = subject.censored[j] > 0 ? -inf : subject.censored[j] < 0 ? inf : subject.dv(s.index);
+    AddValue(s, dv, &by_bin);
+    const double shown = by_bin[static_cast<size_t>(s.bin)].back();
+    if (std::isinf(shown)) ++summary_.censored;
+    summary_.observations.push_back({subject.id, subject.time[j], subject.dvid[j], shown, s.bin});
+  }
+  for (size_t b = 0; b < summary_.bins.size(); ++b) {
+    VpcBin& bin = summary_.bins[b];
+    bin.censored_observed = by_bin[b].empty() ? 0 : static_cast<double>(std::count(by_bin[b].begin(), by_bin[b].end(),
+                                                                      -std::numeric_limits<double>::infinity())) /
+                                                        static_cast<double>(by_bin[b].size());
+    for (double p : options.percentiles) bin.observed.push_back(Percentile(&by_bin[b], p));
+  }
+  simulated_.assign(summary_.bins.size(), std::vector<std::vector<double>>(options.percentiles.size()));
+  simulated_censored_.assign(summary_.bins.size(), {});
+  scratch_.assign(summary_.bins.size(), {});
+}
+
+// Each DVID's bins, each sample's bin (those outside given edges left out), the bins' times, and
+// the prediction correction's scales (samples it cannot scale left out).
+void VpcAccumulator::Bin(const SimulationDesign& design) {
+  std::map<int, std::map<double, int>> times;  // DVID → distinct time → count
+  for (const Sample& s : samples_) {
+    const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
+    ++times[subject.dvid[static_cast<size_t>(s.index)]][subject.time[static_cast<size_t>(s.index)]];
+  }
   std::map<int, std::pair<int, std::vector<double>>> edges;  // DVID → (first bin, edges)
   for (const auto& [dvid, counts] : times) {
     Times t;
@@ -153,7 +245,7 @@ VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions&
       t.time.push_back(time);
       t.count.push_back(count);
     }
-    std::vector<double> e = options.bin_edges.empty() ? AutomaticEdges(t, options.max_bins) : options.bin_edges;
+    const std::vector<double> e = options_.bin_edges.empty() ? AutomaticEdges(t, options_.max_bins) : options_.bin_edges;
     edges[dvid] = {static_cast<int>(summary_.bins.size()), e};
     for (size_t b = 0; b + 1 < e.size(); ++b) {
       VpcBin bin;
@@ -163,62 +255,58 @@ VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions&
       summary_.bins.push_back(bin);
     }
   }
-  summary_.binning = options.bin_edges.empty()
-                         ? "each distinct time a bin up to " + std::to_string(options.max_bins) +
-                               " a DVID, else Jenks' natural breaks of the times into " + std::to_string(options.max_bins)
+  summary_.binning = options_.bin_edges.empty()
+                         ? "each distinct time a bin up to " + std::to_string(options_.max_bins) +
+                               " a DVID, else Jenks' natural breaks of the times into " + std::to_string(options_.max_bins)
                          : "the given edges";
-  // Each value's bin; values outside the given edges are left out.
-  std::vector<std::vector<double>> bin_times(summary_.bins.size()), bin_preds(summary_.bins.size());
+  const double lb = options_.lower_bound;
   std::vector<Sample> kept;
   for (Sample s : samples_) {
     const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
-    const auto j = static_cast<size_t>(s.index);
-    const auto& [first, e] = edges[subject.dvid[j]];
-    const int b = BinOf(e, subject.time[j]);
-    if (b < 0) continue;
+    const auto& [first, e] = edges[subject.dvid[static_cast<size_t>(s.index)]];
+    const int b = BinOf(e, subject.time[static_cast<size_t>(s.index)]);
+    if (b < 0) {
+      ++summary_.outside_edges;
+      continue;
+    }
+    if (options_.prediction_corrected && !(subject.pred(s.index) > lb && std::isfinite(subject.pred(s.index)))) {
+      ++summary_.uncorrectable;
+      continue;
+    }
     s.bin = first + b;
-    bin_times[static_cast<size_t>(s.bin)].push_back(subject.time[j]);
-    bin_preds[static_cast<size_t>(s.bin)].push_back(subject.pred(s.index));
     kept.push_back(s);
   }
   samples_ = std::move(kept);
-  if (samples_.empty()) throw InputError("VPC: no observed value lies within the bin edges");
+  if (samples_.empty()) {
+    throw InputError(summary_.uncorrectable > 0 ? "pcVPC: no observation has a PRED above the lower bound " + FormatNumber(lb)
+                                                : "VPC: no observation lies within the bin edges");
+  }
+  std::vector<std::vector<double>> bin_times(summary_.bins.size()), bin_preds(summary_.bins.size());
+  for (const Sample& s : samples_) {
+    const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
+    bin_times[static_cast<size_t>(s.bin)].push_back(subject.time[static_cast<size_t>(s.index)]);
+    bin_preds[static_cast<size_t>(s.bin)].push_back(subject.pred(s.index));
+  }
   for (size_t b = 0; b < summary_.bins.size(); ++b) {
     VpcBin& bin = summary_.bins[b];
     bin.observations = static_cast<int>(bin_times[b].size());
     bin.time = bin_times[b].empty() ? 0.5 * (bin.lower + bin.upper) : Median(bin_times[b]);
-    if (options.prediction_corrected) bin.pred_median = Median(bin_preds[b]);
+    if (options_.prediction_corrected) bin.pred_median = Median(bin_preds[b]);
   }
-  if (options.prediction_corrected) {
-    const double lb = options.lower_bound;
-    for (Sample& s : samples_) {
-      const double pred = design.subjects[static_cast<size_t>(s.subject)].pred(s.index);
-      const double pb = summary_.bins[static_cast<size_t>(s.bin)].pred_median;
-      if (!(pred > lb) || !(pb > lb)) {
-        throw InputError("pcVPC: a population prediction (PRED " + FormatNumber(pred) + ") is not above the lower bound " +
-                         FormatNumber(lb) + "; give a lower --vpc-lower-bound, or leave prediction correction off");
-      }
-      s.pc_scale = (pb - lb) / (pred - lb);
-    }
+  if (!options_.prediction_corrected) return;
+  for (Sample& s : samples_) {
+    const double pred = design.subjects[static_cast<size_t>(s.subject)].pred(s.index);
+    s.pc_scale = (summary_.bins[static_cast<size_t>(s.bin)].pred_median - lb) / (pred - lb);
   }
-  // The observed side.
-  std::vector<std::vector<double>> by_bin(summary_.bins.size());
-  for (const Sample& s : samples_) {
-    const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
-    const auto j = static_cast<size_t>(s.index);
-    AddValue(s, subject.dv(s.index), &by_bin);
-    summary_.observations.push_back({subject.id, subject.time[j], subject.dvid[j], by_bin[static_cast<size_t>(s.bin)].back(), s.bin});
-  }
-  for (size_t b = 0; b < summary_.bins.size(); ++b) {
-    for (double p : options.percentiles) summary_.bins[b].observed.push_back(Percentile(&by_bin[b], p));
-  }
-  simulated_.assign(summary_.bins.size(), std::vector<std::vector<double>>(options.percentiles.size()));
-  scratch_.assign(summary_.bins.size(), {});
 }
 
+// y as the bin sees it: ∓∞ beyond the sample's limits, else prediction-corrected when asked.
 void VpcAccumulator::AddValue(const Sample& s, double y, std::vector<std::vector<double>>* by_bin) const {
+  const double inf = std::numeric_limits<double>::infinity();
   const double lb = options_.lower_bound;
-  (*by_bin)[static_cast<size_t>(s.bin)].push_back(options_.prediction_corrected ? lb + (y - lb) * s.pc_scale : y);
+  double v = y < s.lower ? -inf : y > s.upper ? inf : y;
+  if (std::isfinite(v) && options_.prediction_corrected) v = lb + (v - lb) * s.pc_scale;
+  (*by_bin)[static_cast<size_t>(s.bin)].push_back(v);
 }
 
 void VpcAccumulator::Add(const SimulatedReplicate& replicate) {
@@ -241,7 +329,13 @@ void VpcAccumulator::Add(const std::vector<std::vector<double>>& values) {
     if (subject.empty()) continue;
     AddValue(s, subject.at(static_cast<size_t>(s.index)), &scratch_);
   }
+  const double below = -std::numeric_limits<double>::infinity();
   for (size_t b = 0; b < scratch_.size(); ++b) {
+    const std::vector<double>& v = scratch_[b];
+    if (!v.empty()) {
+      simulated_censored_[b].push_back(static_cast<double>(std::count(v.begin(), v.end(), below)) /
+                                       static_cast<double>(v.size()));
+    }
     for (size_t k = 0; k < options_.percentiles.size(); ++k) {
       simulated_[b][k].push_back(Percentile(&scratch_[b], options_.percentiles[k]));
     }
@@ -252,20 +346,26 @@ void VpcAccumulator::Add(const std::vector<std::vector<double>>& values) {
 VpcSummary VpcAccumulator::Finish() const {
   VpcSummary out = summary_;
   const double tail = (100 - options_.interval) / 2;
+  const auto interval = [&](std::vector<double> v, double* lower, double* median, double* upper) {
+    v.erase(std::remove_if(v.begin(), v.end(), [](double x) { return std::isnan(x); }), v.end());
+    *lower = Percentile(&v, tail);
+    *median = Percentile(&v, 50);
+    *upper = Percentile(&v, 100 - tail);
+  };
   for (size_t b = 0; b < out.bins.size(); ++b) {
     VpcBin& bin = out.bins[b];
+    interval(simulated_censored_[b], &bin.censored_lower, &bin.censored_median, &bin.censored_upper);
     for (size_t k = 0; k < options_.percentiles.size(); ++k) {
-      std::vector<double> v;  // the replicates' percentile where the bin held simulated values
-      for (double x : simulated_[b][k]) {
-        if (!std::isnan(x)) v.push_back(x);
-      }
-      bin.simulated_lower.push_back(Percentile(&v, tail));
-      bin.simulated_median.push_back(Percentile(&v, 50));
-      bin.simulated_upper.push_back(Percentile(&v, 100 - tail));
+      double lower = 0, median = 0, upper = 0;
+      interval(simulated_[b][k], &lower, &median, &upper);
+      bin.simulated_lower.push_back(lower);
+      bin.simulated_median.push_back(median);
+      bin.simulated_upper.push_back(upper);
+      // Against an interval below or above a limit too (comparisons of ∓∞ are exact); not for an empty bin.
       const double o = bin.observed[k];
-      if (std::isnan(o) || std::isnan(bin.simulated_lower.back())) continue;
+      if (std::isnan(o) || std::isnan(lower)) continue;
       ++out.compared;
-      if (o < bin.simulated_lower.back() || o > bin.simulated_upper.back()) ++out.outside;
+      if (o < lower || o > upper) ++out.outside;
     }
   }
   return out;
@@ -286,8 +386,13 @@ std::string VpcSummary::BriefReport() const {
   std::ostringstream out;
   out << (prediction_corrected ? "Prediction-corrected VPC" : "VPC") << ": " << replicates << " replicates (seed "
       << seed << "), " << bins.size() << " bins (" << binning << "), " << observations.size() << " observed values";
-  if (censored > 0) out << ", " << censored << " censored samples left out";
+  if (censored > 0) out << ", " << censored << " of them beyond a limit of quantification (counted as censored on both sides)";
   out << ".\n";
+  if (outside_edges > 0) out << outside_edges << " observations outside the bin edges are left out.\n";
+  if (uncorrectable > 0) {
+    out << uncorrectable << " observations whose PRED is not above the lower bound (or cannot be evaluated) are left out "
+                            "of the prediction correction.\n";
+  }
   if (failed_simulations > 0) out << failed_simulations << " subject-replicates could not be simulated and are left out.\n";
   out << outside << " of " << compared << " observed percentiles lie outside their simulated " << FormatNumber(interval)
       << "% interval.\n";
@@ -295,7 +400,10 @@ std::string VpcSummary::BriefReport() const {
 }
 
 std::string VpcCsv(const VpcSummary& vpc) {
-  std::string out = "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER\n";
+  // A percentile below (or above) the limit, or of an empty bin, is an empty field.
+  const auto number = [](double v) { return std::isfinite(v) ? FormatNumber(v) : std::string(); };
+  std::string out = "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER";
+  out += vpc.limits ? ",BLQ_OBSERVED,BLQ_SIM_LOWER,BLQ_SIM_MEDIAN,BLQ_SIM_UPPER\n" : "\n";
   int bin_in_dvid = 0, last_dvid = -1;
   for (const VpcBin& b : vpc.bins) {
     bin_in_dvid = b.dvid == last_dvid ? bin_in_dvid + 1 : 1;
@@ -305,7 +413,10 @@ std::string VpcCsv(const VpcSummary& vpc) {
       for (double v : {b.time, b.lower, b.upper}) out += "," + FormatNumber(v);
       out += "," + std::to_string(b.observations);
       for (double v : {vpc.percentiles[k], b.observed[k], b.simulated_lower[k], b.simulated_median[k], b.simulated_upper[k]}) {
-        out += "," + FormatNumber(v);
+        out += "," + number(v);
+      }
+      for (double v : {b.censored_observed, b.censored_lower, b.censored_median, b.censored_upper}) {
+        if (vpc.limits) out += "," + number(v);
       }
       out += "\n";
     }

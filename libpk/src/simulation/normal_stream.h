@@ -22,7 +22,9 @@ inline std::uint64_t SplitMix(std::uint64_t* z) {
 // Standard normal numbers from a stream of its own: xoshiro256** (Blackman & Vigna 2018), seeded
 // by SplitMix64 from (seed, replicate, subject, kind), through Box–Muller. Both are fixed
 // arithmetic on 64-bit integers, so a seed gives the same numbers on every platform (up to the
-// last bits of log, sin and cos); its state is four words, so a stream costs nothing to start.
+// last bits of log, sin and cos); its state is four words, so a stream costs nothing to start. A
+// stream is named by 64 bits: two of 10⁹ subjects share one with probability about 3·10⁻², so
+// simulations of that size should not rely on their subjects' independence to the last digit.
 class NormalStream {
  public:
   NormalStream(std::uint64_t seed, int replicate, int subject, int kind) {
@@ -54,8 +56,9 @@ class NormalStream {
     s_[3] = Rotate(s_[3], 45);
     return result;
   }
-  // In (0, 1): the top 53 bits, centred in their interval, so that log never sees 0.
-  double Uniform() { return (static_cast<double>(Bits() >> 11) + 0.5) * 0x1p-53; }
+  // In (0, 1): the top 52 bits, centred in their interval (k + 0.5 is exact below 2⁵²), so that log
+  // never sees 0 nor 1.
+  double Uniform() { return (static_cast<double>(Bits() >> 12) + 0.5) * 0x1p-52; }
   std::uint64_t s_[4];
   double spare_ = 0;
   bool has_spare_ = false;

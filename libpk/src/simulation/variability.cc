@@ -94,8 +94,12 @@ bool VariabilityOptions::IsValid(std::string* error) const {
 }
 
 std::shared_ptr<const ResidualErrorModel> PopulationErrorModel(const Model& model, const PopulationEstimates& p) {
-  if (auto declared = DeclaredErrorModel(model)) return declared;
   const std::set<std::string> names(p.sigma_names.begin(), p.sigma_names.end());
+  // The file's $ERROR, unless the run replaced it (pkpop --error): then its σ are not these.
+  if (auto declared = DeclaredErrorModel(model)) {
+    const std::vector<std::string> needed = declared->sigma_names();
+    if (std::set<std::string>(needed.begin(), needed.end()) == names) return declared;
+  }
   const std::string kind = names == std::set<std::string>{kSigmaAdd}                ? "additive"
                            : names == std::set<std::string>{kSigmaProp}              ? "proportional"
                            : names == std::set<std::string>{kSigmaAdd, kSigmaProp}   ? "combined"
