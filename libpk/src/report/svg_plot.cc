@@ -138,17 +138,23 @@ std::string ColourOf(const PlotSeries& s, int k) {
   return s.reference ? "#555555" : PaletteColour(k);
 }
 
-// A band's polygon: along upper, then back along y, over the points both ends of which are drawn.
-template <typename Px, typename Py, typename Shown>
-std::string Band(const PlotSeries& s, const std::string& colour, const Px& px, const Py& py, const Shown& shown) {
+// A band's polygon: along upper, then back along y, over the points whose x and upper are drawn. A
+// lower end of −∞ (a VPC's interval reaching below the limit of quantification) runs to the frame's
+// bottom.
+template <typename Px, typename Py, typename Usable>
+std::string Band(const PlotSeries& s, const std::string& colour, const Px& px, const Py& py, const Usable& usable,
+                 double bottom) {
   std::vector<size_t> drawn;
   for (size_t i = 0; i < std::min({s.x.size(), s.y.size(), s.upper.size()}); ++i) {
-    if (shown(i) && std::isfinite(s.upper[i])) drawn.push_back(i);
+    if (usable(s.x[i], s.upper[i]) && (usable(s.x[i], s.y[i]) || s.y[i] == -HUGE_VAL)) drawn.push_back(i);
   }
   if (drawn.empty()) return "";
   std::string points;
   for (size_t i : drawn) points += Num(px(s.x[i]), 6) + "," + Num(py(s.upper[i]), 6) + " ";
-  for (auto it = drawn.rbegin(); it != drawn.rend(); ++it) points += Num(px(s.x[*it]), 6) + "," + Num(py(s.y[*it]), 6) + " ";
+  for (auto it = drawn.rbegin(); it != drawn.rend(); ++it) {
+    const double y = s.y[*it] == -HUGE_VAL ? bottom : py(s.y[*it]);
+    points += Num(px(s.x[*it]), 6) + "," + Num(y, 6) + " ";
+  }
   return "<polygon fill=\"" + colour + "\" fill-opacity=\"0.3\" stroke=\"none\" points=\"" + points + "\"/>\n";
 }
 
@@ -212,7 +218,7 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
     const std::string colour = ColourOf(s, static_cast<int>(k));
     const auto shown = [&](size_t i) { return ax.Usable(s.x[i]) && ay.Usable(s.y[i]); };
     if (!s.upper.empty()) {
-      svg << Band(s, colour, px, py, shown);
+      svg << Band(s, colour, px, py, [&](double x, double y) { return ax.Usable(x) && ay.Usable(y); }, top + h);
     } else if (s.markers) {
       for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
         if (!shown(i)) continue;
