@@ -408,6 +408,7 @@ int Main(int argc, char** argv, Process* p) {
   }
   const pk::PopulationParameters initial = Initial(problem, a, &options.structure);
   const pk::cli::PopulationSimulationRequest simulation = pk::cli::ParsePopulationSimulation(vm, options.threads);
+  if (simulation.vpc) pk::CheckVpcOptions(problem, *simulation.vpc);  // before the fit, not after it
   const bool quiet = vm.count("quiet") > 0 || process.rank > 0;  // process 0 alone speaks and writes
   if (!quiet) {
     options.progress = [](int evaluation, double ofv, double gradient) {

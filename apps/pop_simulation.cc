@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <map>
+#include <set>
 #include <sstream>
 
 #include "cli.h"
@@ -67,6 +68,8 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
       "vpc-interval", po::value<double>()->default_value(90), "the simulated percentiles' interval, %")(
       "pcvpc", "prediction-corrected VPC (Bergstrand et al. 2011): each value scaled by its bin's median PRED over its own")(
       "vpc-lower-bound", po::value<double>()->default_value(0), "pcVPC: the data's lower bound")(
+      "vpc-stratify", po::value<std::string>(),
+      "a data column to stratify the VPC by (a panel for each of its values, at most 20), e.g. DOSE or STUDY")(
       "vpc-lloq", po::value<double>(),
       "a limit of quantification for every DVID: observed and simulated values below it count as censored (default: "
       "the limits of the data's CENS=1 rows)")(
@@ -86,11 +89,11 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   if (replicates < 0 || replicates > 100000) throw InputError("--vpc: expected 0 to 100000 replicates");
   const bool vpc_only = !vm["vpc-bins"].defaulted() || !vm["vpc-percentiles"].defaulted() ||
                         !vm["vpc-interval"].defaulted() || vm.count("pcvpc") || !vm["vpc-lower-bound"].defaulted() ||
-                        vm.count("vpc-lloq");
+                        vm.count("vpc-lloq") || vm.count("vpc-stratify");
   if (replicates == 0) {
     if (vpc_only) {
-      throw InputError("--vpc-bins, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound and --vpc-lloq need "
-                       "--vpc N");
+      throw InputError("--vpc-bins, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound, --vpc-lloq and "
+                       "--vpc-stratify need --vpc N");
     }
     if (r.simulate == 0 && !vm["seed"].defaulted()) throw InputError("--seed needs --vpc N or --simulate N");
     return r;
@@ -106,6 +109,7 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   o.prediction_corrected = vm.count("pcvpc") > 0;
   o.lower_bound = vm["vpc-lower-bound"].as<double>();
   if (vm.count("vpc-lloq")) o.lloq = vm["vpc-lloq"].as<double>();
+  if (vm.count("vpc-stratify")) o.stratify = vm["vpc-stratify"].as<std::string>();
   std::string why;
   if (!o.IsValid(&why)) throw InputError("--vpc: " + why);
   r.vpc = o;
@@ -150,18 +154,23 @@ int WriteSimtab(const std::string& path, const PopulationProblem& problem, const
 }
 
 std::string VpcSvg(const VpcSummary& vpc, const Model& model) {
-  std::map<int, std::vector<const VpcBin*>> panels;
-  for (const VpcBin& b : vpc.bins) panels[b.dvid].push_back(&b);
+  std::map<std::pair<double, int>, std::vector<const VpcBin*>> panels;  // (stratum, DVID)
+  for (const VpcBin& b : vpc.bins) panels[{b.stratum, b.dvid}].push_back(&b);
+  std::set<int> dvids;
+  for (const VpcBin& b : vpc.bins) dvids.insert(b.dvid);
   std::vector<std::vector<PlotSeries>> all;
   std::vector<PlotOptions> options;
   const std::string interval = FormatNumber(vpc.interval) + "% PI";
-  for (const auto& [dvid, bins] : panels) {
+  for (const auto& [panel, bins] : panels) {
+    const double stratum = panel.first;
+    const int dvid = panel.second;
     std::vector<PlotSeries> series;
     PlotSeries points{"observed", {}, {}, true};
     points.hollow = true;
     points.colour = "#9a9a9a";
     for (const VpcObservation& o : vpc.observations) {
-      if (o.dvid == dvid) points.x.push_back(o.time), points.y.push_back(o.value);
+      const VpcBin& bin = vpc.bins[static_cast<size_t>(o.bin)];
+      if (bin.dvid == dvid && bin.stratum == stratum) points.x.push_back(o.time), points.y.push_back(o.value);
     }
     for (size_t k = 0; k < vpc.percentiles.size(); ++k) {
       const bool median = vpc.percentiles[k] == 50;
@@ -184,9 +193,10 @@ std::string VpcSvg(const VpcSummary& vpc, const Model& model) {
     PlotOptions o;
     const std::vector<std::string>& names = model.output_names();
     const std::string name = dvid >= 1 && static_cast<size_t>(dvid) <= names.size() ? names[static_cast<size_t>(dvid - 1)] : "";
-    o.title = std::string(vpc.prediction_corrected ? "Prediction-corrected VPC" : "VPC") +
-              (panels.size() > 1 ? " · DVID " + std::to_string(dvid) + (name.empty() ? "" : " (" + name + ")") : "") +
-              " · " + std::to_string(vpc.replicates) + " replicates";
+    const std::string where = (vpc.stratify.empty() ? "" : " · " + vpc.stratify + " = " + FormatNumber(stratum)) +
+                              (dvids.size() > 1 ? " · DVID " + std::to_string(dvid) + (name.empty() ? "" : " (" + name + ")") : "");
+    o.title = std::string(vpc.prediction_corrected ? "Prediction-corrected VPC" : "VPC") + where + " · " +
+              std::to_string(vpc.replicates) + " replicates";
     o.y_label = vpc.prediction_corrected ? "prediction-corrected DV" : "DV";
     o.width = 900;
     all.push_back(std::move(series));
@@ -204,7 +214,7 @@ std::string VpcSvg(const VpcSummary& vpc, const Model& model) {
       observed.y.push_back(b->censored_observed);
     }
     PlotOptions f = o;
-    f.title = "Fraction below the limit of quantification" + (panels.size() > 1 ? " · DVID " + std::to_string(dvid) : "");
+    f.title = "Fraction below the limit of quantification" + where;
     f.y_label = "fraction BLQ";
     f.height = 300;
     all.push_back({band, observed});

@@ -710,3 +710,37 @@ TEST_CASE("a regimen simulated for N subjects: each its own η, φ = θ·exp(η)
   CHECK_THROWS_WITH(pk::SimulateEachWithVariability(*pk::MakeModel("1cmt_iv"), *regimen, e, {}, {}, vo, sink),
                     Catch::Contains("no σ"));
 }
+
+TEST_CASE("a VPC stratified by a data column bins each of its values apart", "[vpc][simulation]") {
+  // Two dose groups of 1cmt_iv (DOSE 100 and 300, the dose in AMT too), sampled at their own times.
+  std::string text = "ID,TIME,AMT,EVID,MDV,DV,DOSE\n";
+  for (int id = 1; id <= 40; ++id) {
+    const int dose = id <= 20 ? 100 : 300;
+    const std::string tail = "," + std::to_string(dose) + "\n";
+    text += std::to_string(id) + ",0," + std::to_string(dose) + ",1,1,." + tail;
+    for (double t : id <= 20 ? std::vector<double>{1, 4, 12} : std::vector<double>{2, 8}) {
+      text += std::to_string(id) + "," + pk::FormatNumber(t) + ",0,0,0,1" + tail;
+    }
+  }
+  const auto data = std::make_shared<pk::Dataset>(pk::ParseDataset(text, "groups.csv"));
+  const pk::PopulationProblem problem = Problem(data, "proportional");
+  pk::VpcOptions o;
+  o.replicates = 20;
+  o.stratify = "dose";
+  const pk::VpcSummary v = pk::ComputeVpc(problem, Truth(0.1), o);
+  CHECK(v.stratify == "DOSE");
+  REQUIRE(v.bins.size() == 5);  // 3 times at DOSE 100, 2 at 300
+  for (size_t b = 0; b < v.bins.size(); ++b) {
+    CHECK(v.bins[b].stratum == (b < 3 ? 100 : 300));
+    CHECK(v.bins[b].observations == 20);
+    CHECK(v.bins[b].time == (b < 3 ? std::vector<double>{1, 4, 12}[b] : std::vector<double>{2, 8}[b - 3]));
+  }
+  for (const pk::VpcObservation& obs : v.observations) {
+    CHECK(v.bins[static_cast<size_t>(obs.bin)].stratum == (obs.id <= 20 ? 100 : 300));
+  }
+  const std::string csv = pk::VpcCsv(v);
+  CHECK(csv.rfind("DOSE,DVID,BIN,TIME,", 0) == 0);
+  CHECK(csv.find("\n300,1,2,8,") != std::string::npos);
+  o.stratify = "WT";
+  CHECK_THROWS_WITH(pk::ComputeVpc(problem, Truth(0.1), o), Catch::Contains("has no such column (its covariate columns: DOSE)"));
+}

@@ -130,6 +130,13 @@ vpc_run "$work/vpc_other" --vpc 50 --seed 12 --pcvpc --vpc-bins 0,24,48,96,400
 cmp -s "$work/vpc/vpc.csv" "$work/vpc_other/vpc.csv" && fail "another seed gave the same vpc.csv"
 [ "$(tail -n +2 "$work/vpc_other/vpc.csv" | wc -l)" -eq 12 ] || fail "vpc.csv with 4 given bins: expected 12 rows"
 grep -q "Prediction-corrected VPC" "$work/vpc_other/vpc.svg" || fail "the pcVPC's title"
+# Stratified by Apgar score: a panel per score, the column first in vpc.csv.
+vpc_run "$work/vpc_apgar" --vpc 20 --vpc-stratify apgar --vpc-bins 2
+head -1 "$work/vpc_apgar/vpc.csv" | grep -q "^APGAR,DVID,BIN," || fail "the stratified vpc.csv's header"
+[ "$(awk -F, 'NR > 1 && $8 == 50 { n += $7 } END { print n }' "$work/vpc_apgar/vpc.csv")" -eq 155 ] ||
+  fail "the strata's bins should hold all 155 samples"
+[ "$(grep -c "APGAR = " "$work/vpc_apgar/vpc.svg")" -eq "$(awk -F, 'NR > 1 { print $1 }' "$work/vpc_apgar/vpc.csv" | sort -u | wc -l)" ] ||
+  fail "vpc.svg: a panel per Apgar score"
 
 # pksim --population simulates with that run's θ, Ω and σ: on the fitted data and seed, the η of
 # simtab.csv exactly and its DV to rounding; a regimen for 20 subjects, each its own η.
@@ -183,6 +190,8 @@ expect_error "--vpc: the bin edges must increase" "${pheno[@]}" --vpc 10 --vpc-b
 expect_error "--vpc: the percentiles must increase" "${pheno[@]}" --vpc 10 --vpc-percentiles 95,5
 expect_error "--seed: expected a whole number" "${pheno[@]}" --simulate 2 --seed -3
 expect_error "--seed needs --vpc N or --simulate N" "${pheno[@]}" --seed 3
+expect_error "VPC: WT has 21 values; stratify by a categorical column" "${pheno[@]}" --vpc 5 --vpc-stratify WT
+expect_error "stratify by 'AGE': " "${pheno[@]}" --vpc 5 --vpc-stratify AGE
 
 [ $failures -eq 0 ] && echo "pkpop CLI: all checks passed"
 exit $failures

@@ -56,7 +56,11 @@ struct SimulationDesign {
     std::vector<int> censored; ///< per sample: the data's CENS (0 a value)
     Eigen::VectorXd dv;        ///< per sample: the data's DV (natural scale)
     Eigen::VectorXd pred;      ///< per sample: f(θ, η = 0) (NaN where it cannot be evaluated)
+    /// Per sample: the value of the column the design was stratified by, at the sample's record
+    /// (empty: not stratified).
+    std::vector<double> stratum;
   };
+  std::string stratify;  ///< that column (upper case), or empty
   std::vector<Subject> subjects;
 };
 
@@ -78,7 +82,9 @@ struct SimulatedReplicate {
 /// The design of `problem` at `parameters` (PRED included; NaN for a subject whose PRED cannot be
 /// evaluated). Throws pk::InputError when the parameters do not fit the problem (sizes, a σ that
 /// is negative or not finite).
-SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const PopulationParameters& parameters);
+/// With `stratify`, a data column (not a PREDPP one) whose value at each sample's record is kept.
+SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const PopulationParameters& parameters,
+                                      const std::string& stratify = "");
 
 /// Simulates options.replicates replicates of the problem's design at `parameters`, handing each to
 /// `consume` in order as it is done (memory holds one replicate). A subject whose predictions cannot

@@ -58,6 +58,10 @@ struct VpcOptions {
   /// A lower limit of quantification for every DVID (PsN's -lloq): values below it count as
   /// censored. NaN: the data's CENS = 1 rows give the limits.
   double lloq = std::numeric_limits<double>::quiet_NaN();
+  /// A data column to stratify by (PsN's -stratify_on): bins and percentiles apart for each of its
+  /// values (at most 20), as for each DVID. Empty: none. (ComputeVpc; the accumulator takes the
+  /// design's strata.)
+  std::string stratify;
   int threads = 1;
 
   bool IsValid(std::string* error) const;
@@ -74,6 +78,7 @@ struct VpcObservation {
 
 struct VpcBin {
   int dvid = 1;
+  double stratum = 0;  ///< the stratification column's value (0 when not stratified)
   double lower = 0, upper = 0;  ///< the bin's time range [lower, upper), the last of a DVID [lower, upper]
   double time = 0;              ///< the median time of its observations (where the plot puts it)
   int observations = 0;
@@ -93,7 +98,8 @@ struct VpcSummary {
   int replicates = 0;
   std::uint64_t seed = 0;
   std::string binning;  ///< how the bins were chosen
-  std::vector<VpcBin> bins;  ///< by DVID, then time
+  std::string stratify;  ///< the column stratified by, or empty
+  std::vector<VpcBin> bins;  ///< by stratum, then DVID, then time
   std::vector<VpcObservation> observations;
   int censored = 0;           ///< observations below or above a limit (CENS ≠ 0, or below VpcOptions::lloq)
   bool limits = false;        ///< some DVID has a limit: the bins' censored fractions mean something
@@ -136,6 +142,11 @@ class VpcAccumulator {
   std::vector<std::vector<double>> scratch_;
 };
 
+/// Throws pk::InputError unless `options` are valid for `problem`: IsValid, and a stratification
+/// column that the data have, with at most 20 values at the samples. (What ComputeVpc checks first,
+/// for a caller that would rather know before a fit.)
+void CheckVpcOptions(const PopulationProblem& problem, const VpcOptions& options);
+
 /// A VPC of `problem` at `parameters`: options.replicates simulations of its design
 /// (PopulationSimulationOptions from options.seed and options.threads).
 VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParameters& parameters,
@@ -146,7 +157,9 @@ VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParamete
 double Percentile(std::vector<double>* values, double p);
 
 /// The VPC as a table, one row per bin and percentile:
-/// DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER.
+/// DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER, with the
+/// stratification column first when stratified, and the censored fractions (BLQ_OBSERVED, …) last
+/// when the data have limits.
 std::string VpcCsv(const VpcSummary& vpc);
 
 }  // namespace pk

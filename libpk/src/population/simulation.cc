@@ -130,10 +130,19 @@ bool PopulationSimulationOptions::IsValid(std::string* error) const {
   return true;
 }
 
-SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const PopulationParameters& parameters) {
+SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const PopulationParameters& parameters,
+                                      const std::string& stratify) {
   const internal::PopulationPoint point = internal::SimulationPoint(problem, parameters);
   const auto& d = problem.impl();
   SimulationDesign design;
+  const int column = stratify.empty() ? -1 : d.data->ExtraColumn(stratify);
+  if (!stratify.empty() && column < 0) {
+    std::string columns;
+    for (const std::string& c : d.data->extra_columns) columns += (columns.empty() ? "" : ", ") + c;
+    throw InputError("stratify by '" + stratify + "': " + d.data->source + " has no such column" +
+                     (columns.empty() ? "" : " (its covariate columns: " + columns + ")"));
+  }
+  if (column >= 0) design.stratify = d.data->extra_columns[static_cast<size_t>(column)];
   const Eigen::VectorXd zero = Eigen::VectorXd::Zero(parameters.omega.rows());
   for (size_t i = 0; i < d.subjects.size(); ++i) {
     const internal::SubjectModel& s = d.subjects[i];
@@ -143,6 +152,12 @@ SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const Po
     out.time = s.objective->sample_times();
     out.dvid = s.objective->sample_outputs();
     out.dv = s.objective->observations();
+    if (column >= 0) {
+      const Subject& data_subject = d.data->subjects[i];
+      for (int record : s.objective->sample_records()) {
+        out.stratum.push_back(data_subject.records[static_cast<size_t>(record)].extra[static_cast<size_t>(column)]);
+      }
+    }
     const Eigen::Index n = out.dv.size();
     out.censored.assign(static_cast<size_t>(n), 0);
     for (Eigen::Index j = 0; j < n && s.censoring.size() == n; ++j) out.censored[static_cast<size_t>(j)] = s.censoring(j);

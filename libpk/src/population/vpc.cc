@@ -7,6 +7,7 @@
 #include <cstddef>
 #include <limits>
 #include <map>
+#include <set>
 #include <sstream>
 
 #include "pk/error.h"
@@ -150,15 +151,35 @@ bool VpcOptions::IsValid(std::string* error) const {
 
 namespace {
 
-// Throws unless every per-sample vector of the design's subjects has one entry per sample.
+constexpr size_t kMaxStrata = 20;
+
+// Throws unless every per-sample vector of the design's subjects has one entry per sample, and the
+// design has at most kMaxStrata strata.
 void CheckDesign(const SimulationDesign& design) {
+  std::set<double> strata;
   for (const SimulationDesign::Subject& s : design.subjects) {
     const size_t n = s.time.size();
     if (s.dvid.size() != n || s.censored.size() != n || static_cast<size_t>(s.dv.size()) != n ||
-        static_cast<size_t>(s.pred.size()) != n) {
+        static_cast<size_t>(s.pred.size()) != n || (!design.stratify.empty() && s.stratum.size() != n)) {
       throw InputError("VPC: subject " + FormatNumber(s.id) + " of the design has per-sample vectors of unequal sizes");
     }
+    for (double v : s.stratum) {
+      if (std::isnan(v)) throw InputError("VPC: " + design.stratify + " is missing at a sample of ID " + FormatNumber(s.id));
+      strata.insert(v);
+    }
   }
+  if (strata.size() > kMaxStrata) {
+    throw InputError("VPC: " + design.stratify + " has " + std::to_string(strata.size()) + " values; stratify by a "
+                     "categorical column (at most " + std::to_string(kMaxStrata) + " values: group a continuous "
+                     "covariate in a column of its own)");
+  }
+}
+
+// A sample's panel: (stratum, DVID).
+using Panel = std::pair<double, int>;
+
+Panel PanelOf(const SimulationDesign& design, const SimulationDesign::Subject& s, size_t j) {
+  return {design.stratify.empty() ? 0.0 : s.stratum[j], s.dvid[j]};
 }
 
 // Per DVID, the limits the data's censored samples give: the smallest lower, the largest upper.
@@ -192,6 +213,7 @@ VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions&
   summary_.interval = options.interval;
   summary_.prediction_corrected = options.prediction_corrected;
   summary_.seed = options.seed;
+  summary_.stratify = design.stratify;
   const std::map<int, Limits> limits = DataLimits(design, options.lloq);
   for (size_t i = 0; i < design.subjects.size(); ++i) {
     const SimulationDesign::Subject& s = design.subjects[i];
@@ -233,23 +255,24 @@ VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions&
 // Each DVID's bins, each sample's bin (those outside given edges left out), the bins' times, and
 // the prediction correction's scales (samples it cannot scale left out).
 void VpcAccumulator::Bin(const SimulationDesign& design) {
-  std::map<int, std::map<double, int>> times;  // DVID → distinct time → count
+  std::map<Panel, std::map<double, int>> times;  // (stratum, DVID) → distinct time → count
   for (const Sample& s : samples_) {
     const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
-    ++times[subject.dvid[static_cast<size_t>(s.index)]][subject.time[static_cast<size_t>(s.index)]];
+    ++times[PanelOf(design, subject, static_cast<size_t>(s.index))][subject.time[static_cast<size_t>(s.index)]];
   }
-  std::map<int, std::pair<int, std::vector<double>>> edges;  // DVID → (first bin, edges)
-  for (const auto& [dvid, counts] : times) {
+  std::map<Panel, std::pair<int, std::vector<double>>> edges;  // (stratum, DVID) → (first bin, edges)
+  for (const auto& [panel, counts] : times) {
     Times t;
     for (const auto& [time, count] : counts) {
       t.time.push_back(time);
       t.count.push_back(count);
     }
     const std::vector<double> e = options_.bin_edges.empty() ? AutomaticEdges(t, options_.max_bins) : options_.bin_edges;
-    edges[dvid] = {static_cast<int>(summary_.bins.size()), e};
+    edges[panel] = {static_cast<int>(summary_.bins.size()), e};
     for (size_t b = 0; b + 1 < e.size(); ++b) {
       VpcBin bin;
-      bin.dvid = dvid;
+      bin.stratum = panel.first;
+      bin.dvid = panel.second;
       bin.lower = e[b];
       bin.upper = e[b + 1];
       summary_.bins.push_back(bin);
@@ -259,11 +282,12 @@ void VpcAccumulator::Bin(const SimulationDesign& design) {
                          ? "each distinct time a bin up to " + std::to_string(options_.max_bins) +
                                " a DVID, else Jenks' natural breaks of the times into " + std::to_string(options_.max_bins)
                          : "the given edges";
+  if (!design.stratify.empty()) summary_.binning += ", apart for each value of " + design.stratify;
   const double lb = options_.lower_bound;
   std::vector<Sample> kept;
   for (Sample s : samples_) {
     const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
-    const auto& [first, e] = edges[subject.dvid[static_cast<size_t>(s.index)]];
+    const auto& [first, e] = edges[PanelOf(design, subject, static_cast<size_t>(s.index))];
     const int b = BinOf(e, subject.time[static_cast<size_t>(s.index)]);
     if (b < 0) {
       ++summary_.outside_edges;
@@ -371,9 +395,35 @@ VpcSummary VpcAccumulator::Finish() const {
   return out;
 }
 
+void CheckVpcOptions(const PopulationProblem& problem, const VpcOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("VPC: " + why);
+  if (options.stratify.empty()) return;
+  const Dataset& data = problem.data();
+  const int column = data.ExtraColumn(options.stratify);
+  if (column < 0) {
+    std::string columns;
+    for (const std::string& c : data.extra_columns) columns += (columns.empty() ? "" : ", ") + c;
+    throw InputError("stratify by '" + options.stratify + "': " + data.source + " has no such column" +
+                     (columns.empty() ? "" : " (its covariate columns: " + columns + ")"));
+  }
+  std::set<double> values;
+  for (const Subject& s : data.subjects) {
+    for (const Record& r : s.records) {
+      if (r.IsSample()) values.insert(r.extra[static_cast<size_t>(column)]);
+    }
+  }
+  if (values.size() > kMaxStrata) {
+    throw InputError("VPC: " + data.extra_columns[static_cast<size_t>(column)] + " has " + std::to_string(values.size()) +
+                     " values; stratify by a categorical column (at most " + std::to_string(kMaxStrata) +
+                     " values: group a continuous covariate in a column of its own)");
+  }
+}
+
 VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParameters& parameters,
                       const VpcOptions& options) {
-  VpcAccumulator vpc(MakeSimulationDesign(problem, parameters), options);
+  CheckVpcOptions(problem, options);
+  VpcAccumulator vpc(MakeSimulationDesign(problem, parameters, options.stratify), options);
   PopulationSimulationOptions simulation;
   simulation.replicates = options.replicates;
   simulation.seed = options.seed;
@@ -402,14 +452,18 @@ std::string VpcSummary::BriefReport() const {
 std::string VpcCsv(const VpcSummary& vpc) {
   // A percentile below (or above) the limit, or of an empty bin, is an empty field.
   const auto number = [](double v) { return std::isfinite(v) ? FormatNumber(v) : std::string(); };
-  std::string out = "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER";
+  const bool strata = !vpc.stratify.empty();
+  std::string out = (strata ? vpc.stratify + "," : "") +
+                    "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER";
   out += vpc.limits ? ",BLQ_OBSERVED,BLQ_SIM_LOWER,BLQ_SIM_MEDIAN,BLQ_SIM_UPPER\n" : "\n";
-  int bin_in_dvid = 0, last_dvid = -1;
+  int bin_in_panel = 0;
+  const VpcBin* last = nullptr;
   for (const VpcBin& b : vpc.bins) {
-    bin_in_dvid = b.dvid == last_dvid ? bin_in_dvid + 1 : 1;
-    last_dvid = b.dvid;
+    bin_in_panel = last && last->dvid == b.dvid && last->stratum == b.stratum ? bin_in_panel + 1 : 1;
+    last = &b;
     for (size_t k = 0; k < vpc.percentiles.size(); ++k) {
-      out += std::to_string(b.dvid) + "," + std::to_string(bin_in_dvid);
+      if (strata) out += FormatNumber(b.stratum) + ",";
+      out += std::to_string(b.dvid) + "," + std::to_string(bin_in_panel);
       for (double v : {b.time, b.lower, b.upper}) out += "," + FormatNumber(v);
       out += "," + std::to_string(b.observations);
       for (double v : {vpc.percentiles[k], b.observed[k], b.simulated_lower[k], b.simulated_median[k], b.simulated_upper[k]}) {
