@@ -443,7 +443,8 @@ int Main(int argc, char** argv, Process* p) {
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
               << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "
-                 "covariance.csv, report.txt, pkpop.ext and pkpop.phi: NONMEM's .ext and .phi)\n";
+                 "covariance.csv, report.txt, pkpop.ext and pkpop.phi: NONMEM's .ext and .phi"
+              << (context.vpc ? "; vpc.csv and vpc.svg" : "") << (simulation.simulate > 0 ? "; simtab.csv" : "") << ")\n";
   }
   if (context.vpc && !quiet) std::cout << "\n" << context.vpc->BriefReport();
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
