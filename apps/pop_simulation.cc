@@ -64,6 +64,8 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
       "vpc-bins", po::value<std::string>()->default_value("auto"),
       "the VPC's time bins: auto (each distinct time up to 10 a DVID, else Jenks' natural breaks into 10), a "
       "count N (the same with N), or edges T0,T1,...")(
+      "vpc-min-bin", po::value<int>()->default_value(5),
+      "automatic bins: one with fewer values joins its neighbour across the smaller gap in time (1: never)")(
       "vpc-percentiles", po::value<std::string>()->default_value("5,50,95"), "the percentiles the VPC compares")(
       "vpc-interval", po::value<double>()->default_value(90), "the simulated percentiles' interval, %")(
       "pcvpc", "prediction-corrected VPC (Bergstrand et al. 2011): each value scaled by its bin's median PRED over its own")(
@@ -87,13 +89,13 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   if (r.simulate < 0 || r.simulate > 100000) throw InputError("--simulate: expected 0 to 100000 replicates");
   const int replicates = vm["vpc"].as<int>();
   if (replicates < 0 || replicates > 100000) throw InputError("--vpc: expected 0 to 100000 replicates");
-  const bool vpc_only = !vm["vpc-bins"].defaulted() || !vm["vpc-percentiles"].defaulted() ||
+  const bool vpc_only = !vm["vpc-bins"].defaulted() || !vm["vpc-percentiles"].defaulted() || !vm["vpc-min-bin"].defaulted() ||
                         !vm["vpc-interval"].defaulted() || vm.count("pcvpc") || !vm["vpc-lower-bound"].defaulted() ||
                         vm.count("vpc-lloq") || vm.count("vpc-stratify");
   if (replicates == 0) {
     if (vpc_only) {
-      throw InputError("--vpc-bins, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound, --vpc-lloq and "
-                       "--vpc-stratify need --vpc N");
+      throw InputError("--vpc-bins, --vpc-min-bin, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound, "
+                       "--vpc-lloq and --vpc-stratify need --vpc N");
     }
     if (r.simulate == 0 && !vm["seed"].defaulted()) throw InputError("--seed needs --vpc N or --simulate N");
     return r;
@@ -106,6 +108,7 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   o.percentiles.clear();
   for (const std::string& p : Commas(vm["vpc-percentiles"].as<std::string>())) o.percentiles.push_back(Number("--vpc-percentiles", p));
   o.interval = vm["vpc-interval"].as<double>();
+  o.min_bin_count = vm["vpc-min-bin"].as<int>();
   o.prediction_corrected = vm.count("pcvpc") > 0;
   o.lower_bound = vm["vpc-lower-bound"].as<double>();
   if (vm.count("vpc-lloq")) o.lloq = vm["vpc-lloq"].as<double>();

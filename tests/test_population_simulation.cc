@@ -418,6 +418,7 @@ TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared devia
     s[0].pred = s[0].dv;
     pk::VpcOptions o;
     o.max_bins = k;
+    o.min_bin_count = 1;  // the dynamic programme's bins as they are
     const pk::VpcSummary vpc = pk::VpcAccumulator(design, o).Finish();
     INFO("u " << u << ", k " << k);
     REQUIRE(vpc.bins.size() == static_cast<size_t>(k));
@@ -431,6 +432,35 @@ TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared devia
     for (const pk::VpcBin& b : vpc.bins) total += b.observations;
     CHECK(total == std::accumulate(count.begin(), count.end(), 0));
   }
+}
+
+TEST_CASE("automatic VPC bins of fewer than min_bin_count values join the neighbour across the smaller gap", "[vpc]") {
+  // Times 1 (×10), 2 (×1), 10 (×8), 30 (×2), each a bin at first: 2 joins 1 (a gap of 1 against 8),
+  // then 30 joins 10, the only neighbour; with min_bin_count 1 the four stay.
+  pk::SimulationDesign design;
+  design.subjects.resize(1);
+  auto& s = design.subjects[0];
+  for (const auto& [time, count] : std::vector<std::pair<double, int>>{{1, 10}, {2, 1}, {10, 8}, {30, 2}}) {
+    for (int c = 0; c < count; ++c) {
+      s.time.push_back(time);
+      s.dvid.push_back(1);
+      s.censored.push_back(0);
+    }
+  }
+  s.dv = Eigen::VectorXd::LinSpaced(21, 1, 21);
+  s.pred = s.dv;
+  pk::VpcOptions o;
+  const pk::VpcSummary merged = pk::VpcAccumulator(design, o).Finish();
+  REQUIRE(merged.bins.size() == 2);
+  CHECK(merged.bins[0].lower == 1);
+  CHECK(merged.bins[0].upper == 6);
+  CHECK(merged.bins[0].observations == 11);
+  CHECK(merged.bins[1].upper == 30);
+  CHECK(merged.bins[1].observations == 10);
+  o.min_bin_count = 1;
+  CHECK(pk::VpcAccumulator(design, o).Finish().bins.size() == 4);
+  o.min_bin_count = 100;  // more than there are: one bin
+  CHECK(pk::VpcAccumulator(design, o).Finish().bins.size() == 1);
 }
 
 TEST_CASE("censored observations and simulated values below the limit count as −∞ in a VPC", "[vpc]") {

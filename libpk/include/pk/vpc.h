@@ -31,7 +31,8 @@
 // bin), or automatic: each distinct time its own bin when a DVID has at most max_bins of them,
 // else max_bins bins of the times that minimise the sum of squared deviations from each bin's
 // mean time (Jenks' natural breaks, the binning of the vpc package's default and close to PsN's
-// auto_bin), never splitting samples at one time.
+// auto_bin), never splitting samples at one time; then a bin of fewer than min_bin_count values
+// is merged into its neighbour across the smaller gap in time.
 #ifndef PK_VPC_H_
 #define PK_VPC_H_
 
@@ -53,6 +54,9 @@ struct VpcOptions {
   double interval = 90;                           ///< of each simulated percentile, % in (0, 100)
   std::vector<double> bin_edges;                  ///< increasing; empty: automatic
   int max_bins = 10;                              ///< automatic binning, per DVID
+  /// Automatic binning: a bin of fewer values is merged into its neighbour across the smaller gap
+  /// in time (1: none merged).
+  int min_bin_count = 5;
   bool prediction_corrected = false;              ///< pcVPC
   double lower_bound = 0;                         ///< pcVPC's lb
   /// A lower limit of quantification for every DVID (PsN's -lloq): values below it count as

@@ -85,15 +85,38 @@ class NaturalBreaks {
 };
 
 // Bin edges for one DVID's distinct times: given ones, or midpoints between the groups' times.
-std::vector<double> AutomaticEdges(const Times& t, int max_bins) {
-  const size_t u = t.time.size();
-  std::vector<double> edges{t.time.front()};
-  if (u <= static_cast<size_t>(max_bins)) {
-    for (size_t i = 1; i < u; ++i) edges.push_back(0.5 * (t.time[i - 1] + t.time[i]));
-  } else {
-    const std::vector<size_t> starts = NaturalBreaks(t).Starts(static_cast<size_t>(max_bins));
-    for (size_t g = 1; g < starts.size(); ++g) edges.push_back(0.5 * (t.time[starts[g] - 1] + t.time[starts[g]]));
+// Groups of distinct times (each by its first index) with fewer than `min_count` values merged, the
+// smallest first, into the neighbour across the smaller gap in time, until every group has enough or
+// one is left: a percentile of one or two values says little, and such a bin counts as much as any.
+std::vector<size_t> MergeSmall(const Times& t, std::vector<size_t> starts, int min_count) {
+  const auto end = [&](size_t g) { return g + 1 < starts.size() ? starts[g + 1] : t.time.size(); };
+  for (;;) {
+    size_t smallest = starts.size();
+    int fewest = min_count;
+    for (size_t g = 0; g < starts.size(); ++g) {
+      int n = 0;
+      for (size_t i = starts[g]; i < end(g); ++i) n += t.count[i];
+      if (n < fewest) fewest = n, smallest = g;
+    }
+    if (smallest == starts.size() || starts.size() == 1) return starts;
+    const size_t g = smallest;
+    const double left = g > 0 ? t.time[starts[g]] - t.time[starts[g] - 1] : HUGE_VAL;
+    const double right = g + 1 < starts.size() ? t.time[starts[g + 1]] - t.time[starts[g + 1] - 1] : HUGE_VAL;
+    starts.erase(starts.begin() + static_cast<std::ptrdiff_t>(left <= right ? g : g + 1));
   }
+}
+
+std::vector<double> AutomaticEdges(const Times& t, int max_bins, int min_count) {
+  const size_t u = t.time.size();
+  std::vector<size_t> starts;
+  if (u <= static_cast<size_t>(max_bins)) {
+    for (size_t i = 0; i < u; ++i) starts.push_back(i);
+  } else {
+    starts = NaturalBreaks(t).Starts(static_cast<size_t>(max_bins));
+  }
+  starts = MergeSmall(t, starts, min_count);
+  std::vector<double> edges{t.time.front()};
+  for (size_t g = 1; g < starts.size(); ++g) edges.push_back(0.5 * (t.time[starts[g] - 1] + t.time[starts[g]]));
   edges.push_back(t.time.back());  // the last bin is closed: [lower, upper]
   return edges;
 }
@@ -143,6 +166,7 @@ bool VpcOptions::IsValid(std::string* error) const {
   }
   if (bin_edges.size() == 1) return fail("one bin edge makes no bin: give at least two");
   if (max_bins < 1) return fail("max_bins must be at least 1, not " + std::to_string(max_bins));
+  if (min_bin_count < 1) return fail("min_bin_count must be at least 1, not " + std::to_string(min_bin_count));
   if (!std::isfinite(lower_bound)) return fail("the lower bound must be finite");
   if (std::isinf(lloq)) return fail("the LLOQ must be finite (or NaN: none)");
   if (threads < 1) return fail("threads must be at least 1, not " + std::to_string(threads));
@@ -267,7 +291,8 @@ void VpcAccumulator::Bin(const SimulationDesign& design) {
       t.time.push_back(time);
       t.count.push_back(count);
     }
-    const std::vector<double> e = options_.bin_edges.empty() ? AutomaticEdges(t, options_.max_bins) : options_.bin_edges;
+    const std::vector<double> e =
+        options_.bin_edges.empty() ? AutomaticEdges(t, options_.max_bins, options_.min_bin_count) : options_.bin_edges;
     edges[panel] = {static_cast<int>(summary_.bins.size()), e};
     for (size_t b = 0; b + 1 < e.size(); ++b) {
       VpcBin bin;
@@ -280,7 +305,10 @@ void VpcAccumulator::Bin(const SimulationDesign& design) {
   }
   summary_.binning = options_.bin_edges.empty()
                          ? "each distinct time a bin up to " + std::to_string(options_.max_bins) +
-                               " a DVID, else Jenks' natural breaks of the times into " + std::to_string(options_.max_bins)
+                               " a DVID, else Jenks' natural breaks of the times into " + std::to_string(options_.max_bins) +
+                               (options_.min_bin_count > 1
+                                    ? ", bins of fewer than " + std::to_string(options_.min_bin_count) + " values merged"
+                                    : "")
                          : "the given edges";
   if (!design.stratify.empty()) summary_.binning += ", apart for each value of " + design.stratify;
   const double lb = options_.lower_bound;
