@@ -23,6 +23,7 @@
 #include "pk/output.h"
 #include "pk/nonmem_files.h"
 #include "pk/population.h"
+#include "pk/population_estimates.h"
 #ifdef PK_HAVE_MPI
 #include "pk/mpi.h"
 #endif
@@ -79,7 +80,12 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "one whose gradient it is given)")(
       "atol", po::value<double>()->default_value(1e-11), "ODE propagator: absolute tolerance")(
       "threads,j", po::value<int>()->default_value(1), "subjects' inner problems on this many threads")(
-      "max-evaluations", po::value<int>()->default_value(1000), "outer objective evaluations, at most")(
+      "max-evaluations", po::value<int>()->default_value(1000),
+      "outer objective evaluations, at most; 0: no estimation, the OFV, tables, covariance step and any VPC at the "
+      "initial estimates (NONMEM's MAXEVAL=0)")(
+      "init-from", po::value<std::string>(),
+      "start from a pkpop run's estimates (its output directory or population_estimates.csv); --theta, --omega and "
+      "--sigma override them. With --max-evaluations 0: a VPC or simulation of that run without fitting again")(
       "no-covariance", "skip the covariance step (no standard errors)")(
       "cov-matrix", po::value<std::string>()->default_value("sandwich"),
       "the covariance step's matrix, as NONMEM's $COVARIANCE MATRIX=: sandwich (R⁻¹SR⁻¹, the default), r (2R⁻¹) "
@@ -146,8 +152,34 @@ void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>
 }
 
 // Initial values and FIX flags from --theta, --omega, --sigma and --fix.
-pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lists& a, pk::PopulationStructure* s) {
+// A pkpop run's estimates (its population_estimates.csv, or its directory) as the start: its θ, its
+// Ω over the η this problem has, and its σ. A name of the run that this problem lacks is an error.
+void StartFrom(std::string path, const pk::PopulationProblem& problem, pk::PopulationParameters* p) {
+  if (std::filesystem::is_directory(path)) path += "/population_estimates.csv";
+  pk::CheckOutputSet(path, "pkpop", "pkpop.ext");  // not half of an interrupted run
+  const pk::PopulationEstimates run = pk::ReadPopulationEstimates(path, problem.model());
+  const auto position = [&](const std::vector<std::string>& names, const std::string& name, const char* what) {
+    const int k = Position(names, name);
+    if (k < 0) throw pk::InputError("--init-from " + path + ": " + name + " is not " + what + " of this problem");
+    return k;
+  };
+  for (const auto& [name, value] : run.theta) p->theta(position(problem.theta_names(), name, "a θ")) = value;
+  std::vector<int> at;
+  for (const std::string& eta : run.etas) at.push_back(position(problem.eta_names(), eta, "an η"));
+  for (size_t r = 0; r < at.size(); ++r) {
+    for (size_t c = 0; c < at.size(); ++c) {
+      p->omega(at[r], at[c]) = run.omega(static_cast<Eigen::Index>(r), static_cast<Eigen::Index>(c));
+    }
+  }
+  for (size_t k = 0; k < run.sigma_names.size(); ++k) {
+    p->sigma(position(problem.sigma_names(), run.sigma_names[k], "a σ")) = run.sigma(static_cast<Eigen::Index>(k));
+  }
+}
+
+pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lists& a, const std::string& init_from,
+                                 pk::PopulationStructure* s) {
   pk::PopulationParameters p = problem.DefaultParameters();
+  if (!init_from.empty()) StartFrom(init_from, problem, &p);
   for (const auto& [name, value] : pk::cli::ParseAssignments(SplitCommas(a.theta), "--theta")) {
     p.theta(Required(problem.theta_names(), name, "--theta")) = value;
   }
@@ -406,7 +438,8 @@ int Main(int argc, char** argv, Process* p) {
   } else {
     Blocks(problem.eta_names(), a.block, &options.structure);
   }
-  const pk::PopulationParameters initial = Initial(problem, a, &options.structure);
+  const pk::PopulationParameters initial =
+      Initial(problem, a, vm.count("init-from") ? vm["init-from"].as<std::string>() : "", &options.structure);
   const pk::cli::PopulationSimulationRequest simulation = pk::cli::ParsePopulationSimulation(vm, options.threads);
   if (simulation.vpc) pk::CheckVpcOptions(problem, *simulation.vpc);  // before the fit, not after it
   const bool quiet = vm.count("quiet") > 0 || process.rank > 0;  // process 0 alone speaks and writes

@@ -303,6 +303,39 @@ TEST_CASE("population OFV does not depend on the number of threads", "[populatio
   CHECK(one.ofv == two.ofv);
 }
 
+TEST_CASE("max_iterations 0 evaluates at the initial estimates, as NONMEM's MAXEVAL=0; so does fixing everything",
+          "[population]") {
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("proportional");
+  const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv"), Data("phenobarbital"), {"CL", "V"}, o);
+  pk::PopulationParameters start;
+  start.theta = Eigen::Vector2d(0.0047, 0.96);
+  start.omega = Diagonal({0.04, 0.03});
+  start.sigma = Eigen::VectorXd::Constant(1, 0.12);
+  pk::PopulationOptions options;
+  options.max_iterations = 0;
+  options.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, start, options);
+  INFO(fit.FullReport());
+  CHECK(fit.converged);
+  CHECK(fit.message.find("MAXEVAL=0") != std::string::npos);
+  CHECK(fit.parameters.theta == start.theta);
+  CHECK(fit.parameters.omega == start.omega);
+  CHECK(fit.parameters.sigma == start.sigma);
+  CHECK(fit.rows.size() == 155);  // the tables at the initial estimates
+  const pk::PopulationEvaluation at = pk::EvaluatePopulation(problem, start, pk::PopulationMethod::kFocei);
+  CHECK(fit.ofv == Approx(at.ofv).epsilon(1e-10));
+  options.max_iterations = 1000;
+  options.structure.theta_fixed = {true, true};
+  options.structure.sigma_fixed = {true};
+  options.structure.omega_blocks = {1, 1};
+  options.structure.omega_block_fixed = {true, true};
+  const pk::PopulationSummary fixed = pk::FitPopulation(problem, start, options);
+  CHECK(fixed.converged);  // before: not converged, with no message
+  CHECK(fixed.message.find("nothing to estimate") != std::string::npos);
+  CHECK(fixed.ofv == Approx(at.ofv).epsilon(1e-10));
+}
+
 TEST_CASE("population parameters pack and unpack", "[population]") {
   const Case c = Cases().at("theo_comb_block");
   const pk::PopulationProblem problem = Problem(c);

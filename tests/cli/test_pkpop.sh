@@ -139,6 +139,18 @@ head -1 "$work/vpc_apgar/vpc.csv" | grep -q "^APGAR,DVID,BIN," || fail "the stra
 [ "$(grep -c "APGAR = " "$work/vpc_apgar/vpc.svg")" -eq "$(awk -F, 'NR > 1 { print $1 }' "$work/vpc_apgar/vpc.csv" | sort -u | wc -l)" ] ||
   fail "vpc.svg: a panel per Apgar score"
 
+# --init-from that run with --max-evaluations 0 (NONMEM's MAXEVAL=0): no estimation, the run's estimates
+# kept to every digit, and a VPC of the run without fitting again.
+vpc_run "$work/vpc_of_run" --init-from "$work/vpc" --max-evaluations 0 --vpc 20 --seed 11
+cmp -s <(grep -v '^OFV' "$work/vpc/population_estimates.csv") <(grep -v '^OFV' "$work/vpc_of_run/population_estimates.csv") ||
+  fail "--init-from with --max-evaluations 0 moved the estimates"
+grep -q "MAXEVAL=0" "$work/vpc_of_run/report.txt" || fail "report.txt should say that nothing was estimated"
+[ -s "$work/vpc_of_run/vpc.csv" ] || fail "no VPC of the run"
+"$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --init-from "$work/vpc" -q -o "$work/bad" \
+  >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "'TVCL' is not a parameter of model 1cmt_iv" "$work/err.txt" ||
+  fail "--init-from a run of another model: $(cat "$work/err.txt")"
+
 # pksim --population simulates with that run's θ, Ω and σ: on the fitted data and seed, the η of
 # simtab.csv exactly and its DV to rounding; a regimen for 20 subjects, each its own η.
 "$pksim" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --population "$work/vpc" \

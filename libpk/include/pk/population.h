@@ -183,7 +183,10 @@ struct PopulationOptions {
   PopulationMethod method = PopulationMethod::kFocei;
   PopulationGradient gradient = PopulationGradient::kAuto;
   PopulationStructure structure;
-  int max_iterations = 1000;  ///< outer objective evaluations, at most (a difference gradient's are not counted)
+  /// Outer objective evaluations, at most (a difference gradient's are not counted). 0: no
+  /// estimation, the OFV, diagnostics and covariance step at the initial estimates (NONMEM's
+  /// MAXEVAL=0), as when every parameter is fixed.
+  int max_iterations = 1000;
   double function_tolerance = 1e-9;     ///< relative change of the OFV that ends the search
   double parameter_tolerance = 1e-7;    ///< relative change of the packed parameters that ends it
   int threads = 1;                      ///< subjects' inner problems in parallel

@@ -406,8 +406,17 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
     return summary;
   }
   Eigen::VectorXd x = packing.Pack(initial);
-  if (packing.size() > 0) internal::Minimize(engine, packing, options, &x, &eta, &summary);
-  summary.parameters = packing.Unpack(x);
+  const bool estimate = packing.size() > 0 && options.max_iterations > 0;
+  if (estimate) {
+    internal::Minimize(engine, packing, options, &x, &eta, &summary);
+  } else {  // nothing to move: the objective, diagnostics and covariance step where it stands
+    summary.converged = true;
+    summary.evaluations = 1;
+    summary.message = packing.size() == 0
+                          ? "nothing to estimate (every θ, Ω block and σ fixed): evaluated at the given values"
+                          : "no estimation (max_iterations 0, NONMEM's MAXEVAL=0): evaluated at the initial estimates";
+  }
+  summary.parameters = estimate ? packing.Unpack(x) : initial;  // not through the packing's log and exp
   // Every process forms the diagnostics from every subject's mode.
   internal::PopulationEngine::Result final_eval = engine.Evaluate(summary.parameters, eta, true, true);
   summary.ofv = final_eval.ofv;

@@ -324,8 +324,8 @@ PopulationParameters PopulationProblem::DefaultParameters() const {
 }
 
 bool PopulationOptions::IsValid(std::string* error) const {
-  if (max_iterations < 1) {
-    *error = "max_iterations must be at least 1";
+  if (max_iterations < 0) {
+    *error = "max_iterations must be at least 0 (0: evaluate at the initial estimates, NONMEM's MAXEVAL=0)";
   } else if (!(function_tolerance >= 0) || !(parameter_tolerance >= 0)) {
     *error = "tolerances must be non-negative";
   } else if (threads < 1) {
