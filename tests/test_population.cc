@@ -303,7 +303,7 @@ TEST_CASE("population OFV does not depend on the number of threads", "[populatio
   CHECK(one.ofv == two.ofv);
 }
 
-TEST_CASE("max_iterations 0 evaluates at the initial estimates, as NONMEM's MAXEVAL=0; so does fixing everything",
+TEST_CASE("max_iterations 0 evaluates at the initial estimates, as NONMEM's MAXEVAL=0, and so does fixing everything",
           "[population]") {
   pk::ObjectiveOptions o;
   o.error_model = pk::MakeResidualError("proportional");
