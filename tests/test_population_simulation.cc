@@ -566,6 +566,9 @@ TEST_CASE("a VPC of the model's own data keeps the percentiles in their interval
   o.threads = 2;
   const pk::VpcSummary good = pk::ComputeVpc(problem, truth, o);
   REQUIRE(good.bins.size() == times.size());  // each distinct time a bin
+  pk::VpcOptions serial = o;
+  serial.threads = 1;  // replicates summarised on two workers, appended in order: the same table
+  CHECK(pk::VpcCsv(pk::ComputeVpc(problem, truth, serial)) == pk::VpcCsv(good));
   INFO(good.BriefReport());
   CHECK(good.compared == 21);
   // 10% of 21 expected by chance (2.1), with cells correlated; more than 5 has a chance of about 2%

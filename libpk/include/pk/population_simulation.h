@@ -95,6 +95,11 @@ void SimulatePopulation(const PopulationProblem& problem, const PopulationParame
                         const PopulationSimulationOptions& options,
                         const std::function<void(const SimulatedReplicate&)>& consume);
 
+/// Replicate `replicate` (0-based) alone, its subjects on options.threads threads: what
+/// SimulatePopulation hands over for it. Throws as SimulatePopulation.
+SimulatedReplicate SimulateReplicate(const PopulationProblem& problem, const PopulationParameters& parameters,
+                                     const PopulationSimulationOptions& options, int replicate);
+
 // ---- New designs: a dataset or regimen simulated with a population's variability (pksim --population).
 
 /// Each subject of a dataset (or N copies of a one-subject regimen) simulated with its own η drawn

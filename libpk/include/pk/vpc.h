@@ -129,6 +129,18 @@ class VpcAccumulator {
   void Add(const std::vector<std::vector<double>>& values);
   VpcSummary Finish() const;
 
+  /// Add in two steps, so that replicates can be summarised on several threads and appended in
+  /// order: a replicate's statistics (per bin, its fraction below the limit, NaN for a bin that got
+  /// no value, and its percentiles), then their addition.
+  struct ReplicateStatistics {
+    std::vector<double> censored;
+    std::vector<std::vector<double>> percentiles;  ///< [bin][percentile]
+    int failed = 0;                                 ///< subjects left out
+  };
+  ReplicateStatistics Summarise(const SimulatedReplicate& replicate) const;
+  ReplicateStatistics Summarise(const std::vector<std::vector<double>>& values) const;
+  void Append(const ReplicateStatistics& statistics);
+
  private:
   struct Sample {
     int subject, index, bin;
@@ -143,7 +155,6 @@ class VpcAccumulator {
   /// [bin][percentile] → the replicates' simulated percentile; [bin] → their censored fractions
   std::vector<std::vector<std::vector<double>>> simulated_;
   std::vector<std::vector<double>> simulated_censored_;
-  std::vector<std::vector<double>> scratch_;
 };
 
 /// Throws pk::InputError unless `options` are valid for `problem`: IsValid, and a stratification

@@ -170,27 +170,50 @@ SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const Po
   return design;
 }
 
-void SimulatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
-                        const PopulationSimulationOptions& options,
-                        const std::function<void(const SimulatedReplicate&)>& consume) {
-  std::string why;
-  if (!options.IsValid(&why)) throw InputError("population simulation: " + why);
-  const internal::PopulationPoint point = internal::SimulationPoint(problem, parameters);
-  const Eigen::MatrixXd factor = internal::OmegaFactor(parameters.omega);
-  const auto& subjects = problem.impl().subjects;
-  const int n = static_cast<int>(subjects.size());
+namespace internal {
+namespace {
+
+// What a simulation of a problem at parameters needs, checked once.
+struct Simulator {
+  Simulator(const PopulationProblem& problem, const PopulationParameters& parameters,
+            const PopulationSimulationOptions& options)
+      : subjects(problem.impl().subjects), point(SimulationPoint(problem, parameters)),
+        factor(OmegaFactor(parameters.omega)), options(options) {
+    std::string why;
+    if (!options.IsValid(&why)) throw InputError("population simulation: " + why);
+  }
   // Replicate r, its subjects on `threads` threads.
-  const auto simulate = [&](int r, int threads) {
+  SimulatedReplicate Replicate(int r, int threads) const {
+    const int n = static_cast<int>(subjects.size());
     SimulatedReplicate replicate;
     replicate.replicate = r;
     replicate.subjects.resize(static_cast<size_t>(n));
-    internal::ParallelFor(n, threads, [&](int i) {
+    ParallelFor(n, threads, [&](int i) {
       replicate.subjects[static_cast<size_t>(i)] =
-          internal::SimulateSubject(subjects[static_cast<size_t>(i)], point, factor, options, r, i);
+          SimulateSubject(subjects[static_cast<size_t>(i)], point, factor, options, r, i);
     });
     for (const SimulatedSubject& s : replicate.subjects) replicate.failed += s.ok ? 0 : 1;
     return replicate;
-  };
+  }
+  const std::vector<SubjectModel>& subjects;
+  const PopulationPoint point;
+  const Eigen::MatrixXd factor;
+  const PopulationSimulationOptions& options;
+};
+
+}  // namespace
+}  // namespace internal
+
+SimulatedReplicate SimulateReplicate(const PopulationProblem& problem, const PopulationParameters& parameters,
+                                     const PopulationSimulationOptions& options, int replicate) {
+  return internal::Simulator(problem, parameters, options).Replicate(replicate, options.threads);
+}
+
+void SimulatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
+                        const PopulationSimulationOptions& options,
+                        const std::function<void(const SimulatedReplicate&)>& consume) {
+  const internal::Simulator simulator(problem, parameters, options);
+  const auto simulate = [&](int r, int threads) { return simulator.Replicate(r, threads); };
   // Whole replicates on the threads when there are enough of them (a replicate of a small design
   // takes less than starting a thread), delivered in order, a few held at once; else the subjects.
   if (options.replicates >= 2 * options.threads) {

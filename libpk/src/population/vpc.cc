@@ -9,7 +9,9 @@
 #include <map>
 #include <set>
 #include <sstream>
+#include <stdexcept>
 
+#include "ordered_parallel.h"
 #include "pk/error.h"
 #include "pk/output.h"
 
@@ -273,7 +275,6 @@ VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions&
   }
   simulated_.assign(summary_.bins.size(), std::vector<std::vector<double>>(options.percentiles.size()));
   simulated_censored_.assign(summary_.bins.size(), {});
-  scratch_.assign(summary_.bins.size(), {});
 }
 
 // Each DVID's bins, each sample's bin (those outside given edges left out), the bins' times, and
@@ -361,39 +362,56 @@ void VpcAccumulator::AddValue(const Sample& s, double y, std::vector<std::vector
   (*by_bin)[static_cast<size_t>(s.bin)].push_back(v);
 }
 
-void VpcAccumulator::Add(const SimulatedReplicate& replicate) {
+VpcAccumulator::ReplicateStatistics VpcAccumulator::Summarise(const SimulatedReplicate& replicate) const {
   std::vector<std::vector<double>> values(replicate.subjects.size());
+  int failed = 0;
   for (size_t i = 0; i < replicate.subjects.size(); ++i) {
     const SimulatedSubject& s = replicate.subjects[i];
     if (!s.ok) {
-      ++summary_.failed_simulations;
+      ++failed;
       continue;
     }
     values[i].assign(s.dv.data(), s.dv.data() + s.dv.size());
   }
-  Add(values);
+  ReplicateStatistics out = Summarise(values);
+  out.failed = failed;
+  return out;
 }
 
-void VpcAccumulator::Add(const std::vector<std::vector<double>>& values) {
-  for (auto& v : scratch_) v.clear();
+VpcAccumulator::ReplicateStatistics VpcAccumulator::Summarise(const std::vector<std::vector<double>>& values) const {
+  std::vector<std::vector<double>> by_bin(summary_.bins.size());
   for (const Sample& s : samples_) {
     const std::vector<double>& subject = values.at(static_cast<size_t>(s.subject));
     if (subject.empty()) continue;
-    AddValue(s, subject.at(static_cast<size_t>(s.index)), &scratch_);
+    AddValue(s, subject.at(static_cast<size_t>(s.index)), &by_bin);
   }
   const double below = -std::numeric_limits<double>::infinity();
-  for (size_t b = 0; b < scratch_.size(); ++b) {
-    const std::vector<double>& v = scratch_[b];
-    if (!v.empty()) {
-      simulated_censored_[b].push_back(static_cast<double>(std::count(v.begin(), v.end(), below)) /
-                                       static_cast<double>(v.size()));
-    }
-    for (size_t k = 0; k < options_.percentiles.size(); ++k) {
-      simulated_[b][k].push_back(Percentile(&scratch_[b], options_.percentiles[k]));
-    }
+  ReplicateStatistics out;
+  for (std::vector<double>& v : by_bin) {
+    out.censored.push_back(v.empty() ? std::numeric_limits<double>::quiet_NaN()
+                                     : static_cast<double>(std::count(v.begin(), v.end(), below)) /
+                                           static_cast<double>(v.size()));
+    out.percentiles.emplace_back();
+    for (double p : options_.percentiles) out.percentiles.back().push_back(Percentile(&v, p));
   }
+  return out;
+}
+
+void VpcAccumulator::Append(const ReplicateStatistics& statistics) {
+  if (statistics.censored.size() != simulated_.size() || statistics.percentiles.size() != simulated_.size()) {
+    throw std::invalid_argument("VpcAccumulator::Append: statistics of another VPC");
+  }
+  for (size_t b = 0; b < simulated_.size(); ++b) {
+    simulated_censored_[b].push_back(statistics.censored[b]);
+    for (size_t k = 0; k < options_.percentiles.size(); ++k) simulated_[b][k].push_back(statistics.percentiles[b].at(k));
+  }
+  summary_.failed_simulations += statistics.failed;
   ++summary_.replicates;
 }
+
+void VpcAccumulator::Add(const SimulatedReplicate& replicate) { Append(Summarise(replicate)); }
+
+void VpcAccumulator::Add(const std::vector<std::vector<double>>& values) { Append(Summarise(values)); }
 
 VpcSummary VpcAccumulator::Finish() const {
   VpcSummary out = summary_;
@@ -455,8 +473,23 @@ VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParamete
   PopulationSimulationOptions simulation;
   simulation.replicates = options.replicates;
   simulation.seed = options.seed;
-  simulation.threads = options.threads;
-  SimulatePopulation(problem, parameters, simulation, [&](const SimulatedReplicate& r) { vpc.Add(r); });
+  simulation.threads = 1;  // a replicate's subjects on one thread; the replicates on options.threads
+  // Replicates simulated and summarised on the workers, appended in order, in chunks: a replicate of
+  // a small design takes tens of microseconds, about what handing it between threads costs.
+  using Chunk = std::vector<VpcAccumulator::ReplicateStatistics>;
+  const int n = options.replicates, chunk = std::max(1, std::min(16, n / (8 * options.threads)));
+  internal::OrderedParallel<Chunk>(
+      (n + chunk - 1) / chunk, options.threads, 4 * options.threads,
+      [&](int c) {
+        Chunk out;
+        for (int r = c * chunk; r < std::min(n, (c + 1) * chunk); ++r) {
+          out.push_back(vpc.Summarise(SimulateReplicate(problem, parameters, simulation, r)));
+        }
+        return out;
+      },
+      [&](int, Chunk&& statistics) {
+        for (const auto& s : statistics) vpc.Append(s);
+      });
   return vpc.Finish();
 }
 
