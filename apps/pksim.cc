@@ -315,6 +315,68 @@ class Output {
   std::unique_ptr<pk::AtomicFile> file_;
 };
 
+// The dataset: --data, or the regimen the dose flags give.
+pk::Dataset Data(const po::variables_map& vm, const Lists& lists, const std::vector<double>& grid) {
+  if (vm.count("data")) {
+    if (vm.count("dose")) throw pk::InputError("give either --data or --dose, not both");
+    return pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(lists.ignore, lists.accept));
+  }
+  if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
+  return RegimenFromFlags(vm, grid);
+}
+
+pk::SimulationOptions SimulationOptions(const po::variables_map& vm, const std::vector<double>& grid) {
+  pk::SimulationOptions o;
+  o.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
+  o.ode.relative_tolerance = vm["rtol"].as<double>();
+  o.ode.absolute_tolerance = vm["atol"].as<double>();
+  o.jobs = vm["jobs"].as<int>();
+  // The AUC is a state of its own, integrated only for the exposure metrics (and an extra state keeps
+  // a one-step integrator from continuing through the output times).
+  o.track_auc = vm.count("summary") > 0 || vm.count("summary-csv") > 0;
+  if (vm.count("data")) o.output_times = grid;  // a regimen has them already
+  std::string why;
+  if (!o.IsValid(&why)) throw pk::InputError(why);
+  return o;
+}
+
+// --columns, or with --population every column of a simulation with variability; none: the default table.
+std::optional<pk::SimulationColumns> Columns(const po::variables_map& vm, const pk::Model& model,
+                                             const std::optional<Variability>& variability) {
+  std::optional<pk::SimulationColumns> columns;
+  if (variability) {
+    const bool dv = variability->options.residual_error, reps = variability->options.replicates > 1;
+    columns.emplace(model,
+                    vm.count("columns") ? vm["columns"].as<std::string>()
+                                        : pk::SimulationColumns::DefaultList(model, variability->labels, dv, reps),
+                    variability->labels, dv);
+  } else if (vm.count("columns")) {
+    columns.emplace(model, vm["columns"].as<std::string>());
+  }
+  return columns;
+}
+
+// Every subject to `sink`: with a population's variability, per-subject estimates, or `values`.
+void SimulateAll(const po::variables_map& vm, const pk::Model& model, const pk::Dataset& data,
+                 const pk::ParameterValues& values, const std::optional<Variability>& variability,
+                 const pk::SimulationOptions& options, const pk::SimulationSink& sink) {
+  if (variability) {
+    pk::SimulateEachWithVariability(model, data, variability->estimates, values, options, variability->options, sink);
+    return;
+  }
+  if (!vm.count("estimates")) {
+    NoteDefaults(model, data, values);
+    pk::SimulateEach(model, data, values, options, sink);
+    return;
+  }
+  const std::string path = vm["estimates"].as<std::string>();
+  pk::CheckOutputSet(path, "pkfit", "fit_details.csv");  // not half of an interrupted run
+  const auto estimates = pk::ReadEstimates(path, model);
+  // With a regimen, every ID of the table gets it.
+  const auto match = vm.count("data") ? pk::EstimatesMatch::kById : pk::EstimatesMatch::kEveryId;
+  pk::SimulateEachWithEstimates(model, data, estimates, values, match, options, path, sink);
+}
+
 int Main(int argc, char** argv) {
   po::options_description desc("Options");
   Lists lists;
@@ -334,31 +396,14 @@ int Main(int argc, char** argv) {
   const pk::ParameterValues values = pk::cli::ParseAssignments(lists.params, "--param");
   pk::ParameterLayout(*model).Resolve(values);  // an unknown name is an error before anything runs
   const std::vector<double> grid = pk::cli::ParseTimes(lists.times);
-  pk::Dataset data;
-  if (vm.count("data")) {
-    if (vm.count("dose")) throw pk::InputError("give either --data or --dose, not both");
-    data = pk::ReadDataset(vm["data"].as<std::string>(), pk::cli::ParseFilter(lists.ignore, lists.accept));
-  } else {
-    if (!vm.count("dose")) throw pk::InputError("give --data FILE or a regimen (--dose AMT ...)");
-    data = RegimenFromFlags(vm, grid);
-  }
+  const pk::Dataset data = Data(vm, lists, grid);
   const pk::Units units = pk::ModelUnits(
       pk::MergeUnits(
           vm.count("units") ? pk::cli::Parsed("--units", [&] { return pk::ParseUnits(vm["units"].as<std::string>()); })
                             : pk::Units(),
           pk::DatasetUnits(data)),
       *model);
-  pk::SimulationOptions sim_options;
-  sim_options.propagator = pk::cli::ParsePropagator(vm["propagator"].as<std::string>());
-  sim_options.ode.relative_tolerance = vm["rtol"].as<double>();
-  sim_options.ode.absolute_tolerance = vm["atol"].as<double>();
-  sim_options.jobs = vm["jobs"].as<int>();
-  // The AUC is a state of its own, integrated only for the exposure metrics (and an extra state keeps
-  // a one-step integrator from continuing through the output times).
-  sim_options.track_auc = vm.count("summary") > 0 || vm.count("summary-csv") > 0;
-  if (vm.count("data")) sim_options.output_times = grid;  // a regimen has them already
-  std::string why;
-  if (!sim_options.IsValid(&why)) throw pk::InputError(why);
+  const pk::SimulationOptions sim_options = SimulationOptions(vm, grid);
 
   // Rows are written as subjects finish, in the dataset's order: memory holds a few subjects.
   const bool rows_wanted = vm.count("out") || !vm.count("summary");
@@ -367,16 +412,7 @@ int Main(int argc, char** argv) {
   if (vm.count("summary-csv")) summary_csv.emplace(vm["summary-csv"].as<std::string>());
   // The headers go out with the first subject, so that a run the library refuses writes nothing.
   bool started = false;
-  std::optional<pk::SimulationColumns> columns;
-  if (variability) {
-    const bool dv = variability->options.residual_error, reps = variability->options.replicates > 1;
-    columns.emplace(*model,
-                    vm.count("columns") ? vm["columns"].as<std::string>()
-                                        : pk::SimulationColumns::DefaultList(*model, variability->labels, dv, reps),
-                    variability->labels, dv);
-  } else if (vm.count("columns")) {
-    columns.emplace(*model, vm["columns"].as<std::string>());
-  }
+  const std::optional<pk::SimulationColumns> columns = Columns(vm, *model, variability);
   const auto start = [&] {
     if (started) return;
     started = true;
@@ -417,19 +453,7 @@ int Main(int argc, char** argv) {
       for (size_t k = 0; k < lines.size(); ++k) plot[k].push_back(std::move(lines[k]));
     }
   };
-  if (!vm.count("estimates") && !variability) NoteDefaults(*model, data, values);
-  if (variability) {
-    pk::SimulateEachWithVariability(*model, data, variability->estimates, values, sim_options, variability->options, sink);
-  } else if (vm.count("estimates")) {
-    const std::string path = vm["estimates"].as<std::string>();
-    pk::CheckOutputSet(path, "pkfit", "fit_details.csv");  // not half of an interrupted run
-    const auto estimates = pk::ReadEstimates(path, *model);
-    // With a regimen, every ID of the table gets it.
-    const auto match = vm.count("data") ? pk::EstimatesMatch::kById : pk::EstimatesMatch::kEveryId;
-    pk::SimulateEachWithEstimates(*model, data, estimates, values, match, sim_options, path, sink);
-  } else {
-    pk::SimulateEach(*model, data, values, sim_options, sink);
-  }
+  SimulateAll(vm, *model, data, values, variability, sim_options, sink);
   start();
   if (rows) rows->Commit();
   if (summary_csv) summary_csv->Commit();

@@ -386,6 +386,24 @@ double BestSplit(const std::vector<double>& t, const std::vector<int>& count, si
   return best;
 }
 
+// One subject of DVID 1 with count[i] samples at time t[i], its DV and PRED 1, 2, 3, … in order.
+pk::SimulationDesign RepeatedTimes(const std::vector<double>& t, const std::vector<int>& count) {
+  pk::SimulationDesign design;
+  design.subjects.resize(1);
+  auto& s = design.subjects[0];
+  for (size_t i = 0; i < t.size(); ++i) {
+    for (int c = 0; c < count[i]; ++c) {
+      s.time.push_back(t[i]);
+      s.dvid.push_back(1);
+      s.censored.push_back(0);
+    }
+  }
+  const auto n = static_cast<Eigen::Index>(s.time.size());
+  s.dv = Eigen::VectorXd::LinSpaced(n, 1, static_cast<double>(n));
+  s.pred = s.dv;
+  return design;
+}
+
 }  // namespace
 
 TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared deviation of all splits", "[vpc]") {
@@ -404,18 +422,7 @@ TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared devia
       t.push_back(time);
       count.push_back(1 + static_cast<int>(next() % 4));
     }
-    pk::SimulationDesign design;
-    auto& s = design.subjects;
-    s.resize(1);
-    for (size_t i = 0; i < t.size(); ++i) {
-      for (int c = 0; c < count[i]; ++c) {
-        s[0].time.push_back(t[i]);
-        s[0].dvid.push_back(1);
-        s[0].censored.push_back(0);
-      }
-    }
-    s[0].dv = Eigen::VectorXd::Ones(static_cast<Eigen::Index>(s[0].time.size()));
-    s[0].pred = s[0].dv;
+    const pk::SimulationDesign design = RepeatedTimes(t, count);
     pk::VpcOptions o;
     o.max_bins = k;
     o.min_bin_count = 1;  // the dynamic programme's bins as they are
@@ -437,18 +444,7 @@ TEST_CASE("automatic VPC bins are Jenks' natural breaks: the least squared devia
 TEST_CASE("automatic VPC bins of fewer than min_bin_count values join the neighbour across the smaller gap", "[vpc]") {
   // Times 1 (×10), 2 (×1), 10 (×8), 30 (×2), each a bin at first: 2 joins 1 (a gap of 1 against 8),
   // then 30 joins 10, the only neighbour; with min_bin_count 1 the four stay.
-  pk::SimulationDesign design;
-  design.subjects.resize(1);
-  auto& s = design.subjects[0];
-  for (const auto& [time, count] : std::vector<std::pair<double, int>>{{1, 10}, {2, 1}, {10, 8}, {30, 2}}) {
-    for (int c = 0; c < count; ++c) {
-      s.time.push_back(time);
-      s.dvid.push_back(1);
-      s.censored.push_back(0);
-    }
-  }
-  s.dv = Eigen::VectorXd::LinSpaced(21, 1, 21);
-  s.pred = s.dv;
+  const pk::SimulationDesign design = RepeatedTimes({1, 2, 10, 30}, {10, 1, 8, 2});
   pk::VpcOptions o;
   const pk::VpcSummary merged = pk::VpcAccumulator(design, o).Finish();
   REQUIRE(merged.bins.size() == 2);
@@ -461,6 +457,12 @@ TEST_CASE("automatic VPC bins of fewer than min_bin_count values join the neighb
   CHECK(pk::VpcAccumulator(design, o).Finish().bins.size() == 4);
   o.min_bin_count = 100;  // more than there are: one bin
   CHECK(pk::VpcAccumulator(design, o).Finish().bins.size() == 1);
+  o.bin_edges = {0, 5};  // given edges: the 10 values at 10 and 30 lie outside, and are counted
+  const pk::VpcSummary given = pk::VpcAccumulator(design, o).Finish();
+  REQUIRE(given.bins.size() == 1);
+  CHECK(given.bins[0].observations == 11);
+  CHECK(given.outside_edges == 10);
+  CHECK(given.BriefReport().find("10 observations outside the bin edges are left out") != std::string::npos);
 }
 
 TEST_CASE("censored observations and simulated values below the limit count as −∞ in a VPC", "[vpc]") {
