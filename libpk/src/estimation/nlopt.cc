@@ -36,7 +36,7 @@ double Trampoline(unsigned, const double* x, double* gradient, void* data) {
 
 bool Nlopt::Knows(const std::string& algorithm) { return nlopt_algorithm_from_string(algorithm.c_str()) >= 0; }
 
-Nlopt::Nlopt(const std::string& algorithm, int n) : n_(n) {
+Nlopt::Nlopt(const std::string& algorithm, int n) {
   const int code = nlopt_algorithm_from_string(algorithm.c_str());
   if (code < 0) throw std::invalid_argument("unknown NLopt algorithm '" + algorithm + "'");
   opt_ = nlopt_create(static_cast<nlopt_algorithm>(code), static_cast<unsigned>(n));

@@ -43,7 +43,6 @@ class Nlopt {
 
  private:
   void* opt_ = nullptr;  // nlopt_opt
-  int n_;
 };
 
 }  // namespace internal

@@ -14,7 +14,7 @@ class CompanionVisitor {
  public:
   CompanionVisitor(const LinearModel& model, const ParameterLayout& layout, const PreparedSubject& s,
                    Eigen::VectorXd* yhat, Eigen::MatrixXd* jac)
-      : n_(model.num_compartments()), s_(s), yhat_(yhat), jac_(jac) {
+      : n_(model.num_compartments()), yhat_(yhat), jac_(jac) {
     for (int c = 0; c < n_; ++c) {
       if (s.sets[0](layout.InitialState(c)) != 0) {
         throw NumericalFailure("the companion route assumes a zero initial state; use forward or adjoint with X0_<n>");
@@ -85,7 +85,6 @@ class CompanionVisitor {
 
  private:
   int n_;
-  const PreparedSubject& s_;
   Eigen::VectorXd* yhat_;
   Eigen::MatrixXd* jac_;
   Eigen::RowVectorXd b_;

@@ -1,10 +1,14 @@
 #include "csv_lines.h"
 
-// fccp copies file names with strncpy; GCC 12 flags that at inlining time.
+// fccp copies file names with strncpy; GCC 12 flags that at inlining time (clang has no such warning).
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wstringop-truncation"
 #include <libfccp/csv.h>
 #pragma GCC diagnostic pop
+#else
+#include <libfccp/csv.h>
+#endif
 
 #include <cctype>
 #include <filesystem>
