@@ -356,6 +356,10 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
     files.push_back({"vpc.csv", pk::VpcCsv(*context.vpc)});
     files.push_back({"vpc.svg", pk::cli::VpcSvg(*context.vpc, problem.model())});
   }
+  if (context.npde) {
+    files.push_back({"npde.csv", pk::NpdeCsv(*context.npde)});
+    files.push_back({"npde.svg", pk::cli::NpdeSvg(*context.npde)});
+  }
   std::vector<std::string> names;
   for (const auto& [name, text] : files) {
     pk::WriteFileAtomically(dir + "/" + name, text);
@@ -472,17 +476,28 @@ int Main(int argc, char** argv, Process* p) {
       vpc_failure = e.what();
     }
   }
+  std::string npde_failure;
+  if (simulation.npde && process.rank == 0) {
+    try {
+      context.npde = pk::ComputeNpde(problem, fit.parameters, *simulation.npde);
+    } catch (const std::exception& e) {
+      npde_failure = e.what();
+    }
+  }
   if (process.rank == 0) WriteOutputs(dir, problem, fit, context, simulation);
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
               << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "
                  "covariance.csv, report.txt, pkpop.ext and pkpop.phi: NONMEM's .ext and .phi"
-              << (context.vpc ? "; vpc.csv and vpc.svg" : "") << (simulation.simulate > 0 ? "; simtab.csv" : "") << ")\n";
+              << (context.vpc ? "; vpc.csv and vpc.svg" : "") << (context.npde ? "; npde.csv and npde.svg" : "")
+              << (simulation.simulate > 0 ? "; simtab.csv" : "") << ")\n";
   }
   if (context.vpc && !quiet) std::cout << "\n" << context.vpc->BriefReport();
+  if (context.npde && !quiet) std::cout << "\n" << context.npde->FullReport();
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
   if (!vpc_failure.empty()) std::cerr << "pkpop: the VPC failed: " << vpc_failure << "\n";
-  return fit.converged && vpc_failure.empty() ? 0 : 1;
+  if (!npde_failure.empty()) std::cerr << "pkpop: the NPDE failed: " << npde_failure << "\n";
+  return fit.converged && vpc_failure.empty() && npde_failure.empty() ? 0 : 1;
 }
 
 }  // namespace

@@ -295,6 +295,13 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
     page["vpc_svg"] = Text(VpcSvg(*c.vpc, problem.model()));
     page["vpc_note"] = Text(c.vpc->BriefReport());
   }
+  page["has_npde"] = data(c.npde.has_value());
+  if (c.npde) {
+    page["npde_svg"] = Text(NpdeSvg(*c.npde));
+    std::string note = c.npde->BriefReport();
+    for (const std::string& n : c.npde->notes) note += " " + n + ".";
+    page["npde_note"] = Text(note);
+  }
   page["has_covariates"] = data(!covariates.empty());
   page["covariate_plots"] = covariates;
   page["panels"] = Panels(problem, fit);

@@ -1,6 +1,7 @@
 // pkpop's simulations at the estimates (pop_simulation.h).
 #include "pop_simulation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <set>
@@ -78,6 +79,10 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
       "simulate", po::value<int>()->default_value(0),
       "after the fit, this many replicates of the data simulated at the estimates into simtab.csv (REP, ID, TIME, "
       "DVID, DV, IPRED, PRED and the drawn η), as NONMEM's $SIMULATION")(
+      "npde", po::value<int>()->default_value(0),
+      "after the fit, normalised prediction distribution errors (NPDE, NPD) of every sample from this many simulations "
+      "of each subject at the estimates (npde.csv, npde.svg and a section of report.html), as NONMEM's $TABLE NPDE "
+      "and the npde package; 0: none, else at least 2 (1000 is usual)")(
       "seed", po::value<std::string>()->default_value("1"), "the simulations' seed (an integer up to 2^64 − 1)");
 }
 
@@ -87,6 +92,15 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   r.threads = std::max(1, threads);
   r.simulate = vm["simulate"].as<int>();
   if (r.simulate < 0 || r.simulate > 100000) throw InputError("--simulate: expected 0 to 100000 replicates");
+  const int npde = vm["npde"].as<int>();
+  if (npde < 0 || npde == 1 || npde > 100000) throw InputError("--npde: expected 0 (none) or 2 to 100000 simulations");
+  if (npde > 0) {
+    NpdeOptions o;
+    o.simulations = npde;
+    o.seed = r.seed;
+    o.threads = r.threads;
+    r.npde = o;
+  }
   const int replicates = vm["vpc"].as<int>();
   if (replicates < 0 || replicates > 100000) throw InputError("--vpc: expected 0 to 100000 replicates");
   const bool vpc_only = !vm["vpc-bins"].defaulted() || !vm["vpc-percentiles"].defaulted() || !vm["vpc-min-bin"].defaulted() ||
@@ -97,7 +111,9 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
       throw InputError("--vpc-bins, --vpc-min-bin, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound, "
                        "--vpc-lloq and --vpc-stratify need --vpc N");
     }
-    if (r.simulate == 0 && !vm["seed"].defaulted()) throw InputError("--seed needs --vpc N or --simulate N");
+    if (r.simulate == 0 && npde == 0 && !vm["seed"].defaulted()) {
+      throw InputError("--seed needs --vpc N, --npde N or --simulate N");
+    }
     return r;
   }
   VpcOptions o;
@@ -154,6 +170,58 @@ int WriteSimtab(const std::string& path, const PopulationProblem& problem, const
   });
   file.Commit();
   return failed;
+}
+
+std::string NpdeSvg(const NpdeSummary& npde) {
+  PlotSeries time{"NPDE", {}, {}, true}, epred{"NPDE", {}, {}, true};
+  std::vector<double> sorted;
+  double t0 = INFINITY, t1 = -INFINITY, e0 = INFINITY, e1 = -INFINITY;
+  for (const NpdeRow& r : npde.rows) {
+    if (!std::isfinite(r.npde)) continue;
+    time.x.push_back(r.time), time.y.push_back(r.npde);
+    epred.x.push_back(r.epred), epred.y.push_back(r.npde);
+    sorted.push_back(r.npde);
+    t0 = std::min(t0, r.time), t1 = std::max(t1, r.time), e0 = std::min(e0, r.epred), e1 = std::max(e1, r.epred);
+  }
+  std::sort(sorted.begin(), sorted.end());
+  time.colour = epred.colour = "#1f77b4";
+  // N(0, 1)'s 2.5th, 50th and 97.5th percentiles across each panel.
+  const auto lines = [](double x0, double x1) {
+    std::vector<PlotSeries> out;
+    for (const auto& [label, z] : {std::pair<const char*, double>{"+1.96 (97.5%)", 1.959963984540054},
+                                   {"0 (median)", 0.0}, {"−1.96 (2.5%)", -1.959963984540054}}) {
+      PlotSeries l{label, {x0, x1}, {z, z}};
+      l.reference = true;
+      out.push_back(l);
+    }
+    return out;
+  };
+  PlotSeries qq{"NPDE", {}, sorted, true}, identity{"identity", {}, {}};
+  qq.colour = "#1f77b4";
+  identity.reference = true;
+  const double n = static_cast<double>(sorted.size());
+  for (size_t k = 0; k < sorted.size(); ++k) qq.x.push_back(NormalQuantile((static_cast<double>(k) + 0.5) / n));
+  if (!sorted.empty()) {
+    const double lo = std::min(qq.x.front(), sorted.front()), hi = std::max(qq.x.back(), sorted.back());
+    identity.x = {lo, hi}, identity.y = {lo, hi};
+  }
+  std::vector<std::vector<PlotSeries>> panels(3);
+  std::vector<PlotOptions> options(3);
+  panels[0] = lines(t0, t1);
+  panels[0].push_back(time);
+  panels[1] = lines(e0, e1);
+  panels[1].push_back(epred);
+  panels[2] = {identity, qq};
+  const std::string of = " · " + std::to_string(npde.npde.count) + " samples, " + std::to_string(npde.simulations) +
+                         " simulations";
+  options[0].title = "NPDE against time" + of;
+  options[1].title = "NPDE against EPRED (the simulations' mean)";
+  options[1].x_label = "EPRED";
+  options[2].title = "NPDE quantiles against N(0, 1)'s";
+  options[2].x_label = "N(0, 1) quantile";
+  for (PlotOptions& o : options) o.width = 900, o.height = 420;
+  options[0].y_label = options[1].y_label = options[2].y_label = "NPDE";
+  return RenderPanelsSvg(panels, options);
 }
 
 std::string VpcSvg(const VpcSummary& vpc, const Model& model) {

@@ -1,6 +1,6 @@
-// pkpop's simulations at the estimates (parsing and I/O only): --simulate's simtab.csv, and the
-// visual predictive check's vpc.csv and plots (the numbers come from pk/population_simulation.h and
-// pk/vpc.h).
+// pkpop's simulations at the estimates (parsing and I/O only): --simulate's simtab.csv, the visual
+// predictive check's vpc.csv and plots, and the NPDE's npde.csv and plots (the numbers come from
+// pk/population_simulation.h, pk/vpc.h and pk/npde.h).
 #ifndef PK_APPS_POP_SIMULATION_H_
 #define PK_APPS_POP_SIMULATION_H_
 
@@ -12,6 +12,7 @@
 
 #include <boost/program_options.hpp>
 
+#include "pk/npde.h"
 #include "pk/population.h"
 #include "pk/vpc.h"
 
@@ -24,6 +25,7 @@ struct PopulationSimulationRequest {
   std::uint64_t seed = 1;
   int threads = 1;
   std::optional<VpcOptions> vpc;  ///< none without --vpc
+  std::optional<NpdeOptions> npde;  ///< none without --npde
 };
 
 void AddPopulationSimulationOptions(boost::program_options::options_description* desc);
@@ -34,6 +36,9 @@ PopulationSimulationRequest ParsePopulationSimulation(const boost::program_optio
 /// and the drawn η. Subjects that could not be simulated are left out; returns how many.
 int WriteSimtab(const std::string& path, const PopulationProblem& problem, const PopulationParameters& parameters,
                 const PopulationSimulationRequest& request);
+
+/// The NPDE's plots: NPDE against time and against EPRED, and their quantiles against N(0, 1)'s.
+std::string NpdeSvg(const NpdeSummary& npde);
 
 /// The VPC's plot: a panel per DVID (the output's name in its title when the model has several).
 std::string VpcSvg(const VpcSummary& vpc, const Model& model);

@@ -52,8 +52,8 @@ echo
 
 echo "== pkpop: phenobarbital (59 neonates, 155 samples), 1cmt_iv, FOCEI, η on CL and V, proportional error =="
 build/apps/pkpop --model 1cmt_iv --data datasets/phenobarbital.csv --eta CL,V --error proportional \
-  -o out/phenobarbital_pop --vpc 200 --pcvpc
+  -o out/phenobarbital_pop --vpc 200 --pcvpc --npde 1000
 echo "open out/phenobarbital_pop/report.html for the estimates with SE and shrinkage, goodness-of-fit plots"
 echo "(DV against PRED and IPRED, CWRES, IWRES), a visual predictive check of 200 simulated replicates"
-echo "(prediction-corrected: each neonate's dose follows its weight),"
+echo "(prediction-corrected: each neonate's dose follows its weight), NPDE from 1000 simulations,"
 echo "η against weight and Apgar score, and each neonate's fit"

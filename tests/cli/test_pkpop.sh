@@ -146,6 +146,19 @@ cmp -s <(grep -v '^OFV' "$work/vpc/population_estimates.csv") <(grep -v '^OFV' "
   fail "--init-from with --max-evaluations 0 moved the estimates"
 grep -q "MAXEVAL=0" "$work/vpc_of_run/report.txt" || fail "report.txt should say that nothing was estimated"
 [ -s "$work/vpc_of_run/vpc.csv" ] || fail "no VPC of the run"
+# NPDE of that run: every sample, in the set and the report; the same on one thread and on two.
+vpc_run "$work/npde" --init-from "$work/vpc" --max-evaluations 0 --npde 200 --seed 5 -j 2
+grep -q "^npde.svg," "$work/npde/MANIFEST" && grep -q "^npde.csv," "$work/npde/MANIFEST" || fail "npde files not in the MANIFEST"
+head -1 "$work/npde/npde.csv" | grep -qx "ID,TIME,DVID,DV,CENS,EPRED,PD,NPD,PDE,NPDE" ||
+  fail "npde.csv header: $(head -1 "$work/npde/npde.csv")"
+awk -F, 'NR > 1 && $10 != "" && $9 > 0 && $9 < 1 { n++ } END { exit n != 155 }' "$work/npde/npde.csv" ||
+  fail "npde.csv: expected an NPDE for each of the 155 samples"
+grep -q "Normalised prediction distribution errors" "$work/npde/report.html" || fail "report.html has no NPDE section"
+vpc_run "$work/npde_serial" --init-from "$work/vpc" --max-evaluations 0 --npde 200 --seed 5 -j 1
+cmp -s "$work/npde/npde.csv" "$work/npde_serial/npde.csv" || fail "threads changed npde.csv"
+"$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --npde 1 -q -o "$work/bad" \
+  >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "npde: expected 0 (none) or 2 to 100000" "$work/err.txt" || fail "--npde 1: $(cat "$work/err.txt")"
 "$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --init-from "$work/vpc" -q -o "$work/bad" \
   >"$work/err.txt" 2>&1
 [ $? -eq 2 ] && grep -q "'TVCL' is not a parameter of model 1cmt_iv" "$work/err.txt" ||
@@ -202,7 +215,7 @@ expect_error "need --vpc N" "${pheno[@]}" --pcvpc
 expect_error "--vpc: the bin edges must increase" "${pheno[@]}" --vpc 10 --vpc-bins 0,5,5
 expect_error "--vpc: the percentiles must increase" "${pheno[@]}" --vpc 10 --vpc-percentiles 95,5
 expect_error "--seed: expected a whole number" "${pheno[@]}" --simulate 2 --seed -3
-expect_error "--seed needs --vpc N or --simulate N" "${pheno[@]}" --seed 3
+expect_error "--seed needs --vpc N, --npde N or --simulate N" "${pheno[@]}" --seed 3
 expect_error "VPC: WT has 21 values; stratify by a categorical column" "${pheno[@]}" --vpc 5 --vpc-stratify WT
 expect_error "stratify by 'AGE': " "${pheno[@]}" --vpc 5 --vpc-stratify AGE
 

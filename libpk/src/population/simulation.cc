@@ -16,6 +16,7 @@
 #include "population/conditional.h"
 #include "ordered_parallel.h"
 #include "population/problem_impl.h"
+#include "population/simulator.h"
 #include "simulation/normal_stream.h"
 
 namespace pk {
@@ -171,48 +172,40 @@ SimulationDesign MakeSimulationDesign(const PopulationProblem& problem, const Po
 }
 
 namespace internal {
-namespace {
 
-// What a simulation of a problem at parameters needs, checked once.
-struct Simulator {
-  Simulator(const PopulationProblem& problem, const PopulationParameters& parameters,
-            const PopulationSimulationOptions& options)
-      : subjects(problem.impl().subjects), point(SimulationPoint(problem, parameters)),
-        factor(OmegaFactor(parameters.omega)), options(options) {
-    std::string why;
-    if (!options.IsValid(&why)) throw InputError("population simulation: " + why);
-  }
-  // Replicate r, its subjects on `threads` threads.
-  SimulatedReplicate Replicate(int r, int threads) const {
-    const int n = static_cast<int>(subjects.size());
-    SimulatedReplicate replicate;
-    replicate.replicate = r;
-    replicate.subjects.resize(static_cast<size_t>(n));
-    ParallelFor(n, threads, [&](int i) {
-      replicate.subjects[static_cast<size_t>(i)] =
-          SimulateSubject(subjects[static_cast<size_t>(i)], point, factor, options, r, i);
-    });
-    for (const SimulatedSubject& s : replicate.subjects) replicate.failed += s.ok ? 0 : 1;
-    return replicate;
-  }
-  const std::vector<SubjectModel>& subjects;
-  const PopulationPoint point;
-  const Eigen::MatrixXd factor;
-  const PopulationSimulationOptions& options;
-};
+PopulationSimulator::PopulationSimulator(const PopulationProblem& problem, const PopulationParameters& parameters,
+                                         const PopulationSimulationOptions& options)
+    : subjects_(problem.impl().subjects), point_(SimulationPoint(problem, parameters)),
+      factor_(OmegaFactor(parameters.omega)), options_(options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("population simulation: " + why);
+}
 
-}  // namespace
+SimulatedSubject PopulationSimulator::Subject(int replicate, int subject) const {
+  return SimulateSubject(subjects_[static_cast<size_t>(subject)], point_, factor_, options_, replicate, subject);
+}
+
+SimulatedReplicate PopulationSimulator::Replicate(int r, int threads) const {
+  const int n = num_subjects();
+  SimulatedReplicate replicate;
+  replicate.replicate = r;
+  replicate.subjects.resize(static_cast<size_t>(n));
+  ParallelFor(n, threads, [&](int i) { replicate.subjects[static_cast<size_t>(i)] = Subject(r, i); });
+  for (const SimulatedSubject& s : replicate.subjects) replicate.failed += s.ok ? 0 : 1;
+  return replicate;
+}
+
 }  // namespace internal
 
 SimulatedReplicate SimulateReplicate(const PopulationProblem& problem, const PopulationParameters& parameters,
                                      const PopulationSimulationOptions& options, int replicate) {
-  return internal::Simulator(problem, parameters, options).Replicate(replicate, options.threads);
+  return internal::PopulationSimulator(problem, parameters, options).Replicate(replicate, options.threads);
 }
 
 void SimulatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
                         const PopulationSimulationOptions& options,
                         const std::function<void(const SimulatedReplicate&)>& consume) {
-  const internal::Simulator simulator(problem, parameters, options);
+  const internal::PopulationSimulator simulator(problem, parameters, options);
   const auto simulate = [&](int r, int threads) { return simulator.Replicate(r, threads); };
   // Whole replicates on the threads when there are enough of them (a replicate of a small design
   // takes less than starting a thread), delivered in order, a few held at once; else the subjects.
