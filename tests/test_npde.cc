@@ -215,3 +215,30 @@ TEST_CASE("NPDE leave out censored samples and report subjects without them", "[
   o.simulations = 1;
   CHECK_THROWS_AS(pk::ComputeNpde(problem, Truth(), o), pk::InputError);
 }
+
+TEST_CASE("the NPDE's tests equal R's wilcox.test, shapiro.test and the npde package's variance test", "[npde]") {
+  std::map<int, std::vector<double>> sets;
+  for (const auto& f : ReadCsv("npde_tests_input.csv")) sets[std::stoi(f[0])].push_back(Number(f[1]));
+  const auto optional = [](const std::string& text) { return text.empty() ? std::nan("") : Number(text); };
+  int checked = 0;
+  for (const auto& f : ReadCsv("npde_tests_reference.csv")) {
+    const std::vector<double>& x = sets[std::stoi(f[0])];
+    INFO("set " << f[0] << ", n = " << x.size());
+    REQUIRE(x.size() == static_cast<size_t>(std::stoi(f[1])));
+    const pk::NpdeTests t = pk::TestNpde(x);
+    CHECK(t.mean_p == Approx(Number(f[2])).epsilon(1e-12));
+    CHECK(t.variance_p == Approx(Number(f[3])).epsilon(1e-12).margin(1e-14));  // R's 1 − pchisq is 0 below 1e-16
+    const double w = optional(f[4]), p = optional(f[5]);
+    if (std::isnan(w)) {
+      CHECK(std::isnan(t.normality_w));
+      CHECK(std::isnan(t.normality_p));
+      CHECK(t.global_p == Approx(std::min(1.0, 2 * std::min(t.mean_p, t.variance_p))));
+    } else {
+      CHECK(t.normality_w == Approx(w).epsilon(1e-13));
+      CHECK(t.normality_p == Approx(p).epsilon(1e-10).margin(1e-300));
+      CHECK(t.global_p == Approx(std::min(1.0, 3 * std::min({t.mean_p, t.variance_p, t.normality_p}))));
+    }
+    ++checked;
+  }
+  CHECK(checked == 17);
+}

@@ -15,7 +15,7 @@
 // A value of 0 becomes 1/(2K) and one of 1 becomes 1 − 1/(2K) (the npde package's default, ties =
 // TRUE), and NPD = Φ⁻¹(pd), NPDE = Φ⁻¹(pde). Under the model the NPDE are independent N(0, 1), within
 // a subject too; the NPD are N(0, 1) but correlated within a subject. The npde package's summary
-// statistics (mean, variance, skewness, kurtosis) are given with what N(0, 1) expects.
+// statistics (mean, variance, skewness, kurtosis) and its tests (TestNpde) come with the NPDE.
 //
 // Simulation k of subject i draws from the streams of replicate k (0-based) of
 // pk::SimulatePopulation with the same seed, so it is that replicate's subject i (the VPC's and
@@ -67,6 +67,17 @@ struct NpdeMoments {
 };
 NpdeMoments ComputeNpdeMoments(const std::vector<double>& values);
 
+/// The npde package's tests that values are N(0, 1), each p-value as R computes it: the mean by
+/// Wilcoxon's signed-rank test (wilcox.test: exact below 50 values without ties or zeros, else the
+/// normal approximation with continuity and ties' corrections), the variance by (n − 1)s² against
+/// χ²(n − 1) two-sided, normality by Shapiro–Wilk (shapiro.test, Royston's AS R94; 3 to 5000
+/// values), and the global test min(1, 3 min p) (Bonferroni). NaN where a test cannot be made; the
+/// global test then counts the others. Values that are not finite are left out.
+struct NpdeTests {
+  double mean_p, variance_p, normality_w, normality_p, global_p;
+};
+NpdeTests TestNpde(const std::vector<double>& values);
+
 struct NpdeRow {
   int subject = 0;  ///< position in the dataset
   double id = 0, time = 0;
@@ -82,6 +93,7 @@ struct NpdeSummary {
   std::uint64_t seed = 1;
   std::vector<NpdeRow> rows;  ///< every sample of every subject, in the data's order
   NpdeMoments npde, npd;
+  NpdeTests npde_tests;
   int censored = 0;                  ///< samples left out for censoring
   std::vector<std::string> notes;    ///< subjects left out, or without NPDE, and why
 

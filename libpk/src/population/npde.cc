@@ -192,6 +192,7 @@ NpdeSummary ComputeNpde(const PopulationProblem& problem, const PopulationParame
     npd.push_back(r.npd);
   }
   out.npde = ComputeNpdeMoments(npde);
+  out.npde_tests = TestNpde(npde);
   out.npd = ComputeNpdeMoments(npd);
   return out;
 }
@@ -199,6 +200,10 @@ NpdeSummary ComputeNpde(const PopulationProblem& problem, const PopulationParame
 std::string NpdeSummary::BriefReport() const {
   std::string s = "NPDE of " + std::to_string(npde.count) + " samples from " + std::to_string(simulations) +
                   " simulations: " + Moments(npde) + " (N(0, 1): 0, 1, 0, 0)";
+  const auto p = [](double v) { return std::isfinite(v) ? internal::Num(v, "%.2g") : std::string("–"); };
+  s += ". Tests: mean (Wilcoxon signed rank) p = " + p(npde_tests.mean_p) + ", variance (Fisher) p = " +
+       p(npde_tests.variance_p) + ", normality (Shapiro–Wilk) p = " + p(npde_tests.normality_p) +
+       ", global (Bonferroni) p = " + p(npde_tests.global_p);
   if (censored > 0) s += "; " + std::to_string(censored) + " censored samples left out";
   if (!notes.empty()) s += "; " + std::to_string(notes.size()) + " subjects without NPDE (see the notes)";
   return s + "\n";
