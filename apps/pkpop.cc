@@ -339,6 +339,11 @@ std::string CovarianceCsv(const pk::PopulationSummary& fit) {
   return out;
 }
 
+// report.txt: the fit's table, and the NPDE's summary and notes when there are some.
+std::string ReportText(const pk::PopulationSummary& fit, const pk::cli::PopulationReportContext& context) {
+  return fit.FullReport() + (context.npde ? "\n" + context.npde->FullReport() : "");
+}
+
 void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
                   const pk::cli::PopulationReportContext& context, const pk::cli::PopulationSimulationRequest& simulation) {
   std::filesystem::create_directories(dir);
@@ -348,7 +353,7 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
       {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit, problem.num_censored() > 0)},
       {"patab.csv", PatabCsv(problem, fit)},
       {"subjects.csv", SubjectsCsv(problem, fit)},     {"iterations.csv", IterationsCsv(fit)},
-      {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", fit.FullReport()},
+      {"covariance.csv", CovarianceCsv(fit)},          {"report.txt", ReportText(fit, context)},
       {"pkpop.ext", pk::NonmemExtTable(fit)},          {"pkpop.phi", pk::NonmemPhiTable(fit)}};
   const auto report = pk::cli::PopulationReport(problem, fit, context);
   files.insert(files.end(), report.begin(), report.end());
@@ -480,6 +485,10 @@ int Main(int argc, char** argv, Process* p) {
   if (simulation.npde && process.rank == 0) {
     try {
       context.npde = pk::ComputeNpde(problem, fit.parameters, *simulation.npde);
+      if (context.npde->npde.count == 0) {
+        npde_failure = "no sample has an NPDE" +
+                       (context.npde->notes.empty() ? std::string() : " (" + context.npde->notes.front() + ")");
+      }
     } catch (const std::exception& e) {
       npde_failure = e.what();
     }

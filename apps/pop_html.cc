@@ -299,7 +299,9 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   if (c.npde) {
     page["npde_svg"] = Text(NpdeSvg(*c.npde));
     std::string note = c.npde->BriefReport();
-    for (const std::string& n : c.npde->notes) note += " " + n + ".";
+    const size_t shown = std::min<size_t>(c.npde->notes.size(), 10);
+    for (size_t k = 0; k < shown; ++k) note += " " + c.npde->notes[k] + ".";
+    if (shown < c.npde->notes.size()) note += " " + std::to_string(c.npde->notes.size() - shown) + " more in report.txt.";
     page["npde_note"] = Text(note);
   }
   page["has_covariates"] = data(!covariates.empty());

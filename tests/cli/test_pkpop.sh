@@ -42,6 +42,12 @@ cmp -s "$work/pheno/sdtab.csv" "$work/pheno2/sdtab.csv" || fail "threads changed
   --theta KA=1.5 --fix KA,'OMEGA(V)' --omega V=0.02 -q -o "$work/theo" || fail "theophylline FOCE exited non-zero"
 grep -q "^KA,1.5,,,1,0$" "$work/theo/population_estimates.csv" || fail "KA was not held at 1.5"
 grep -q "^OMEGA(V),0.02,,,1,0$" "$work/theo/population_estimates.csv" || fail "OMEGA(V) was not held at 0.02"
+# NPDE from 5 simulations of 11 samples a subject: no subject's covariance has a factor, so no NPDE: exit 1
+# with the PD written.
+"$pkpop" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --eta KA,CL,V --method foce --error additive \
+  --init-from "$work/theo" --max-evaluations 0 --npde 5 -q -o "$work/theo_npde" 2>"$work/err.txt"
+[ $? -eq 1 ] && grep -q "the NPDE failed: no sample has an NPDE" "$work/err.txt" && [ -s "$work/theo_npde/npde.csv" ] ||
+  fail "NPDE without a factor: $(cat "$work/err.txt")"
 
 # A model file's own η and covariates (NONMEM's phenobarbital example, models/pheno_pop.pkm): the
 # η keep the file's names and Ω starts from its $OMEGA. Its linear right-hand side runs on Φ/Γ with

@@ -22,12 +22,15 @@
 // pkpop --simulate's). Censored samples (CENS ≠ 0) are left out of a subject's vectors, observed
 // and simulated alike (the npde package's cens.method = "omit"); they get no PD or NPDE. A subject
 // any of whose simulations cannot be evaluated is left out and reported. A subject whose simulated
-// covariance has no Cholesky factor (K too small for n_i, or a degenerate design) keeps its PD and
-// gets no NPDE, reported, as the npde package falls back to PD.
+// covariance has no Cholesky factor (K ≤ n_i, or a degenerate design) keeps its PD and gets no NPDE,
+// reported. (The npde package then gives no NPDE for any subject; libpk keeps the others', but the
+// subjects it loses are those with the most samples, which biases the pooled tests: choose K well
+// above the largest n_i.)
 #ifndef PK_NPDE_H_
 #define PK_NPDE_H_
 
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -53,28 +56,35 @@ struct SubjectNpde {
   std::string message;    ///< why pde is empty
 };
 
-/// `observed` (n) against `simulated` (n × K, a simulation per column, K ≥ 2).
+/// `observed` (n) against `simulated` (n × K, a simulation per column, K ≥ 2). Throws
+/// std::invalid_argument for other sizes or values that are not finite.
 SubjectNpde ComputeSubjectNpde(const Eigen::VectorXd& observed, const Eigen::MatrixXd& simulated);
 
-/// Φ⁻¹(p) for p in (0, 1).
+/// Φ⁻¹(p) for p in (0, 1); throws std::domain_error otherwise.
 double NormalQuantile(double p);
 
 /// The moments the npde package reports, of the finite values given.
+/// NaN where undefined (no values; one value for all but the mean).
 struct NpdeMoments {
+  static constexpr double kNone = std::numeric_limits<double>::quiet_NaN();
   int count = 0;
-  double mean = 0, variance = 0, skewness = 0, kurtosis = 0;  ///< kurtosis: excess (0 for a normal)
-  double mean_se = 0, variance_se = 0;  ///< √(s²/n) and s²√(2/(n − 1))
+  double mean = kNone, variance = kNone, skewness = kNone, kurtosis = kNone;  ///< kurtosis: excess (0 for a normal)
+  double mean_se = kNone, variance_se = kNone;  ///< √(s²/n) and s²√(2/(n − 1))
 };
 NpdeMoments ComputeNpdeMoments(const std::vector<double>& values);
 
-/// The npde package's tests that values are N(0, 1), each p-value as R computes it: the mean by
-/// Wilcoxon's signed-rank test (wilcox.test: exact below 50 values without ties or zeros, else the
-/// normal approximation with continuity and ties' corrections), the variance by (n − 1)s² against
-/// χ²(n − 1) two-sided, normality by Shapiro–Wilk (shapiro.test, Royston's AS R94; 3 to 5000
-/// values), and the global test min(1, 3 min p) (Bonferroni). NaN where a test cannot be made; the
-/// global test then counts the others. Values that are not finite are left out.
+/// The npde package's tests that values are N(0, 1) (its gof.test), each p-value as R computes it:
+/// the mean by Student's t-test (t.test; the package's default since version 2, parametric = TRUE)
+/// and by Wilcoxon's signed-rank test (wilcox.test, its version 1 and parametric = FALSE: exact below
+/// 50 values without ties or zeros, else the normal approximation with continuity and ties'
+/// corrections), the variance by (n − 1)s² against χ²(n − 1) two-sided ("Fisher variance test"),
+/// normality by Shapiro–Wilk (shapiro.test, Royston's AS R94; 3 to 5000 values), and the global test
+/// min(1, 3 min p) over the t, variance and Shapiro–Wilk tests (Bonferroni). NaN where a test cannot
+/// be made; the global test then counts the others. Values that are not finite are left out.
 struct NpdeTests {
-  double mean_p, variance_p, normality_w, normality_p, global_p;
+  static constexpr double kNone = std::numeric_limits<double>::quiet_NaN();
+  double mean_p = kNone, mean_wilcoxon_p = kNone, variance_p = kNone, normality_w = kNone, normality_p = kNone,
+         global_p = kNone;
 };
 NpdeTests TestNpde(const std::vector<double>& values);
 
@@ -85,7 +95,8 @@ struct NpdeRow {
   double dv = 0;
   bool censored = false;
   /// NaN where not computed (censored, a subject left out, or for NPDE a subject without V_i's factor).
-  double epred, pd, npd, pde, npde;
+  double epred = NpdeMoments::kNone, pd = NpdeMoments::kNone, npd = NpdeMoments::kNone, pde = NpdeMoments::kNone,
+         npde = NpdeMoments::kNone;
 };
 
 struct NpdeSummary {

@@ -28,10 +28,12 @@ double BoundedFraction(const Eigen::Ref<const Eigen::RowVectorXd>& values, doubl
   return p == 0 ? 1 / (2 * k) : p == 1 ? 1 - 1 / (2 * k) : p;
 }
 
+std::string Figure(double v, const char* format) { return std::isfinite(v) ? internal::Num(v, format) : "–"; }
+
 std::string Moment(const char* name, double value, double se = kNaN) {
   std::ostringstream out;
-  out << name << " " << internal::Num(value, "%.3g");
-  if (std::isfinite(se)) out << " (SE " << internal::Num(se, "%.2g") << ")";
+  out << name << " " << Figure(value, "%.3g");
+  if (std::isfinite(se)) out << " (SE " << Figure(se, "%.2g") << ")";
   return out.str();
 }
 
@@ -113,11 +115,15 @@ SubjectNpde ComputeSubjectNpde(const Eigen::VectorXd& observed, const Eigen::Mat
   if (simulated.rows() != n || k < 2) {
     throw std::invalid_argument("ComputeSubjectNpde: expected " + std::to_string(n) + " × K simulations, K ≥ 2");
   }
+  if (!observed.allFinite() || !simulated.allFinite()) {
+    throw std::invalid_argument("ComputeSubjectNpde: an observed or simulated value is not finite");
+  }
   SubjectNpde out;
   out.epred = simulated.rowwise().mean();
   out.pd.resize(n);
   for (Eigen::Index j = 0; j < n; ++j) out.pd(j) = BoundedFraction(simulated.row(j), observed(j));
-  const Eigen::MatrixXd centred = simulated.colwise() - out.epred;
+  // One n × K matrix besides the caller's: centred, then decorrelated in place.
+  Eigen::MatrixXd centred = simulated.colwise() - out.epred;
   const Eigen::MatrixXd v = centred * centred.transpose() / static_cast<double>(k - 1);
   const Eigen::LLT<Eigen::MatrixXd> llt(v);
   // A pivot L_jj² is y_j's variance given the values before it: one lost to rounding (a sample
@@ -129,10 +135,10 @@ SubjectNpde ComputeSubjectNpde(const Eigen::VectorXd& observed, const Eigen::Mat
     return out;
   }
   const auto l = llt.matrixL();
-  const Eigen::MatrixXd decorrelated = l.solve(centred);
+  l.solveInPlace(centred);
   const Eigen::VectorXd decorrelated_observed = l.solve(observed - out.epred);
   out.pde.resize(n);
-  for (Eigen::Index j = 0; j < n; ++j) out.pde(j) = BoundedFraction(decorrelated.row(j), decorrelated_observed(j));
+  for (Eigen::Index j = 0; j < n; ++j) out.pde(j) = BoundedFraction(centred.row(j), decorrelated_observed(j));
   return out;
 }
 
@@ -142,7 +148,7 @@ NpdeMoments ComputeNpdeMoments(const std::vector<double>& values) {
   for (double v : values) {
     if (std::isfinite(v)) sum += v, ++m.count;
   }
-  if (m.count == 0) return m;
+  if (m.count == 0) return m;  // every moment NaN
   const double n = m.count;
   m.mean = sum / n;
   double m2 = 0, m3 = 0, m4 = 0;  // Σd², Σd³, Σd⁴
@@ -198,12 +204,12 @@ NpdeSummary ComputeNpde(const PopulationProblem& problem, const PopulationParame
 }
 
 std::string NpdeSummary::BriefReport() const {
-  std::string s = "NPDE of " + std::to_string(npde.count) + " samples from " + std::to_string(simulations) +
-                  " simulations: " + Moments(npde) + " (N(0, 1): 0, 1, 0, 0)";
-  const auto p = [](double v) { return std::isfinite(v) ? internal::Num(v, "%.2g") : std::string("–"); };
-  s += ". Tests: mean (Wilcoxon signed rank) p = " + p(npde_tests.mean_p) + ", variance (Fisher) p = " +
-       p(npde_tests.variance_p) + ", normality (Shapiro–Wilk) p = " + p(npde_tests.normality_p) +
-       ", global (Bonferroni) p = " + p(npde_tests.global_p);
+  std::string s = "NPDE of " + std::to_string(npde.count) + " of " + std::to_string(rows.size()) + " samples from " +
+                  std::to_string(simulations) + " simulations: " + Moments(npde) + " (N(0, 1): 0, 1, 0, 0)";
+  const auto p = [](double v) { return Figure(v, "%.2g"); };
+  s += ". Tests: mean (t) p = " + p(npde_tests.mean_p) + " (Wilcoxon signed rank: " + p(npde_tests.mean_wilcoxon_p) +
+       "), variance (Fisher) p = " + p(npde_tests.variance_p) + ", normality (Shapiro–Wilk) p = " +
+       p(npde_tests.normality_p) + ", global (Bonferroni) p = " + p(npde_tests.global_p);
   if (censored > 0) s += "; " + std::to_string(censored) + " censored samples left out";
   if (!notes.empty()) s += "; " + std::to_string(notes.size()) + " subjects without NPDE (see the notes)";
   return s + "\n";

@@ -1,6 +1,6 @@
-// The npde package's tests of N(0, 1) (pk/npde.h): Wilcoxon's signed-rank test of the mean,
-// Fisher's variance test and the Shapiro–Wilk test of normality, each as R computes it, and the
-// Bonferroni global test. Boost.Math's distributions are sealed here.
+// The npde package's tests of N(0, 1) (pk/npde.h): Student's t-test and Wilcoxon's signed-rank test
+// of the mean, Fisher's variance test and the Shapiro–Wilk test of normality, each as R computes it,
+// and the Bonferroni global test. Boost.Math's distributions are sealed here.
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -9,6 +9,7 @@
 
 #include <boost/math/distributions/chi_squared.hpp>
 #include <boost/math/distributions/normal.hpp>
+#include <boost/math/distributions/students_t.hpp>
 
 #include "pk/npde.h"
 
@@ -70,6 +71,7 @@ double SignedRankTest(std::vector<double> x) {
   const bool tied = static_cast<int>(ties.size()) != n;
   const double dn = n;
   if (n < 50 && !tied && !zeros) {
+    // 1 − P(V ≤ v − 1) is exact here: the counts over 2ⁿ (n < 50) are represented exactly.
     const double p = v > dn * (dn + 1) / 4 ? 1 - SignedRankCdf(v - 1, n) : SignedRankCdf(v, n);
     return std::min(2 * p, 1.0);
   }
@@ -79,6 +81,18 @@ double SignedRankTest(std::vector<double> x) {
   const double sigma = std::sqrt(dn * (dn + 1) * (2 * dn + 1) / 24 - tie_sum / 48);
   const double z = (z0 - (z0 > 0 ? 0.5 : z0 < 0 ? -0.5 : 0.0)) / sigma;
   return 2 * std::min(NormalCdf(z), NormalCdf(z, true));
+}
+
+// R's t.test(x)$p.value (μ = 0, two-sided): the npde package's test of the mean since its version 2.
+double TTest(const std::vector<double>& x) {
+  const double n = static_cast<double>(x.size());
+  if (n < 2) return kNaN;
+  const double mean = std::accumulate(x.begin(), x.end(), 0.0) / n;
+  double ss = 0;
+  for (double v : x) ss += (v - mean) * (v - mean);
+  if (!(ss > 0)) return kNaN;  // R: "data are essentially constant"
+  const double t = mean / std::sqrt(ss / (n - 1) / n);
+  return 2 * boost::math::cdf(boost::math::complement(boost::math::students_t_distribution<double>(n - 1), std::fabs(t)));
 }
 
 // The npde package's variance test: (n − 1)s² against χ²(n − 1), two-sided.
@@ -170,8 +184,8 @@ bool ShapiroWilk(std::vector<double> x, double* w, double* p) {
   double y = std::log(w1), mean = 0, sd = 0;
   if (n <= 11) {
     const double gamma = Polynomial(g, 2, dn);
-    if (y >= gamma) {
-      *p = 1e-99;  // as swilk.c
+    if (y >= gamma) {  // as swilk.c; not reached by a valid W (n = 4 would need W ≤ 0.354)
+      *p = 1e-99;
       return true;
     }
     y = -std::log(gamma - y);
@@ -193,9 +207,9 @@ NpdeTests TestNpde(const std::vector<double>& values) {
     if (std::isfinite(v)) x.push_back(v);
   }
   NpdeTests t;
-  t.mean_p = SignedRankTest(x);
+  t.mean_p = TTest(x);
+  t.mean_wilcoxon_p = SignedRankTest(x);
   t.variance_p = VarianceTest(x);
-  t.normality_w = t.normality_p = kNaN;
   ShapiroWilk(x, &t.normality_w, &t.normality_p);
   // Bonferroni over the tests there are (Shapiro–Wilk's needs 3 to 5000 values).
   double least = INFINITY;
