@@ -149,6 +149,7 @@ void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>
     k += size;
   }
   s->omega_blocks = sizes;
+  s->omega_block_same.clear();  // the file's SAME blocks are its own grouping, which --block replaces
 }
 
 // Initial values and FIX flags from --theta, --omega, --sigma and --fix.

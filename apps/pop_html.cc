@@ -216,7 +216,7 @@ list Estimates(const PopulationProblem& problem, const PopulationSummary& fit) {
         shrinkage = Sig(100 * fit.eta_shrinkage_sd(static_cast<Eigen::Index>(k)), 3) + "%";
       }
     }
-    const std::string flag = e.fixed ? "fixed" : e.at_boundary ? "at its boundary" : "";
+    const std::string flag = e.same ? "SAME: the block before it" : e.fixed ? "fixed" : e.at_boundary ? "at its boundary" : "";
     rows.push_back(object{{"name", Text(e.name)}, {"estimate", Sig(e.estimate, 4)}, {"se", Sig(e.se, 3)},
                           {"rse", Sig(e.rse_pct, 3)}, {"cv", Text(cv)}, {"shrinkage", Text(shrinkage)},
                           {"flag", Text(flag)}, {"class", Text(e.at_boundary ? "bad" : "")}});

@@ -483,6 +483,42 @@ TEST_CASE("the outer gradient holds with fixed θ, σ and Ω blocks", "[populati
   CheckOuterGradient(Problem(c), Parameters(c), s, pk::PopulationMethod::kFoce, 1e-5);
 }
 
+TEST_CASE("SAME Ω blocks are tied to the block before them: packing, natural values and the outer gradient",
+          "[population][iov]") {
+  // 2cmt_oral on theophylline, η on KA, CL, V2, V3 in two blocks of two, the second SAME as the first
+  // (as NONMEM's $OMEGA BLOCK(2) SAME; the test needs the tie, not a plausible model).
+  Case c{"2cmt_oral", "theophylline", "additive", {"KA", "CL", "V2", "V3"}, {1.5, 2.8, 20, 5, 12},
+         Diagonal({0.4, 0.07, 0.3, 0.05}), {0.7}};
+  c.omega(1, 0) = c.omega(0, 1) = 0.02;
+  const pk::PopulationProblem problem = Problem(c);
+  pk::PopulationStructure s;
+  s.omega_blocks = {2, 2};
+  s.omega_block_same = {false, true};
+  const pk::internal::Packing packing(problem, s, Parameters(c));
+  CHECK(packing.size() == 5 + 3 + 1);  // θ, one block's factor, σ
+  CHECK(packing.natural_names().size() == 5 + 6 + 1);
+  CHECK(packing.NaturalSource(8) == 5);  // OMEGA(V2) repeats OMEGA(KA)
+  CHECK(packing.NaturalSource(10) == 7);
+  CHECK(packing.NaturalSource(4) == 4);
+  Eigen::VectorXd x = packing.Pack(Parameters(c));
+  x(6) += 0.3;  // the source block's factor moves both blocks
+  const pk::PopulationParameters moved = packing.Unpack(x);
+  CHECK(moved.omega.block(2, 2, 2, 2) == moved.omega.block(0, 0, 2, 2));
+  CHECK(moved.omega(3, 3) != Approx(0.05));  // the SAME block started from its source's values, not its own
+  CHECK(moved.omega.block(0, 2, 2, 2).isZero(0.0));
+  Eigen::VectorXd z = packing.Natural(moved);
+  z(7) *= 1.5;  // OMEGA(CL) in natural values: the covariance step's differences move its twin too
+  CHECK(packing.FromNatural(z).omega(3, 3) == z(7));
+  CheckOuterGradient(problem, moved, s, pk::PopulationMethod::kFocei, 1e-5);
+  CheckOuterGradient(problem, moved, s, pk::PopulationMethod::kLaplace, 1e-5);
+  // A SAME block needs a block of its size before it.
+  s.omega_blocks = {1, 1, 2};
+  s.omega_block_same = {true, false, false};
+  CHECK_THROWS_WITH(pk::internal::Packing(problem, s, Parameters(c)), Catch::Contains("does not exist"));
+  s.omega_block_same = {false, false, true};
+  CHECK_THROWS_WITH(pk::internal::Packing(problem, s, Parameters(c)), Catch::Contains("has 1 η, not 2"));
+}
+
 TEST_CASE("the outer gradient holds with more than 16 variables (HyperDual on the heap)", "[population]") {
   // 2cmt_oral on theophylline, η on KA, CL, V2 and V3 in one full block: q = 4 and 5 θ + 10 Ω
   // elements + 1 σ = 16 packed parameters, 20 variables in all.
@@ -1999,4 +2035,54 @@ TEST_CASE("the .ext table of a fit with an error model per output: a THETA per �
   CHECK(fixed[at + 3] == 1);
   CHECK(fixed[at + 4] == 1);
   CHECK(fixed[at] == 0);
+}
+
+TEST_CASE("inter-occasion variability (SAME): the FOCE objective equals R nlme's at its estimates, and the fit agrees",
+          "[population][iov][fit]") {
+  // tests/reference/make_nlme_iov_reference.R: 40 subjects × 3 occasions (datasets/iov_synthetic.csv),
+  // nlme's ML fit with random effects on log CL and log V by subject and on log CL by occasion within
+  // subject, one variance for every occasion: models/iov_pop.pkm's $OMEGA (IOV2, IOV3 ~ SAME) with an
+  // additive error. At nlme's (Lindstrom-Bates) estimates its −2 log L less N log 2π is FOCE's objective.
+  const Table ref = ReadTable("nlme_iov_reference.csv");
+  std::map<std::string, double> v;
+  for (const auto& r : ref) v[r.at("quantity")] = std::stod(r.at("value"));
+  const auto model = pk::ParseModel(ShippedModelText("iov_pop"), "iov_pop.pkm", pk::RandomEffects::kParameters);
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("additive");
+  const pk::PopulationProblem problem(model, Data("iov_synthetic"), {"ETA_CL", "ETA_V", "IOV1", "IOV2", "IOV3"}, o);
+  const pk::PopulationStructure declared = problem.DeclaredStructure();
+  CHECK(declared.omega_blocks == std::vector<int>{1, 1, 1, 1, 1});
+  CHECK(declared.omega_block_same == std::vector<bool>{false, false, false, true, true});
+  pk::PopulationParameters at;
+  at.theta.resize(3);
+  at.theta << v["KA"], v["CL"], v["V"];
+  at.omega = Diagonal({v["OMEGA_CL"], v["OMEGA_V"], v["OMEGA_IOV"], v["OMEGA_IOV"], v["OMEGA_IOV"]});
+  at.sigma = Eigen::VectorXd::Constant(1, v["SIGMA_ADD"]);
+  const auto ev = pk::EvaluatePopulation(problem, at, pk::PopulationMethod::kFoce);
+  REQUIRE(ev.ok);
+  CHECK(std::abs(ev.ofv - v["ofv"]) < 1e-4);
+  // FOCE from elsewhere: at or below nlme's objective, the same estimates within a few percent, the
+  // SAME variances equal to their source's with its SE.
+  pk::PopulationParameters start = at;
+  start.theta << 1, 2, 40;
+  start.omega = Diagonal({0.2, 0.1, 0.1, 0.1, 0.1});
+  start.sigma << 0.3;
+  pk::PopulationOptions options;
+  options.method = pk::PopulationMethod::kFoce;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, start, options);
+  INFO(fit.FullReport());
+  REQUIRE(fit.converged);
+  CHECK(fit.ofv <= v["ofv"] + 1e-4);
+  CHECK(fit.ofv > v["ofv"] - 0.5);
+  CHECK(fit.parameters.theta(1) == Approx(v["CL"]).epsilon(0.02));
+  CHECK(fit.parameters.omega(2, 2) == Approx(v["OMEGA_IOV"]).epsilon(0.1));
+  CHECK(fit.parameters.omega(4, 4) == fit.parameters.omega(2, 2));
+  const auto& iov = fit.estimates[5];  // TVKA, TVCL, TVV, OMEGA(ETA_CL), OMEGA(ETA_V), OMEGA(IOV1), …
+  const auto& twin = fit.estimates[7];
+  CHECK(iov.name == "OMEGA(IOV1)");
+  CHECK(twin.name == "OMEGA(IOV3)");
+  CHECK(twin.same);
+  CHECK(!iov.same);
+  CHECK(twin.se == iov.se);
+  CHECK(std::isfinite(iov.se));
 }

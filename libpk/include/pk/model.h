@@ -64,6 +64,9 @@ struct OmegaBlockDeclaration {
   std::vector<std::string> etas;
   Eigen::MatrixXd omega;
   bool fixed = false;
+  /// `~ SAME` (NONMEM's BLOCK(n) SAME): the block declared before this one, repeated over these η;
+  /// a population fit ties its values to that block's.
+  bool same = false;
 };
 
 /// Dose modifiers a model computes from its parameters: a model file's `F1 = …` or

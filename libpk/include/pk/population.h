@@ -69,7 +69,9 @@ struct PopulationParameters {
 
 /// Which population parameters are estimated. Ω is block diagonal, as NONMEM's $OMEGA: each
 /// η belongs to one block of consecutive η; a block of one is a variance alone. A block is
-/// estimated whole (its variances and covariances) or fixed whole (FIX).
+/// estimated whole (its variances and covariances) or fixed whole (FIX), or repeats the block
+/// before it (SAME: NONMEM's BLOCK(n) SAME, inter-occasion variability), its values tied to that
+/// block's: estimated with it, fixed with it, never apart.
 struct PopulationStructure {
   std::vector<bool> theta_fixed;  ///< per θ; empty: none fixed
   std::vector<bool> sigma_fixed;  ///< per σ; empty: none fixed
@@ -78,6 +80,9 @@ struct PopulationStructure {
   /// blocks and FIX (diagonal for a catalogue model).
   std::vector<int> omega_blocks;
   std::vector<bool> omega_block_fixed;  ///< per block; empty: none fixed
+  /// Per block: whether it repeats the block before it (of its size; the first block cannot).
+  /// Empty: none. A SAME block's own FIX flag is ignored: it follows its source's.
+  std::vector<bool> omega_block_same;
 };
 
 /// A population problem: a model, a dataset, the parameters that carry an η, and the
@@ -261,6 +266,9 @@ struct PopulationEstimate {
   double se = std::numeric_limits<double>::quiet_NaN();
   double rse_pct = std::numeric_limits<double>::quiet_NaN();
   bool fixed = false;
+  /// An element of a SAME Ω block: its source block's value, not a parameter of its own (fixed is
+  /// set too: it has no SE of its own).
+  bool same = false;
   /// An estimated Ω variance below 1e-6, or a θ near a model file's bound (within 1e-3 of the
   /// bounds' width; with one bound, 1e-3 of the largest of |θ|, |bound| and |initial θ|).
   bool at_boundary = false;

@@ -177,6 +177,7 @@ class Analyser {
       for (Eigen::Index j = 0; j <= i; ++j) block.omega(i, j) = block.omega(j, i) = line.lower[k++];
     }
     block.fixed = line.fixed;
+    block.same = line.same;
     if (!block.omega.allFinite() || block.omega.llt().info() != Eigen::Success) {
       std::string names;
       for (const std::string& e : block.etas) names += (names.empty() ? "" : ", ") + e;

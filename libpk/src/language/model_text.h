@@ -48,6 +48,7 @@ struct OmegaLine {
   std::vector<int> etas;
   std::vector<double> lower;
   bool fixed = false;
+  bool same = false;  ///< `~ SAME`: the line before's block repeated (its values, tied to it)
   Place at;
 };
 

@@ -200,6 +200,10 @@ class Parser {
     } while (Accept("+"));
     const size_t n = line.etas.size();
     Expect("~", n == 1 ? "'~' and its variance ω²" : "'~' and the block's values, c(…)");
+    if (Peek().kind == Kind::kIdentifier && ToUpper(Peek().text) == "SAME") {
+      SameBlock(Next(), &line);
+      return;
+    }
     const bool list = Peek().kind == Kind::kIdentifier && IsPunct("(", 1) &&
                       (ToLower(Peek().text) == "c" || ToLower(Peek().text) == "block");
     if (list) {
@@ -231,6 +235,28 @@ class Parser {
       m_->etas[static_cast<size_t>(line.etas[i])].variance = line.lower[(i + 1) * (i + 2) / 2 - 1];
     }
     m_->omega.push_back(std::move(line));
+  }
+
+  // NAME [+ NAME …] ~ SAME: NONMEM's $OMEGA BLOCK(n) SAME, the line before's block repeated for
+  // other η (inter-occasion variability: one η per occasion, one variance). Its values are that
+  // block's, estimated or fixed with it.
+  void SameBlock(const Token& word, OmegaLine* line) {
+    if (m_->omega.empty()) Fail(word, "SAME repeats the $OMEGA line before it, and there is none");
+    const OmegaLine& before = m_->omega.back();
+    const size_t n = line->etas.size();
+    if (before.etas.size() != n) {
+      Fail(word, "SAME repeats the block before it, of " + std::to_string(before.etas.size()) +
+                     " random effect" + (before.etas.size() > 1 ? "s" : "") + ", so this line needs as many, not " +
+                     std::to_string(n));
+    }
+    line->lower = before.lower;
+    line->fixed = before.fixed;
+    line->same = true;
+    if (Peek().kind == Kind::kIdentifier) Fail(Peek(), "expected the end of the line after SAME, found " + Describe(Peek()));
+    for (size_t i = 0; i < n; ++i) {
+      m_->etas[static_cast<size_t>(line->etas[i])].variance = line->lower[(i + 1) * (i + 2) / 2 - 1];
+    }
+    m_->omega.push_back(std::move(*line));
   }
 
   // NAME [dose] [central]

@@ -266,6 +266,13 @@ void PopulationCovariance(const PopulationEngine& engine, const Packing& packing
     e.se = se(a);
     e.rse_pct = 100 * se(a) / std::abs(e.estimate);
   }
+  // A SAME block's elements are its source's parameters: the same SE (as NONMEM lists them).
+  for (size_t k = 0; k < summary->estimates.size(); ++k) {
+    if (!packing.natural_same()[k]) continue;
+    const PopulationEstimate& source = summary->estimates[static_cast<size_t>(packing.NaturalSource(k))];
+    summary->estimates[k].se = source.se;
+    summary->estimates[k].rse_pct = source.rse_pct;
+  }
 }
 
 }  // namespace internal

@@ -384,6 +384,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
     const PopulationStructure declared = problem.DeclaredStructure();
     options.structure.omega_blocks = declared.omega_blocks;
     options.structure.omega_block_fixed = declared.omega_block_fixed;
+    options.structure.omega_block_same = declared.omega_block_same;
   }
   const auto start = std::chrono::steady_clock::now();
   std::string why;
@@ -431,6 +432,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
     e.name = packing.natural_names()[k];
     e.estimate = z(static_cast<Eigen::Index>(k));
     e.fixed = packing.natural_fixed()[k];
+    e.same = packing.natural_same()[k];
     summary.estimates.push_back(e);
   }
   for (size_t k = 0; k < static_cast<size_t>(summary.parameters.theta.size()); ++k) {

@@ -33,6 +33,7 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
     throw InputError("the Ω blocks' sizes must add up to the number of η (" + std::to_string(q) + ")");
   }
   const std::vector<bool> block_fixed = Flags(s.omega_block_fixed, sizes.size(), "Ω block fixed");
+  const std::vector<bool> block_same = Flags(s.omega_block_same, sizes.size(), "Ω block SAME");
   for (size_t k = 0; k < nt; ++k) {
     const double v = initial.theta(static_cast<Eigen::Index>(k));
     theta_log_.push_back(d.model->must_be_positive(d.theta_model_index[k]));
@@ -55,10 +56,13 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
     fixed_.push_back(theta_fixed_[k]);
     size_ += theta_fixed_[k] ? 0 : 1;
   }
+  same_.assign(names_.size(), false);
   int first = 0;
   for (size_t b = 0; b < sizes.size(); ++b) {
     Block block{first, sizes[b], block_fixed[b]};
-    const Eigen::MatrixXd w = initial.omega.block(first, first, block.size, block.size);
+    block.natural = static_cast<int>(names_.size());
+    if (block_same[b]) SameAsBefore(problem, sizes, &block);
+    const Eigen::MatrixXd w = initial_.omega.block(first, first, block.size, block.size);
     if (Eigen::LLT<Eigen::MatrixXd>(w).info() != Eigen::Success || !(w.diagonal().array() > 0).all()) {
       throw InputError("the initial Ω block of " + d.eta_names[static_cast<size_t>(first)] +
                        " is not positive definite");
@@ -67,8 +71,9 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
       for (int c = 0; c <= r; ++c) {
         const std::string& a = d.eta_names[static_cast<size_t>(first + r)];
         names_.push_back(r == c ? "OMEGA(" + a + ")" : "OMEGA(" + a + "," + d.eta_names[static_cast<size_t>(first + c)] + ")");
-        fixed_.push_back(block.fixed);
-        size_ += block.fixed ? 0 : 1;
+        fixed_.push_back(block.fixed || block.same >= 0);
+        same_.push_back(block.same >= 0);
+        size_ += block.fixed || block.same >= 0 ? 0 : 1;
       }
     }
     blocks_.push_back(block);
@@ -82,8 +87,27 @@ Packing::Packing(const PopulationProblem& problem, const PopulationStructure& s,
     if (!(v > 0) || !std::isfinite(v)) throw InputError("the initial " + d.sigma_names[j] + " must be positive");
     names_.push_back(d.sigma_names[j]);
     fixed_.push_back(sigma_fixed_[j]);
+    same_.push_back(false);
     size_ += sigma_fixed_[j] ? 0 : 1;
   }
+}
+
+// A SAME block repeats the block before it (of its size), whose source it takes; it is fixed with
+// that source, and starts from its values (NONMEM takes a SAME block's values from the block before).
+void Packing::SameAsBefore(const PopulationProblem& problem, const std::vector<int>& sizes, Block* block) {
+  const std::string& name = problem.impl().eta_names[static_cast<size_t>(block->first)];
+  const size_t b = blocks_.size();
+  if (b == 0 || sizes[b - 1] != block->size) {
+    throw InputError("the Ω block of " + name + " is SAME as the block before it, which " +
+                     (b == 0 ? std::string("does not exist") : "has " + std::to_string(sizes[b - 1]) + " η, not " +
+                                                                std::to_string(block->size)));
+  }
+  const Block& before = blocks_[b - 1];
+  block->same = before.same >= 0 ? before.same : static_cast<int>(b - 1);
+  const Block& source = blocks_[static_cast<size_t>(block->same)];
+  block->fixed = source.fixed;
+  initial_.omega.block(block->first, block->first, block->size, block->size) =
+      initial_.omega.block(source.first, source.first, source.size, source.size);
 }
 
 bool Packing::NearThetaBound(size_t k, double theta) const {
@@ -112,7 +136,7 @@ Eigen::VectorXd Packing::Pack(const PopulationParameters& p) const {
     if (!theta_fixed_[k]) x(at++) = XOf(k, v);
   }
   for (const Block& b : blocks_) {
-    if (b.fixed) continue;
+    if (b.fixed || b.same >= 0) continue;
     const Eigen::MatrixXd l = p.omega.block(b.first, b.first, b.size, b.size).llt().matrixL();
     for (int r = 0; r < b.size; ++r) {
       for (int c = 0; c <= r; ++c) x(at++) = r == c ? std::log(l(r, r)) : l(r, c);
@@ -131,6 +155,11 @@ PopulationParameters Packing::Unpack(const Eigen::VectorXd& x) const {
     if (!theta_fixed_[k]) p.theta(static_cast<Eigen::Index>(k)) = ThetaOf(k, x(at++), [](double c) { return c; });
   }
   for (const Block& b : blocks_) {
+    if (b.same >= 0) {  // its source's values, set before it
+      const Block& source = blocks_[static_cast<size_t>(b.same)];
+      p.omega.block(b.first, b.first, b.size, b.size) = p.omega.block(source.first, source.first, b.size, b.size);
+      continue;
+    }
     if (b.fixed) continue;
     Eigen::MatrixXd l = Eigen::MatrixXd::Zero(b.size, b.size);
     for (int r = 0; r < b.size; ++r) {
@@ -162,15 +191,25 @@ PopulationParameters Packing::FromNatural(const Eigen::VectorXd& z) const {
   Eigen::Index at = 0;
   for (Eigen::Index k = 0; k < p.theta.size(); ++k) p.theta(k) = z(at++);
   for (const Block& b : blocks_) {
+    // A SAME block reads its source's entries: moving those moves both (the covariance step's differences).
+    Eigen::Index from = b.same < 0 ? at : blocks_[static_cast<size_t>(b.same)].natural;
     for (int r = 0; r < b.size; ++r) {
-      for (int c = 0; c <= r; ++c) {
-        p.omega(b.first + r, b.first + c) = z(at);
-        p.omega(b.first + c, b.first + r) = z(at++);
+      for (int c = 0; c <= r; ++c, ++at, ++from) {
+        p.omega(b.first + r, b.first + c) = z(from);
+        p.omega(b.first + c, b.first + r) = z(from);
       }
     }
   }
   for (Eigen::Index j = 0; j < p.sigma.size(); ++j) p.sigma(j) = z(at++);
   return p;
+}
+
+int Packing::NaturalSource(size_t k) const {
+  for (const Block& b : blocks_) {
+    const int count = b.size * (b.size + 1) / 2, at = static_cast<int>(k) - b.natural;
+    if (b.same >= 0 && at >= 0 && at < count) return blocks_[static_cast<size_t>(b.same)].natural + at;
+  }
+  return static_cast<int>(k);
 }
 
 std::vector<int> Packing::variance_positions() const {

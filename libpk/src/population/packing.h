@@ -6,7 +6,7 @@
 //         file's bounds (lo, hi), log((θ − lo)/(hi − θ)), or log(θ − lo) or log(hi − θ) with one
 //         bound (NONMEM's $THETA (low, init, up): the search never leaves them);
 //         for each estimated Ω block, its Cholesky factor L (Ω = LLᵀ) by rows:
-//         log L_kk on the diagonal, L_kl below it;
+//         log L_kk on the diagonal, L_kl below it (a SAME block has none: its L is its source's);
 //         log σ_j, for each estimated σ ]
 //
 // so that every x gives a positive definite Ω and positive θ and σ.
@@ -40,6 +40,11 @@ class Packing {
   /// θ, the lower triangle of each Ω block, and σ.
   const std::vector<std::string>& natural_names() const { return names_; }
   const std::vector<bool>& natural_fixed() const { return fixed_; }
+  /// Whether each natural parameter belongs to a SAME block (also flagged fixed there: it is not a
+  /// parameter of its own, its value is its source block's).
+  const std::vector<bool>& natural_same() const { return same_; }
+  /// The natural parameter a SAME block's element k repeats (k itself for any other).
+  int NaturalSource(size_t k) const;
   Eigen::VectorXd Natural(const PopulationParameters& p) const;
   PopulationParameters FromNatural(const Eigen::VectorXd& z) const;
   /// Whether θ_k lies within 1e-3 of the width of its bounds (or, with one bound, 1e-3 of the
@@ -66,10 +71,15 @@ class Packing {
     l->assign(q, std::vector<T>(q, constant(0.0)));
     for (const Block& b : blocks_) {
       const Eigen::MatrixXd fixed = initial_.omega.block(b.first, b.first, b.size, b.size).llt().matrixL();
+      const int source = b.same < 0 ? -1 : blocks_[static_cast<size_t>(b.same)].first;
       for (int r = 0; r < b.size; ++r) {
         for (int c = 0; c <= r; ++c) {
           T& e = (*l)[static_cast<size_t>(b.first + r)][static_cast<size_t>(b.first + c)];
-          e = b.fixed ? constant(fixed(r, c)) : r == c ? exp(x[at++]) : x[at++];
+          if (source >= 0) {  // SAME: the source block's factor, unpacked before this block
+            e = (*l)[static_cast<size_t>(source + r)][static_cast<size_t>(source + c)];
+          } else {
+            e = b.fixed ? constant(fixed(r, c)) : r == c ? exp(x[at++]) : x[at++];
+          }
         }
       }
     }
@@ -93,17 +103,21 @@ class Packing {
     return theta_log_[k] ? exp(x) : x;
   }
   double XOf(size_t k, double theta) const;
+  struct Block;
+  void SameAsBefore(const PopulationProblem& problem, const std::vector<int>& sizes, Block* block);
 
   struct Block {
     int first = 0, size = 1;
     bool fixed = false;
+    int same = -1;     // SAME: the index of the block whose values it repeats (never itself a SAME), or -1
+    int natural = 0;   // the position of its first entry among the natural parameters
   };
   PopulationParameters initial_;
   std::vector<bool> theta_fixed_, sigma_fixed_, theta_log_;
   std::vector<double> theta_lower_, theta_upper_;  // a model file's declared bounds (±∞: none)
   std::vector<Block> blocks_;
   std::vector<std::string> names_;
-  std::vector<bool> fixed_;
+  std::vector<bool> fixed_, same_;
   int size_ = 0;
 };
 

@@ -234,7 +234,8 @@ PopulationStructure PopulationProblem::DeclaredStructure() const {
   const Impl& d = *impl_;
   PopulationStructure s;
   std::vector<int> size(d.eta_names.size(), 1);  // per η: the size of the block it starts, 0 inside one
-  std::vector<char> fixed(d.eta_names.size(), 0);
+  std::vector<char> fixed(d.eta_names.size(), 0), same(d.eta_names.size(), 0);
+  int previous_end = -1;  // one past the last η of the block declared before, or -1
   for (const OmegaBlockDeclaration& b : d.model->declarations().omega_blocks) {
     std::vector<int> at;
     for (const std::string& e : b.etas) at.push_back(EtaPosition(e));
@@ -249,15 +250,23 @@ PopulationStructure PopulationProblem::DeclaredStructure() const {
                          "$OMEGA: the random effects of the block of " + b.etas.front() + "… must be consecutive among the η");
       }
     }
+    if (b.same && (!all || previous_end != at[0])) {
+      throw InputError(d.model->declarations().source, 0, 0,
+                       "$OMEGA: " + b.etas.front() + " ~ SAME needs the block before it in the population model, its "
+                       "random effects just before " + b.etas.front() + "'s");
+    }
+    previous_end = all ? at.back() + 1 : -1;
     if (!all) continue;
     size[static_cast<size_t>(at[0])] = static_cast<int>(at.size());
     for (size_t k = 1; k < at.size(); ++k) size[static_cast<size_t>(at[k])] = 0;
     fixed[static_cast<size_t>(at[0])] = b.fixed;
+    same[static_cast<size_t>(at[0])] = b.same;
   }
   for (size_t k = 0; k < size.size(); ++k) {
     if (size[k] == 0) continue;
     s.omega_blocks.push_back(size[k]);
     s.omega_block_fixed.push_back(fixed[k] != 0);
+    s.omega_block_same.push_back(same[k] != 0);
   }
   return s;
 }

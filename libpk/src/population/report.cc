@@ -67,7 +67,11 @@ std::string PopulationSummary::FullReport() const {
     std::string name = e.name;
     name.resize(std::max<size_t>(name.size(), 18), ' ');
     out << "  " << name << Cell(e.estimate, "%.6g", 12) << Cell(e.se, "%.4g", 12) << Cell(e.rse_pct, "%.1f", 10);
-    if (e.fixed) out << "  FIX";
+    if (e.same) {
+      out << "  SAME";
+    } else if (e.fixed) {
+      out << "  FIX";
+    }
     if (e.at_boundary) out << "  (near a boundary)";
     out << "\n";
   }
