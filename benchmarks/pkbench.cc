@@ -56,6 +56,7 @@
 #include "pk/ode_model.h"
 #include "pk/population.h"
 #include "pk/population_simulation.h"
+#include "pk/npde.h"
 #include "pk/vpc.h"
 #include "pk/residual_error.h"
 #include "population/engine.h"
@@ -516,6 +517,8 @@ void PopulationSimulationCase(const char* name, const pk::PopulationProblem& pro
   pk::PopulationSimulationOptions one;
   pk::VpcOptions vpc, vpc2;
   vpc2.threads = 2;
+  pk::NpdeOptions npde, npde2;  // 1000 simulations of each subject
+  npde2.threads = 2;
   const Timing t = Interleaved({[&] { g_sink = engine.Evaluate(fit.parameters, etas, false).ofv; },
                                 [&] {
                                   pk::SimulatePopulation(problem, fit.parameters, one, [](const pk::SimulatedReplicate& r) {
@@ -523,16 +526,19 @@ void PopulationSimulationCase(const char* name, const pk::PopulationProblem& pro
                                   });
                                 },
                                 [&] { g_sink = pk::ComputeVpc(problem, fit.parameters, vpc).outside; },
-                                [&] { g_sink = pk::ComputeVpc(problem, fit.parameters, vpc2).outside; }});
-  std::printf("%-14s %9d %11.3f %13.2f %13.1f %9.2f\n", name, problem.num_subjects(), t.base_seconds * 1e3,
-              t.ratios[1], t.base_seconds * t.ratios[2] * 1e3, t.ratios[3] / t.ratios[2]);
+                                [&] { g_sink = pk::ComputeVpc(problem, fit.parameters, vpc2).outside; },
+                                [&] { g_sink = pk::ComputeNpde(problem, fit.parameters, npde).npde.mean; },
+                                [&] { g_sink = pk::ComputeNpde(problem, fit.parameters, npde2).npde.mean; }});
+  std::printf("%-14s %9d %11.3f %13.2f %13.1f %9.2f %14.1f %9.2f\n", name, problem.num_subjects(), t.base_seconds * 1e3,
+              t.ratios[1], t.base_seconds * t.ratios[2] * 1e3, t.ratios[3] / t.ratios[2],
+              t.base_seconds * t.ratios[4] * 1e3, t.ratios[5] / t.ratios[4]);
   std::fflush(stdout);
 }
 
 void PopulationSimulation(const std::string& data_dir) {
-  std::printf("\n== population simulation and VPC at the FOCEI estimates ==\n");
-  std::printf("%-14s %9s %11s %13s %13s %9s\n", "data", "subjects", "OFV (ms)", "replicate/OFV", "VPC 200 (ms)",
-              "2 thr/1");
+  std::printf("\n== population simulation, VPC and NPDE at the FOCEI estimates ==\n");
+  std::printf("%-14s %9s %11s %13s %13s %9s %14s %9s\n", "data", "subjects", "OFV (ms)", "replicate/OFV",
+              "VPC 200 (ms)", "2 thr/1", "NPDE 1000 (ms)", "2 thr/1");
   const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
   PopulationSimulationCase("phenobarbital", BolusProblem(pheno));
   PopulationSimulationCase("bolus 120x19", BolusProblem(std::make_shared<pk::Dataset>(SimulatedBolus(120))));
