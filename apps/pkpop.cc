@@ -340,9 +340,10 @@ std::string CovarianceCsv(const pk::PopulationSummary& fit) {
   return out;
 }
 
-// report.txt: the fit's table, and the NPDE's summary and notes when there are some.
+// report.txt: the fit's table, then the bootstrap's and the NPDE's when there are some.
 std::string ReportText(const pk::PopulationSummary& fit, const pk::cli::PopulationReportContext& context) {
-  return fit.FullReport() + (context.npde ? "\n" + context.npde->FullReport() : "");
+  return fit.FullReport() + (context.bootstrap ? "\n" + context.bootstrap->FullReport() : "") +
+         (context.npde ? "\n" + context.npde->FullReport() : "");
 }
 
 void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
@@ -362,6 +363,7 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
     files.push_back({"vpc.csv", pk::VpcCsv(*context.vpc)});
     files.push_back({"vpc.svg", pk::cli::VpcSvg(*context.vpc, problem.model())});
   }
+  if (context.bootstrap) files.push_back({"bootstrap.csv", pk::BootstrapCsv(*context.bootstrap)});
   if (context.npde) {
     files.push_back({"npde.csv", pk::NpdeCsv(*context.npde)});
     files.push_back({"npde.svg", pk::cli::NpdeSvg(*context.npde)});
@@ -494,20 +496,38 @@ int Main(int argc, char** argv, Process* p) {
       npde_failure = e.what();
     }
   }
+  std::string bootstrap_failure;
+  if (simulation.bootstrap > 0 && process.rank == 0) {
+    pk::BootstrapOptions b;
+    b.replicates = simulation.bootstrap;
+    b.seed = simulation.seed;
+    b.threads = simulation.threads;
+    b.fit = options;
+    if (!quiet) std::cerr << "  bootstrap: " << b.replicates << " fits on " << b.threads << " threads\n";
+    try {
+      context.bootstrap = pk::BootstrapPopulation(problem, fit, b);
+      if (context.bootstrap->converged == 0) bootstrap_failure = "no replicate's fit converged";
+    } catch (const std::exception& e) {
+      bootstrap_failure = e.what();
+    }
+  }
   if (process.rank == 0) WriteOutputs(dir, problem, fit, context, simulation);
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
               << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "
                  "covariance.csv, report.txt, pkpop.ext and pkpop.phi: NONMEM's .ext and .phi"
               << (context.vpc ? "; vpc.csv and vpc.svg" : "") << (context.npde ? "; npde.csv and npde.svg" : "")
+              << (context.bootstrap ? "; bootstrap.csv" : "")
               << (simulation.simulate > 0 ? "; simtab.csv" : "") << ")\n";
   }
   if (context.vpc && !quiet) std::cout << "\n" << context.vpc->BriefReport();
+  if (context.bootstrap && !quiet) std::cout << "\n" << context.bootstrap->FullReport();
   if (context.npde && !quiet) std::cout << "\n" << context.npde->FullReport();
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
   if (!vpc_failure.empty()) std::cerr << "pkpop: the VPC failed: " << vpc_failure << "\n";
   if (!npde_failure.empty()) std::cerr << "pkpop: the NPDE failed: " << npde_failure << "\n";
-  return fit.converged && vpc_failure.empty() && npde_failure.empty() ? 0 : 1;
+  if (!bootstrap_failure.empty()) std::cerr << "pkpop: the bootstrap failed: " << bootstrap_failure << "\n";
+  return fit.converged && vpc_failure.empty() && npde_failure.empty() && bootstrap_failure.empty() ? 0 : 1;
 }
 
 }  // namespace

@@ -236,6 +236,24 @@ list Estimates(const PopulationProblem& problem, const PopulationSummary& fit) {
   return rows;
 }
 
+// The bootstrap's table: each parameter's estimate and SE beside the replicates' median, SE and interval.
+void Bootstrap(const BootstrapSummary& b, const PopulationSummary& fit, object* page) {
+  list rows;
+  for (size_t k = 0; k < b.parameters.size() && k < fit.estimates.size(); ++k) {
+    const BootstrapParameter& p = b.parameters[k];
+    const bool shown = !p.fixed && std::isfinite(p.lower);
+    rows.push_back(object{{"name", Text(p.name)},
+                          {"estimate", Sig(p.estimate, 4)},
+                          {"se", Sig(fit.estimates[k].se, 3)},
+                          {"median", Sig(p.fixed ? NAN : p.median, 4)},
+                          {"bse", Sig(p.fixed ? NAN : p.se, 3)},
+                          {"interval", Text(shown ? Sig(p.lower, 4) + " to " + Sig(p.upper, 4) : p.fixed ? "fixed" : "")}});
+  }
+  (*page)["bootstrap"] = rows;
+  (*page)["bootstrap_interval"] = Text(FormatNumber(b.interval) + "% interval");
+  (*page)["bootstrap_note"] = Text(b.BriefReport());
+}
+
 }  // namespace
 
 Files PopulationReport(const PopulationProblem& problem, const PopulationSummary& fit,
@@ -295,6 +313,8 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
     page["vpc_svg"] = Text(VpcSvg(*c.vpc, problem.model()));
     page["vpc_note"] = Text(c.vpc->BriefReport());
   }
+  page["has_bootstrap"] = data(c.bootstrap.has_value());
+  if (c.bootstrap) Bootstrap(*c.bootstrap, fit, &page);
   page["has_npde"] = data(c.npde.has_value());
   if (c.npde) {
     page["npde_svg"] = Text(NpdeSvg(*c.npde));

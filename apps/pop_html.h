@@ -7,6 +7,7 @@
 #include <utility>
 #include <vector>
 
+#include "pk/bootstrap.h"
 #include "pk/npde.h"
 #include "pk/population.h"
 #include "pk/vpc.h"
@@ -18,6 +19,7 @@ struct PopulationReportContext {
   std::string model, error, dataset_path, command_line;
   std::optional<VpcSummary> vpc;  ///< a VPC section when present
   std::optional<NpdeSummary> npde;  ///< an NPDE section when present
+  std::optional<BootstrapSummary> bootstrap;  ///< a bootstrap section when present
 };
 
 /// report.html and the plots it shows (gof_*.svg, eta_*.svg), as (file name, contents) pairs.

@@ -83,7 +83,12 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
       "after the fit, normalised prediction distribution errors (NPDE, NPD) of every sample from this many simulations "
       "of each subject at the estimates (npde.csv, npde.svg and a section of report.html), as NONMEM's $TABLE NPDE "
       "and the npde package; 0: none, else at least 2 (1000 is usual)")(
-      "seed", po::value<std::string>()->default_value("1"), "the simulations' seed (an integer up to 2^64 − 1)");
+      "bootstrap", po::value<int>()->default_value(0),
+      "after the fit, a nonparametric bootstrap of this many replicates (subjects drawn with replacement, the model "
+      "fitted again from the estimates, as PsN's bootstrap): bootstrap.csv, each parameter's median, SE and 95% "
+      "interval in report.txt and report.html; 0: none")(
+      "seed", po::value<std::string>()->default_value("1"),
+      "the seed of the simulations and of the bootstrap's draws (an integer up to 2^64 − 1)");
 }
 
 PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& vm, int threads) {
@@ -92,6 +97,8 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   r.threads = std::max(1, threads);
   r.simulate = vm["simulate"].as<int>();
   if (r.simulate < 0 || r.simulate > 100000) throw InputError("--simulate: expected 0 to 100000 replicates");
+  r.bootstrap = vm["bootstrap"].as<int>();
+  if (r.bootstrap < 0 || r.bootstrap > 100000) throw InputError("--bootstrap: expected 0 to 100000 replicates");
   const int npde = vm["npde"].as<int>();
   if (npde < 0 || npde == 1 || npde > 100000) throw InputError("--npde: expected 0 (none) or 2 to 100000 simulations");
   if (npde > 0) {
@@ -111,8 +118,8 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
       throw InputError("--vpc-bins, --vpc-min-bin, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound, "
                        "--vpc-lloq and --vpc-stratify need --vpc N");
     }
-    if (r.simulate == 0 && npde == 0 && !vm["seed"].defaulted()) {
-      throw InputError("--seed needs --vpc N, --npde N or --simulate N");
+    if (r.simulate == 0 && npde == 0 && r.bootstrap == 0 && !vm["seed"].defaulted()) {
+      throw InputError("--seed needs --vpc N, --npde N, --simulate N or --bootstrap N");
     }
     return r;
   }

@@ -26,6 +26,7 @@ struct PopulationSimulationRequest {
   int threads = 1;
   std::optional<VpcOptions> vpc;  ///< none without --vpc
   std::optional<NpdeOptions> npde;  ///< none without --npde
+  int bootstrap = 0;  ///< --bootstrap's replicates (0: none)
 };
 
 void AddPopulationSimulationOptions(boost::program_options::options_description* desc);

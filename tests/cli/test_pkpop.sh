@@ -152,6 +152,17 @@ cmp -s <(grep -v '^OFV' "$work/vpc/population_estimates.csv") <(grep -v '^OFV' "
   fail "--init-from with --max-evaluations 0 moved the estimates"
 grep -q "MAXEVAL=0" "$work/vpc_of_run/report.txt" || fail "report.txt should say that nothing was estimated"
 [ -s "$work/vpc_of_run/vpc.csv" ] || fail "no VPC of the run"
+# A bootstrap of 5 replicates: bootstrap.csv in the set, a section of report.html and of report.txt, the
+# same on one thread and on two.
+vpc_run "$work/boot" --bootstrap 5 --seed 3 -j 2
+grep -q "^bootstrap.csv," "$work/boot/MANIFEST" || fail "bootstrap.csv is not in the MANIFEST"
+[ "$(tail -n +2 "$work/boot/bootstrap.csv" | wc -l)" -eq 5 ] || fail "bootstrap.csv: expected 5 replicates"
+head -1 "$work/boot/bootstrap.csv" | grep -q "^REPLICATE,CONVERGED,OFV,TVCL,TVV,APGV," || fail "bootstrap.csv header"
+grep -q "<h2>Bootstrap</h2>" "$work/boot/report.html" || fail "report.html has no bootstrap section"
+grep -q "^Bootstrap: 5 replicates (seed 3)" "$work/boot/report.txt" || fail "report.txt has no bootstrap table"
+vpc_run "$work/boot_serial" --bootstrap 5 --seed 3 -j 1
+cmp -s "$work/boot/bootstrap.csv" "$work/boot_serial/bootstrap.csv" || fail "threads changed bootstrap.csv"
+
 # Inter-occasion variability: models/iov_pop.pkm's IOV2 and IOV3 ~ SAME as IOV1, tabled with IOV1's value
 # and flagged SAME (at the initial estimates: the table, not the fit, is under test here).
 vpc_run_iov() { "$pkpop" --model "$root/models/iov_pop.pkm" --data "$root/datasets/iov_synthetic.csv" --error additive \
@@ -230,7 +241,7 @@ expect_error "need --vpc N" "${pheno[@]}" --pcvpc
 expect_error "--vpc: the bin edges must increase" "${pheno[@]}" --vpc 10 --vpc-bins 0,5,5
 expect_error "--vpc: the percentiles must increase" "${pheno[@]}" --vpc 10 --vpc-percentiles 95,5
 expect_error "--seed: expected a whole number" "${pheno[@]}" --simulate 2 --seed -3
-expect_error "--seed needs --vpc N, --npde N or --simulate N" "${pheno[@]}" --seed 3
+expect_error "--seed needs --vpc N, --npde N, --simulate N or --bootstrap N" "${pheno[@]}" --seed 3
 expect_error "VPC: WT has 21 values; stratify by a categorical column" "${pheno[@]}" --vpc 5 --vpc-stratify WT
 expect_error "stratify by 'AGE': " "${pheno[@]}" --vpc 5 --vpc-stratify AGE
 

@@ -43,6 +43,8 @@ class NormalStream {
     has_spare_ = true;
     return r * std::cos(angle);
   }
+  /// A uniform number in (0, 1) from the same stream (the bootstrap's draws of subjects).
+  double NextUniform() { return Uniform(); }
 
  private:
   static std::uint64_t Rotate(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
@@ -64,8 +66,9 @@ class NormalStream {
   bool has_spare_ = false;
 };
 
-/// The streams of a simulated subject: its η and its residual errors ε.
-enum StreamKind { kEtaStream = 0, kEpsilonStream = 1 };
+/// The streams of a simulated subject: its η and its residual errors ε; and a bootstrap replicate's
+/// draws of subjects (subject 0).
+enum StreamKind { kEtaStream = 0, kEpsilonStream = 1, kBootstrapStream = 2 };
 
 /// F with FFᵀ = Ω (η = Fz): the Cholesky factor, or for a singular Ω (a variance fixed at 0) the
 /// pivoted LDLᵀ one, PᵀL√D. Throws pk::InputError when Ω is not symmetric positive semi-definite.

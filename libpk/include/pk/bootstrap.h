@@ -1,0 +1,83 @@
+// libpk: the nonparametric bootstrap of a population fit, as PsN's bootstrap: each replicate draws
+// as many subjects as the data have, with replacement (Efron & Tibshirani 1993), renumbers them
+// 1…N (a subject drawn twice is two subjects, as NONMEM would read it), and fits the model again
+// from the original estimates with the original structure. Over the replicates whose fit
+// converged, each parameter gets its median, the percentile interval (R's quantile type 7; 2.5th
+// and 97.5th by default) and the bootstrap SE (the replicates' SD), beside the original estimate.
+//
+// Replicate r draws its subjects from a stream of its own (seed, r), so the replicates depend on
+// neither the threads nor how many follow; replicates' fits run on options.threads threads, each
+// fit on one. A replicate whose fit fails or does not converge is counted and left out of the
+// statistics; its estimates are still in BootstrapSummary::replicates.
+//
+//   pk::BootstrapOptions options;
+//   options.replicates = 200;
+//   options.fit = fit_options;  // the original fit's method and structure
+//   const pk::BootstrapSummary b = pk::BootstrapPopulation(problem, fit, options);
+//   std::cout << b.FullReport();
+#ifndef PK_BOOTSTRAP_H_
+#define PK_BOOTSTRAP_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/population.h"
+
+namespace pk {
+
+struct BootstrapOptions {
+  int replicates = 200;  ///< PsN's -samples
+  std::uint64_t seed = 1;
+  int threads = 1;  ///< replicates fitted at once; no effect on the values
+  double interval = 95;  ///< the percentile interval, % in (0, 100)
+  /// Each replicate's fit: the original's method and structure. Its covariance step, threads and
+  /// progress are not used (each replicate is fitted on one thread, without a covariance step).
+  PopulationOptions fit;
+
+  bool IsValid(std::string* error) const;
+};
+
+struct BootstrapReplicate {
+  int replicate = 0;           ///< 0-based
+  std::vector<int> subjects;   ///< the drawn subjects (positions in the original data), in order
+  bool converged = false;
+  std::string message;         ///< why not, when not
+  double ofv = 0;
+  Eigen::VectorXd estimates;   ///< natural values, in BootstrapSummary::names order (empty if the fit threw)
+};
+
+struct BootstrapParameter {
+  std::string name;
+  double estimate = 0;  ///< the original fit's
+  double median = 0, lower = 0, upper = 0, se = 0;  ///< over the converged replicates (NaN: none)
+  bool fixed = false;
+};
+
+struct BootstrapSummary {
+  int replicates = 0, converged = 0;
+  std::uint64_t seed = 1;
+  double interval = 95;
+  std::vector<std::string> names;  ///< the natural parameters (PopulationSummary::estimates' names)
+  std::vector<BootstrapReplicate> runs;
+  std::vector<BootstrapParameter> parameters;
+
+  std::string BriefReport() const;
+  std::string FullReport() const;  ///< with the table of intervals
+};
+
+/// The subjects replicate `replicate` draws from `subjects` (positions, with replacement).
+std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, int subjects);
+
+/// Bootstraps `fit` of `problem`. Throws pk::InputError for invalid options.
+BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const PopulationSummary& fit,
+                                     const BootstrapOptions& options);
+
+/// bootstrap.csv: REPLICATE,CONVERGED,OFV and each natural parameter, a row per replicate.
+std::string BootstrapCsv(const BootstrapSummary& summary);
+
+}  // namespace pk
+
+#endif  // PK_BOOTSTRAP_H_

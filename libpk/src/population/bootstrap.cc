@@ -1,0 +1,178 @@
+// The nonparametric bootstrap of a population fit (pk/bootstrap.h).
+#include "pk/bootstrap.h"
+
+#include <algorithm>
+#include <cmath>
+#include <exception>
+#include <limits>
+#include <memory>
+#include <sstream>
+
+#include "internal_text.h"
+#include "pk/error.h"
+#include "pk/output.h"
+#include "pk/vpc.h"
+#include "population/conditional.h"
+#include "population/problem_impl.h"
+#include "simulation/normal_stream.h"
+
+namespace pk {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// The drawn subjects as a dataset of their own, renumbered 1…N in the order drawn.
+std::shared_ptr<const Dataset> Resampled(const Dataset& data, const std::vector<int>& subjects, int replicate) {
+  auto out = std::make_shared<Dataset>();
+  out->source = data.source + " (bootstrap replicate " + std::to_string(replicate + 1) + ")";
+  out->header_line = data.header_line;
+  out->columns = data.columns;
+  out->column_units = data.column_units;
+  out->extra_columns = data.extra_columns;
+  out->relative_times = data.relative_times;
+  for (size_t k = 0; k < subjects.size(); ++k) {
+    Subject s = data.subjects[static_cast<size_t>(subjects[k])];
+    s.id = static_cast<double>(k + 1);
+    s.occurrence = 1;
+    out->subjects.push_back(std::move(s));
+  }
+  return out;
+}
+
+BootstrapReplicate FitReplicate(const PopulationProblem& problem, const PopulationSummary& fit,
+                                const BootstrapOptions& options, int r) {
+  BootstrapReplicate out;
+  out.replicate = r;
+  out.subjects = BootstrapSample(options.seed, r, problem.num_subjects());
+  try {
+    const auto& d = problem.impl();
+    const PopulationProblem resampled(d.model, Resampled(*d.data, out.subjects, r), problem.eta_names(), problem.options());
+    PopulationOptions o = options.fit;
+    o.covariance = false;
+    o.threads = 1;
+    o.progress = nullptr;
+    o.distribution = nullptr;  // every subject here: the replicates, not the subjects, are spread
+    const PopulationSummary f = FitPopulation(resampled, fit.parameters, o);
+    out.converged = f.converged;
+    out.message = f.message;
+    out.ofv = f.ofv;
+    out.estimates.resize(static_cast<Eigen::Index>(f.estimates.size()));
+    for (size_t k = 0; k < f.estimates.size(); ++k) out.estimates(static_cast<Eigen::Index>(k)) = f.estimates[k].estimate;
+  } catch (const std::exception& e) {
+    out.converged = false;
+    out.message = e.what();
+  }
+  return out;
+}
+
+// Each parameter's statistics over the converged replicates.
+void Summarise(const PopulationSummary& fit, BootstrapSummary* b) {
+  for (size_t k = 0; k < fit.estimates.size(); ++k) {
+    BootstrapParameter p;
+    p.name = fit.estimates[k].name;
+    p.estimate = fit.estimates[k].estimate;
+    p.fixed = fit.estimates[k].fixed;
+    std::vector<double> v;
+    for (const BootstrapReplicate& r : b->runs) {
+      if (r.converged && r.estimates.size() == static_cast<Eigen::Index>(fit.estimates.size())) {
+        v.push_back(r.estimates(static_cast<Eigen::Index>(k)));
+      }
+    }
+    double mean = 0, ss = 0;
+    for (double x : v) mean += x / static_cast<double>(v.size());
+    for (double x : v) ss += (x - mean) * (x - mean);
+    p.se = v.size() > 1 ? std::sqrt(ss / static_cast<double>(v.size() - 1)) : kNaN;
+    p.median = Percentile(&v, 50);
+    p.lower = Percentile(&v, (100 - b->interval) / 2);
+    p.upper = Percentile(&v, (100 + b->interval) / 2);
+    b->parameters.push_back(p);
+  }
+}
+
+}  // namespace
+
+bool BootstrapOptions::IsValid(std::string* error) const {
+  if (replicates < 1) {
+    *error = "the bootstrap needs at least 1 replicate, not " + std::to_string(replicates);
+    return false;
+  }
+  if (threads < 1) {
+    *error = "threads must be at least 1, not " + std::to_string(threads);
+    return false;
+  }
+  if (!(interval > 0 && interval < 100)) {
+    *error = "the interval must lie in (0, 100) %, not " + FormatNumber(interval);
+    return false;
+  }
+  return fit.IsValid(error);
+}
+
+std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, int subjects) {
+  internal::NormalStream stream(seed, replicate, 0, internal::kBootstrapStream);
+  std::vector<int> out(static_cast<size_t>(std::max(subjects, 0)));
+  // u in (0, 1) with 52 bits: ⌊u·N⌋ is uniform on 0…N−1 up to N·2⁻⁵² (any N a dataset has).
+  for (int& k : out) k = std::min(subjects - 1, static_cast<int>(stream.NextUniform() * subjects));
+  return out;
+}
+
+BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const PopulationSummary& fit,
+                                     const BootstrapOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) throw InputError("bootstrap: " + why);
+  BootstrapSummary b;
+  b.replicates = options.replicates;
+  b.seed = options.seed;
+  b.interval = options.interval;
+  for (const PopulationEstimate& e : fit.estimates) b.names.push_back(e.name);
+  b.runs.resize(static_cast<size_t>(options.replicates));
+  internal::ParallelFor(options.replicates, options.threads, [&](int r) {
+    b.runs[static_cast<size_t>(r)] = FitReplicate(problem, fit, options, r);
+  });
+  for (const BootstrapReplicate& r : b.runs) b.converged += r.converged ? 1 : 0;
+  Summarise(fit, &b);
+  return b;
+}
+
+std::string BootstrapSummary::BriefReport() const {
+  return "Bootstrap: " + std::to_string(replicates) + " replicates (seed " + std::to_string(seed) + "), " +
+         std::to_string(converged) + " converged; the intervals are over those.\n";
+}
+
+std::string BootstrapSummary::FullReport() const {
+  std::ostringstream out;
+  out << BriefReport();
+  const std::string pi = internal::Num(interval, "%g") + "% interval";
+  out << "  parameter            estimate      median    bootstrap SE   " << pi << "\n";
+  for (const BootstrapParameter& p : parameters) {
+    std::string name = p.name;
+    name.resize(std::max<size_t>(name.size(), 18), ' ');
+    out << "  " << name << internal::Cell(p.estimate, "%.6g", 12) << internal::Cell(p.median, "%.6g", 12)
+        << internal::Cell(p.fixed ? kNaN : p.se, "%.4g", 15) << "   ";
+    if (p.fixed || !std::isfinite(p.lower)) {
+      out << (p.fixed ? "(fixed)" : "–");
+    } else {
+      out << internal::Num(p.lower, "%.4g") << " to " << internal::Num(p.upper, "%.4g");
+    }
+    out << "\n";
+  }
+  return out.str();
+}
+
+std::string BootstrapCsv(const BootstrapSummary& summary) {
+  std::string out = "REPLICATE,CONVERGED,OFV";
+  for (const std::string& n : summary.names) out += "," + (n.find(',') == std::string::npos ? n : "\"" + n + "\"");
+  out += "\n";
+  for (const BootstrapReplicate& r : summary.runs) {
+    out += std::to_string(r.replicate + 1) + (r.converged ? ",1," : ",0,");
+    if (r.estimates.size() > 0) AppendNumber(&out, r.ofv);
+    for (Eigen::Index k = 0; k < r.estimates.size(); ++k) {
+      out += ',';
+      AppendNumber(&out, r.estimates(k));
+    }
+    for (size_t k = static_cast<size_t>(r.estimates.size()); k < summary.names.size(); ++k) out += ',';
+    out += "\n";
+  }
+  return out;
+}
+
+}  // namespace pk
