@@ -149,6 +149,9 @@ void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>
     k += size;
   }
   s->omega_blocks = sizes;
+  if (std::find(s->omega_block_same.begin(), s->omega_block_same.end(), true) != s->omega_block_same.end()) {
+    std::cerr << "pkpop: note: --block regroups Ω: the model file's SAME blocks become variances of their own\n";
+  }
   s->omega_block_same.clear();  // the file's SAME blocks are its own grouping, which --block replaces
 }
 
@@ -194,6 +197,13 @@ pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lis
     const int c = colon == std::string::npos ? r : Required(problem.eta_names(), name.substr(colon + 1), "--omega");
     p.omega(r, c) = p.omega(c, r) = value;
     if (r != c) given.emplace_back(r, c);
+    int first = 0;  // a SAME block takes its source's values: a value of its own would be dropped
+    for (size_t b = 0; b < s->omega_blocks.size(); first += s->omega_blocks[b++]) {
+      if (r >= first && r < first + s->omega_blocks[b] && b < s->omega_block_same.size() && s->omega_block_same[b]) {
+        throw pk::InputError("--omega " + name + ": that Ω block is SAME as the block before it, whose values it takes: "
+                             "give them to that one");
+      }
+    }
   }
   s->theta_fixed.assign(problem.theta_names().size(), false);
   s->sigma_fixed.assign(problem.sigma_names().size(), false);
@@ -204,7 +214,11 @@ pk::PopulationParameters Initial(const pk::PopulationProblem& problem, const Lis
       const int k = Required(problem.eta_names(), u.substr(6, u.size() - 7), "--fix");
       int first = 0;
       for (size_t b = 0; b < s->omega_blocks.size(); first += s->omega_blocks[b++]) {
-        if (k >= first && k < first + s->omega_blocks[b]) s->omega_block_fixed[b] = true;
+        if (k < first || k >= first + s->omega_blocks[b]) continue;
+        if (b < s->omega_block_same.size() && s->omega_block_same[b]) {
+          throw pk::InputError("--fix " + name + ": that Ω block is SAME as the block before it, and follows it: fix that one");
+        }
+        s->omega_block_fixed[b] = true;
       }
     } else if (Position(problem.theta_names(), name) >= 0) {
       s->theta_fixed[static_cast<size_t>(Position(problem.theta_names(), name))] = true;
@@ -448,6 +462,7 @@ int Main(int argc, char** argv, Process* p) {
   if (a.block.empty()) {
     options.structure = problem.DeclaredStructure();
   } else {
+    options.structure.omega_block_same = problem.DeclaredStructure().omega_block_same;  // for Blocks' note
     Blocks(problem.eta_names(), a.block, &options.structure);
   }
   const pk::PopulationParameters initial =

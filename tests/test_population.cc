@@ -504,7 +504,9 @@ TEST_CASE("SAME Ω blocks are tied to the block before them: packing, natural va
   x(6) += 0.3;  // the source block's factor moves both blocks
   const pk::PopulationParameters moved = packing.Unpack(x);
   CHECK(moved.omega.block(2, 2, 2, 2) == moved.omega.block(0, 0, 2, 2));
-  CHECK(moved.omega(3, 3) != Approx(0.05));  // the SAME block started from its source's values, not its own
+  const pk::PopulationParameters start = packing.Unpack(packing.Pack(Parameters(c)));
+  CHECK(start.omega.block(2, 2, 2, 2).isApprox(Parameters(c).omega.block(0, 0, 2, 2), 1e-14));  // not its own 0.3, 0.05
+  CHECK(packing.initial().omega.block(2, 2, 2, 2) == Parameters(c).omega.block(0, 0, 2, 2));
   CHECK(moved.omega.block(0, 2, 2, 2).isZero(0.0));
   Eigen::VectorXd z = packing.Natural(moved);
   z(7) *= 1.5;  // OMEGA(CL) in natural values: the covariance step's differences move its twin too
@@ -2085,4 +2087,30 @@ TEST_CASE("inter-occasion variability (SAME): the FOCE objective equals R nlme's
   CHECK(!iov.same);
   CHECK(twin.se == iov.se);
   CHECK(std::isfinite(iov.se));
+}
+
+TEST_CASE("SAME blocks: a fit starts from tied values, and the population η may leave the occasions out",
+          "[population][iov]") {
+  const auto model = pk::ParseModel(ShippedModelText("iov_pop"), "iov_pop.pkm", pk::RandomEffects::kParameters);
+  pk::ObjectiveOptions o;
+  o.error_model = pk::MakeResidualError("additive");
+  const pk::PopulationProblem problem(model, Data("iov_synthetic"), {"ETA_CL", "ETA_V", "IOV1", "IOV2", "IOV3"}, o);
+  // An untied start (IOV2's and IOV3's own variances) evaluated as NONMEM would: with IOV1's.
+  pk::PopulationParameters untied = problem.DefaultParameters();
+  untied.omega(3, 3) = 0.2;
+  untied.omega(4, 4) = 0.01;
+  pk::PopulationOptions options;
+  options.max_iterations = 0;
+  options.covariance = false;
+  const pk::PopulationSummary at = pk::FitPopulation(problem, untied, options);
+  CHECK(at.parameters.omega(3, 3) == untied.omega(2, 2));
+  CHECK(at.parameters.omega(4, 4) == untied.omega(2, 2));
+  pk::PopulationParameters tied = untied;
+  tied.omega(3, 3) = tied.omega(4, 4) = tied.omega(2, 2);
+  CHECK(at.ofv == Approx(pk::EvaluatePopulation(problem, tied, pk::PopulationMethod::kFocei).ofv).epsilon(1e-12));
+  // Without the occasions' η the file's SAME lines are left out with them; without their source, an error.
+  const pk::PopulationProblem no_iov(model, Data("iov_synthetic"), {"ETA_CL", "ETA_V"}, o);
+  CHECK(no_iov.DeclaredStructure().omega_blocks == std::vector<int>{1, 1});
+  const pk::PopulationProblem orphan(model, Data("iov_synthetic"), {"ETA_CL", "ETA_V", "IOV2", "IOV3"}, o);
+  CHECK_THROWS_WITH(orphan.DeclaredStructure(), Catch::Contains("IOV2 ~ SAME needs the block before it"));
 }

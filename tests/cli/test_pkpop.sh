@@ -172,6 +172,11 @@ grep -q "OMEGA(IOV3) .* SAME" "$work/iov/report.txt" || fail "report.txt does no
 [ "$(awk -F, '$1 ~ /^OMEGA\(IOV[123]\)$/ { print $2 }' "$work/iov/population_estimates.csv" | sort -u | wc -l)" -eq 1 ] ||
   fail "the SAME variances differ from IOV1's in population_estimates.csv"
 
+"$pkpop" --model "$root/models/iov_pop.pkm" --data "$root/datasets/iov_synthetic.csv" --fix 'OMEGA(IOV2)' -q \
+  -o "$work/bad" >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "SAME as the block before it, and follows it: fix that one" "$work/err.txt" ||
+  fail "--fix on a SAME block: $(cat "$work/err.txt")"
+
 # NPDE of that run: every sample, in the set and the report; the same on one thread and on two.
 vpc_run "$work/npde" --init-from "$work/vpc" --max-evaluations 0 --npde 200 --seed 5 -j 2
 grep -q "^npde.svg," "$work/npde/MANIFEST" && grep -q "^npde.csv," "$work/npde/MANIFEST" || fail "npde files not in the MANIFEST"

@@ -71,7 +71,7 @@ void Summarise(const PopulationSummary& fit, BootstrapSummary* b) {
     BootstrapParameter p;
     p.name = fit.estimates[k].name;
     p.estimate = fit.estimates[k].estimate;
-    p.fixed = fit.estimates[k].fixed;
+    p.fixed = fit.estimates[k].fixed && !fit.estimates[k].same;  // a SAME element varies with its source
     std::vector<double> v;
     for (const BootstrapReplicate& r : b->runs) {
       if (r.converged && r.estimates.size() == static_cast<Eigen::Index>(fit.estimates.size())) {

@@ -376,7 +376,7 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
 
 }  // namespace internal
 
-PopulationSummary FitPopulation(const PopulationProblem& problem, const PopulationParameters& initial,
+PopulationSummary FitPopulation(const PopulationProblem& problem, const PopulationParameters& given_initial,
                                 const PopulationOptions& given) {
   // No Ω structure given: the model file's $OMEGA blocks and FIX (diagonal for a catalogue model).
   PopulationOptions options = given;
@@ -389,9 +389,11 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   const auto start = std::chrono::steady_clock::now();
   std::string why;
   if (!options.IsValid(&why)) throw InputError("population options: " + why);
-  internal::CheckSizes(problem, initial);
+  internal::CheckSizes(problem, given_initial);
   internal::CheckMethod(problem, options.method);
-  const internal::Packing packing(problem, options.structure, initial);
+  const internal::Packing packing(problem, options.structure, given_initial);
+  // The start as the packing holds it: a SAME block's values are its source's, whatever was given.
+  const PopulationParameters& initial = packing.initial();
   internal::PopulationEngine engine(problem, options.method, options.threads, options.distribution);
   engine.set_exact_hessian(options.exact_conditional_hessian);
   PopulationSummary summary;

@@ -32,6 +32,8 @@ class Packing {
   Packing(const PopulationProblem& problem, const PopulationStructure& structure, const PopulationParameters& initial);
 
   int size() const { return size_; }
+  /// The initial parameters with each SAME block set to its source's values (the start of a fit).
+  const PopulationParameters& initial() const { return initial_; }
   Eigen::VectorXd Pack(const PopulationParameters& p) const;
   /// The parameters at x; the fixed parts are the initial values.
   PopulationParameters Unpack(const Eigen::VectorXd& x) const;

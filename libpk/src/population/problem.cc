@@ -250,7 +250,8 @@ PopulationStructure PopulationProblem::DeclaredStructure() const {
                          "$OMEGA: the random effects of the block of " + b.etas.front() + "… must be consecutive among the η");
       }
     }
-    if (b.same && (!all || previous_end != at[0])) {
+    const bool any = std::any_of(at.begin(), at.end(), [](int k) { return k >= 0; });
+    if (b.same && any && (!all || previous_end != at[0])) {
       throw InputError(d.model->declarations().source, 0, 0,
                        "$OMEGA: " + b.etas.front() + " ~ SAME needs the block before it in the population model, its "
                        "random effects just before " + b.etas.front() + "'s");
