@@ -468,6 +468,10 @@ int Main(int argc, char** argv, Process* p) {
   const pk::PopulationParameters initial =
       Initial(problem, a, vm.count("init-from") ? vm["init-from"].as<std::string>() : "", &options.structure);
   const pk::cli::PopulationSimulationRequest simulation = pk::cli::ParsePopulationSimulation(vm, options.threads);
+  if (simulation.bootstrap > 0 && options.max_iterations == 0) {
+    throw pk::InputError("--bootstrap needs estimation: with --max-evaluations 0 every replicate would stay at the "
+                         "estimates");
+  }
   if (simulation.vpc) pk::CheckVpcOptions(problem, *simulation.vpc);  // before the fit, not after it
   const bool quiet = vm.count("quiet") > 0 || process.rank > 0;  // process 0 alone speaks and writes
   if (!quiet) {
@@ -518,7 +522,11 @@ int Main(int argc, char** argv, Process* p) {
     b.seed = simulation.seed;
     b.threads = simulation.threads;
     b.fit = options;
-    if (!quiet) std::cerr << "  bootstrap: " << b.replicates << " fits on " << b.threads << " threads\n";
+    if (!quiet) {
+      b.progress = [n = b.replicates](int done) {
+        std::cerr << "\r  bootstrap: " << done << " of " << n << " replicates fitted" << (done == n ? "\n" : "") << std::flush;
+      };
+    }
     try {
       context.bootstrap = pk::BootstrapPopulation(problem, fit, b);
       if (context.bootstrap->converged == 0) bootstrap_failure = "no replicate's fit converged";

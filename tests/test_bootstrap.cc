@@ -11,6 +11,7 @@
 #include "pk/population.h"
 #include "pk/population_simulation.h"
 #include "pk/residual_error.h"
+#include "simulation/normal_stream.h"
 #include "test_util.h"
 
 namespace {
@@ -68,6 +69,7 @@ TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[b
   const pk::PopulationProblem problem = SimulatedProblem();
   pk::PopulationOptions fo;
   fo.covariance = false;
+  fo.structure.omega_blocks = {2};  // a block: its covariance's name has a comma
   const pk::PopulationSummary fit = pk::FitPopulation(problem, problem.DefaultParameters(), fo);
   REQUIRE(fit.converged);
   pk::BootstrapOptions o;
@@ -81,11 +83,29 @@ TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[b
   CHECK(pk::BootstrapCsv(one) == pk::BootstrapCsv(two));
   CHECK(one.FullReport() == two.FullReport());
   REQUIRE(one.runs.size() == 6);
-  CHECK(one.runs[2].subjects == pk::BootstrapSample(11, 2, 40));
   CHECK(one.converged == 6);
-  CHECK(pk::BootstrapCsv(one).substr(0, 34) == "REPLICATE,CONVERGED,OFV,CL,V,OMEGA");
+  CHECK(one.used == 6);
+  // The names of a block's covariance hold a comma: quoted in the header.
+  CHECK(pk::BootstrapCsv(one).substr(0, pk::BootstrapCsv(one).find('\n')) ==
+        "REPLICATE,CONVERGED,BOUNDARY,USED,OFV,CL,V,OMEGA(CL),\"OMEGA(V,CL)\",OMEGA(V),SIGMA_PROP");
   o.replicates = 0;
   CHECK_THROWS_AS(pk::BootstrapPopulation(problem, fit, o), pk::InputError);
+  o.replicates = 2;
+  o.fit.max_iterations = 0;  // every replicate would stay at the estimates
+  CHECK_THROWS_AS(pk::BootstrapPopulation(problem, fit, o), pk::InputError);
+}
+
+TEST_CASE("the bootstrap's draws are a stream apart from every subject's η and ε", "[bootstrap][simulation]") {
+  for (int replicate : {0, 5}) {
+    pk::internal::NormalStream draws(9, replicate, 0, pk::internal::kBootstrapStream);
+    for (int subject = 0; subject < 3; ++subject) {
+      for (int kind : {pk::internal::kEtaStream, pk::internal::kEpsilonStream}) {
+        pk::internal::NormalStream other(9, replicate, subject, kind), again(9, replicate, 0, pk::internal::kBootstrapStream);
+        CHECK(other.NextUniform() != again.NextUniform());
+      }
+    }
+    CHECK(draws.NextUniform() > 0);
+  }
 }
 
 TEST_CASE("bootstrap SEs of data simulated from a known population agree with the covariance step's",

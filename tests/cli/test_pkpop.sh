@@ -157,11 +157,15 @@ grep -q "MAXEVAL=0" "$work/vpc_of_run/report.txt" || fail "report.txt should say
 vpc_run "$work/boot" --bootstrap 5 --seed 3 -j 2
 grep -q "^bootstrap.csv," "$work/boot/MANIFEST" || fail "bootstrap.csv is not in the MANIFEST"
 [ "$(tail -n +2 "$work/boot/bootstrap.csv" | wc -l)" -eq 5 ] || fail "bootstrap.csv: expected 5 replicates"
-head -1 "$work/boot/bootstrap.csv" | grep -q "^REPLICATE,CONVERGED,OFV,TVCL,TVV,APGV," || fail "bootstrap.csv header"
+head -1 "$work/boot/bootstrap.csv" | grep -q "^REPLICATE,CONVERGED,BOUNDARY,USED,OFV,TVCL,TVV,APGV," ||
+  fail "bootstrap.csv header"
 grep -q "<h2>Bootstrap</h2>" "$work/boot/report.html" || fail "report.html has no bootstrap section"
 grep -q "^Bootstrap: 5 replicates (seed 3)" "$work/boot/report.txt" || fail "report.txt has no bootstrap table"
 vpc_run "$work/boot_serial" --bootstrap 5 --seed 3 -j 1
 cmp -s "$work/boot/bootstrap.csv" "$work/boot_serial/bootstrap.csv" || fail "threads changed bootstrap.csv"
+"$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --bootstrap 5 \
+  --max-evaluations 0 -q -o "$work/bad" >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "bootstrap needs estimation" "$work/err.txt" || fail "--bootstrap at MAXEVAL=0: $(cat "$work/err.txt")"
 
 # Inter-occasion variability: models/iov_pop.pkm's IOV2 and IOV3 ~ SAME as IOV1, tabled with IOV1's value
 # and flagged SAME (at the initial estimates: the table, not the fit, is under test here).

@@ -1,14 +1,16 @@
 // libpk: the nonparametric bootstrap of a population fit, as PsN's bootstrap: each replicate draws
 // as many subjects as the data have, with replacement (Efron & Tibshirani 1993), renumbers them
 // 1…N (a subject drawn twice is two subjects, as NONMEM would read it), and fits the model again
-// from the original estimates with the original structure. Over the replicates whose fit
-// converged, each parameter gets its median, the percentile interval (R's quantile type 7; 2.5th
-// and 97.5th by default) and the bootstrap SE (the replicates' SD), beside the original estimate.
+// from the original estimates with the original method and structure. Over the replicates whose fit
+// converged (and, by default as PsN, with no estimate near a boundary), each parameter gets its
+// median, a percentile interval (R's quantile type 7; 2.5th and 97.5th by default) and the
+// bootstrap SE (the replicates' SD, divisor R − 1), beside the original estimate.
 //
 // Replicate r draws its subjects from a stream of its own (seed, r), so the replicates depend on
 // neither the threads nor how many follow; replicates' fits run on options.threads threads, each
-// fit on one. A replicate whose fit fails or does not converge is counted and left out of the
-// statistics; its estimates are still in BootstrapSummary::replicates.
+// fit on one. A replicate whose fit fails or does not converge (or, by default, puts an estimate on
+// a boundary) is counted and left out of the statistics; its estimates are still in
+// BootstrapSummary::runs.
 //
 //   pk::BootstrapOptions options;
 //   options.replicates = 200;
@@ -19,6 +21,7 @@
 #define PK_BOOTSTRAP_H_
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -33,17 +36,24 @@ struct BootstrapOptions {
   std::uint64_t seed = 1;
   int threads = 1;  ///< replicates fitted at once; no effect on the values
   double interval = 95;  ///< the percentile interval, % in (0, 100)
-  /// Each replicate's fit: the original's method and structure. Its covariance step, threads and
-  /// progress are not used (each replicate is fitted on one thread, without a covariance step).
+  /// Leave out replicates with an estimate near a boundary (PopulationEstimate::at_boundary: an Ω
+  /// variance below 1e-6, a θ at a model file's bound), as PsN's skip_estimate_near_boundary.
+  bool skip_boundary = true;
+  /// Each replicate's fit: the original's structure and tolerances (its method is the original
+  /// fit's). Estimation must be on (max_iterations > 0). Its covariance step, threads, distribution
+  /// and progress are not used (each replicate is fitted on one thread, without a covariance step).
   PopulationOptions fit;
+  /// Called (from the fitting threads, one at a time) as each replicate is done, with the count done.
+  std::function<void(int done)> progress;
 
   bool IsValid(std::string* error) const;
 };
 
 struct BootstrapReplicate {
-  int replicate = 0;           ///< 0-based
-  std::vector<int> subjects;   ///< the drawn subjects (positions in the original data), in order
+  int replicate = 0;           ///< 0-based; its subjects are BootstrapSample(seed, replicate, N)
   bool converged = false;
+  bool boundary = false;       ///< an estimate near a boundary
+  bool used = false;           ///< in the statistics (converged, and not on a boundary when skip_boundary)
   std::string message;         ///< why not, when not
   double ofv = 0;
   Eigen::VectorXd estimates;   ///< natural values, in BootstrapSummary::names order (empty if the fit threw)
@@ -57,7 +67,8 @@ struct BootstrapParameter {
 };
 
 struct BootstrapSummary {
-  int replicates = 0, converged = 0;
+  int replicates = 0, converged = 0, used = 0;
+  bool original_converged = true;  ///< the bootstrapped fit's own
   std::uint64_t seed = 1;
   double interval = 95;
   std::vector<std::string> names;  ///< the natural parameters (PopulationSummary::estimates' names)
@@ -71,11 +82,12 @@ struct BootstrapSummary {
 /// The subjects replicate `replicate` draws from `subjects` (positions, with replacement).
 std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, int subjects);
 
-/// Bootstraps `fit` of `problem`. Throws pk::InputError for invalid options.
+/// Bootstraps `fit` of `problem`. Throws pk::InputError for invalid options (max_iterations 0
+/// among them: every replicate would stay at the estimates).
 BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const PopulationSummary& fit,
                                      const BootstrapOptions& options);
 
-/// bootstrap.csv: REPLICATE,CONVERGED,OFV and each natural parameter, a row per replicate.
+/// bootstrap.csv: REPLICATE,CONVERGED,BOUNDARY,USED,OFV and each natural parameter, a row per replicate.
 std::string BootstrapCsv(const BootstrapSummary& summary);
 
 }  // namespace pk

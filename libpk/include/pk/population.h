@@ -269,6 +269,7 @@ struct PopulationEstimate {
   /// An element of a SAME Ω block: its source block's value, not a parameter of its own (fixed is
   /// set too: it has no SE of its own).
   bool same = false;
+  int source = -1;  ///< for a SAME element, the position of the estimate it repeats; else -1
   /// An estimated Ω variance below 1e-6, or a θ near a model file's bound (within 1e-3 of the
   /// bounds' width; with one bound, 1e-3 of the largest of |θ|, |bound| and |initial θ|).
   bool at_boundary = false;

@@ -6,6 +6,7 @@
 #include <exception>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <sstream>
 
 #include "internal_text.h"
@@ -34,6 +35,7 @@ std::shared_ptr<const Dataset> Resampled(const Dataset& data, const std::vector<
     Subject s = data.subjects[static_cast<size_t>(subjects[k])];
     s.id = static_cast<double>(k + 1);
     s.occurrence = 1;
+    for (Record& r : s.records) r.id = s.id;
     out->subjects.push_back(std::move(s));
   }
   return out;
@@ -43,11 +45,12 @@ BootstrapReplicate FitReplicate(const PopulationProblem& problem, const Populati
                                 const BootstrapOptions& options, int r) {
   BootstrapReplicate out;
   out.replicate = r;
-  out.subjects = BootstrapSample(options.seed, r, problem.num_subjects());
+  const std::vector<int> subjects = BootstrapSample(options.seed, r, problem.num_subjects());
   try {
     const auto& d = problem.impl();
-    const PopulationProblem resampled(d.model, Resampled(*d.data, out.subjects, r), problem.eta_names(), problem.options());
+    const PopulationProblem resampled(d.model, Resampled(*d.data, subjects, r), problem.eta_names(), problem.options());
     PopulationOptions o = options.fit;
+    o.method = fit.method;
     o.covariance = false;
     o.threads = 1;
     o.progress = nullptr;
@@ -57,7 +60,11 @@ BootstrapReplicate FitReplicate(const PopulationProblem& problem, const Populati
     out.message = f.message;
     out.ofv = f.ofv;
     out.estimates.resize(static_cast<Eigen::Index>(f.estimates.size()));
-    for (size_t k = 0; k < f.estimates.size(); ++k) out.estimates(static_cast<Eigen::Index>(k)) = f.estimates[k].estimate;
+    for (size_t k = 0; k < f.estimates.size(); ++k) {
+      out.estimates(static_cast<Eigen::Index>(k)) = f.estimates[k].estimate;
+      out.boundary = out.boundary || f.estimates[k].at_boundary;
+    }
+    out.used = out.converged && !(options.skip_boundary && out.boundary);
   } catch (const std::exception& e) {
     out.converged = false;
     out.message = e.what();
@@ -71,10 +78,12 @@ void Summarise(const PopulationSummary& fit, BootstrapSummary* b) {
     BootstrapParameter p;
     p.name = fit.estimates[k].name;
     p.estimate = fit.estimates[k].estimate;
-    p.fixed = fit.estimates[k].fixed && !fit.estimates[k].same;  // a SAME element varies with its source
+    const PopulationEstimate& e = fit.estimates[k];
+    // A SAME element varies with its source, and is fixed with it.
+    p.fixed = e.same && e.source >= 0 ? fit.estimates[static_cast<size_t>(e.source)].fixed : e.fixed;
     std::vector<double> v;
     for (const BootstrapReplicate& r : b->runs) {
-      if (r.converged && r.estimates.size() == static_cast<Eigen::Index>(fit.estimates.size())) {
+      if (r.used && r.estimates.size() == static_cast<Eigen::Index>(fit.estimates.size())) {
         v.push_back(r.estimates(static_cast<Eigen::Index>(k)));
       }
     }
@@ -104,6 +113,10 @@ bool BootstrapOptions::IsValid(std::string* error) const {
     *error = "the interval must lie in (0, 100) %, not " + FormatNumber(interval);
     return false;
   }
+  if (fit.max_iterations < 1) {
+    *error = "the replicates' fits must estimate (max_iterations > 0): at 0 each would stay at the estimates";
+    return false;
+  }
   return fit.IsValid(error);
 }
 
@@ -124,18 +137,31 @@ BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const Pop
   b.seed = options.seed;
   b.interval = options.interval;
   for (const PopulationEstimate& e : fit.estimates) b.names.push_back(e.name);
+  b.original_converged = fit.converged;
   b.runs.resize(static_cast<size_t>(options.replicates));
+  std::mutex progress;
+  int done = 0;
   internal::ParallelFor(options.replicates, options.threads, [&](int r) {
     b.runs[static_cast<size_t>(r)] = FitReplicate(problem, fit, options, r);
+    const std::lock_guard<std::mutex> lock(progress);
+    ++done;
+    if (options.progress) options.progress(done);
   });
-  for (const BootstrapReplicate& r : b.runs) b.converged += r.converged ? 1 : 0;
+  for (const BootstrapReplicate& r : b.runs) {
+    b.converged += r.converged ? 1 : 0;
+    b.used += r.used ? 1 : 0;
+  }
   Summarise(fit, &b);
   return b;
 }
 
 std::string BootstrapSummary::BriefReport() const {
-  return "Bootstrap: " + std::to_string(replicates) + " replicates (seed " + std::to_string(seed) + "), " +
-         std::to_string(converged) + " converged; the intervals are over those.\n";
+  std::string s = "Bootstrap: " + std::to_string(replicates) + " replicates (seed " + std::to_string(seed) + "), " +
+                  std::to_string(converged) + " converged, " + std::to_string(used) +
+                  " of them with no estimate near a boundary; the statistics are over those " + std::to_string(used) + ".\n";
+  if (!original_converged) s += "warning: the bootstrapped fit itself did not converge.\n";
+  if (used < 0.8 * replicates) s += "warning: fewer than 80% of the replicates are used (PsN's threshold).\n";
+  return s;
 }
 
 std::string BootstrapSummary::FullReport() const {
@@ -146,7 +172,7 @@ std::string BootstrapSummary::FullReport() const {
   for (const BootstrapParameter& p : parameters) {
     std::string name = p.name;
     name.resize(std::max<size_t>(name.size(), 18), ' ');
-    out << "  " << name << internal::Cell(p.estimate, "%.6g", 12) << internal::Cell(p.median, "%.6g", 12)
+    out << "  " << name << internal::Cell(p.estimate, "%.6g", 12) << internal::Cell(p.fixed ? kNaN : p.median, "%.6g", 12)
         << internal::Cell(p.fixed ? kNaN : p.se, "%.4g", 15) << "   ";
     if (p.fixed || !std::isfinite(p.lower)) {
       out << (p.fixed ? "(fixed)" : "–");
@@ -159,11 +185,12 @@ std::string BootstrapSummary::FullReport() const {
 }
 
 std::string BootstrapCsv(const BootstrapSummary& summary) {
-  std::string out = "REPLICATE,CONVERGED,OFV";
+  std::string out = "REPLICATE,CONVERGED,BOUNDARY,USED,OFV";
   for (const std::string& n : summary.names) out += "," + (n.find(',') == std::string::npos ? n : "\"" + n + "\"");
   out += "\n";
   for (const BootstrapReplicate& r : summary.runs) {
-    out += std::to_string(r.replicate + 1) + (r.converged ? ",1," : ",0,");
+    out += std::to_string(r.replicate + 1) + (r.converged ? ",1" : ",0") + (r.boundary ? ",1" : ",0") +
+           (r.used ? ",1," : ",0,");
     if (r.estimates.size() > 0) AppendNumber(&out, r.ofv);
     for (Eigen::Index k = 0; k < r.estimates.size(); ++k) {
       out += ',';

@@ -435,6 +435,7 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
     e.estimate = z(static_cast<Eigen::Index>(k));
     e.fixed = packing.natural_fixed()[k];
     e.same = packing.natural_same()[k];
+    e.source = e.same ? packing.NaturalSource(k) : -1;
     summary.estimates.push_back(e);
   }
   for (size_t k = 0; k < static_cast<size_t>(summary.parameters.theta.size()); ++k) {

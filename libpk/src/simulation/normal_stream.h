@@ -30,7 +30,10 @@ class NormalStream {
   NormalStream(std::uint64_t seed, int replicate, int subject, int kind) {
     std::uint64_t z = seed;
     z = SplitMix(&z) ^ static_cast<std::uint64_t>(replicate);
-    z = SplitMix(&z) ^ (static_cast<std::uint64_t>(subject) << 1 | static_cast<std::uint64_t>(kind));
+    z = SplitMix(&z) ^ (static_cast<std::uint64_t>(subject) << 1 | static_cast<std::uint64_t>(kind & 1));
+    // Kinds beyond η and ε (the bootstrap's draws) mix in one more round, so that (subject, kind 2)
+    // is not (subject + 1, kind 0), and the first two kinds' streams stay as they were.
+    if (kind >= 2) z = SplitMix(&z) ^ static_cast<std::uint64_t>(kind);
     for (std::uint64_t& word : s_) word = SplitMix(&z);
   }
   double Next() {
