@@ -418,6 +418,56 @@ struct Process {
   bool asked = false;  ///< all_ready was called
 };
 
+// `run` for one analysis after the fit: its failure (a throw, or the message it returns) as "the <what>
+// failed: …" in *failures.
+void Attempt(const char* what, const std::function<std::string()>& run, std::vector<std::string>* failures) {
+  std::string why;
+  try {
+    why = run();
+  } catch (const std::exception& e) {
+    why = e.what();
+  }
+  if (!why.empty()) failures->push_back(std::string("the ") + what + " failed: " + why);
+}
+
+// The VPC, the NPDE and the bootstrap at the estimates, into the report's context; their failures.
+std::vector<std::string> Analyses(const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
+                                  const pk::PopulationOptions& options,
+                                  const pk::cli::PopulationSimulationRequest& simulation, bool quiet,
+                                  pk::cli::PopulationReportContext* context) {
+  std::vector<std::string> failures;
+  if (simulation.vpc) {
+    Attempt("VPC", [&] {
+      context->vpc = pk::ComputeVpc(problem, fit.parameters, *simulation.vpc);
+      return std::string();
+    }, &failures);
+  }
+  if (simulation.npde) {
+    Attempt("NPDE", [&] {
+      context->npde = pk::ComputeNpde(problem, fit.parameters, *simulation.npde);
+      if (context->npde->npde.count > 0) return std::string();
+      return "no sample has an NPDE" +
+             (context->npde->notes.empty() ? std::string() : " (" + context->npde->notes.front() + ")");
+    }, &failures);
+  }
+  if (simulation.bootstrap == 0) return failures;
+  pk::BootstrapOptions b;
+  b.replicates = simulation.bootstrap;
+  b.seed = simulation.seed;
+  b.threads = simulation.threads;
+  b.fit = options;
+  if (!quiet) {
+    b.progress = [n = b.replicates](int done) {
+      std::cerr << "\r  bootstrap: " << done << " of " << n << " replicates fitted" << (done == n ? "\n" : "") << std::flush;
+    };
+  }
+  Attempt("bootstrap", [&] {
+    context->bootstrap = pk::BootstrapPopulation(problem, fit, b);
+    return context->bootstrap->converged == 0 ? std::string("no replicate's fit converged") : std::string();
+  }, &failures);
+  return failures;
+}
+
 int Main(int argc, char** argv, Process* p) {
   const Process& process = *p;
   po::options_description desc("Options");
@@ -494,46 +544,9 @@ int Main(int argc, char** argv, Process* p) {
   context.error = pk::DescribeErrorModel(*objective.error_model);
   context.dataset_path = vm["data"].as<std::string>();
   for (int k = 0; k < argc; ++k) context.command_line += (k ? " " : "") + std::string(argv[k]);
-  // The VPC at the estimates; its failure (a PRED at pcVPC's lower bound) loses nothing of the fit.
-  std::string vpc_failure;
-  if (simulation.vpc && process.rank == 0) {
-    try {
-      context.vpc = pk::ComputeVpc(problem, fit.parameters, *simulation.vpc);
-    } catch (const std::exception& e) {
-      vpc_failure = e.what();
-    }
-  }
-  std::string npde_failure;
-  if (simulation.npde && process.rank == 0) {
-    try {
-      context.npde = pk::ComputeNpde(problem, fit.parameters, *simulation.npde);
-      if (context.npde->npde.count == 0) {
-        npde_failure = "no sample has an NPDE" +
-                       (context.npde->notes.empty() ? std::string() : " (" + context.npde->notes.front() + ")");
-      }
-    } catch (const std::exception& e) {
-      npde_failure = e.what();
-    }
-  }
-  std::string bootstrap_failure;
-  if (simulation.bootstrap > 0 && process.rank == 0) {
-    pk::BootstrapOptions b;
-    b.replicates = simulation.bootstrap;
-    b.seed = simulation.seed;
-    b.threads = simulation.threads;
-    b.fit = options;
-    if (!quiet) {
-      b.progress = [n = b.replicates](int done) {
-        std::cerr << "\r  bootstrap: " << done << " of " << n << " replicates fitted" << (done == n ? "\n" : "") << std::flush;
-      };
-    }
-    try {
-      context.bootstrap = pk::BootstrapPopulation(problem, fit, b);
-      if (context.bootstrap->converged == 0) bootstrap_failure = "no replicate's fit converged";
-    } catch (const std::exception& e) {
-      bootstrap_failure = e.what();
-    }
-  }
+  // The analyses at the estimates (process 0 alone); a failure of one loses nothing of the fit.
+  const std::vector<std::string> failures =
+      process.rank == 0 ? Analyses(problem, fit, options, simulation, quiet, &context) : std::vector<std::string>();
   if (process.rank == 0) WriteOutputs(dir, problem, fit, context, simulation);
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
@@ -547,10 +560,8 @@ int Main(int argc, char** argv, Process* p) {
   if (context.bootstrap && !quiet) std::cout << "\n" << context.bootstrap->FullReport();
   if (context.npde && !quiet) std::cout << "\n" << context.npde->FullReport();
   if (!fit.converged && process.rank == 0) std::cerr << "pkpop: " << fit.message << "\n";
-  if (!vpc_failure.empty()) std::cerr << "pkpop: the VPC failed: " << vpc_failure << "\n";
-  if (!npde_failure.empty()) std::cerr << "pkpop: the NPDE failed: " << npde_failure << "\n";
-  if (!bootstrap_failure.empty()) std::cerr << "pkpop: the bootstrap failed: " << bootstrap_failure << "\n";
-  return fit.converged && vpc_failure.empty() && npde_failure.empty() && bootstrap_failure.empty() ? 0 : 1;
+  for (const std::string& f : failures) std::cerr << "pkpop: " << f << "\n";
+  return fit.converged && failures.empty() ? 0 : 1;
 }
 
 }  // namespace

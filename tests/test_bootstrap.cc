@@ -1,6 +1,7 @@
 // The nonparametric bootstrap of a population fit: the draws of subjects (reproducible, uniform), and
 // on data simulated from a known population, bootstrap SEs against the covariance step's, whatever the
 // threads.
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -85,6 +86,17 @@ TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[b
   REQUIRE(one.runs.size() == 6);
   CHECK(one.converged == 6);
   CHECK(one.used == 6);
+  // CL's statistics from the replicates' rows: the median, R's type 7 at 2.5 and 97.5, the SD (R − 1).
+  std::vector<double> cl;
+  for (const auto& r : one.runs) cl.push_back(r.estimates(0));
+  std::sort(cl.begin(), cl.end());
+  double mean = 0, ss = 0;
+  for (double v : cl) mean += v / 6;
+  for (double v : cl) ss += (v - mean) * (v - mean);
+  CHECK(one.parameters[0].median == Approx((cl[2] + cl[3]) / 2).epsilon(1e-15));
+  CHECK(one.parameters[0].lower == Approx(cl[0] + 0.125 * (cl[1] - cl[0])).epsilon(1e-15));  // h = 1 + 5·0.025
+  CHECK(one.parameters[0].upper == Approx(cl[4] + 0.875 * (cl[5] - cl[4])).epsilon(1e-15));
+  CHECK(one.parameters[0].se == Approx(std::sqrt(ss / 5)).epsilon(1e-13));
   // The names of a block's covariance hold a comma: quoted in the header.
   CHECK(pk::BootstrapCsv(one).substr(0, pk::BootstrapCsv(one).find('\n')) ==
         "REPLICATE,CONVERGED,BOUNDARY,USED,OFV,CL,V,OMEGA(CL),\"OMEGA(V,CL)\",OMEGA(V),SIGMA_PROP");

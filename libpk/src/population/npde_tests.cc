@@ -83,13 +83,20 @@ double SignedRankTest(std::vector<double> x) {
   return 2 * std::min(NormalCdf(z), NormalCdf(z, true));
 }
 
+// Σ(x − x̄)², and x̄ in *mean.
+double SumOfSquares(const std::vector<double>& x, double* mean) {
+  *mean = std::accumulate(x.begin(), x.end(), 0.0) / static_cast<double>(x.size());
+  double ss = 0;
+  for (double v : x) ss += (v - *mean) * (v - *mean);
+  return ss;
+}
+
 // R's t.test(x)$p.value (μ = 0, two-sided): the npde package's test of the mean since its version 2.
 double TTest(const std::vector<double>& x) {
   const double n = static_cast<double>(x.size());
   if (n < 2) return kNaN;
-  const double mean = std::accumulate(x.begin(), x.end(), 0.0) / n;
-  double ss = 0;
-  for (double v : x) ss += (v - mean) * (v - mean);
+  double mean = 0;
+  const double ss = SumOfSquares(x, &mean);
   if (!(ss > 0)) return kNaN;  // R: "data are essentially constant"
   const double t = mean / std::sqrt(ss / (n - 1) / n);
   return 2 * boost::math::cdf(boost::math::complement(boost::math::students_t_distribution<double>(n - 1), std::fabs(t)));
@@ -99,9 +106,8 @@ double TTest(const std::vector<double>& x) {
 double VarianceTest(const std::vector<double>& x) {
   const double n = static_cast<double>(x.size());
   if (n < 2) return kNaN;
-  const double mean = std::accumulate(x.begin(), x.end(), 0.0) / n;
-  double ss = 0;
-  for (double v : x) ss += (v - mean) * (v - mean);
+  double mean = 0;
+  const double ss = SumOfSquares(x, &mean);
   const boost::math::chi_squared_distribution<double> chi(n - 1);
   return 2 * std::min(boost::math::cdf(chi, ss), boost::math::cdf(boost::math::complement(chi, ss)));
 }
