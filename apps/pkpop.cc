@@ -1,4 +1,4 @@
-// pkpop: population (mixed-effects) estimation by FOCE, FOCEI or Laplace (parsing and I/O only).
+// pkpop: population (mixed-effects) estimation by FO, FOCE, FOCEI or Laplace (parsing and I/O only).
 #include <unistd.h>
 
 #include <algorithm>
@@ -35,7 +35,7 @@ namespace {
 
 const char* const kUsage =
     "Usage: pkpop --model NAME --data FILE [options]\n"
-    "Estimates a population model (NONMEM's FOCE, FOCEI or Laplace): typical values θ, between-subject\n"
+    "Estimates a population model (NONMEM's FO, FOCE, FOCEI or Laplace): typical values θ, between-subject\n"
     "variances Ω of the random effects η and residual-error σ. η are a model file's own ($OMEGA, written\n"
     "into $PK) or log-normal on a parameter (CL_i = CL·exp(η_CL)).\n\n"
     "Examples:\n"
@@ -52,7 +52,7 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
   desc->add_options()("help,h", "show this help")("version", "print the version of libpk and exit")(
       "model,m", po::value<std::string>(), "catalogue model, or a model file FILE.pkm")(
       "data,d", po::value<std::string>(), "NONMEM-style dataset (CSV)")(
-      "method", po::value<std::string>()->default_value("focei"), "foce, focei (INTER) or laplace (LAPLACIAN INTER)")(
+      "method", po::value<std::string>()->default_value("focei"), "fo (METHOD=ZERO; η̂ post hoc), foce, focei (INTER) or laplace (LAPLACIAN INTER)")(
       "eta", po::value<std::vector<std::string>>(&a->eta)->composing(),
       "the η, comma-separated, in Ω's order: a model file's own (ETA_CL), or a parameter NAME for a log-normal "
       "η on it (default: the file's η, else every estimable parameter)")(

@@ -270,7 +270,8 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   page["etas"] = etas;
   page["error"] = c.error;
   page["method"] = Text(std::string(ToString(fit.method)) + " (NONMEM's " +
-                        (fit.method == PopulationMethod::kFoce    ? "METHOD=COND"
+                        (fit.method == PopulationMethod::kFo      ? "METHOD=ZERO"
+                         : fit.method == PopulationMethod::kFoce  ? "METHOD=COND"
                          : fit.method == PopulationMethod::kFocei ? "METHOD=COND INTER"
                                                                   : "METHOD=COND LAPLACIAN INTER") + ")");
   page["date"] = Today();

@@ -1,4 +1,4 @@
-# Reference population objectives (FOCE, FOCEI, Laplace) and an exact marginal
+# Reference population objectives (FO, FOCE, FOCEI, Laplace) and an exact marginal
 # likelihood by adaptive Gauss-Hermite quadrature, computed by R alone (base R +
 # stats), an implementation independent of libpk. Formulas follow NONMEM's
 # conditional methods as written out in Wang Y (2007), "Derivation of various
@@ -24,6 +24,8 @@
 #             C_i = G_i Omega G_i' + diag(V0_i), r_i = y_i - f_i(eta_hat) + G_i eta_hat,
 #             OFV_i = log|C_i| + r_i' C_i^-1 r_i                       (Wang's FOCE, linearised form)
 #   Laplace : eta_hat as FOCEI; OFV_i = l_i(eta_hat) + log|Omega| + log|1/2 d2 l_i/deta2|
+#   FO      : no mode; at eta = 0, C_i = G_i Omega G_i' + diag(V0_i), r_i = y_i - f_i(0),
+#             OFV_i = log|C_i| + r_i' C_i^-1 r_i                       (Wang's FO; eta columns 0)
 #   OFV = sum_i OFV_i.
 # Residual error: additive V = a^2; proportional V = (b f)^2; combined V = a^2 + (b f)^2;
 # exponential: y -> log(y), f -> log(f), then additive V = a^2 (no Jacobian term).
@@ -195,6 +197,15 @@ ofv_foce <- function(subj, cs) {
   list(eta = m$eta, foce = 2 * sum(log(diag(R))) + sum(z^2), gnorm = m$gnorm)
 }
 
+ofv_fo <- function(subj, cs) {
+  q <- length(cs$eta_on)
+  p0 <- predict_subject(rep(0, q), subj, cs)
+  C <- p0$G %*% cs$Omega %*% t(p0$G) + diag(resvar(p0$f, cs)$V, length(p0$f))
+  R <- chol(C)
+  z <- backsolve(R, subj$y - p0$f, transpose = TRUE)
+  list(eta = rep(0, q), fo = 2 * sum(log(diag(R))) + sum(z^2), gnorm = 0)
+}
+
 ## ---------------------------------------------------------------------------
 ## Data: one list per subject with y, observation times and (obs, dose) pairs.
 build_subjects <- function(d, keep_obs = NULL, drop_time0 = FALSE) {
@@ -293,13 +304,14 @@ eta_cols <- function(eta) { e <- c(eta, rep(NA, 3 - length(eta))); names(e) <- p
 for (cs in cases) {
   res <- lapply(cs$subjects, function(subj) {
     fl <- ofv_focei_laplace(subj, cs); fo <- ofv_foce(subj, cs)
-    list(ID = subj$ID, fl = fl, fo = fo)
+    list(ID = subj$ID, fl = fl, fo = fo, first = ofv_fo(subj, cs))
   })
-  for (method in c("FOCE", "FOCEI", "Laplace")) {
+  for (method in c("FOCE", "FOCEI", "Laplace", "FO")) {
     ofv_i <- sapply(res, function(r) switch(method, FOCE = r$fo$foce, FOCEI = r$fl$focei,
-                                            Laplace = r$fl$laplace))
-    etas <- t(sapply(res, function(r) eta_cols(if (method == "FOCE") r$fo$eta else r$fl$eta)))
-    gn <- sapply(res, function(r) if (method == "FOCE") r$fo$gnorm else r$fl$gnorm)
+                                            Laplace = r$fl$laplace, FO = r$first$fo))
+    pick <- function(r) switch(method, FOCE = r$fo, FO = r$first, r$fl)
+    etas <- t(sapply(res, function(r) eta_cols(pick(r)$eta)))
+    gn <- sapply(res, function(r) pick(r)$gnorm)
     gmax[[paste(cs$name, method)]] <- max(gn)
     pop_rows[[length(pop_rows) + 1]] <- data.frame(case = cs$name, method = method, ofv = sum(ofv_i))
     subj_rows[[length(subj_rows) + 1]] <- data.frame(case = cs$name, method = method,

@@ -1,4 +1,4 @@
-// libpk: population (nonlinear mixed-effects) estimation by FOCE, FOCEI and Laplace.
+// libpk: population (nonlinear mixed-effects) estimation by FO, FOCE, FOCEI and Laplace.
 //
 // Subject i's parameters vary about the typical values θ by random effects η_i ~ N(0, Ω):
 //
@@ -21,6 +21,10 @@
 //   FOCE     the same with V_ij evaluated at η = 0 (no interaction, v_j = 0); equal at the mode to
 //            NONMEM's linearised form log det C_i + r̃ᵀC_i⁻¹r̃, C_i = G_iΩG_iᵀ + V_i
 //   Laplace  H_i = ½ ∇²l_i(η̂_i), the full Hessian (with interaction)
+//   FO       the linearisation at η = 0 instead of η̂: OFV_i = log det C_i + r_iᵀC_i⁻¹r_i with
+//            C_i = G_iΩG_iᵀ + V_i, r_i = y_i − f_i, G_i, f_i and V_i at η = 0 (no search for a mode);
+//            equal to FOCE's terms at η = 0 less ¼ ∇l_iᵀH_i⁻¹∇l_i. The η̂_i of its tables are post
+//            hoc, FOCE's modes at the estimate (NONMEM's POSTHOC)
 //
 // and η̂_i = argmin l_i, the conditional mode, found for every evaluation to a step
 // ‖Δη‖∞ < 1e-10 (on the ODE propagator, to the accuracy its tolerance allows).
@@ -51,12 +55,13 @@
 namespace pk {
 
 enum class PopulationMethod {
+  kFo,       ///< NONMEM's METHOD=ZERO (first order, its default)
   kFoce,     ///< NONMEM's METHOD=COND
   kFocei,    ///< METHOD=COND INTER
   kLaplace,  ///< METHOD=COND LAPLACIAN INTER
 };
 const char* ToString(PopulationMethod m);
-/// "foce", "focei" or "laplace" (case-insensitive); throws pk::InputError otherwise.
+/// "fo", "foce", "focei" or "laplace" (case-insensitive); throws pk::InputError otherwise.
 PopulationMethod ParsePopulationMethod(const std::string& text);
 
 /// The population parameters: fixed effects θ (the model's estimated parameters), Ω over the
@@ -255,7 +260,7 @@ struct PopulationEvaluation {
   std::vector<PopulationSubject> subjects;
 };
 
-/// OFV at `parameters`, each subject's mode found from η = 0.
+/// OFV at `parameters`, each subject's mode found from η = 0 (FO: at η = 0, no mode).
 PopulationEvaluation EvaluatePopulation(const PopulationProblem& problem, const PopulationParameters& parameters,
                                         PopulationMethod method, int threads = 1);
 
@@ -296,6 +301,9 @@ struct PopulationSummary {
   std::string gradient;  ///< how the outer gradient was computed
   /// Laplace: how H_i (½∇²l at the modes) was formed at the estimate; empty for FOCE and FOCEI.
   std::string conditional_hessian;
+  /// FO: where the subjects' η̂ (and IPRED, CWRES, shrinkage) come from, since its objective has
+  /// none (post hoc modes); empty for the conditional methods, whose η̂ are their own.
+  std::string eta_estimates;
   int processes = 1;     ///< processes the subjects were split across (PopulationOptions::distribution)
 
   PopulationParameters parameters;

@@ -366,7 +366,35 @@ bool LineSearch(const SubjectModel& s, const PopulationPoint& p, const Eigen::Ve
 
 }  // namespace
 
+namespace {
+
+// FO: no mode. At η = 0 with V held there, l, ∇l and H = Ω⁻¹ + GᵀV⁻¹G are FOCE's, and by the
+// determinant lemma and Woodbury's identity (C = GΩGᵀ + V, r = y − f₀, ∇l = −2GᵀV⁻¹r)
+//   log det C + rᵀC⁻¹r = l + log det Ω + log det H − ¼ ∇lᵀH⁻¹∇l.
+SubjectMode FirstOrderSubject(const SubjectModel& s, const PopulationPoint& p, Eigen::Index q) {
+  SubjectMode mode;
+  mode.eta = Eigen::VectorXd::Zero(q);
+  Conditional c;
+  if (!EvaluateConditional(s, p, mode.eta, nullptr, false, &c, &mode.message)) return mode;
+  mode.fixed_variance = c.variance;
+  if (!EvaluateConditional(s, p, mode.eta, &mode.fixed_variance, true, &c, &mode.message)) return mode;
+  double log_det_h = 0;
+  if (!LogDet(c.h, &log_det_h)) {
+    mode.message = "the Hessian of the linearised objective is not positive definite";
+    return mode;
+  }
+  mode.ofv = c.l + p.log_det_omega + log_det_h - 0.25 * c.gradient.dot(c.h.llt().solve(c.gradient));
+  mode.hessian = c.h;
+  mode.at_mode = std::move(c);
+  mode.ok = std::isfinite(mode.ofv);
+  if (!mode.ok) mode.message = "OFV_i is not finite";
+  return mode;
+}
+
+}  // namespace
+
 SubjectMode SolveSubject(const SubjectModel& s, const PopulationPoint& p, const Eigen::VectorXd& start) {
+  if (p.method == PopulationMethod::kFo) return FirstOrderSubject(s, p, start.size());
   SubjectMode mode;
   const Eigen::Index q = start.size();
   Conditional c;

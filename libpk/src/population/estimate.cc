@@ -248,7 +248,16 @@ bool EtaMovesDoses(const PopulationProblem& problem) {
 
 // What the summary says of the gradient.
 std::string GradientDescription(const PopulationProblem& problem, const PopulationOptions& o) {
-  if (!UsesImplicitGradient(o)) return "central differences of the OFV (modes warm-started from the centre)";
+  if (!UsesImplicitGradient(o)) {
+    return o.method == PopulationMethod::kFo ? "central differences of the OFV"
+                                             : "central differences of the OFV (modes warm-started from the centre)";
+  }
+  if (o.method == PopulationMethod::kFo) {
+    return "exact, at η = 0 (first- and second-order sensitivities " +
+           std::string(ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact
+                           ? "exact on Φ/Γ)"
+                           : "integrated with the ODEs)");
+  }
   const bool exact = ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
   const char* orders = o.method == PopulationMethod::kLaplace ? "first-, second- and third-order" : "first- and second-order";
   return std::string("implicit function theorem on the conditional modes (") + orders + " sensitivities " +
@@ -374,6 +383,32 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
   }
 }
 
+// FO's objective has no η̂: the tables take FOCE's modes at the estimate (NONMEM's POSTHOC), each
+// subject keeping its FO OFV_i. A subject whose mode cannot be found keeps η = 0, with a note.
+void PostHocDiagnostics(const PopulationEngine& fo, const PopulationEngine::Result& at, PopulationSummary* summary) {
+  PopulationEngine foce(fo.problem(), PopulationMethod::kFoce, fo.threads());
+  for (size_t i = 0; i < fo.included().size(); ++i) {
+    if (!fo.included()[i]) foce.Exclude(static_cast<int>(i));
+  }
+  const std::vector<Eigen::VectorXd> zero(at.modes.size(), Eigen::VectorXd::Zero(summary->parameters.omega.rows()));
+  PopulationEngine::Result modes = foce.Evaluate(summary->parameters, zero, true, true);
+  int missing = 0;
+  for (size_t i = 0; i < modes.modes.size(); ++i) {
+    if (!fo.included()[i]) continue;
+    SubjectMode& m = modes.modes[i];
+    if (!m.ok) {
+      ++missing;
+      m = at.modes[i];  // η = 0, FO's linearisation
+    }
+    m.ofv = at.modes[i].ofv;
+  }
+  PopulationDiagnostics(foce, summary->parameters, modes.modes, summary);
+  summary->eta_estimates = "post hoc: FOCE's conditional modes at the FO estimate (NONMEM's POSTHOC)";
+  if (missing > 0) {
+    summary->eta_estimates += "; for " + std::to_string(missing) + " subject(s) whose mode was not found, η = 0";
+  }
+}
+
 }  // namespace internal
 
 PopulationSummary FitPopulation(const PopulationProblem& problem, const PopulationParameters& given_initial,
@@ -452,7 +487,11 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   summary.processes = options.distribution ? options.distribution->size() : 1;
   if (final_eval.ok) {
     eta = internal::Etas(final_eval.modes, initial.omega.rows());
-    internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
+    if (options.method == PopulationMethod::kFo) {
+      internal::PostHocDiagnostics(engine, final_eval, &summary);
+    } else {
+      internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
+    }
     if (options.covariance) {
       internal::PopulationCovariance(engine, packing, eta, internal::UsesImplicitGradient(options),
                                      options.covariance_matrix, &summary);

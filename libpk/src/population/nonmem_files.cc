@@ -14,6 +14,7 @@ constexpr double kNotEstimated = 1e10;  // NONMEM's SE of what is fixed
 
 const char* MethodTitle(PopulationMethod m) {
   switch (m) {
+    case PopulationMethod::kFo: return "First Order";
     case PopulationMethod::kFoce: return "First Order Conditional Estimation";
     case PopulationMethod::kFocei: return "First Order Conditional Estimation with Interaction";
     case PopulationMethod::kLaplace: return "Laplacian Conditional Estimation with Interaction";

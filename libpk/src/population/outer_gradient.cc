@@ -1,6 +1,7 @@
 // The gradient of OFV_i with respect to the packed population parameters x, for FOCE, FOCEI and
 // Laplace, by the implicit function theorem on the conditional mode (Almquist, Leander & Jirstrand,
-// J Pharmacokinet Pharmacodyn 2015;42:191-209; docs/population.md):
+// J Pharmacokinet Pharmacodyn 2015;42:191-209; docs/population.md), and for FO at η = 0, which does
+// not move (FirstOrderGradient):
 //
 //   OFV_i(x) = L(η̂(x), x),   L(η, x) = l(η, x) + log det Ω + log det H(η, x),   ∇_η l(η̂, x) = 0
 //   dOFV_i/dx = ∂L/∂x + (∂L/∂η)ᵀ dη̂/dx,    dη̂/dx = −(∇²_ηη l)⁻¹ ∇²_ηx l.
@@ -42,6 +43,9 @@ namespace internal {
 namespace {
 
 constexpr double kPhiStep = 1e-3;  // relative step in φ for T (Richardson with h and h/2)
+
+// FOCE and FO hold the residual variance at η = 0 (no interaction).
+bool NoInteraction(PopulationMethod m) { return m == PopulationMethod::kFoce || m == PopulationMethod::kFo; }
 
 // ŷ and J = ∂ŷ/∂φ over every φ (the θ, then a model file's η parameters) at φ.
 bool Sensitivities(const SubjectModel& s, const Eigen::VectorXd& phi, Eigen::VectorXd* yhat, Eigen::MatrixXd* j,
@@ -343,7 +347,7 @@ void OmegaTerms(const Variables<HD>& v, HD* quad, HD* log_det_omega, std::vector
 template <class HD>
 void ResidualVariance(const SubjectModel& s, const PopulationPoint& p, const Expansion& e, const Variables<HD>& v,
                       Eigen::Index j, const HD& yhat, HD* var, HD* vy, HD* vyy = nullptr) {
-  const bool foce = p.method == PopulationMethod::kFoce;
+  const bool foce = NoInteraction(p.method);
   const VarianceTaylor vt =
       Variance(*p.error, s.outputs(j), foce ? e.y00(j) : e.y0(j), p.sigma, !foce, vyy != nullptr);
   HD dy(0, v.d);
@@ -425,7 +429,7 @@ void AddSample(const SubjectModel& s, const PopulationPoint& p, const Expansion&
   const EtaFirst<HD> d1 = FirstEtaDerivatives(s, e, v, j, yhat, vy, logs);
   const std::vector<HD>& g = d1.g;
   const std::vector<HD>& dv = d1.dv;
-  const bool foce = p.method == PopulationMethod::kFoce;
+  const bool foce = NoInteraction(p.method);
   for (size_t a = 0; a < g.size(); ++a) {
     for (size_t b = 0; b < g.size(); ++b) {
       (*h)[a][b] += g[a] * g[b] * w;
@@ -490,11 +494,30 @@ void AddLaplaceSample(const SubjectModel& s, const PopulationPoint& p, const Exp
   }
 }
 
+// FO: OFV_i = L − ¼ bᵀH⁻¹b at η = 0, which does not move (conditional.cc), with b = ∇_η l. With
+// u = H⁻¹b, dOFV_i/dx = ∂L/∂x − ½ (∂b/∂x)ᵀu + ¼ uᵀ(∂H/∂x)u, ∂b/∂x being ∇²_ηx l.
+template <class HD>
+Eigen::VectorXd FirstOrderGradient(const HD& big_l, const HD& l, const std::vector<std::vector<HD>>& h,
+                                   Eigen::Index q, Eigen::Index m) {
+  Eigen::MatrixXd hv(q, q);
+  for (Eigen::Index a = 0; a < q; ++a) {
+    for (Eigen::Index b = 0; b < q; ++b) hv(a, b) = h[static_cast<size_t>(a)][static_cast<size_t>(b)].value();
+  }
+  const Eigen::VectorXd u = hv.llt().solve(Eigen::VectorXd(l.gradient().head(q)));
+  Eigen::VectorXd g = big_l.gradient().tail(m) - 0.5 * l.hessian().topRightCorner(q, m).transpose() * u;
+  for (Eigen::Index a = 0; a < q; ++a) {
+    for (Eigen::Index b = 0; b < q; ++b) {
+      g += 0.25 * u(a) * u(b) * h[static_cast<size_t>(a)][static_cast<size_t>(b)].gradient().tail(m);
+    }
+  }
+  return g;
+}
+
 template <class HD>
 bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& packing, const Eigen::VectorXd& x,
                 const SubjectMode& mode, Eigen::VectorXd* gradient, std::string* differenced, std::string* why) {
   Expansion e;
-  if (!Expand(s, p, mode.eta, p.method == PopulationMethod::kFoce, &e, differenced, why)) return false;
+  if (!Expand(s, p, mode.eta, NoInteraction(p.method), &e, differenced, why)) return false;
   const Variables<HD> v = MakeVariables<HD>(s, p, packing, x, mode.eta, e);
   HD l, log_det_omega, log_det_h;
   std::vector<std::vector<HD>> h;
@@ -512,8 +535,13 @@ bool GradientOn(const SubjectModel& s, const PopulationPoint& p, const Packing& 
     return false;
   }
   const HD big_l = l + log_det_omega + log_det_h;
-  // dOFV/dx = ∂L/∂x − (∂L/∂η)ᵀ (∇²_ηη l)⁻¹ ∇²_ηx l
   const auto q = mode.eta.size(), m = x.size();
+  if (p.method == PopulationMethod::kFo) {
+    *gradient = FirstOrderGradient(big_l, l, h, q, m);
+    if (!gradient->allFinite()) *why = "the gradient is not finite";
+    return gradient->allFinite();
+  }
+  // dOFV/dx = ∂L/∂x − (∂L/∂η)ᵀ (∇²_ηη l)⁻¹ ∇²_ηx l
   const Eigen::MatrixXd lee = l.hessian().topLeftCorner(q, q), lex = l.hessian().topRightCorner(q, m);
   Eigen::LLT<Eigen::MatrixXd> llt(lee);
   if (llt.info() != Eigen::Success) {

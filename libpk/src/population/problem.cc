@@ -16,6 +16,7 @@ namespace pk {
 
 const char* ToString(PopulationMethod m) {
   switch (m) {
+    case PopulationMethod::kFo: return "fo";
     case PopulationMethod::kFoce: return "foce";
     case PopulationMethod::kFocei: return "focei";
     case PopulationMethod::kLaplace: return "laplace";
@@ -25,10 +26,11 @@ const char* ToString(PopulationMethod m) {
 
 PopulationMethod ParsePopulationMethod(const std::string& text) {
   const std::string t = internal::ToUpper(text);
+  if (t == "FO") return PopulationMethod::kFo;
   if (t == "FOCE") return PopulationMethod::kFoce;
   if (t == "FOCEI") return PopulationMethod::kFocei;
   if (t == "LAPLACE") return PopulationMethod::kLaplace;
-  throw InputError("unknown population method '" + text + "': expected foce, focei or laplace");
+  throw InputError("unknown population method '" + text + "': expected fo, foce, focei or laplace");
 }
 
 const char* ToString(CovarianceMatrix m) {

@@ -12,6 +12,7 @@ namespace {
 
 std::string MethodName(PopulationMethod m) {
   switch (m) {
+    case PopulationMethod::kFo: return "FO";
     case PopulationMethod::kFoce: return "FOCE";
     case PopulationMethod::kFocei: return "FOCEI";
     case PopulationMethod::kLaplace: return "Laplace";
@@ -113,6 +114,7 @@ std::string PopulationSummary::FullReport() const {
   }
   out << "  outer gradient: " << gradient << "\n";
   if (!conditional_hessian.empty()) out << "  Laplace's H: " << conditional_hessian << "\n";
+  if (!eta_estimates.empty()) out << "  η̂: " << eta_estimates << "\n";
   if (processes > 1) out << "  subjects split across " << processes << " processes\n";
   return out.str();
 }
