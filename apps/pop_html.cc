@@ -297,6 +297,7 @@ Files PopulationReport(const PopulationProblem& problem, const PopulationSummary
   }
   page["epsilon_shrinkage"] = eps;
   page["gradient"] = fit.gradient;
+  if (!fit.eta_estimates.empty()) page["eta_estimates"] = fit.eta_estimates;
   list notes;
   if (!fit.covariance_message.empty()) notes.push_back(Text("No standard errors: " + fit.covariance_message));
   for (const std::string& w : fit.CovarianceWarnings()) notes.push_back(Text("Covariance step: " + w + "."));

@@ -37,6 +37,16 @@ awk -F, '$1 ~ /^OMEGA|^CL$|^V$|^SIGMA/ && $3 == "" { bad = 1 } END { exit bad }'
 cmp -s "$work/pheno/population_estimates.csv" "$work/pheno2/population_estimates.csv" || fail "threads changed the estimates"
 cmp -s "$work/pheno/sdtab.csv" "$work/pheno2/sdtab.csv" || fail "threads changed sdtab"
 
+# FO (METHOD=ZERO) at Wang 2007's values: NONMEM's OFV 39.213; η̂ post hoc; the .ext names the method.
+"$pkpop" --model 1cmt_iv --data "$root/datasets/wang2007.csv" --eta CL --method fo --error proportional \
+  --theta CL=0.5 --theta V=1 --fix V --omega CL=0.04 --sigma SIGMA_PROP=0.31622776601683794 \
+  --max-evaluations 0 -q -o "$work/wang_fo" 2>"$work/err.txt" || fail "FO at Wang's values: $(cat "$work/err.txt")"
+grep -q "^FO: OFV 39.213" "$work/wang_fo/report.txt" || fail "FO's OFV: $(head -1 "$work/wang_fo/report.txt")"
+grep -q "η̂: post hoc" "$work/wang_fo/report.txt" || fail "FO's report does not say its η̂ are post hoc"
+head -1 "$work/wang_fo/pkpop.ext" | grep -q "First Order:" || fail "FO's .ext title: $(head -1 "$work/wang_fo/pkpop.ext")"
+awk -F, 'NR > 1 && $6 != $5 { moved = 1 } END { exit !moved }' "$work/wang_fo/sdtab.csv" ||
+  fail "FO's IPRED are its PRED: no post hoc η̂"
+
 # FOCE on theophylline with a fixed θ and a fixed Ω block.
 "$pkpop" --model 1cmt_oral --data "$root/datasets/theophylline.csv" --eta KA,CL,V --method foce --error additive \
   --theta KA=1.5 --fix KA,'OMEGA(V)' --omega V=0.02 -q -o "$work/theo" || fail "theophylline FOCE exited non-zero"
@@ -235,7 +245,7 @@ expect_error() {  # expected message, then arguments
 }
 pheno=("--model" "1cmt_iv" "--data" "$root/datasets/phenobarbital.csv")
 expect_error "'Q' is not an estimable parameter" "${pheno[@]}" --eta CL,Q
-expect_error "expected foce, focei or laplace" "${pheno[@]}" --method fo
+expect_error "expected fo, foce, focei or laplace" "${pheno[@]}" --method foi
 expect_error "needs a residual-error model" "${pheno[@]}" --error least-squares
 expect_error "--block CL,V: the η must be consecutive" --model 1cmt_oral --data "$root/datasets/theophylline.csv" \
   --eta CL,KA,V --block CL,V
