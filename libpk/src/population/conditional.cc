@@ -375,9 +375,15 @@ SubjectMode FirstOrderSubject(const SubjectModel& s, const PopulationPoint& p, E
   SubjectMode mode;
   mode.eta = Eigen::VectorXd::Zero(q);
   Conditional c;
-  if (!EvaluateConditional(s, p, mode.eta, nullptr, false, &c, &mode.message)) return mode;
+  if (!EvaluateConditional(s, p, mode.eta, nullptr, true, &c, &mode.message)) return mode;
+  // V held at its η = 0 value, where it is evaluated: ∇l and H without the interaction's terms (FO
+  // refuses censored samples, as FOCE).
   mode.fixed_variance = c.variance;
-  if (!EvaluateConditional(s, p, mode.eta, &mode.fixed_variance, true, &c, &mode.message)) return mode;
+  const Eigen::ArrayXd w = c.variance.array().inverse();
+  c.gradient.noalias() = -2 * c.g.transpose() * (w * (s.y - c.f).array()).matrix();
+  c.h = p.omega_inverse;
+  c.h.noalias() += c.g.transpose() * w.matrix().asDiagonal() * c.g;
+  c.dv.setZero(c.g.rows(), c.g.cols());
   double log_det_h = 0;
   if (!LogDet(c.h, &log_det_h)) {
     mode.message = "the Hessian of the linearised objective is not positive definite";

@@ -271,7 +271,12 @@ bool Expand(const SubjectModel& s, const PopulationPoint& p, const Eigen::Vector
     if (!SecondOrderByDifferences(s, p, e->phi0, &e->t, why)) return false;
   }
   e->phi00 = IndividualValues(s, p, Eigen::VectorXd::Zero(eta.size()));
-  if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) return false;
+  if (foce && e->phi00 == e->phi0) {  // at η = 0 (FO): the same expansion point
+    e->y00 = e->y0;
+    e->j00 = e->j0;
+  } else if (foce && !Sensitivities(s, e->phi00, &e->y00, &e->j00, why)) {
+    return false;
+  }
   const auto np = static_cast<Eigen::Index>(s.phi_index.size());
   if (e->t.empty()) e->t.assign(static_cast<size_t>(e->y0.size()), Eigen::MatrixXd::Zero(np, np));
   if (laplace) {
