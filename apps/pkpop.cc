@@ -364,6 +364,14 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
                   const pk::cli::PopulationReportContext& context, const pk::cli::PopulationSimulationRequest& simulation) {
   std::filesystem::create_directories(dir);
   pk::RemoveStaleTemporaries(dir);
+  // simtab.csv, the longest to write, before the set is opened: until the new manifest, the set
+  // written before it (the fit's own, Main) stays whole, the new simtab.csv not listed in it.
+  if (simulation.simulate > 0) {
+    const int failed = pk::cli::WriteSimtab(dir + "/simtab.csv", problem, fit.parameters, simulation);
+    if (failed > 0) {
+      std::cerr << "pkpop: note: " << failed << " subject-replicates could not be simulated and are not in simtab.csv\n";
+    }
+  }
   pk::BeginOutputSet(dir);
   std::vector<std::pair<std::string, std::string>> files = {
       {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit, problem.num_censored() > 0)},
@@ -387,13 +395,7 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
     pk::WriteFileAtomically(dir + "/" + name, text);
     names.push_back(name);
   }
-  if (simulation.simulate > 0) {  // written as it is simulated: the largest file of the set
-    const int failed = pk::cli::WriteSimtab(dir + "/simtab.csv", problem, fit.parameters, simulation);
-    if (failed > 0) {
-      std::cerr << "pkpop: note: " << failed << " subject-replicates could not be simulated and are not in simtab.csv\n";
-    }
-    names.push_back("simtab.csv");
-  }
+  if (simulation.simulate > 0) names.push_back("simtab.csv");
   pk::CompleteOutputSet(dir, names, "pkpop");
 }
 
@@ -544,7 +546,13 @@ int Main(int argc, char** argv, Process* p) {
   context.error = pk::DescribeErrorModel(*objective.error_model);
   context.dataset_path = vm["data"].as<std::string>();
   for (int k = 0; k < argc; ++k) context.command_line += (k ? " " : "") + std::string(argv[k]);
-  // The analyses at the estimates (process 0 alone); a failure of one loses nothing of the fit.
+  // The analyses at the estimates (process 0 alone); a failure of one loses nothing of the fit, nor
+  // does stopping one (a bootstrap may take hours): the fit's own set is written whole first.
+  const bool analyses = simulation.vpc || simulation.npde || simulation.bootstrap > 0 || simulation.simulate > 0;
+  if (process.rank == 0 && analyses) {
+    WriteOutputs(dir, problem, fit, context, pk::cli::PopulationSimulationRequest());
+    if (!quiet) std::cerr << "  the fit's results are in " << dir << "/; the analyses after it follow\n";
+  }
   const std::vector<std::string> failures =
       process.rank == 0 ? Analyses(problem, fit, options, simulation, quiet, &context) : std::vector<std::string>();
   if (process.rank == 0) WriteOutputs(dir, problem, fit, context, simulation);
