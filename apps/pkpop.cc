@@ -458,6 +458,7 @@ std::vector<std::string> Analyses(const pk::PopulationProblem& problem, const pk
   b.seed = simulation.seed;
   b.threads = simulation.threads;
   b.fit = options;
+  b.stratify = simulation.bootstrap_stratify;
   if (!quiet) {
     b.progress = [n = b.replicates](int done) {
       std::cerr << "\r  bootstrap: " << done << " of " << n << " replicates fitted" << (done == n ? "\n" : "") << std::flush;
@@ -525,6 +526,7 @@ int Main(int argc, char** argv, Process* p) {
                          "estimates");
   }
   if (simulation.vpc) pk::CheckVpcOptions(problem, *simulation.vpc);  // before the fit, not after it
+  if (!simulation.bootstrap_stratify.empty()) pk::BootstrapStrata(problem.data(), simulation.bootstrap_stratify);
   const bool quiet = vm.count("quiet") > 0 || process.rank > 0;  // process 0 alone speaks and writes
   if (!quiet) {
     options.progress = [](int evaluation, double ofv, double gradient) {

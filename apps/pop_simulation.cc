@@ -87,6 +87,9 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
       "after the fit, a nonparametric bootstrap of this many replicates (subjects drawn with replacement, the model "
       "fitted again from the estimates, as PsN's bootstrap): bootstrap.csv, each parameter's median, SE and 95% "
       "interval in report.txt and report.html; 0: none")(
+      "bootstrap-stratify", po::value<std::string>(),
+      "draw each bootstrap replicate's subjects within the strata of this data column (its value on each subject's "
+      "first record), keeping each stratum's size, as PsN's -stratify_on")(
       "seed", po::value<std::string>()->default_value("1"),
       "the seed of the simulations and of the bootstrap's draws (an integer up to 2^64 − 1)");
 }
@@ -99,6 +102,10 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   if (r.simulate < 0 || r.simulate > 100000) throw InputError("--simulate: expected 0 to 100000 replicates");
   r.bootstrap = vm["bootstrap"].as<int>();
   if (r.bootstrap < 0 || r.bootstrap > 100000) throw InputError("--bootstrap: expected 0 to 100000 replicates");
+  if (vm.count("bootstrap-stratify")) {
+    if (r.bootstrap == 0) throw InputError("--bootstrap-stratify needs --bootstrap N");
+    r.bootstrap_stratify = vm["bootstrap-stratify"].as<std::string>();
+  }
   const int npde = vm["npde"].as<int>();
   if (npde < 0 || npde == 1 || npde > 100000) throw InputError("--npde: expected 0 (none) or 2 to 100000 simulations");
   if (npde > 0) {

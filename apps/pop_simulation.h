@@ -27,6 +27,7 @@ struct PopulationSimulationRequest {
   std::optional<VpcOptions> vpc;  ///< none without --vpc
   std::optional<NpdeOptions> npde;  ///< none without --npde
   int bootstrap = 0;  ///< --bootstrap's replicates (0: none)
+  std::string bootstrap_stratify;  ///< --bootstrap-stratify's column, or empty
 };
 
 void AddPopulationSimulationOptions(boost::program_options::options_description* desc);

@@ -66,6 +66,36 @@ TEST_CASE("bootstrap draws: reproducible, one stream a replicate, uniform over t
   for (int c : count) CHECK(std::abs(c - 2000) < 5 * std::sqrt(2000 * 0.9));  // binomial SD √(Np(1 − p))
 }
 
+TEST_CASE("stratified bootstrap draws keep each stratum's size and draw within it", "[bootstrap]") {
+  // 3 strata of 5, 2 and 8 subjects, interleaved.
+  std::vector<double> strata;
+  for (int i = 0; i < 15; ++i) strata.push_back(i % 3 == 0 ? 1.0 : i % 7 == 1 ? 2.0 : 3.5);
+  std::vector<int> count(15, 0);
+  for (int r = 0; r < 3000; ++r) {
+    const std::vector<int> drawn = pk::BootstrapSample(5, r, strata);
+    REQUIRE(drawn.size() == strata.size());
+    for (size_t i = 0; i < drawn.size(); ++i) {
+      REQUIRE(drawn[i] >= 0);
+      REQUIRE(drawn[i] < 15);
+      CHECK(strata[static_cast<size_t>(drawn[i])] == strata[i]);  // within the position's stratum
+      ++count[static_cast<size_t>(drawn[i])];
+    }
+  }
+  // Each subject drawn as often as its stratum's size over the replicates: 3000 (binomial spread).
+  for (int i = 0; i < 15; ++i) {
+    const double n = static_cast<double>(std::count(strata.begin(), strata.end(), strata[static_cast<size_t>(i)]));
+    CHECK(std::abs(count[static_cast<size_t>(i)] - 3000) < 5 * std::sqrt(3000 * n * (1 - 1 / n)));
+  }
+  // One stratum: the unstratified draws.
+  CHECK(pk::BootstrapSample(9, 4, std::vector<double>(12, 2.0)) == pk::BootstrapSample(9, 4, 12));
+  // Strata from a column: each subject's first record; an unknown column is named.
+  const pk::Dataset data = pk::ParseDataset("ID,TIME,AMT,DV,EVID,MDV,STUDY\n1,0,10,.,1,1,1\n1,1,0,5,0,0,2\n"
+                                            "2,0,10,.,1,1,2\n2,1,0,4,0,0,2\n",
+                                            "strata.csv");
+  CHECK(pk::BootstrapStrata(data, "STUDY") == std::vector<double>{1, 2});
+  CHECK_THROWS_WITH(pk::BootstrapStrata(data, "ARM"), Catch::Contains("'ARM'") && Catch::Contains("STUDY"));
+}
+
 TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[bootstrap][population]") {
   const pk::PopulationProblem problem = SimulatedProblem();
   pk::PopulationOptions fo;
@@ -100,6 +130,9 @@ TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[b
   // The names of a block's covariance hold a comma: quoted in the header.
   CHECK(pk::BootstrapCsv(one).substr(0, pk::BootstrapCsv(one).find('\n')) ==
         "REPLICATE,CONVERGED,BOUNDARY,USED,OFV,CL,V,OMEGA(CL),\"OMEGA(V,CL)\",OMEGA(V),SIGMA_PROP");
+  o.stratify = "HALF";  // a column SimulatedProblem does not have
+  CHECK_THROWS_AS(pk::BootstrapPopulation(problem, fit, o), pk::InputError);
+  o.stratify.clear();
   o.replicates = 0;
   CHECK_THROWS_AS(pk::BootstrapPopulation(problem, fit, o), pk::InputError);
   o.replicates = 2;

@@ -173,6 +173,18 @@ grep -q "<h2>Bootstrap</h2>" "$work/boot/report.html" || fail "report.html has n
 grep -q "^Bootstrap: 5 replicates (seed 3)" "$work/boot/report.txt" || fail "report.txt has no bootstrap table"
 vpc_run "$work/boot_serial" --bootstrap 5 --seed 3 -j 1
 cmp -s "$work/boot/bootstrap.csv" "$work/boot_serial/bootstrap.csv" || fail "threads changed bootstrap.csv"
+# Stratified on Apgar (PsN's -stratify_on): said in the report, other draws than unstratified; an unknown
+# column, or strata without a bootstrap, are option errors before any fitting.
+vpc_run "$work/boot_strata" --bootstrap 5 --seed 3 --bootstrap-stratify APGAR
+grep -q "^Bootstrap: 5 replicates (seed 3), stratified on APGAR (10 strata)" "$work/boot_strata/report.txt" ||
+  fail "report.txt does not name the strata: $(grep '^Bootstrap' "$work/boot_strata/report.txt")"
+cmp -s "$work/boot/bootstrap.csv" "$work/boot_strata/bootstrap.csv" && fail "strata did not change the draws"
+"$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --bootstrap 5 \
+  --bootstrap-stratify ARM -q -o "$work/bad" >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "stratify by 'ARM'" "$work/err.txt" || fail "--bootstrap-stratify ARM: $(cat "$work/err.txt")"
+"$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --bootstrap-stratify APGAR \
+  -q -o "$work/bad" >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "needs --bootstrap N" "$work/err.txt" || fail "--bootstrap-stratify alone: $(cat "$work/err.txt")"
 "$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --bootstrap 5 \
   --max-evaluations 0 -q -o "$work/bad" >"$work/err.txt" 2>&1
 [ $? -eq 2 ] && grep -q "bootstrap needs estimation" "$work/err.txt" || fail "--bootstrap at MAXEVAL=0: $(cat "$work/err.txt")"

@@ -6,6 +6,10 @@
 // median, a percentile interval (R's quantile type 7; 2.5th and 97.5th by default) and the
 // bootstrap SE (the replicates' SD, divisor R − 1), beside the original estimate.
 //
+// Stratified (PsN's -stratify_on), each subject position draws among the subjects of its own stratum,
+// the value of a data column on the subject's first record, so every replicate keeps each stratum's
+// size (a design of two studies, or of two dose groups, keeps its proportions).
+//
 // Replicate r draws its subjects from a stream of its own (seed, r), so the replicates depend on
 // neither the threads nor how many follow; replicates' fits run on options.threads threads, each
 // fit on one. A replicate whose fit fails or does not converge (or, by default, puts an estimate on
@@ -39,6 +43,9 @@ struct BootstrapOptions {
   /// Leave out replicates with an estimate near a boundary (PopulationEstimate::at_boundary: an Ω
   /// variance below 1e-6, a θ at a model file's bound), as PsN's skip_estimate_near_boundary.
   bool skip_boundary = true;
+  /// A data column (a covariate column of the dataset) to stratify by, its value on each subject's
+  /// first record; empty: no strata.
+  std::string stratify;
   /// Each replicate's fit: the original's structure and tolerances (its method is the original
   /// fit's). Estimation must be on (max_iterations > 0). Its covariance step, threads, distribution
   /// and progress are not used (each replicate is fitted on one thread, without a covariance step).
@@ -71,6 +78,8 @@ struct BootstrapSummary {
   bool original_converged = true;  ///< the bootstrapped fit's own
   std::uint64_t seed = 1;
   double interval = 95;
+  std::string stratify;  ///< the column stratified by, or empty
+  int strata = 1;        ///< its distinct values (1 without strata)
   std::vector<std::string> names;  ///< the natural parameters (PopulationSummary::estimates' names)
   std::vector<BootstrapReplicate> runs;
   std::vector<BootstrapParameter> parameters;
@@ -81,6 +90,14 @@ struct BootstrapSummary {
 
 /// The subjects replicate `replicate` draws from `subjects` (positions, with replacement).
 std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, int subjects);
+
+/// The same within strata: position i draws among the subjects whose stratum equals strata[i]
+/// (strata holds a value per subject, in subject order). With one stratum this is the sample above.
+std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, const std::vector<double>& strata);
+
+/// Each subject's stratum for BootstrapOptions::stratify: the column's value on its first record.
+/// Throws pk::InputError naming the dataset when it has no such column, or a value is missing.
+std::vector<double> BootstrapStrata(const Dataset& data, const std::string& column);
 
 /// Bootstraps `fit` of `problem`. Throws pk::InputError for invalid options (max_iterations 0
 /// among them: every replicate would stay at the estimates).

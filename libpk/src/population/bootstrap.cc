@@ -5,8 +5,10 @@
 #include <cmath>
 #include <exception>
 #include <limits>
+#include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <sstream>
 
 #include "internal_text.h"
@@ -45,7 +47,9 @@ BootstrapReplicate FitReplicate(const PopulationProblem& problem, const Populati
                                 const BootstrapOptions& options, int r) {
   BootstrapReplicate out;
   out.replicate = r;
-  const std::vector<int> subjects = BootstrapSample(options.seed, r, problem.num_subjects());
+  const std::vector<int> subjects =
+      options.stratify.empty() ? BootstrapSample(options.seed, r, problem.num_subjects())
+                               : BootstrapSample(options.seed, r, BootstrapStrata(problem.data(), options.stratify));
   try {
     const auto& d = problem.impl();
     const PopulationProblem resampled(d.model, Resampled(*d.data, subjects, r), problem.eta_names(), problem.options());
@@ -128,11 +132,48 @@ std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, int subjects
   return out;
 }
 
+std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, const std::vector<double>& strata) {
+  std::map<double, std::vector<int>> members;  // each stratum's subjects, in subject order
+  for (size_t i = 0; i < strata.size(); ++i) members[strata[i]].push_back(static_cast<int>(i));
+  internal::NormalStream stream(seed, replicate, 0, internal::kBootstrapStream);
+  std::vector<int> out(strata.size());
+  for (size_t i = 0; i < strata.size(); ++i) {
+    const std::vector<int>& m = members[strata[i]];
+    const int n = static_cast<int>(m.size());
+    out[i] = m[static_cast<size_t>(std::min(n - 1, static_cast<int>(stream.NextUniform() * n)))];
+  }
+  return out;
+}
+
+std::vector<double> BootstrapStrata(const Dataset& data, const std::string& column) {
+  const int c = data.ExtraColumn(column);
+  if (c < 0) {
+    std::string columns;
+    for (const std::string& e : data.extra_columns) columns += (columns.empty() ? "" : ", ") + e;
+    throw InputError("bootstrap: stratify by '" + column + "': " + data.source + " has no such column" +
+                     (columns.empty() ? "" : " (its covariate columns: " + columns + ")"));
+  }
+  std::vector<double> out;
+  for (const Subject& s : data.subjects) {
+    const double v = s.records.empty() ? kNaN : s.records.front().extra[static_cast<size_t>(c)];
+    if (std::isnan(v)) {
+      throw InputError("bootstrap: stratify by '" + column + "': missing on the first record of ID " + FormatNumber(s.id));
+    }
+    out.push_back(v);
+  }
+  return out;
+}
+
 BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const PopulationSummary& fit,
                                      const BootstrapOptions& options) {
   std::string why;
   if (!options.IsValid(&why)) throw InputError("bootstrap: " + why);
   BootstrapSummary b;
+  b.stratify = options.stratify;
+  if (!options.stratify.empty()) {
+    const std::vector<double> strata = BootstrapStrata(problem.data(), options.stratify);
+    b.strata = static_cast<int>(std::set<double>(strata.begin(), strata.end()).size());
+  }
   b.replicates = options.replicates;
   b.seed = options.seed;
   b.interval = options.interval;
@@ -157,6 +198,8 @@ BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const Pop
 
 std::string BootstrapSummary::BriefReport() const {
   std::string s = "Bootstrap: " + std::to_string(replicates) + " replicates (seed " + std::to_string(seed) + "), " +
+                  (stratify.empty() ? std::string()
+                                    : "stratified on " + stratify + " (" + std::to_string(strata) + " strata), ") +
                   std::to_string(converged) + " converged, " + std::to_string(used) +
                   " of them with no estimate near a boundary; the statistics are over those " + std::to_string(used) + ".\n";
   if (!original_converged) s += "warning: the bootstrapped fit itself did not converge.\n";
