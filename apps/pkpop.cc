@@ -126,8 +126,30 @@ int Required(const std::vector<std::string>& names, const std::string& name, con
 }
 
 // Ω's blocks from --block: each a run of consecutive η; the others are blocks of one.
+// The SAME ties of `declared` (blocks of `declared_sizes`) that survive a regrouping into `sizes`: a
+// tie holds where the SAME block and the block before it both keep their place and size.
+std::vector<bool> KeptTies(const std::vector<int>& declared_sizes, const std::vector<bool>& declared,
+                           const std::vector<int>& sizes) {
+  std::map<int, size_t> declared_at;  // a declared block's first η → its index
+  for (size_t b = 0, start = 0; b < declared_sizes.size(); start += static_cast<size_t>(declared_sizes[b++])) {
+    declared_at[static_cast<int>(start)] = b;
+  }
+  std::vector<bool> same(sizes.size(), false);
+  for (size_t b = 1, start = static_cast<size_t>(sizes.empty() ? 0 : sizes[0]); b < sizes.size();
+       start += static_cast<size_t>(sizes[b++])) {
+    const auto it = declared_at.find(static_cast<int>(start));
+    if (it == declared_at.end() || it->second == 0 || it->second >= declared.size() || !declared[it->second]) continue;
+    const size_t d = it->second;
+    same[b] = declared_sizes[d] == sizes[b] && declared_sizes[d - 1] == sizes[b - 1];
+  }
+  return same;
+}
+
+// --block: Ω's blocks from the η lists (the others diagonal), in place of the model file's. Its FIX
+// flags go with its blocks; its SAME ties stay where --block leaves a tied block and its source as
+// they were (an occasion's η, say, while CL and V become a block).
 void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>& specs, pk::PopulationStructure* s) {
-  std::vector<int> block_of(etas.size(), -1), first_of;
+  std::vector<int> block_of(etas.size(), -1);
   std::vector<int> sizes;
   for (const std::string& spec : specs) {
     const std::vector<std::string> names = SplitCommas({spec});
@@ -148,11 +170,15 @@ void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>
     sizes.push_back(static_cast<int>(size));
     k += size;
   }
-  s->omega_blocks = sizes;
-  if (std::find(s->omega_block_same.begin(), s->omega_block_same.end(), true) != s->omega_block_same.end()) {
-    std::cerr << "pkpop: note: --block regroups Ω: the model file's SAME blocks become variances of their own\n";
+  const std::vector<bool> kept = KeptTies(s->omega_blocks, s->omega_block_same, sizes);
+  const auto ties = [](const std::vector<bool>& v) { return std::count(v.begin(), v.end(), true); };
+  if (ties(kept) < ties(s->omega_block_same)) {
+    std::cerr << "pkpop: note: --block regroups Ω: " << ties(s->omega_block_same) - ties(kept)
+              << " of the model file's SAME blocks become variances of their own\n";
   }
-  s->omega_block_same.clear();  // the file's SAME blocks are its own grouping, which --block replaces
+  s->omega_blocks = sizes;
+  s->omega_block_fixed.clear();
+  s->omega_block_same = ties(kept) > 0 ? kept : std::vector<bool>();
 }
 
 // Initial values and FIX flags from --theta, --omega, --sigma and --fix.
@@ -511,13 +537,9 @@ int Main(int argc, char** argv, Process* p) {
   options.covariance = !vm.count("no-covariance");
   options.covariance_matrix = pk::cli::Parsed(
       "--cov-matrix", [&] { return pk::ParseCovarianceMatrix(vm["cov-matrix"].as<std::string>()); });
-  // --block replaces the blocks a model file's $OMEGA declares (its FIX flags go with them).
-  if (a.block.empty()) {
-    options.structure = problem.DeclaredStructure();
-  } else {
-    options.structure.omega_block_same = problem.DeclaredStructure().omega_block_same;  // for Blocks' note
-    Blocks(problem.eta_names(), a.block, &options.structure);
-  }
+  // --block replaces the blocks a model file's $OMEGA declares (Blocks keeps the SAME ties it leaves).
+  options.structure = problem.DeclaredStructure();
+  if (!a.block.empty()) Blocks(problem.eta_names(), a.block, &options.structure);
   const pk::PopulationParameters initial =
       Initial(problem, a, vm.count("init-from") ? vm["init-from"].as<std::string>() : "", &options.structure);
   const pk::cli::PopulationSimulationRequest simulation = pk::cli::ParsePopulationSimulation(vm, options.threads);

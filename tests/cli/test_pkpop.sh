@@ -212,6 +212,21 @@ grep -q "OMEGA(IOV3) .* SAME" "$work/iov/report.txt" || fail "report.txt does no
 [ "$(awk -F, '$1 ~ /^OMEGA\(IOV[123]\)$/ { print $2 }' "$work/iov/population_estimates.csv" | sort -u | wc -l)" -eq 1 ] ||
   fail "the SAME variances differ from IOV1's in population_estimates.csv"
 
+# --block CL and V into one block keeps the occasions' SAME ties, which it leaves as they were; --block
+# IOV1,IOV2 regroups them and drops the ties it breaks (IOV3's source is no longer a block of one), with a note.
+"$pkpop" --model "$root/models/iov_pop.pkm" --data "$root/datasets/iov_synthetic.csv" --error additive \
+  --block ETA_CL,ETA_V --max-evaluations 0 --no-covariance -q -o "$work/iov_block" 2>"$work/err.txt" ||
+  fail "--block with SAME ties: $(cat "$work/err.txt")"
+grep -q "OMEGA(IOV3) .* SAME" "$work/iov_block/report.txt" && grep -q "OMEGA(IOV2) .* SAME" "$work/iov_block/report.txt" &&
+  grep -q "OMEGA(ETA_V,ETA_CL)" "$work/iov_block/report.txt" || fail "--block ETA_CL,ETA_V: $(cat "$work/iov_block/report.txt")"
+grep -q "SAME" "$work/err.txt" && fail "--block ETA_CL,ETA_V noted a dropped tie: $(cat "$work/err.txt")"
+"$pkpop" --model "$root/models/iov_pop.pkm" --data "$root/datasets/iov_synthetic.csv" --error additive \
+  --block IOV1,IOV2 --max-evaluations 0 --no-covariance -q -o "$work/iov_block2" 2>"$work/err.txt" ||
+  fail "--block IOV1,IOV2: $(cat "$work/err.txt")"
+grep -q "2 of the model file's SAME blocks become variances of their own" "$work/err.txt" ||
+  fail "--block IOV1,IOV2: no note of the dropped ties: $(cat "$work/err.txt")"
+grep -q "SAME" "$work/iov_block2/report.txt" && fail "--block IOV1,IOV2 kept a tie"
+
 "$pkpop" --model "$root/models/iov_pop.pkm" --data "$root/datasets/iov_synthetic.csv" --fix 'OMEGA(IOV2)' -q \
   -o "$work/bad" >"$work/err.txt" 2>&1
 [ $? -eq 2 ] && grep -q "SAME as the block before it, and follows it: fix that one" "$work/err.txt" ||
