@@ -704,7 +704,7 @@ std::shared_ptr<pk::Dataset> SimulatedReplicate(const pk::Model& model, int repl
 
 }  // namespace
 
-TEST_CASE("simulation–estimation: Laplace and FOCEI recover a known population", "[population][fit][release-only]") {
+TEST_CASE("simulation–estimation: Laplace and FOCEI recover a known population, FO as far as it can", "[population][fit][release-only]") {
   // 100 replicates of SimulatedReplicate, each fitted by Laplace and by FOCEI from the same start.
   // Per parameter: the mean estimate lies within 2 SE of the truth (SE the mean of the covariance
   // step's standard errors, so any bias is small beside the precision), and, for Laplace, the 95%
@@ -714,7 +714,8 @@ TEST_CASE("simulation–estimation: Laplace and FOCEI recover a known population
   // is covered in 89% (both are printed; the log scale was chosen after seeing that). FOCEI's
   // first-order Hessian biases CL upwards in this sparse design (mean 3.11 against 3, Laplace 3.01
   // on the same data; docs/population.md), so that its intervals for CL cover the truth in about
-  // 80%: FOCEI's coverage is reported, not required.
+  // 80%: FOCEI's coverage is reported, not required. FO (linearised at η = 0) is held to the means
+  // alone: its KA is 1.26 (within 2 SE here) and its coverage 76–96%.
   const auto model = pk::MakeModel("1cmt_oral");
   pk::ObjectiveOptions o;
   o.error_model = pk::MakeResidualError("proportional");
@@ -727,17 +728,19 @@ TEST_CASE("simulation–estimation: Laplace and FOCEI recover a known population
   start.sigma.resize(1);
   start.sigma << 0.2;
   const int replicates = 100;
-  const pk::PopulationMethod methods[2] = {pk::PopulationMethod::kLaplace, pk::PopulationMethod::kFocei};
-  std::vector<double> sum[2], se_sum[2];
-  std::vector<int> covered[2], covered_log[2];
-  int converged[2] = {0, 0};
-  for (int m = 0; m < 2; ++m) {
+  constexpr int kMethods = 3;
+  const pk::PopulationMethod methods[kMethods] = {pk::PopulationMethod::kLaplace, pk::PopulationMethod::kFocei,
+                                                  pk::PopulationMethod::kFo};
+  std::vector<double> sum[kMethods], se_sum[kMethods];
+  std::vector<int> covered[kMethods], covered_log[kMethods];
+  int converged[kMethods] = {0, 0, 0};
+  for (int m = 0; m < kMethods; ++m) {
     sum[m] = se_sum[m] = std::vector<double>(names.size(), 0);
     covered[m].assign(names.size(), 0);
     covered_log[m].assign(names.size(), 0);
   }
   // The replicates on two threads (each its own problems); Catch's assertions stay on this thread.
-  std::vector<pk::PopulationSummary> fits(2 * replicates);
+  std::vector<pk::PopulationSummary> fits(kMethods * replicates);
   std::vector<std::string> errors(replicates);  // an exception on a worker, reported here
   std::vector<std::thread> workers;
   for (int t = 0; t < 2; ++t) {
@@ -747,10 +750,10 @@ TEST_CASE("simulation–estimation: Laplace and FOCEI recover a known population
           const auto data = SimulatedReplicate(*model, rep);
           if (!data) continue;  // no estimates: the check below fails for this replicate
           const pk::PopulationProblem problem(model, data, {"CL", "V"}, o);
-          for (int m = 0; m < 2; ++m) {
+          for (int m = 0; m < kMethods; ++m) {
             pk::PopulationOptions options;
             options.method = methods[m];
-            fits[static_cast<size_t>(2 * rep + m)] = pk::FitPopulation(problem, start, options);
+            fits[static_cast<size_t>(kMethods * rep + m)] = pk::FitPopulation(problem, start, options);
           }
         } catch (const std::exception& e) {
           errors[static_cast<size_t>(rep)] = e.what();
@@ -764,8 +767,8 @@ TEST_CASE("simulation–estimation: Laplace and FOCEI recover a known population
     CHECK(errors[static_cast<size_t>(rep)] == "");
   }
   for (int rep = 0; rep < replicates; ++rep) {
-    for (int m = 0; m < 2; ++m) {
-      const pk::PopulationSummary& fit = fits[static_cast<size_t>(2 * rep + m)];
+    for (int m = 0; m < kMethods; ++m) {
+      const pk::PopulationSummary& fit = fits[static_cast<size_t>(kMethods * rep + m)];
       INFO("replicate " << rep << "\n" << fit.FullReport());
       REQUIRE(fit.estimates.size() == names.size());
       converged[m] += fit.converged ? 1 : 0;
@@ -782,7 +785,7 @@ TEST_CASE("simulation–estimation: Laplace and FOCEI recover a known population
       }
     }
   }
-  for (int m = 0; m < 2; ++m) {
+  for (int m = 0; m < kMethods; ++m) {
     CHECK(converged[m] >= 95);
     for (size_t k = 0; k < names.size(); ++k) {
       const double mean = sum[m][k] / replicates, se = se_sum[m][k] / replicates;
