@@ -19,6 +19,7 @@
 #include "pk/error.h"
 #include "pk/population_estimates.h"
 #include "pk/population_simulation.h"
+#include "pk/uncertainty.h"
 #include "pk/estimates.h"
 #include "pk/exposure.h"
 #include "pk/objective.h"
@@ -155,7 +156,11 @@ void DeclareOptions(po::options_description* desc, Lists* a) {
       "replicates", po::value<int>()->default_value(1), "--population: the dataset or regimen this many times (REP)")(
       "subjects", po::value<int>(), "--population: simulate the regimen (one subject) for this many subjects, IDs 1..N")(
       "seed", po::value<std::string>()->default_value("1"), "--population: the seed; the output does not depend on -j")(
-      "no-residual-error", "--population: no residual error (no DV columns)");
+      "no-residual-error", "--population: no residual error (no DV columns)")(
+      "uncertainty", po::value<std::string>(),
+      "--population: each replicate's θ, Ω and σ from the estimates' uncertainty: 'covariance' draws them from "
+      "N(estimates, the run's covariance.csv), truncated to the parameter space; a bootstrap.csv (or the directory of "
+      "a pkpop --bootstrap run) takes its USED rows in turn");
   pk::cli::AddFilterOptions(desc, &a->ignore, &a->accept);
 }
 
@@ -268,11 +273,36 @@ struct Variability {
   std::vector<std::string> labels;  // the η columns' names
 };
 
+// --uncertainty: the run's covariance.csv (beside `estimates`, population_estimates.csv), or a bootstrap.csv.
+void Uncertainty(const std::string& source, const std::string& estimates, const pk::Model& model, Variability* v) {
+  std::vector<pk::PopulationEstimates>& sets = v->options.parameter_sets;
+  if (source == "covariance") {
+    const std::string path = std::filesystem::path(estimates).replace_filename("covariance.csv").string();
+    pk::CheckOutputSet(path, "pkpop", "pkpop.ext");
+    int redrawn = 0;
+    sets = pk::DrawFromCovariance(v->estimates, pk::ReadEstimatesCovariance(path), model, v->options.replicates,
+                                  v->options.seed, &redrawn);
+    std::cerr << "pksim: note: each replicate's θ, Ω and σ drawn from N(estimates, " << path << ")"
+              << (redrawn > 0 ? "; " + std::to_string(redrawn) + " draws outside the parameter space drawn again" : "")
+              << "\n";
+    return;
+  }
+  std::string path = source;
+  if (std::filesystem::is_directory(path)) path += "/bootstrap.csv";
+  pk::CheckOutputSet(path, "pkpop", "pkpop.ext");
+  sets = pk::ReadParameterSets(path, v->estimates, model);
+  std::cerr << "pksim: note: each replicate's θ, Ω and σ from one of the " << sets.size() << " used replicates of "
+            << path << (static_cast<size_t>(v->options.replicates) > sets.size() ? ", in turn (some used more than once)" : "")
+            << "\n";
+}
+
 std::optional<Variability> ParseVariability(const po::variables_map& vm, const pk::Model& model) {
   const bool given = !vm["replicates"].defaulted() || vm.count("subjects") || !vm["seed"].defaulted() ||
-                     vm.count("no-residual-error");
+                     vm.count("no-residual-error") || vm.count("uncertainty");
   if (!vm.count("population")) {
-    if (given) throw pk::InputError("--replicates, --subjects, --seed and --no-residual-error need --population");
+    if (given) {
+      throw pk::InputError("--replicates, --subjects, --seed, --no-residual-error and --uncertainty need --population");
+    }
     return std::nullopt;
   }
   if (vm.count("estimates")) throw pk::InputError("give --population or --estimates, not both");
@@ -290,6 +320,7 @@ std::optional<Variability> ParseVariability(const po::variables_map& vm, const p
   v.options.seed = pk::cli::ParseSeed(vm["seed"].as<std::string>());
   v.options.residual_error = !vm.count("no-residual-error");
   for (const std::string& e : v.estimates.etas) v.labels.push_back(pk::cli::EtaLabel(e));
+  if (vm.count("uncertainty")) Uncertainty(vm["uncertainty"].as<std::string>(), path, model, &v);
   return v;
 }
 

@@ -270,6 +270,27 @@ paste -d, <(tail -n +2 "$work/vpc/simtab.csv") <(tail -n +2 "$work/pksim_pop.csv
   fail "the regimen for 20 subjects"
 [ "$(awk -F, 'NR > 1 { print $7 }' "$work/pksim_regimen.csv" | sort -u | wc -l)" -eq 20 ] ||
   fail "the 20 subjects should each have an η of their own"
+# With the estimates' uncertainty: each replicate's θ, Ω and σ drawn from the covariance step's normal, or
+# taken from a bootstrap's used replicates; a run without a covariance step has none to draw from.
+regimen=(--dose 30 --ii 12 --doses 4 --times 0:6:48 --subjects 5 --replicates 4 --seed 5)
+"$pksim" --model 1cmt_iv --population "$work/pheno" "${regimen[@]}" --out "$work/plain.csv" 2>/dev/null ||
+  fail "pksim --population of the phenobarbital run"
+"$pksim" --model 1cmt_iv --population "$work/pheno" "${regimen[@]}" --uncertainty covariance \
+  --out "$work/uncertain.csv" 2>"$work/err.txt" || fail "pksim --uncertainty covariance: $(cat "$work/err.txt")"
+grep -q "drawn from N(estimates, .*covariance.csv)" "$work/err.txt" || fail "no note of the draws: $(cat "$work/err.txt")"
+[ "$(wc -l < "$work/uncertain.csv")" -eq "$(wc -l < "$work/plain.csv")" ] || fail "--uncertainty changed the rows"
+cmp -s "$work/plain.csv" "$work/uncertain.csv" && fail "--uncertainty covariance changed nothing"
+"$pksim" --model "$root/models/pheno_pop.pkm" --population "$work/boot" "${regimen[@]}" --param WT=1.2 --param APGAR=7 \
+  --uncertainty "$work/boot" --out "$work/uncertain_boot.csv" 2>"$work/err.txt" ||
+  fail "pksim --uncertainty from a bootstrap: $(cat "$work/err.txt")"
+grep -q "from one of the 5 used replicates of .*bootstrap.csv" "$work/err.txt" ||
+  fail "no note of the bootstrap's sets: $(cat "$work/err.txt")"
+"$pksim" --model "$root/models/pheno_pop.pkm" --population "$work/vpc" "${regimen[@]}" --param WT=1.2 --param APGAR=7 \
+  --uncertainty covariance >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "no estimate has a variance" "$work/err.txt" ||
+  fail "--uncertainty covariance without a covariance step: $(cat "$work/err.txt")"
+"$pksim" --model 1cmt_iv --dose 1 --times 1 --uncertainty covariance >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "need --population" "$work/err.txt" || fail "--uncertainty without --population: $(cat "$work/err.txt")"
 "$pksim" --model 1cmt_iv --dose 1 --times 1 --seed 3 >"$work/err.txt" 2>&1
 [ $? -eq 2 ] && grep -q "need --population" "$work/err.txt" || fail "--seed without --population: $(cat "$work/err.txt")"
 "$pksim" --model 1cmt_iv --dose 1 --times 1 --population "$work/vpc" >"$work/err.txt" 2>&1

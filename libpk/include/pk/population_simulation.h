@@ -112,6 +112,10 @@ struct VariabilityOptions {
   /// 0: the dataset's subjects. N > 0: the dataset is one subject (a regimen), simulated as N
   /// subjects with IDs 1…N, each its own η.
   int subjects = 0;
+  /// Parameter uncertainty (pk/uncertainty.h): when not empty, replicate r takes its θ, Ω and σ from
+  /// parameter_sets[r mod size] in place of the population's (each set over the population's η and
+  /// σ, as DrawFromCovariance and ReadParameterSets make them); the η and ε streams are unchanged.
+  std::vector<PopulationEstimates> parameter_sets;
 
   bool IsValid(std::string* error) const;
 };

@@ -69,9 +69,9 @@ class NormalStream {
   bool has_spare_ = false;
 };
 
-/// The streams of a simulated subject: its η and its residual errors ε; and a bootstrap replicate's
-/// draws of subjects (subject 0).
-enum StreamKind { kEtaStream = 0, kEpsilonStream = 1, kBootstrapStream = 2 };
+/// The streams of a simulated subject: its η and its residual errors ε; a bootstrap replicate's
+/// draws of subjects (subject 0); a replicate's draw of θ, Ω and σ from their uncertainty (subject 0).
+enum StreamKind { kEtaStream = 0, kEpsilonStream = 1, kBootstrapStream = 2, kUncertaintyStream = 3 };
 
 /// F with FFᵀ = Ω (η = Fz): the Cholesky factor, or for a singular Ω (a variance fixed at 0) the
 /// pivoted LDLᵀ one, PᵀL√D. Throws pk::InputError when Ω is not symmetric positive semi-definite.

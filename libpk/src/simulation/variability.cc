@@ -125,11 +125,18 @@ void SimulateEachWithVariability(const Model& model, const Dataset& data, const 
                      " subjects has one subject, not " + std::to_string(data.subjects.size()));
   }
   internal::CheckColumns(model, data, false);
-  if (population.omega.rows() != static_cast<Eigen::Index>(population.etas.size())) {
-    throw InputError(population.source + ": Ω is not of the size of its η");
+  // The population, or each replicate's set of the estimates' uncertainty: its θ, Ω's factor and σ.
+  const std::vector<PopulationEstimates> one = {population};
+  const std::vector<PopulationEstimates>& sets = variability.parameter_sets.empty() ? one : variability.parameter_sets;
+  std::vector<Eigen::MatrixXd> factors;
+  std::vector<ResidualError> errors;
+  for (const PopulationEstimates& p : sets) {
+    if (p.omega.rows() != static_cast<Eigen::Index>(p.etas.size()) || p.etas != population.etas) {
+      throw InputError(p.source + ": Ω is not over the population's η");
+    }
+    factors.push_back(internal::OmegaFactor(p.omega));
+    errors.push_back(BindResidualError(model, p, variability.residual_error));
   }
-  const Eigen::MatrixXd factor = internal::OmegaFactor(population.omega);
-  const ResidualError error = BindResidualError(model, population, variability.residual_error);
   const int per_replicate = variability.subjects > 0 ? variability.subjects : static_cast<int>(data.subjects.size());
   if (static_cast<double>(per_replicate) * variability.replicates > 2e9) {
     throw InputError("simulation with variability: " + std::to_string(variability.replicates) + " replicates of " +
@@ -137,12 +144,15 @@ void SimulateEachWithVariability(const Model& model, const Dataset& data, const 
   }
   const auto simulate = [&](int item) {
     const int r = item / per_replicate, i = item % per_replicate;
+    const size_t set = static_cast<size_t>(r) % sets.size();
+    const Eigen::MatrixXd& factor = factors[set];
+    const ResidualError& error = errors[set];
     internal::NormalStream eta_stream(variability.seed, r, i, internal::kEtaStream);
     Eigen::VectorXd z(factor.cols());
     for (Eigen::Index k = 0; k < z.size(); ++k) z(k) = eta_stream.Next();
     const Eigen::VectorXd eta = factor * z;
     const int subject = variability.subjects > 0 ? 0 : i;
-    SubjectSimulation s = SimulateSubject(model, data, subject, Individual(population, overrides, eta), options);
+    SubjectSimulation s = SimulateSubject(model, data, subject, Individual(sets[set], overrides, eta), options);
     if (variability.subjects > 0) s.id = i + 1;
     s.replicate = r;
     s.eta = eta;

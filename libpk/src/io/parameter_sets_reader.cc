@@ -1,0 +1,119 @@
+// Reading the estimates' uncertainty as pkpop writes it: covariance.csv and bootstrap.csv
+// (pk/uncertainty.h).
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "../internal_text.h"
+#include "csv_lines.h"
+#include "pk/error.h"
+#include "pk/output.h"
+#include "pk/uncertainty.h"
+
+namespace pk {
+namespace {
+
+using internal::IsSkippedLine;
+using internal::SplitCsvLine;
+using internal::ToUpper;
+
+// The header's line (the first that is not skipped) and its fields; `first` is set past it.
+std::vector<std::string> Header(const internal::NumberedLines& lines, const std::string& source, size_t* first,
+                                int* line) {
+  *first = 0;
+  while (*first < lines.size() && IsSkippedLine(lines[*first].second)) ++*first;
+  if (*first == lines.size()) throw InputError(source, 0, 0, "no header line");
+  *line = lines[*first].first;
+  return SplitCsvLine(lines[(*first)++].second);
+}
+
+double Number(const std::vector<std::string>& fields, size_t k, const std::string& source, int line) {
+  double v = 0;
+  if (!internal::ParseDouble(fields[k], &v) || !std::isfinite(v)) {
+    throw InputError(source, line, static_cast<int>(k) + 1, "'" + fields[k] + "' is not a number");
+  }
+  return v;
+}
+
+}  // namespace
+
+EstimatesCovariance ReadEstimatesCovariance(const std::string& path) {
+  const internal::NumberedLines lines = internal::ReadLines(path);
+  size_t at = 0;
+  int header_line = 0;
+  const std::vector<std::string> header = Header(lines, path, &at, &header_line);
+  if (header.empty() || ToUpper(header[0]) != "PARAMETER") {
+    throw InputError(path, header_line, 1, "expected pkpop's covariance.csv: PARAMETER, then a column per estimate");
+  }
+  EstimatesCovariance out;
+  out.names.assign(header.begin() + 1, header.end());
+  const auto m = static_cast<Eigen::Index>(out.names.size());
+  out.covariance.resize(m, m);
+  Eigen::Index row = 0;
+  for (; at < lines.size(); ++at) {
+    if (IsSkippedLine(lines[at].second)) continue;
+    const int line = lines[at].first;
+    const std::vector<std::string> fields = SplitCsvLine(lines[at].second);
+    if (fields.size() != header.size()) {
+      throw InputError(path, line, 0, "expected " + std::to_string(header.size()) + " fields as in the header, found " +
+                                          std::to_string(fields.size()));
+    }
+    if (row == m || fields[0] != out.names[static_cast<size_t>(row)]) {
+      throw InputError(path, line, 1, "expected the row of " + (row < m ? out.names[static_cast<size_t>(row)] : "no estimate") +
+                                          ", found " + fields[0]);
+    }
+    for (Eigen::Index k = 0; k < m; ++k) out.covariance(row, k) = Number(fields, static_cast<size_t>(k) + 1, path, line);
+    ++row;
+  }
+  if (m == 0 || row == 0) {
+    throw InputError(path, header_line, 0, "no estimate has a variance (the run had no covariance step, or it failed)");
+  }
+  if (row != m) throw InputError(path, 0, 0, "expected " + std::to_string(m) + " rows, found " + std::to_string(row));
+  const double scale = std::max(out.covariance.diagonal().cwiseAbs().maxCoeff(), 1e-300);
+  if ((out.covariance - out.covariance.transpose()).cwiseAbs().maxCoeff() > 1e-10 * scale) {
+    throw InputError(path, 0, 0, "the covariance is not symmetric");
+  }
+  return out;
+}
+
+std::vector<PopulationEstimates> ReadParameterSets(const std::string& path, const PopulationEstimates& estimates,
+                                                   const Model& model) {
+  const internal::NumberedLines lines = internal::ReadLines(path);
+  size_t at = 0;
+  int header_line = 0;
+  const std::vector<std::string> header = Header(lines, path, &at, &header_line);
+  int used = -1;
+  std::vector<std::string> names;
+  std::vector<size_t> columns;
+  for (size_t k = 0; k < header.size(); ++k) {
+    const std::string h = ToUpper(header[k]);
+    if (h == "USED") used = static_cast<int>(k);
+    if (h == "REPLICATE" || h == "CONVERGED" || h == "BOUNDARY" || h == "USED" || h == "OFV") continue;
+    names.push_back(header[k]);
+    columns.push_back(k);
+  }
+  try {  // every name is one the estimates hold
+    WithNaturalValues(estimates, names, Eigen::VectorXd::Zero(static_cast<Eigen::Index>(names.size())), model);
+  } catch (const InputError& e) {
+    throw InputError(path, header_line, 0, e.message());
+  }
+  std::vector<PopulationEstimates> out;
+  for (; at < lines.size(); ++at) {
+    if (IsSkippedLine(lines[at].second)) continue;
+    const int line = lines[at].first;
+    const std::vector<std::string> fields = SplitCsvLine(lines[at].second);
+    if (fields.size() != header.size()) {
+      throw InputError(path, line, 0, "expected " + std::to_string(header.size()) + " fields as in the header, found " +
+                                          std::to_string(fields.size()));
+    }
+    if (used >= 0 && Number(fields, static_cast<size_t>(used), path, line) != 1) continue;
+    Eigen::VectorXd values(static_cast<Eigen::Index>(names.size()));
+    for (size_t k = 0; k < columns.size(); ++k) values(static_cast<Eigen::Index>(k)) = Number(fields, columns[k], path, line);
+    out.push_back(WithNaturalValues(estimates, names, values, model));
+    out.back().source = path + ":" + std::to_string(line);
+  }
+  if (out.empty()) throw InputError(path, 0, 0, "no parameter set (no row marked USED)");
+  return out;
+}
+
+}  // namespace pk

@@ -1,0 +1,169 @@
+// Parameter sets drawn from the estimates' uncertainty (pk/uncertainty.h).
+#include "pk/uncertainty.h"
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include <Eigen/Cholesky>
+
+#include "internal_text.h"
+#include "pk/error.h"
+#include "pk/residual_error.h"
+#include "simulation/normal_stream.h"
+
+namespace pk {
+namespace {
+
+constexpr int kMaxTries = 1000;
+
+// "OMEGA(A)" → {A}, "OMEGA(A,B)" → {A, B}; empty for any other name (upper case).
+std::vector<std::string> OmegaArguments(const std::string& upper) {
+  if (upper.rfind("OMEGA(", 0) != 0 || upper.back() != ')') return {};
+  const std::string inside = upper.substr(6, upper.size() - 7);
+  const size_t comma = inside.find(',');
+  if (comma == std::string::npos) return {inside};
+  return {inside.substr(0, comma), inside.substr(comma + 1)};
+}
+
+int EtaPosition(const PopulationEstimates& p, const Model& model, const std::string& name) {
+  const int i = model.ParameterIndex(name);
+  for (size_t k = 0; i >= 0 && k < p.etas.size(); ++k) {
+    if (p.etas[k] == model.parameter_names()[static_cast<size_t>(i)]) return static_cast<int>(k);
+  }
+  return -1;
+}
+
+// A model file's SAME blocks repeat the block declared before them: their Ω follows that block's.
+void TieSameBlocks(const Model& model, PopulationEstimates* p) {
+  const auto& blocks = model.declarations().omega_blocks;
+  for (size_t b = 1; b < blocks.size(); ++b) {
+    if (!blocks[b].same || blocks[b].etas.size() != blocks[b - 1].etas.size()) continue;
+    const size_t n = blocks[b].etas.size();
+    for (size_t i = 0; i < n; ++i) {
+      for (size_t j = 0; j < n; ++j) {
+        const int to_i = EtaPosition(*p, model, blocks[b].etas[i]), to_j = EtaPosition(*p, model, blocks[b].etas[j]);
+        const int from_i = EtaPosition(*p, model, blocks[b - 1].etas[i]);
+        const int from_j = EtaPosition(*p, model, blocks[b - 1].etas[j]);
+        if (to_i < 0 || to_j < 0 || from_i < 0 || from_j < 0) continue;
+        p->omega(to_i, to_j) = p->omega(from_i, from_j);
+      }
+    }
+  }
+}
+
+// Inside the parameter space: θ positive where the model requires it, Ω positive definite, σ positive.
+bool Admissible(const PopulationEstimates& p, const Model& model) {
+  for (const auto& [name, value] : p.theta) {
+    const int i = model.ParameterIndex(name);
+    if (!std::isfinite(value) || (i >= 0 && model.must_be_positive(i) && !(value > 0))) return false;
+  }
+  if (p.omega.size() > 0 && Eigen::LLT<Eigen::MatrixXd>(p.omega).info() != Eigen::Success) return false;
+  return (p.sigma.array() > 0).all() && p.sigma.allFinite();
+}
+
+// Where a named natural value sits in a set of estimates.
+struct Slot {
+  enum Kind { kTheta, kOmega, kSigma } kind = kTheta;
+  std::string theta;  // the canonical name
+  Eigen::Index a = 0, b = 0;  // Ω's (a, b), or σ's a
+};
+
+Slot Resolve(const PopulationEstimates& base, const std::string& name, const Model& model) {
+  Slot s;
+  const std::string upper = internal::ToUpper(name);
+  const std::vector<std::string> omega = OmegaArguments(upper);
+  if (!omega.empty()) {
+    s.kind = Slot::kOmega;
+    const int a = EtaPosition(base, model, omega.front()), b = EtaPosition(base, model, omega.back());
+    if (a < 0 || b < 0) throw InputError(base.source + " has no η for " + name);
+    s.a = a;
+    s.b = b;
+    return s;
+  }
+  if (IsResidualErrorName(upper)) {
+    s.kind = Slot::kSigma;
+    while (s.a < static_cast<Eigen::Index>(base.sigma_names.size()) && base.sigma_names[static_cast<size_t>(s.a)] != upper) ++s.a;
+    if (s.a == static_cast<Eigen::Index>(base.sigma_names.size())) throw InputError(base.source + " has no " + name);
+    return s;
+  }
+  const int i = model.ParameterIndex(name);
+  if (i >= 0) s.theta = model.parameter_names()[static_cast<size_t>(i)];
+  if (i < 0 || !base.theta.count(s.theta)) throw InputError(base.source + " has no typical value " + name);
+  return s;
+}
+
+double Get(const PopulationEstimates& p, const Slot& s) {
+  if (s.kind == Slot::kOmega) return p.omega(s.a, s.b);
+  if (s.kind == Slot::kSigma) return p.sigma(s.a);
+  return p.theta.at(s.theta);
+}
+
+void Set(const Slot& s, double v, PopulationEstimates* p) {
+  if (s.kind == Slot::kOmega) {
+    p->omega(s.a, s.b) = p->omega(s.b, s.a) = v;
+  } else if (s.kind == Slot::kSigma) {
+    p->sigma(s.a) = v;
+  } else {
+    p->theta[s.theta] = v;
+  }
+}
+
+}  // namespace
+
+PopulationEstimates WithNaturalValues(const PopulationEstimates& base, const std::vector<std::string>& names,
+                                      const Eigen::VectorXd& values, const Model& model) {
+  PopulationEstimates out = base;
+  for (size_t k = 0; k < names.size(); ++k) Set(Resolve(base, names[k], model), values(static_cast<Eigen::Index>(k)), &out);
+  return out;
+}
+
+std::vector<PopulationEstimates> DrawFromCovariance(const PopulationEstimates& estimates,
+                                                    const EstimatesCovariance& covariance, const Model& model,
+                                                    int count, std::uint64_t seed, int* redrawn) {
+  const auto m = static_cast<Eigen::Index>(covariance.names.size());
+  if (covariance.covariance.rows() != m || covariance.covariance.cols() != m) {
+    throw InputError("the estimates' covariance is not square over its names");
+  }
+  Eigen::MatrixXd factor;
+  try {
+    factor = internal::OmegaFactor(covariance.covariance);
+  } catch (const InputError&) {
+    throw InputError("the estimates' covariance is not symmetric positive semi-definite");
+  }
+  // The centre: the estimates' own values of the covariance's names (an unknown name throws here).
+  std::vector<Slot> slots;
+  Eigen::VectorXd centre(m);
+  for (Eigen::Index k = 0; k < m; ++k) {
+    slots.push_back(Resolve(estimates, covariance.names[static_cast<size_t>(k)], model));
+    centre(k) = Get(estimates, slots.back());
+  }
+  std::vector<PopulationEstimates> out;
+  int rejected = 0;
+  for (int r = 0; r < count; ++r) {
+    internal::NormalStream stream(seed, r, 0, internal::kUncertaintyStream);
+    bool drawn = false;
+    for (int tries = 0; tries < kMaxTries && !drawn; ++tries) {
+      Eigen::VectorXd z(m);
+      for (Eigen::Index k = 0; k < m; ++k) z(k) = stream.Next();
+      PopulationEstimates set = estimates;
+      const Eigen::VectorXd x = centre + factor * z;
+      for (Eigen::Index k = 0; k < m; ++k) Set(slots[static_cast<size_t>(k)], x(k), &set);
+      TieSameBlocks(model, &set);
+      if (Admissible(set, model)) {
+        out.push_back(std::move(set));
+        drawn = true;
+      } else {
+        ++rejected;
+      }
+    }
+    if (!drawn) {
+      throw InputError("parameter uncertainty: set " + std::to_string(r + 1) + " fell outside the parameter space in " +
+                       std::to_string(kMaxTries) + " draws (a variance or θ whose SE is large beside it)");
+    }
+  }
+  if (redrawn) *redrawn = rejected;
+  return out;
+}
+
+}  // namespace pk
