@@ -22,6 +22,14 @@ std::string ToLower(std::string s) {
   return s;
 }
 
+std::vector<std::string> OmegaArguments(const std::string& upper) {
+  if (upper.rfind("OMEGA(", 0) != 0 || upper.back() != ')') return {};
+  const std::string inside = upper.substr(6, upper.size() - 7);
+  const size_t comma = inside.find(',');
+  if (comma == std::string::npos) return {inside};
+  return {inside.substr(0, comma), inside.substr(comma + 1)};
+}
+
 std::string Trim(const std::string& s) {
   size_t b = 0, e = s.size();
   while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;

@@ -27,6 +27,10 @@ std::string Cell(double v, const char* fmt, int width);
 /// in `name_width` columns, indented by two spaces), three decimals.
 std::string LowerTriangle(const std::vector<std::string>& names, const Eigen::MatrixXd& m, int name_width);
 
+/// A name of Ω's elements as pkpop tables them (upper case): "OMEGA(A)" → {A}, "OMEGA(A,B)" → {A, B};
+/// empty for any other name.
+std::vector<std::string> OmegaArguments(const std::string& upper);
+
 /// pk::FormatNumber's text written to `out`, which has room for 48 characters (the text has at most
 /// 24; fixed-length copies may write past it); returns its end.
 char* WriteNumber(double value, char* out);

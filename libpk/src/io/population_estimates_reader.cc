@@ -15,17 +15,9 @@ namespace pk {
 namespace {
 
 using internal::IsSkippedLine;
+using internal::OmegaArguments;
 using internal::SplitCsvLine;
 using internal::ToUpper;
-
-// "OMEGA(A)" → {A}, "OMEGA(A,B)" → {A, B}; empty for any other name.
-std::vector<std::string> OmegaArguments(const std::string& upper) {
-  if (upper.rfind("OMEGA(", 0) != 0 || upper.back() != ')') return {};
-  const std::string inside = upper.substr(6, upper.size() - 7);
-  const size_t comma = inside.find(',');
-  if (comma == std::string::npos) return {inside};
-  return {inside.substr(0, comma), inside.substr(comma + 1)};
-}
 
 struct Row {
   int line, column;  // the PARAMETER field's

@@ -17,15 +17,6 @@ namespace {
 
 constexpr int kMaxTries = 1000;
 
-// "OMEGA(A)" → {A}, "OMEGA(A,B)" → {A, B}; empty for any other name (upper case).
-std::vector<std::string> OmegaArguments(const std::string& upper) {
-  if (upper.rfind("OMEGA(", 0) != 0 || upper.back() != ')') return {};
-  const std::string inside = upper.substr(6, upper.size() - 7);
-  const size_t comma = inside.find(',');
-  if (comma == std::string::npos) return {inside};
-  return {inside.substr(0, comma), inside.substr(comma + 1)};
-}
-
 int EtaPosition(const PopulationEstimates& p, const Model& model, const std::string& name) {
   const int i = model.ParameterIndex(name);
   for (size_t k = 0; i >= 0 && k < p.etas.size(); ++k) {
@@ -72,7 +63,7 @@ struct Slot {
 Slot Resolve(const PopulationEstimates& base, const std::string& name, const Model& model) {
   Slot s;
   const std::string upper = internal::ToUpper(name);
-  const std::vector<std::string> omega = OmegaArguments(upper);
+  const std::vector<std::string> omega = internal::OmegaArguments(upper);
   if (!omega.empty()) {
     s.kind = Slot::kOmega;
     const int a = EtaPosition(base, model, omega.front()), b = EtaPosition(base, model, omega.back());
