@@ -212,6 +212,81 @@ TEST_CASE("Wang 2007: FOCEI's η̂, OBJ_i and table columns equal NONMEM's", "[p
   }
 }
 
+TEST_CASE("FO's tables take FOCE's post hoc modes and keep FO's OFV_i; a subject without a mode keeps η = 0",
+          "[population][nonmem]") {
+  const Case c{"1cmt_iv", "wang2007", "proportional", {"CL"}, {0.5, 1.0}, Diagonal({0.04}), {std::sqrt(0.1)}};
+  const pk::PopulationProblem problem = Problem(c);
+  pk::PopulationOptions o;
+  o.method = pk::PopulationMethod::kFo;
+  o.max_iterations = 0;
+  o.covariance = false;
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, Parameters(c), o);
+  const pk::PopulationEvaluation fo = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFo);
+  const pk::PopulationEvaluation foce = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFoce);
+  REQUIRE(fit.subjects.size() == 10);
+  CHECK(fit.eta_estimates.find("post hoc") != std::string::npos);
+  std::vector<double> etas;
+  for (size_t i = 0; i < 10; ++i) {
+    INFO("subject " << i + 1);
+    CHECK(fit.subjects[i].ofv == fo.subjects[i].ofv);
+    CHECK(fit.subjects[i].eta(0) == foce.subjects[i].eta(0));
+    CHECK(fit.subjects[i].eta(0) != 0);
+    etas.push_back(fit.subjects[i].eta(0));
+  }
+  CHECK(fit.ofv == Approx(39.213222).margin(5e-7));
+  // CL with a kink in η (its slope triples above 0.02): subject 1's FOCE mode lies on the kink and its
+  // search fails; the subject keeps η = 0 with a note, and is left out of η-shrinkage.
+  const auto kink = pk::ParseModel(R"($PROBLEM kink  CL with a kink in η
+$PARAM
+TVCL = 0.5
+V = 1
+$OMEGA
+ETA_CL ~ 0.04
+$CMT
+CENTRAL  dose central
+$PK
+if (ETA_CL > 0.02) {
+  CL = TVCL * exp(0.02) * 3 * exp(ETA_CL - 0.02)
+} else {
+  CL = TVCL * exp(ETA_CL)
+}
+$ODE
+d/dt(CENTRAL) = -CL / V * CENTRAL
+$OUTPUT
+CP = CENTRAL / V
+$ERROR
+CP ~ proportional(0.31622776601683794)
+)", "kink.pkm", pk::RandomEffects::kParameters);
+  pk::ObjectiveOptions declared;
+  declared.error_model = pk::DeclaredErrorModel(*kink);
+  const pk::PopulationProblem kinked(kink, Data("wang2007"), {"ETA_CL"}, declared);
+  pk::PopulationParameters p;
+  p.theta = Eigen::VectorXd::Constant(2, 0.5);
+  p.theta(1) = 1;
+  p.omega = Diagonal({0.04});
+  p.sigma = Eigen::VectorXd::Constant(1, std::sqrt(0.1));
+  const pk::PopulationSummary k = pk::FitPopulation(kinked, p, o);
+  REQUIRE(k.subjects.size() == 10);
+  std::vector<double> found;
+  int missing = 0;
+  for (const pk::PopulationSubject& s : k.subjects) {
+    CHECK(s.ok);
+    if (s.message.find("no post hoc η̂") != std::string::npos) {
+      ++missing;
+      CHECK(s.eta(0) == 0);
+    } else {
+      found.push_back(s.eta(0));
+    }
+  }
+  REQUIRE(missing >= 1);
+  CHECK(k.eta_estimates.find("for " + std::to_string(missing) + " subject(s) whose mode was not found, η = 0") !=
+        std::string::npos);
+  double mean = 0, ss = 0;
+  for (double e : found) mean += e / static_cast<double>(found.size());
+  for (double e : found) ss += (e - mean) * (e - mean);
+  CHECK(k.eta_shrinkage_sd(0) == Approx(1 - std::sqrt(ss / static_cast<double>(found.size() - 1)) / 0.2).epsilon(1e-12));
+}
+
 TEST_CASE("censored samples (M3): Laplace's OFV equals the R reference, and FOCE refuses them", "[population]") {
   // tests/reference/make_population_m3_reference.R: theophylline with the 27 samples below 2 mg/L
   // censored (CENS=1, DV=2), l_i(η) with −2 log Φ((2 − f)/√V) for each, Laplace with its exact
@@ -255,7 +330,7 @@ TEST_CASE("censored samples (M3): Laplace's OFV equals the R reference, and FOCE
       INFO("subject " << id);
       CHECK(std::abs(it->ofv - std::stod(row.at("ofv_i"))) < 1e-7);
     }
-    for (pk::PopulationMethod m : {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
+    for (pk::PopulationMethod m : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
       CHECK_THROWS_WITH(pk::EvaluatePopulation(problem, Parameters(c), m), Catch::Contains("needs --method laplace"));
     }
   }
@@ -578,6 +653,7 @@ TEST_CASE("SAME Ω blocks are tied to the block before them: packing, natural va
   CHECK(packing.FromNatural(z).omega(3, 3) == z(7));
   CheckOuterGradient(problem, moved, s, pk::PopulationMethod::kFocei, 1e-5);
   CheckOuterGradient(problem, moved, s, pk::PopulationMethod::kLaplace, 1e-5);
+  CheckOuterGradient(problem, moved, s, pk::PopulationMethod::kFo, 1e-5);
   // A SAME block needs a block of its size before it.
   s.omega_blocks = {1, 1, 2};
   s.omega_block_same = {true, false, false};
@@ -597,6 +673,7 @@ TEST_CASE("the outer gradient holds with more than 16 variables (HyperDual on th
   pk::PopulationStructure s;
   s.omega_blocks = {4};
   CheckOuterGradient(Problem(c), Parameters(c), s, pk::PopulationMethod::kFocei, 1e-5);
+  CheckOuterGradient(Problem(c), Parameters(c), s, pk::PopulationMethod::kFo, 1e-5);
 }
 
 TEST_CASE("an η's CV% is 100·√(exp(ω²) − 1), fixed or estimated", "[population]") {
@@ -1112,7 +1189,7 @@ TEST_CASE("the outer gradient holds for a model file's additive η on the exact 
   p.theta = Eigen::Vector2d(0.0066, 1.35);
   p.omega = Diagonal({1e-6});
   p.sigma = Eigen::VectorXd::Constant(1, 0.12);
-  for (pk::PopulationMethod m : {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
+  for (pk::PopulationMethod m : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
     INFO(pk::ToString(m));
     CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
   }
@@ -1129,8 +1206,8 @@ TEST_CASE("the outer gradient holds for η in dose modifiers computed in $PK (AL
   REQUIRE(problem.model().is_linear());
   pk::PopulationParameters p = problem.DefaultParameters();
   p.sigma = Eigen::Vector2d(0.3, 0.1);
-  for (pk::PopulationMethod m :
-       {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei, pk::PopulationMethod::kLaplace}) {
+  for (pk::PopulationMethod m : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei,
+                                 pk::PopulationMethod::kLaplace}) {
     INFO(pk::ToString(m));
     CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
   }
@@ -1153,8 +1230,8 @@ TEST_CASE("the outer gradient holds for η in an output's baseline (its offset o
   REQUIRE(linear->has_output_offsets());
   pk::PopulationParameters p = problem.DefaultParameters();
   p.sigma = Eigen::Vector2d(0.3, 0.1);
-  for (pk::PopulationMethod m :
-       {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei, pk::PopulationMethod::kLaplace}) {
+  for (pk::PopulationMethod m : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei,
+                                 pk::PopulationMethod::kLaplace}) {
     INFO(pk::ToString(m));
     CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
   }
@@ -1408,7 +1485,7 @@ TEST_CASE("per-output error models in population: the outer gradient with both �
       pk::MakePerOutputError({MakeResidualError("proportional"), MakeResidualError("additive")}, {"CP", "E"}));
   pk::PopulationParameters r = mixed.DefaultParameters();
   r.sigma = Eigen::Vector2d(0.12, 0.9);
-  for (pk::PopulationMethod m : {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
+  for (pk::PopulationMethod m : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
     INFO(pk::ToString(m));
     CheckOuterGradient(mixed, r, pk::PopulationStructure(), m, 1e-5);
   }
@@ -1494,7 +1571,7 @@ TEST_CASE("steady states on the ODE propagator: the implicit gradient serves and
   const pk::PopulationProblem problem(pk::MakeModel("1cmt_iv_mm"), data, {"VMAX", "V"}, o);
   pk::PopulationParameters p = problem.DefaultParameters();
   p.sigma = Eigen::VectorXd::Constant(1, 0.2);
-  for (pk::PopulationMethod m : {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
+  for (pk::PopulationMethod m : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei}) {
     INFO(pk::ToString(m));
     CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
   }
@@ -1577,8 +1654,8 @@ TEST_CASE("the outer gradient holds for η in a computed F1 of a nonlinear model
   const pk::PopulationProblem problem = VaryingBioavailability(1e-12);
   pk::PopulationParameters p = problem.DefaultParameters();
   p.sigma = Eigen::VectorXd::Constant(1, 0.2);
-  for (pk::PopulationMethod m :
-       {pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei, pk::PopulationMethod::kLaplace}) {
+  for (pk::PopulationMethod m : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFoce, pk::PopulationMethod::kFocei,
+                                 pk::PopulationMethod::kLaplace}) {
     INFO(pk::ToString(m));
     CheckOuterGradient(problem, p, pk::PopulationStructure(), m, 1e-5);
   }

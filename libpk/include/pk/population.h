@@ -55,10 +55,10 @@
 namespace pk {
 
 enum class PopulationMethod {
-  kFo,       ///< NONMEM's METHOD=ZERO (first order, its default)
   kFoce,     ///< NONMEM's METHOD=COND
   kFocei,    ///< METHOD=COND INTER
   kLaplace,  ///< METHOD=COND LAPLACIAN INTER
+  kFo,       ///< METHOD=ZERO (first order, NONMEM's default), its tables' η̂ post hoc (POSTHOC)
 };
 const char* ToString(PopulationMethod m);
 /// "fo", "foce", "focei" or "laplace" (case-insensitive); throws pk::InputError otherwise.

@@ -1,5 +1,5 @@
 // One subject's conditional problem in a population model (not installed): the individual
-// objective l_i(η), its conditional mode η̂_i, and OFV_i for FOCE, FOCEI and Laplace
+// objective l_i(η), its conditional mode η̂_i, and OFV_i for FOCE, FOCEI and Laplace (and FO's at η = 0)
 // (pk/population.h has the formulas; docs/population.md derives them).
 #ifndef PK_SRC_POPULATION_CONDITIONAL_H_
 #define PK_SRC_POPULATION_CONDITIONAL_H_
@@ -105,7 +105,10 @@ struct SubjectMode {
   Eigen::VectorXd eta;
   double ofv = 0;
   Conditional at_mode;
-  Eigen::VectorXd fixed_variance;  ///< FOCE: V at η = 0 (empty otherwise)
+  Eigen::VectorXd fixed_variance;  ///< FOCE and FO: V at η = 0 (empty otherwise)
+  /// False where eta is not an estimate: FO's tables take FOCE's post hoc modes, and a subject whose
+  /// mode cannot be found keeps η = 0 (PostHocDiagnostics); η-shrinkage leaves it out.
+  bool eta_estimated = true;
   int iterations = 0;
   /// Laplace: why its H at the mode is differences of the exact ∇l (empty when it is exact).
   std::string hessian_differenced;

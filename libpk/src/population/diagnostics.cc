@@ -152,7 +152,7 @@ void PopulationDiagnostics(const PopulationEngine& engine, const PopulationParam
     DescribeIndividual(d.subjects[i], point, m.eta, &s);
     summary->subjects.push_back(s);
     if (!m.ok) continue;
-    for (Eigen::Index k = 0; k < q; ++k) etas[static_cast<size_t>(k)].push_back(m.eta(k));
+    for (Eigen::Index k = 0; m.eta_estimated && k < q; ++k) etas[static_cast<size_t>(k)].push_back(m.eta(k));
     SubjectRows(d.subjects[i], point, p.omega, id, static_cast<int>(i), m, &summary->rows, &iwres);
   }
   summary->eta_shrinkage_sd.resize(q);

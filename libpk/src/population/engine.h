@@ -41,7 +41,7 @@ class PopulationEngine {
                   bool here = false) const;
 
   /// ∇OFV at x from the modes of Evaluate(packing.Unpack(x), ..., true), by the implicit
-  /// function theorem (outer_gradient.h; FOCE and FOCEI). Row i of *per_subject (n×size, when
+  /// function theorem on the modes (outer_gradient.h; FO's at η = 0, which does not move). Row i of *per_subject (n×size, when
   /// non-null) is ∇OFV_i, 0 for a subject left out. False with `why` naming the first subject
   /// whose gradient cannot be formed.
   /// How many subjects' second derivatives were differences of the exact first ones, and why (the
@@ -58,6 +58,7 @@ class PopulationEngine {
   PopulationMethod method() const { return method_; }
   /// PopulationOptions::exact_conditional_hessian (default true).
   void set_exact_hessian(bool exact) { exact_hessian_ = exact; }
+  bool exact_hessian() const { return exact_hessian_; }
   int threads() const { return threads_; }
 
  private:
@@ -78,7 +79,7 @@ class PopulationEngine {
 
 /// The covariance step at the estimate (covariance.cc): R = ∇²OFV over the estimated natural
 /// parameters, S = Σ_i ∇OFV_i ∇OFV_iᵀ, and the sandwich R⁻¹SR⁻¹; SEs, RSE%, correlations and the
-/// condition number into `summary`. With `exact_gradient` (FOCE, FOCEI) S is formed from the exact
+/// condition number into `summary`. With `exact_gradient` (any method's implicit gradient) S is formed from the exact
 /// per-subject gradients and R from central differences of the exact gradient; otherwise both
 /// from central differences of the OFV. `matrix` chooses R⁻¹SR⁻¹, 2R⁻¹ or 4S⁻¹ (NONMEM's MATRIX=).
 void PopulationCovariance(const PopulationEngine& engine, const Packing& packing,

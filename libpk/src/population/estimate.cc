@@ -1,9 +1,9 @@
-// FOCE, FOCEI and Laplace estimation: the outer problem over θ, Ω and σ (pk/population.h).
+// FO, FOCE, FOCEI and Laplace estimation: the outer problem over θ, Ω and σ (pk/population.h).
 //
-// The outer optimiser is NLopt's L-BFGS on the packed vector x (packing.h). Its gradient, for
-// FOCE and FOCEI, comes from the implicit function theorem on the conditional modes
-// (outer_gradient.h): one pass over each subject's samples at its mode. For Laplace, or when
-// asked, it is central differences of the OFV with every subject's search started from the
+// The outer optimiser is NLopt's L-BFGS on the packed vector x (packing.h). Its gradient comes
+// from the implicit function theorem on the conditional modes (outer_gradient.h): one pass over
+// each subject's samples at its mode (FO: at η = 0, which does not move). Where the exact
+// derivatives do not reach, or when asked, it is central differences of the OFV with every subject's search started from the
 // centre's modes, so that the differences see the smooth objective and not the inner
 // iteration's path (NONMEM differences its outer objective). The modes are found to
 // ‖Δη‖∞ < 1e-10 on the exact propagator (100·rtol on the ODE propagator), which keeps the
@@ -199,7 +199,7 @@ std::string StartingPoint(PopulationEngine* engine, const PopulationParameters& 
     summary->subjects.push_back(s);
   }
   if (summary->failed_subjects == engine->problem().num_subjects()) {
-    return "no subject's conditional mode could be found at the initial estimates (" + r.message +
+    return "no subject's OFV_i (FO) or conditional mode could be evaluated at the initial estimates (" + r.message +
            "): check the starting values";
   }
   if (!r.ok) r = engine->Evaluate(p, *eta, true);
@@ -252,17 +252,15 @@ std::string GradientDescription(const PopulationProblem& problem, const Populati
     return o.method == PopulationMethod::kFo ? "central differences of the OFV"
                                              : "central differences of the OFV (modes warm-started from the centre)";
   }
-  if (o.method == PopulationMethod::kFo) {
-    return "exact, at η = 0 (first- and second-order sensitivities " +
-           std::string(ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact
-                           ? "exact on Φ/Γ)"
-                           : "integrated with the ODEs)");
-  }
   const bool exact = ResolvePropagator(problem.model(), problem.options().propagator) == Propagator::kExact;
+  const std::string moves = EtaMovesDoses(problem) ? "; along η that move the doses, the event engine on hyper-dual jets)" : ")";
+  if (o.method == PopulationMethod::kFo) {
+    return std::string("exact, at η = 0 (first- and second-order sensitivities ") +
+           (exact ? "exact on Φ/Γ" : "integrated with the ODEs") + moves;
+  }
   const char* orders = o.method == PopulationMethod::kLaplace ? "first-, second- and third-order" : "first- and second-order";
   return std::string("implicit function theorem on the conditional modes (") + orders + " sensitivities " +
-         (exact ? "exact on Φ/Γ" : "integrated with the ODEs") +
-         (EtaMovesDoses(problem) ? "; along η that move the doses, the event engine on hyper-dual jets)" : ")");
+         (exact ? "exact on Φ/Γ" : "integrated with the ODEs") + moves;
 }
 
 }  // namespace
@@ -387,6 +385,7 @@ void Minimize(const PopulationEngine& engine, const Packing& packing, const Popu
 // subject keeping its FO OFV_i. A subject whose mode cannot be found keeps η = 0, with a note.
 void PostHocDiagnostics(const PopulationEngine& fo, const PopulationEngine::Result& at, PopulationSummary* summary) {
   PopulationEngine foce(fo.problem(), PopulationMethod::kFoce, fo.threads());
+  foce.set_exact_hessian(fo.exact_hessian());
   for (size_t i = 0; i < fo.included().size(); ++i) {
     if (!fo.included()[i]) foce.Exclude(static_cast<int>(i));
   }
@@ -398,7 +397,10 @@ void PostHocDiagnostics(const PopulationEngine& fo, const PopulationEngine::Resu
     SubjectMode& m = modes.modes[i];
     if (!m.ok) {
       ++missing;
+      const std::string why = m.message;
       m = at.modes[i];  // η = 0, FO's linearisation
+      m.eta_estimated = false;
+      m.message = "no post hoc η̂ (FOCE's mode: " + why + "): η = 0 in the tables";
     }
     m.ofv = at.modes[i].ofv;
   }

@@ -1,7 +1,8 @@
 // The gradient of a subject's OFV_i with respect to the packed population parameters x, by the
 // implicit function theorem on its conditional mode (not installed; outer_gradient.cc has the
-// formulas, docs/population.md derives them). FOCE and FOCEI from first and second derivatives of
-// the predictions; Laplace, whose OFV_i holds log det of the exact ½∇²l, from third ones too.
+// formulas, docs/population.md derives them). FO (at η = 0, which does not move), FOCE and FOCEI
+// from first and second derivatives of the predictions; Laplace, whose OFV_i holds log det of the
+// exact ½∇²l, from third ones too.
 #ifndef PK_SRC_POPULATION_OUTER_GRADIENT_H_
 #define PK_SRC_POPULATION_OUTER_GRADIENT_H_
 
