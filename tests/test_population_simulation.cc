@@ -630,6 +630,11 @@ TEST_CASE("population estimates are read back from pkpop's table", "[simulation]
   CHECK(p.omega(1, 1) == 0.04);
   CHECK(p.omega(0, 1) == 0.02);
   CHECK(p.omega(1, 0) == 0.02);
+  // As pkpop writes a block: Ω's lower triangle by rows, a covariance before the second variance.
+  const pk::PopulationEstimates rows = pk::ParsePopulationEstimates(
+      "PARAMETER,ESTIMATE\nCL,3\nV,30\nOMEGA(CL),0.09\n\"OMEGA(V,CL)\",0.02\nOMEGA(V),0.04\nSIGMA_PROP,0.1\n", "rows.csv",
+      *model);
+  CHECK(rows.omega == p.omega);
   CHECK(p.sigma_names == std::vector<std::string>{"SIGMA_PROP"});
   CHECK(p.sigma(0) == 0.1);
   const auto refused = [&](const std::string& body, const std::string& message) {

@@ -130,6 +130,14 @@ TEST_CASE("uncertainty draws stay in the parameter space, and SAME blocks follow
     CHECK(s.omega(3, 3) == s.omega(2, 2));
     CHECK(s.omega(4, 4) == s.omega(2, 2));
   }
+  // A run whose --block regrouped IOV2 estimated it on its own: its covariance names it, and the tie
+  // is not imposed on it (IOV3, still SAME as IOV2 in the file and not named, follows IOV2).
+  ci.names = {"TVCL", "OMEGA(IOV1)", "OMEGA(IOV2)"};
+  ci.covariance = Eigen::Vector3d(0.01, 1e-4, 1e-4).asDiagonal();
+  for (const auto& s : pk::DrawFromCovariance(p, ci, *iov, 20, 5)) {
+    CHECK(s.omega(3, 3) != s.omega(2, 2));
+    CHECK(s.omega(4, 4) == s.omega(3, 3));
+  }
 }
 
 TEST_CASE("the estimates' covariance and a bootstrap's parameter sets are read from pkpop's files", "[uncertainty][reader]") {
@@ -158,10 +166,26 @@ TEST_CASE("the estimates' covariance and a bootstrap's parameter sets are read f
   CHECK(sets[1].omega(0, 1) == 0.03);
   CHECK(sets[1].omega(1, 0) == 0.03);
   CHECK(sets[0].sigma(0) == 0.11);
-  CHECK_THROWS_WITH(pk::ReadParameterSets(WriteTemporary("boot2.csv", "REPLICATE,USED,KA\n1,1,2\n"), e, *model),
-                    Catch::Contains("boot2.csv:1") && Catch::Contains("no typical value KA"));
-  CHECK_THROWS_WITH(pk::ReadParameterSets(WriteTemporary("boot3.csv", "REPLICATE,USED,CL\n1,0,2\n"), e, *model),
+  const std::string all = "REPLICATE,USED,CL,V,OMEGA(CL),\"OMEGA(V,CL)\",OMEGA(V),SIGMA_PROP";
+  CHECK_THROWS_WITH(
+      pk::ReadParameterSets(WriteTemporary("boot2.csv", all + ",KA\n1,1,3,30,0.1,0.01,0.04,0.1,2\n"), e, *model),
+      Catch::Contains("boot2.csv:1:9: est has no typical value KA"));
+  CHECK_THROWS_WITH(pk::ReadParameterSets(WriteTemporary("boot3.csv", all + "\n1,0,3,30,0.1,0.01,0.04,0.1\n"), e, *model),
                     Catch::Contains("no parameter set"));
+  // A bootstrap of another run: a parameter of the estimates missing, or a covariance they do not have.
+  CHECK_THROWS_WITH(pk::ReadParameterSets(WriteTemporary("boot4.csv", "REPLICATE,USED,CL,V,OMEGA(CL),SIGMA_PROP\n"
+                                                                      "1,1,3,30,0.1,0.1\n"),
+                                          e, *model),
+                    Catch::Contains("boot4.csv:1: no column OMEGA(V)"));
+  pk::PopulationEstimates diagonal = e;
+  diagonal.omega(0, 1) = diagonal.omega(1, 0) = 0;
+  CHECK_THROWS_WITH(pk::ReadParameterSets(boot, diagonal, *model),
+                    Catch::Contains("boot.csv:1:9: OMEGA(V,CL): a covariance est does not have"));
+  // A used replicate outside the parameter space is named by its line.
+  CHECK_THROWS_WITH(pk::ReadParameterSets(WriteTemporary("boot5.csv", all + "\n1,1,3,30,0.1,0.01,0.04,0.1\n"
+                                                                            "2,1,-3,30,0.1,0.01,0.04,0.1\n"),
+                                          e, *model),
+                    Catch::Contains("boot5.csv:3: a used replicate outside the parameter space: CL = -3 is not positive"));
 }
 
 TEST_CASE("a simulation with uncertainty takes replicate r's θ, Ω and σ from set r mod n, its η streams unchanged",

@@ -49,6 +49,11 @@ EstimatesCovariance ReadEstimatesCovariance(const std::string& path);
 PopulationEstimates WithNaturalValues(const PopulationEstimates& base, const std::vector<std::string>& names,
                                       const Eigen::VectorXd& values, const Model& model);
 
+/// Whether `set` lies in the parameter space: every θ that `model` requires positive is (its signed
+/// parameters aside) and within a model file's bounds, Ω is positive definite, every σ positive;
+/// else false with `why`.
+bool InParameterSpace(const PopulationEstimates& set, const Model& model, std::string* why);
+
 /// `count` sets drawn from N(estimates, covariance) as above, set r from a stream of its own (seed, r),
 /// so a set does not depend on how many are drawn. *redrawn (when non-null) counts the draws rejected.
 /// Throws pk::InputError when the covariance is not positive semi-definite or names a value the
@@ -58,9 +63,11 @@ std::vector<PopulationEstimates> DrawFromCovariance(const PopulationEstimates& e
                                                     int count, std::uint64_t seed, int* redrawn = nullptr);
 
 /// The sets of a bootstrap: bootstrap.csv's rows (those with USED 1 when it has the column), each
-/// over `estimates`, the columns REPLICATE, CONVERGED, BOUNDARY, USED and OFV aside. Throws
-/// pk::InputError naming the file, line and column of an unknown name or unreadable value, or when
-/// no row is left.
+/// over `estimates`, the columns REPLICATE, CONVERGED, BOUNDARY, USED and OFV aside. The columns
+/// must be the estimates' own parameters, every θ, Ω variance and σ of them and no covariance
+/// they do not have (a bootstrap of another run is refused). Throws pk::InputError naming the
+/// file, line and column of an unknown or missing name, an unreadable value, a row outside the
+/// parameter space, or when no row is left.
 std::vector<PopulationEstimates> ReadParameterSets(const std::string& path, const PopulationEstimates& estimates,
                                                    const Model& model);
 

@@ -1,5 +1,6 @@
 // Reading the estimates' uncertainty as pkpop writes it: covariance.csv and bootstrap.csv
 // (pk/uncertainty.h).
+#include <algorithm>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -33,6 +34,42 @@ double Number(const std::vector<std::string>& fields, size_t k, const std::strin
     throw InputError(source, line, static_cast<int>(k) + 1, "'" + fields[k] + "' is not a number");
   }
   return v;
+}
+
+// The bootstrap's columns are the estimates' parameters: each one the estimates hold (a covariance
+// only where they have one), and every θ, Ω variance and σ of theirs among them.
+void CheckSameParameters(const std::string& path, int line, const std::vector<std::string>& header,
+                         const std::vector<std::string>& names, const PopulationEstimates& estimates, const Model& model) {
+  const auto column = [&](const std::string& name) {
+    for (size_t k = 0; k < header.size(); ++k) {
+      if (header[k] == name) return static_cast<int>(k) + 1;
+    }
+    return 0;
+  };
+  std::vector<std::string> wanted;
+  for (const auto& [theta, value] : estimates.theta) wanted.push_back(ToUpper(theta));
+  for (const std::string& eta : estimates.etas) wanted.push_back("OMEGA(" + ToUpper(eta) + ")");
+  for (const std::string& sigma : estimates.sigma_names) wanted.push_back(ToUpper(sigma));
+  std::vector<std::string> upper;
+  for (const std::string& n : names) upper.push_back(ToUpper(n));
+  for (const std::string& w : wanted) {
+    if (std::find(upper.begin(), upper.end(), w) == upper.end()) {
+      throw InputError(path, line, 0, "no column " + w + ": a bootstrap of another run (" + estimates.source +
+                                          " has it), or of another model");
+    }
+  }
+  for (size_t k = 0; k < names.size(); ++k) {
+    try {  // a name the estimates hold; a covariance where they have one (NaN marks where it goes)
+      const PopulationEstimates probe =
+          WithNaturalValues(estimates, {names[k]}, Eigen::VectorXd::Constant(1, std::nan("")), model);
+      if (internal::OmegaArguments(upper[k]).size() == 2 &&
+          (probe.omega.array().isNaN() && estimates.omega.array() == 0).any()) {
+        throw InputError(names[k] + ": a covariance " + estimates.source + " does not have (a bootstrap of another run)");
+      }
+    } catch (const InputError& e) {
+      throw InputError(path, line, column(names[k]), e.message());
+    }
+  }
 }
 
 }  // namespace
@@ -92,11 +129,7 @@ std::vector<PopulationEstimates> ReadParameterSets(const std::string& path, cons
     names.push_back(header[k]);
     columns.push_back(k);
   }
-  try {  // every name is one the estimates hold
-    WithNaturalValues(estimates, names, Eigen::VectorXd::Zero(static_cast<Eigen::Index>(names.size())), model);
-  } catch (const InputError& e) {
-    throw InputError(path, header_line, 0, e.message());
-  }
+  CheckSameParameters(path, header_line, header, names, estimates, model);
   std::vector<PopulationEstimates> out;
   for (; at < lines.size(); ++at) {
     if (IsSkippedLine(lines[at].second)) continue;
@@ -111,6 +144,8 @@ std::vector<PopulationEstimates> ReadParameterSets(const std::string& path, cons
     for (size_t k = 0; k < columns.size(); ++k) values(static_cast<Eigen::Index>(k)) = Number(fields, columns[k], path, line);
     out.push_back(WithNaturalValues(estimates, names, values, model));
     out.back().source = path + ":" + std::to_string(line);
+    std::string why;
+    if (!InParameterSpace(out.back(), model, &why)) throw InputError(path, line, 0, "a used replicate outside the parameter space: " + why);
   }
   if (out.empty()) throw InputError(path, 0, 0, "no parameter set (no row marked USED)");
   return out;

@@ -51,7 +51,7 @@ class Reader {
     for (size_t k = 0; i >= 0 && k < out_.etas.size(); ++k) {
       if (out_.etas[k] == model_.parameter_names()[static_cast<size_t>(i)]) return static_cast<int>(k);
     }
-    Fail(r, r.name + ": " + name + " has no variance OMEGA(" + name + ") before it");
+    Fail(r, r.name + ": " + name + " has no variance OMEGA(" + name + ")");
     return -1;
   }
 
@@ -60,7 +60,9 @@ class Reader {
     if (upper == "OFV") return;
     const std::vector<std::string> omega = OmegaArguments(upper);
     if (omega.size() == 1) return AddEta(r, omega[0]);
-    if (omega.size() == 2) return covariances_.push_back({r, {EtaIndex(r, omega[0]), EtaIndex(r, omega[1])}});
+    // pkpop tables Ω's lower triangle by rows (OMEGA(CL), OMEGA(V,CL), OMEGA(V)): a covariance is
+    // placed once every variance is known.
+    if (omega.size() == 2) return covariances_.push_back({r, {omega[0], omega[1]}});
     if (IsResidualErrorName(upper)) {
       if (!(r.value >= 0)) Fail(r, r.name + ": σ is a standard deviation, not " + FormatNumber(r.value));
       out_.sigma_names.push_back(upper);
@@ -77,9 +79,10 @@ class Reader {
     const auto q = static_cast<Eigen::Index>(out_.etas.size());
     out_.omega = Eigen::MatrixXd::Zero(q, q);
     for (Eigen::Index k = 0; k < q; ++k) out_.omega(k, k) = variances_[static_cast<size_t>(k)];
-    for (const auto& [row, at] : covariances_) {
-      if (out_.omega(at.first, at.second) != 0) Fail(row, row.name + " is given twice");
-      out_.omega(at.first, at.second) = out_.omega(at.second, at.first) = row.value;
+    for (const auto& [row, names] : covariances_) {
+      const int a = EtaIndex(row, names.first), b = EtaIndex(row, names.second);
+      if (out_.omega(a, b) != 0) Fail(row, row.name + " is given twice");
+      out_.omega(a, b) = out_.omega(b, a) = row.value;
     }
     out_.sigma = Eigen::Map<const Eigen::VectorXd>(sigmas_.data(), static_cast<Eigen::Index>(sigmas_.size()));
     return out_;
@@ -90,7 +93,7 @@ class Reader {
   const Model& model_;
   PopulationEstimates out_;
   std::vector<double> variances_, sigmas_;
-  std::vector<std::pair<Row, std::pair<int, int>>> covariances_;
+  std::vector<std::pair<Row, std::pair<std::string, std::string>>> covariances_;
 };
 
 PopulationEstimates Parse(const internal::NumberedLines& lines, const std::string& source, const Model& model) {

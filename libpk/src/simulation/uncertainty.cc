@@ -9,6 +9,7 @@
 
 #include "internal_text.h"
 #include "pk/error.h"
+#include "pk/output.h"
 #include "pk/residual_error.h"
 #include "simulation/normal_stream.h"
 
@@ -25,13 +26,20 @@ int EtaPosition(const PopulationEstimates& p, const Model& model, const std::str
   return -1;
 }
 
-// A model file's SAME blocks repeat the block declared before them: their Ω follows that block's.
-void TieSameBlocks(const Model& model, PopulationEstimates* p) {
+// A model file's SAME blocks repeat the block declared before them: their Ω follows that block's,
+// where the run held the tie (its covariance names none of the block's variances; a run whose
+// --block regrouped the block estimated it on its own, and the covariance names it).
+void TieSameBlocks(const Model& model, const std::vector<bool>& named_variance, PopulationEstimates* p) {
   const auto& blocks = model.declarations().omega_blocks;
   for (size_t b = 1; b < blocks.size(); ++b) {
     if (!blocks[b].same || blocks[b].etas.size() != blocks[b - 1].etas.size()) continue;
     const size_t n = blocks[b].etas.size();
+    bool held = true;
     for (size_t i = 0; i < n; ++i) {
+      const int at = EtaPosition(*p, model, blocks[b].etas[i]);
+      held = held && at >= 0 && !named_variance[static_cast<size_t>(at)];
+    }
+    for (size_t i = 0; held && i < n; ++i) {
       for (size_t j = 0; j < n; ++j) {
         const int to_i = EtaPosition(*p, model, blocks[b].etas[i]), to_j = EtaPosition(*p, model, blocks[b].etas[j]);
         const int from_i = EtaPosition(*p, model, blocks[b - 1].etas[i]);
@@ -41,16 +49,6 @@ void TieSameBlocks(const Model& model, PopulationEstimates* p) {
       }
     }
   }
-}
-
-// Inside the parameter space: θ positive where the model requires it, Ω positive definite, σ positive.
-bool Admissible(const PopulationEstimates& p, const Model& model) {
-  for (const auto& [name, value] : p.theta) {
-    const int i = model.ParameterIndex(name);
-    if (!std::isfinite(value) || (i >= 0 && model.must_be_positive(i) && !(value > 0))) return false;
-  }
-  if (p.omega.size() > 0 && Eigen::LLT<Eigen::MatrixXd>(p.omega).info() != Eigen::Success) return false;
-  return (p.sigma.array() > 0).all() && p.sigma.allFinite();
 }
 
 // Where a named natural value sits in a set of estimates.
@@ -102,6 +100,31 @@ void Set(const Slot& s, double v, PopulationEstimates* p) {
 
 }  // namespace
 
+bool InParameterSpace(const PopulationEstimates& p, const Model& model, std::string* why) {
+  const auto& declared = model.declarations().parameters;
+  for (const auto& [name, value] : p.theta) {
+    const int i = model.ParameterIndex(name);
+    const bool bounded = i >= 0 && static_cast<size_t>(i) < declared.size();
+    if (!std::isfinite(value) || (i >= 0 && model.must_be_positive(i) && !(value > 0))) {
+      *why = name + " = " + FormatNumber(value) + " is not positive";
+      return false;
+    }
+    if (bounded && !(value >= declared[static_cast<size_t>(i)].lower && value <= declared[static_cast<size_t>(i)].upper)) {
+      *why = name + " = " + FormatNumber(value) + " is outside its bounds in the model file";
+      return false;
+    }
+  }
+  if (p.omega.size() > 0 && Eigen::LLT<Eigen::MatrixXd>(p.omega).info() != Eigen::Success) {
+    *why = "Ω is not positive definite";
+    return false;
+  }
+  if (!((p.sigma.array() > 0).all() && p.sigma.allFinite())) {
+    *why = "a σ is not positive";
+    return false;
+  }
+  return true;
+}
+
 PopulationEstimates WithNaturalValues(const PopulationEstimates& base, const std::vector<std::string>& names,
                                       const Eigen::VectorXd& values, const Model& model) {
   PopulationEstimates out = base;
@@ -125,9 +148,13 @@ std::vector<PopulationEstimates> DrawFromCovariance(const PopulationEstimates& e
   // The centre: the estimates' own values of the covariance's names (an unknown name throws here).
   std::vector<Slot> slots;
   Eigen::VectorXd centre(m);
+  std::vector<bool> named_variance(estimates.etas.size(), false);
   for (Eigen::Index k = 0; k < m; ++k) {
     slots.push_back(Resolve(estimates, covariance.names[static_cast<size_t>(k)], model));
     centre(k) = Get(estimates, slots.back());
+    if (slots.back().kind == Slot::kOmega && slots.back().a == slots.back().b) {
+      named_variance[static_cast<size_t>(slots.back().a)] = true;
+    }
   }
   std::vector<PopulationEstimates> out;
   int rejected = 0;
@@ -140,8 +167,9 @@ std::vector<PopulationEstimates> DrawFromCovariance(const PopulationEstimates& e
       PopulationEstimates set = estimates;
       const Eigen::VectorXd x = centre + factor * z;
       for (Eigen::Index k = 0; k < m; ++k) Set(slots[static_cast<size_t>(k)], x(k), &set);
-      TieSameBlocks(model, &set);
-      if (Admissible(set, model)) {
+      TieSameBlocks(model, named_variance, &set);
+      std::string why;
+      if (InParameterSpace(set, model, &why)) {
         out.push_back(std::move(set));
         drawn = true;
       } else {
