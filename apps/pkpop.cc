@@ -126,28 +126,28 @@ int Required(const std::vector<std::string>& names, const std::string& name, con
 }
 
 // Ω's blocks from --block: each a run of consecutive η; the others are blocks of one.
-// The SAME ties of `declared` (blocks of `declared_sizes`) that survive a regrouping into `sizes`: a
-// tie holds where the SAME block and the block before it both keep their place and size.
-std::vector<bool> KeptTies(const std::vector<int>& declared_sizes, const std::vector<bool>& declared,
-                           const std::vector<int>& sizes) {
+// A flag of the declared blocks (blocks of `declared_sizes`) carried to a regrouping into `sizes`: a
+// block keeps its flag where it keeps its place and size, and for a SAME tie (`tie`) the block before
+// it must too.
+std::vector<bool> KeptFlags(const std::vector<int>& declared_sizes, const std::vector<bool>& declared,
+                            const std::vector<int>& sizes, bool tie) {
   std::map<int, size_t> declared_at;  // a declared block's first η → its index
   for (size_t b = 0, start = 0; b < declared_sizes.size(); start += static_cast<size_t>(declared_sizes[b++])) {
     declared_at[static_cast<int>(start)] = b;
   }
-  std::vector<bool> same(sizes.size(), false);
-  for (size_t b = 1, start = static_cast<size_t>(sizes.empty() ? 0 : sizes[0]); b < sizes.size();
-       start += static_cast<size_t>(sizes[b++])) {
+  std::vector<bool> kept(sizes.size(), false);
+  for (size_t b = 0, start = 0; b < sizes.size(); start += static_cast<size_t>(sizes[b++])) {
     const auto it = declared_at.find(static_cast<int>(start));
-    if (it == declared_at.end() || it->second == 0 || it->second >= declared.size() || !declared[it->second]) continue;
+    if (it == declared_at.end() || it->second >= declared.size() || !declared[it->second]) continue;
     const size_t d = it->second;
-    same[b] = declared_sizes[d] == sizes[b] && declared_sizes[d - 1] == sizes[b - 1];
+    kept[b] = declared_sizes[d] == sizes[b] && (!tie || (b > 0 && d > 0 && declared_sizes[d - 1] == sizes[b - 1]));
   }
-  return same;
+  return kept;
 }
 
 // --block: Ω's blocks from the η lists (the others diagonal), in place of the model file's. Its FIX
-// flags go with its blocks; its SAME ties stay where --block leaves a tied block and its source as
-// they were (an occasion's η, say, while CL and V become a block).
+// flags stay where --block leaves a block as it was, its SAME ties where it leaves a tied block and
+// its source as they were (an occasion's η, say, while CL and V become a block).
 void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>& specs, pk::PopulationStructure* s) {
   std::vector<int> block_of(etas.size(), -1);
   std::vector<int> sizes;
@@ -170,15 +170,20 @@ void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>
     sizes.push_back(static_cast<int>(size));
     k += size;
   }
-  const std::vector<bool> kept = KeptTies(s->omega_blocks, s->omega_block_same, sizes);
-  const auto ties = [](const std::vector<bool>& v) { return std::count(v.begin(), v.end(), true); };
-  if (ties(kept) < ties(s->omega_block_same)) {
-    std::cerr << "pkpop: note: --block regroups Ω: " << ties(s->omega_block_same) - ties(kept)
-              << " of the model file's SAME blocks become variances of their own\n";
+  const std::vector<bool> same = KeptFlags(s->omega_blocks, s->omega_block_same, sizes, true);
+  const std::vector<bool> fixed = KeptFlags(s->omega_blocks, s->omega_block_fixed, sizes, false);
+  const auto count = [](const std::vector<bool>& v) { return std::count(v.begin(), v.end(), true); };
+  if (count(same) < count(s->omega_block_same)) {
+    std::cerr << "pkpop: note: --block regroups Ω: " << count(s->omega_block_same) - count(same)
+              << " of the model file's SAME blocks are estimated on their own\n";
+  }
+  if (count(fixed) < count(s->omega_block_fixed)) {
+    std::cerr << "pkpop: note: --block regroups Ω: " << count(s->omega_block_fixed) - count(fixed)
+              << " of the model file's FIX blocks are estimated (FIX stays with a block --block leaves as it was)\n";
   }
   s->omega_blocks = sizes;
-  s->omega_block_fixed.clear();
-  s->omega_block_same = ties(kept) > 0 ? kept : std::vector<bool>();
+  s->omega_block_fixed = count(fixed) > 0 ? fixed : std::vector<bool>();
+  s->omega_block_same = count(same) > 0 ? same : std::vector<bool>();
 }
 
 // Initial values and FIX flags from --theta, --omega, --sigma and --fix.
@@ -386,19 +391,15 @@ std::string ReportText(const pk::PopulationSummary& fit, const pk::cli::Populati
          (context.npde ? "\n" + context.npde->FullReport() : "");
 }
 
-void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
-                  const pk::cli::PopulationReportContext& context, const pk::cli::PopulationSimulationRequest& simulation) {
+// The output set, whole or not at all. Its contents are built before the set is opened, and simtab.csv
+// (the longest to write) is simulated before it too: until the new MANIFEST, a set written before (the
+// fit's own, Main) stays whole, the new simtab.csv not listed in it. A failed simulation is returned
+// (the other results are written); anything else throws.
+std::string WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
+                         const pk::cli::PopulationReportContext& context,
+                         const pk::cli::PopulationSimulationRequest& simulation) {
   std::filesystem::create_directories(dir);
   pk::RemoveStaleTemporaries(dir);
-  // simtab.csv, the longest to write, before the set is opened: until the new manifest, the set
-  // written before it (the fit's own, Main) stays whole, the new simtab.csv not listed in it.
-  if (simulation.simulate > 0) {
-    const int failed = pk::cli::WriteSimtab(dir + "/simtab.csv", problem, fit.parameters, simulation);
-    if (failed > 0) {
-      std::cerr << "pkpop: note: " << failed << " subject-replicates could not be simulated and are not in simtab.csv\n";
-    }
-  }
-  pk::BeginOutputSet(dir);
   std::vector<std::pair<std::string, std::string>> files = {
       {"population_estimates.csv", EstimatesCsv(fit)}, {"sdtab.csv", SdtabCsv(fit, problem.num_censored() > 0)},
       {"patab.csv", PatabCsv(problem, fit)},
@@ -416,13 +417,26 @@ void WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, 
     files.push_back({"npde.csv", pk::NpdeCsv(*context.npde)});
     files.push_back({"npde.svg", pk::cli::NpdeSvg(*context.npde)});
   }
+  std::string failure;
+  if (simulation.simulate > 0) {
+    try {
+      const int failed = pk::cli::WriteSimtab(dir + "/simtab.csv", problem, fit.parameters, simulation);
+      if (failed > 0) {
+        std::cerr << "pkpop: note: " << failed << " subject-replicates could not be simulated and are not in simtab.csv\n";
+      }
+    } catch (const std::exception& e) {
+      failure = std::string("the simulation for simtab.csv failed (the other results are written): ") + e.what();
+    }
+  }
+  pk::BeginOutputSet(dir);
   std::vector<std::string> names;
   for (const auto& [name, text] : files) {
     pk::WriteFileAtomically(dir + "/" + name, text);
     names.push_back(name);
   }
-  if (simulation.simulate > 0) names.push_back("simtab.csv");
+  if (simulation.simulate > 0 && failure.empty()) names.push_back("simtab.csv");
   pk::CompleteOutputSet(dir, names, "pkpop");
+  return failure;
 }
 
 // Without --eta: a model file's own η (its $OMEGA), else an η on every estimable parameter.
@@ -577,9 +591,12 @@ int Main(int argc, char** argv, Process* p) {
     WriteOutputs(dir, problem, fit, context, pk::cli::PopulationSimulationRequest());
     if (!quiet) std::cerr << "  the fit's results are in " << dir << "/; the analyses after it follow\n";
   }
-  const std::vector<std::string> failures =
+  std::vector<std::string> failures =
       process.rank == 0 ? Analyses(problem, fit, options, simulation, quiet, &context) : std::vector<std::string>();
-  if (process.rank == 0) WriteOutputs(dir, problem, fit, context, simulation);
+  if (process.rank == 0) {
+    const std::string simtab = WriteOutputs(dir, problem, fit, context, simulation);
+    if (!simtab.empty()) failures.push_back(simtab);
+  }
   if (!quiet) {
     std::cout << fit.FullReport() << "\nresults in " << dir
               << "/ (report.html with its plots, population_estimates.csv, sdtab.csv, patab.csv, subjects.csv, iterations.csv, "

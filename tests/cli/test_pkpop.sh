@@ -97,6 +97,10 @@ awk -F, 'NR == 2 { if ($8 != 0.01) exit 1 }' "$work/pheno_block/iterations.csv" 
   fail "the block's covariance did not start from \$OMEGA: $(head -2 "$work/pheno_block/iterations.csv")"
 grep -q '^"OMEGA(ETA_V,ETA_CL)",[0-9.e-]*,,,0,0$' "$work/pheno_block/population_estimates.csv" ||
   fail "the block's covariance is not estimated"
+# A block run reads back (Ω's lower triangle by rows: the covariance before the second variance).
+"$pksim" --model "$work/pheno_block.pkm" --population "$work/pheno_block" --dose 30 --times 1,2 --param WT=1.2 \
+  --param APGAR=7 --subjects 3 --out "$work/pheno_block_sim.csv" 2>"$work/err.txt" ||
+  fail "pksim --population of a run with an Ω block: $(cat "$work/err.txt")"
 sed 's/c(0.05, 0.01, 0.05)/c(0.03, 0.005, 0.03) FIX/' "$work/pheno_block.pkm" >"$work/pheno_fix.pkm"
 "$pkpop" --model "$work/pheno_fix.pkm" --data "$root/datasets/phenobarbital.csv" --no-covariance -q \
   -o "$work/pheno_fix" || fail "the fixed Ω block fit exited non-zero"
@@ -223,9 +227,17 @@ grep -q "SAME" "$work/err.txt" && fail "--block ETA_CL,ETA_V noted a dropped tie
 "$pkpop" --model "$root/models/iov_pop.pkm" --data "$root/datasets/iov_synthetic.csv" --error additive \
   --block IOV1,IOV2 --max-evaluations 0 --no-covariance -q -o "$work/iov_block2" 2>"$work/err.txt" ||
   fail "--block IOV1,IOV2: $(cat "$work/err.txt")"
-grep -q "2 of the model file's SAME blocks become variances of their own" "$work/err.txt" ||
+grep -q "2 of the model file's SAME blocks are estimated on their own" "$work/err.txt" ||
   fail "--block IOV1,IOV2: no note of the dropped ties: $(cat "$work/err.txt")"
 grep -q "SAME" "$work/iov_block2/report.txt" && fail "--block IOV1,IOV2 kept a tie"
+# FIX stays with a block --block leaves as it was: IOV1 ~ 0.03 FIX beside --block ETA_CL,ETA_V.
+sed 's/^IOV1   ~ 0.03$/IOV1   ~ 0.03 FIX/' "$root/models/iov_pop.pkm" > "$work/iov_fix.pkm"
+grep -q "IOV1   ~ 0.03 FIX" "$work/iov_fix.pkm" || fail "the FIX variant of iov_pop.pkm was not made"
+"$pkpop" --model "$work/iov_fix.pkm" --data "$root/datasets/iov_synthetic.csv" --error additive \
+  --block ETA_CL,ETA_V --max-evaluations 0 --no-covariance -q -o "$work/iov_fix" 2>"$work/err.txt" ||
+  fail "--block with a FIX block: $(cat "$work/err.txt")"
+grep -q "^OMEGA(IOV1),0.03,,,1,0$" "$work/iov_fix/population_estimates.csv" ||
+  fail "--block ETA_CL,ETA_V freed IOV1's FIX: $(grep IOV1 "$work/iov_fix/population_estimates.csv")"
 
 "$pkpop" --model "$root/models/iov_pop.pkm" --data "$root/datasets/iov_synthetic.csv" --fix 'OMEGA(IOV2)' -q \
   -o "$work/bad" >"$work/err.txt" 2>&1
