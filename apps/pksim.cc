@@ -280,11 +280,22 @@ void Uncertainty(const std::string& source, const std::string& estimates, const 
     const std::string path = std::filesystem::path(estimates).replace_filename("covariance.csv").string();
     pk::CheckOutputSet(path, "pkpop", "pkpop.ext");
     int redrawn = 0;
-    sets = pk::DrawFromCovariance(v->estimates, pk::ReadEstimatesCovariance(path), model, v->options.replicates,
-                                  v->options.seed, &redrawn);
+    try {
+      sets = pk::DrawFromCovariance(v->estimates, pk::ReadEstimatesCovariance(path), model, v->options.replicates,
+                                    v->options.seed, &redrawn);
+    } catch (const pk::InputError& e) {
+      throw pk::InputError(e.message().rfind(path, 0) == 0 ? e.message() : path + ": " + e.message());
+    }
     std::cerr << "pksim: note: each replicate's θ, Ω and σ drawn from N(estimates, " << path << ")"
               << (redrawn > 0 ? "; " + std::to_string(redrawn) + " draws outside the parameter space drawn again" : "")
               << "\n";
+    const double rejected = static_cast<double>(redrawn) / (redrawn + v->options.replicates);
+    if (rejected > 0.05) {
+      std::cerr << "pksim: warning: " << pk::FormatNumber(std::round(1000 * rejected) / 10)
+                << "% of the draws fell outside the parameter space: the truncated normal's means differ from the "
+                   "estimates (a variance or θ whose SE is large beside it); a bootstrap's replicates "
+                   "(--uncertainty BOOT) describe such uncertainty better\n";
+    }
     return;
   }
   std::string path = source;

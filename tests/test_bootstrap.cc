@@ -89,11 +89,17 @@ TEST_CASE("stratified bootstrap draws keep each stratum's size and draw within i
   // One stratum: the unstratified draws.
   CHECK(pk::BootstrapSample(9, 4, std::vector<double>(12, 2.0)) == pk::BootstrapSample(9, 4, 12));
   // Strata from a column: each subject's first record; an unknown column is named.
-  const pk::Dataset data = pk::ParseDataset("ID,TIME,AMT,DV,EVID,MDV,STUDY\n1,0,10,.,1,1,1\n1,1,0,5,0,0,2\n"
+  const pk::Dataset data = pk::ParseDataset("ID,TIME,AMT,DV,EVID,MDV,STUDY\n1,0,10,.,1,1,1\n1,1,0,5,0,0,1\n"
                                             "2,0,10,.,1,1,2\n2,1,0,4,0,0,2\n",
                                             "strata.csv");
   CHECK(pk::BootstrapStrata(data, "STUDY") == std::vector<double>{1, 2});
   CHECK_THROWS_WITH(pk::BootstrapStrata(data, "ARM"), Catch::Contains("'ARM'") && Catch::Contains("STUDY"));
+  CHECK_THROWS_WITH(pk::BootstrapStrata(data, "EVID"), Catch::Contains("a PREDPP column"));
+  // A stratum is one value a subject (PsN refuses a column that changes within one): the line is named.
+  const pk::Dataset changing = pk::ParseDataset("ID,TIME,AMT,DV,EVID,MDV,STUDY\n1,0,10,.,1,1,1\n1,1,0,5,0,0,2\n",
+                                                "changing.csv");
+  CHECK_THROWS_WITH(pk::BootstrapStrata(changing, "STUDY"),
+                    Catch::Contains("changing.csv:3:7") && Catch::Contains("ID 1 has 2 here and 1 on its first record"));
 }
 
 TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[bootstrap][population]") {

@@ -80,6 +80,7 @@ struct BootstrapSummary {
   double interval = 95;
   std::string stratify;  ///< the column stratified by, or empty
   int strata = 1;        ///< its distinct values (1 without strata)
+  int small_strata = 0;  ///< strata of fewer than 5 subjects (a warning: each resamples little or nothing)
   std::vector<std::string> names;  ///< the natural parameters (PopulationSummary::estimates' names)
   std::vector<BootstrapReplicate> runs;
   std::vector<BootstrapParameter> parameters;

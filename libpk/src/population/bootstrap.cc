@@ -148,16 +148,32 @@ std::vector<int> BootstrapSample(std::uint64_t seed, int replicate, const std::v
 std::vector<double> BootstrapStrata(const Dataset& data, const std::string& column) {
   const int c = data.ExtraColumn(column);
   if (c < 0) {
+    const std::string upper = internal::ToUpper(column);
+    const bool standard = std::find(data.columns.begin(), data.columns.end(), upper) != data.columns.end();
     std::string columns;
     for (const std::string& e : data.extra_columns) columns += (columns.empty() ? "" : ", ") + e;
-    throw InputError("bootstrap: stratify by '" + column + "': " + data.source + " has no such column" +
+    throw InputError("bootstrap: stratify by '" + column + "': " + data.source +
+                     (standard ? " has it as a PREDPP column (ID, TIME, CMT, DVID, ...); stratify by a covariate column"
+                               : " has no such column") +
                      (columns.empty() ? "" : " (its covariate columns: " + columns + ")"));
   }
+  const auto at = std::find(data.columns.begin(), data.columns.end(), data.extra_columns[static_cast<size_t>(c)]);
+  const int file_column = at == data.columns.end() ? 0 : static_cast<int>(at - data.columns.begin()) + 1;
   std::vector<double> out;
   for (const Subject& s : data.subjects) {
     const double v = s.records.empty() ? kNaN : s.records.front().extra[static_cast<size_t>(c)];
-    if (std::isnan(v)) {
-      throw InputError("bootstrap: stratify by '" + column + "': missing on the first record of ID " + FormatNumber(s.id));
+    // A subject's stratum is one value (PsN refuses a column that changes within a subject).
+    for (const Record& r : s.records) {
+      const double x = r.extra[static_cast<size_t>(c)];
+      if (std::isnan(x)) {
+        throw InputError(data.source, r.line, file_column,
+                         "bootstrap: stratify by '" + column + "': missing for ID " + FormatNumber(s.id));
+      }
+      if (x != v) {
+        throw InputError(data.source, r.line, file_column, "bootstrap: stratify by '" + column + "': ID " + FormatNumber(s.id) +
+                                                         " has " + FormatNumber(x) + " here and " + FormatNumber(v) +
+                                                         " on its first record; a stratum is one value a subject");
+      }
     }
     out.push_back(v);
   }
@@ -172,7 +188,10 @@ BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const Pop
   b.stratify = options.stratify;
   if (!options.stratify.empty()) {
     const std::vector<double> strata = BootstrapStrata(problem.data(), options.stratify);
-    b.strata = static_cast<int>(std::set<double>(strata.begin(), strata.end()).size());
+    std::map<double, int> sizes;
+    for (double v : strata) ++sizes[v];
+    b.strata = static_cast<int>(sizes.size());
+    for (const auto& [value, n] : sizes) b.small_strata += n < 5 ? 1 : 0;
   }
   b.replicates = options.replicates;
   b.seed = options.seed;
@@ -203,6 +222,11 @@ std::string BootstrapSummary::BriefReport() const {
                   std::to_string(converged) + " converged, " + std::to_string(used) +
                   " of them with no estimate near a boundary; the statistics are over those " + std::to_string(used) + ".\n";
   if (!original_converged) s += "warning: the bootstrapped fit itself did not converge.\n";
+  if (small_strata > 0) {
+    s += "warning: " + std::to_string(small_strata) + " of the " + std::to_string(strata) + " strata of " + stratify +
+         " hold fewer than 5 subjects, which resample little (a stratum of one, never): the bootstrap's spread "
+         "shrinks; stratify on fewer, larger groups.\n";
+  }
   if (used < 0.8 * replicates) s += "warning: fewer than 80% of the replicates are used (PsN's threshold).\n";
   return s;
 }
