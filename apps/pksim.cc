@@ -299,7 +299,13 @@ void Uncertainty(const std::string& source, const std::string& estimates, const 
     return;
   }
   std::string path = source;
-  if (std::filesystem::is_directory(path)) path += "/bootstrap.csv";
+  if (std::filesystem::is_directory(path)) {
+    path += "/bootstrap.csv";
+    if (!std::filesystem::exists(path)) {
+      throw pk::InputError("--uncertainty " + source + ": the run has no bootstrap.csv (run pkpop --bootstrap N), or "
+                           "give 'covariance'");
+    }
+  }
   pk::CheckOutputSet(path, "pkpop", "pkpop.ext");
   sets = pk::ReadParameterSets(path, v->estimates, model);
   std::cerr << "pksim: note: each replicate's θ, Ω and σ from one of the " << sets.size() << " used replicates of "

@@ -301,6 +301,8 @@ grep -q "from one of the 5 used replicates of .*bootstrap.csv" "$work/err.txt" |
   --uncertainty covariance >"$work/err.txt" 2>&1
 [ $? -eq 2 ] && grep -q "no estimate has a variance" "$work/err.txt" ||
   fail "--uncertainty covariance without a covariance step: $(cat "$work/err.txt")"
+"$pksim" --model 1cmt_iv --population "$work/pheno" "${regimen[@]}" --uncertainty "$work/pheno" >"$work/err.txt" 2>&1
+[ $? -eq 2 ] && grep -q "the run has no bootstrap.csv" "$work/err.txt" || fail "--uncertainty DIR without a bootstrap: $(cat "$work/err.txt")"
 "$pksim" --model 1cmt_iv --dose 1 --times 1 --uncertainty covariance >"$work/err.txt" 2>&1
 [ $? -eq 2 ] && grep -q "need --population" "$work/err.txt" || fail "--uncertainty without --population: $(cat "$work/err.txt")"
 "$pksim" --model 1cmt_iv --dose 1 --times 1 --seed 3 >"$work/err.txt" 2>&1
