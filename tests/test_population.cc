@@ -212,7 +212,7 @@ TEST_CASE("Wang 2007: FOCEI's η̂, OBJ_i and table columns equal NONMEM's", "[p
   }
 }
 
-TEST_CASE("FO's tables take FOCE's post hoc modes and keep FO's OFV_i; a subject without a mode keeps η = 0",
+TEST_CASE("FO's tables take FOCE's post hoc modes and keep FO's OFV_i, and a subject without a mode keeps η = 0",
           "[population][nonmem]") {
   const Case c{"1cmt_iv", "wang2007", "proportional", {"CL"}, {0.5, 1.0}, Diagonal({0.04}), {std::sqrt(0.1)}};
   const pk::PopulationProblem problem = Problem(c);
