@@ -8,6 +8,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -173,13 +174,26 @@ void Blocks(const std::vector<std::string>& etas, const std::vector<std::string>
   const std::vector<bool> same = KeptFlags(s->omega_blocks, s->omega_block_same, sizes, true);
   const std::vector<bool> fixed = KeptFlags(s->omega_blocks, s->omega_block_fixed, sizes, false);
   const auto count = [](const std::vector<bool>& v) { return std::count(v.begin(), v.end(), true); };
+  // The declared blocks whose flag the regrouping drops, by their first η.
+  const auto dropped = [&](const std::vector<bool>& declared, const std::vector<bool>& kept) {
+    std::set<size_t> kept_at;
+    for (size_t b = 0, start = 0; b < sizes.size(); start += static_cast<size_t>(sizes[b++])) {
+      if (kept[b]) kept_at.insert(start);
+    }
+    std::string names;
+    for (size_t d = 0, start = 0; d < s->omega_blocks.size(); start += static_cast<size_t>(s->omega_blocks[d++])) {
+      if (d < declared.size() && declared[d] && !kept_at.count(start)) names += (names.empty() ? "" : ", ") + etas[start];
+    }
+    return names;
+  };
   if (count(same) < count(s->omega_block_same)) {
-    std::cerr << "pkpop: note: --block regroups Ω: " << count(s->omega_block_same) - count(same)
-              << " of the model file's SAME blocks are estimated on their own\n";
+    std::cerr << "pkpop: note: --block regroups Ω: the model file's SAME ties of " << dropped(s->omega_block_same, same)
+              << " are dropped, those η estimated as --block groups them" << (count(same) > 0 ? " (the other ties stay)" : "")
+              << "\n";
   }
   if (count(fixed) < count(s->omega_block_fixed)) {
-    std::cerr << "pkpop: note: --block regroups Ω: " << count(s->omega_block_fixed) - count(fixed)
-              << " of the model file's FIX blocks are estimated (FIX stays with a block --block leaves as it was)\n";
+    std::cerr << "pkpop: note: --block regroups Ω: the model file's FIX blocks of " << dropped(s->omega_block_fixed, fixed)
+              << " are estimated (FIX stays with a block --block leaves as it was)\n";
   }
   s->omega_blocks = sizes;
   s->omega_block_fixed = count(fixed) > 0 ? fixed : std::vector<bool>();

@@ -152,7 +152,7 @@ TEST_CASE("the estimates' covariance and a bootstrap's parameter sets are read f
   CHECK_THROWS_WITH(pk::ReadEstimatesCovariance(WriteTemporary("cov2.csv", "PARAMETER,CL,V\nV,1,0\nCL,0,1\n")),
                     Catch::Contains("cov2.csv:2:1: expected the row of CL, found V"));
   CHECK_THROWS_WITH(pk::ReadEstimatesCovariance(WriteTemporary("cov3.csv", "PARAMETER,CL,V\nCL,1,0.5\nV,0,1\n")),
-                    Catch::Contains("not symmetric"));
+                    Catch::Contains("cov3.csv:3:2: the covariance is not symmetric: V with CL"));
   CHECK_THROWS_WITH(pk::ReadEstimatesCovariance(WriteTemporary("cov4.csv", "PARAMETER,CL\nCL,x\n")),
                     Catch::Contains("cov4.csv:2:2: 'x' is not a number"));
   const std::string boot = WriteTemporary(

@@ -87,9 +87,12 @@ EstimatesCovariance ReadEstimatesCovariance(const std::string& path) {
   const auto m = static_cast<Eigen::Index>(out.names.size());
   out.covariance.resize(m, m);
   Eigen::Index row = 0;
+  std::vector<int> row_line;  // each row's line in the file
+  int last_line = header_line;
   for (; at < lines.size(); ++at) {
     if (IsSkippedLine(lines[at].second)) continue;
     const int line = lines[at].first;
+    last_line = line;
     const std::vector<std::string> fields = SplitCsvLine(lines[at].second);
     if (fields.size() != header.size()) {
       throw InputError(path, line, 0, "expected " + std::to_string(header.size()) + " fields as in the header, found " +
@@ -100,15 +103,25 @@ EstimatesCovariance ReadEstimatesCovariance(const std::string& path) {
                                           ", found " + fields[0]);
     }
     for (Eigen::Index k = 0; k < m; ++k) out.covariance(row, k) = Number(fields, static_cast<size_t>(k) + 1, path, line);
+    row_line.push_back(line);
     ++row;
   }
   if (m == 0 || row == 0) {
     throw InputError(path, header_line, 0, "no estimate has a variance (the run had no covariance step, or it failed)");
   }
-  if (row != m) throw InputError(path, 0, 0, "expected " + std::to_string(m) + " rows, found " + std::to_string(row));
+  if (row != m) {
+    throw InputError(path, last_line, 0, "expected " + std::to_string(m) + " rows, one per estimate, found " +
+                                             std::to_string(row));
+  }
   const double scale = std::max(out.covariance.diagonal().cwiseAbs().maxCoeff(), 1e-300);
-  if ((out.covariance - out.covariance.transpose()).cwiseAbs().maxCoeff() > 1e-10 * scale) {
-    throw InputError(path, 0, 0, "the covariance is not symmetric");
+  for (Eigen::Index i = 0; i < m; ++i) {
+    for (Eigen::Index j = 0; j < i; ++j) {
+      if (std::abs(out.covariance(i, j) - out.covariance(j, i)) > 1e-10 * scale) {
+        throw InputError(path, row_line[static_cast<size_t>(i)], static_cast<int>(j) + 2,
+                         "the covariance is not symmetric: " + out.names[static_cast<size_t>(i)] + " with " +
+                             out.names[static_cast<size_t>(j)] + " differs from the transposed entry");
+      }
+    }
   }
   return out;
 }
