@@ -379,6 +379,22 @@ pk::PopulationProblem MmBioavailabilityProblem(const std::string& data_dir) {
                                {"ETA_VMAX", "ETA_F"}, ode);
 }
 
+// The estimation tables' header: a row per PopulationCase.
+void EstimationTable(const char* title) {
+  std::printf("\n== %s ==\n", title);
+  std::printf("%-14s %9s %9s %11s %9s %9s %11s %10s %9s\n", "data", "OFV", "evals", "fit (ms)", "fd evals",
+              "fd/impl", "|ΔOFV| fd", "grad/OFV", "2 thr/1");
+}
+
+// The start of the 1cmt_iv bolus problems (θ 0.005, 1.0 on phenobarbital; ω² 0.1; σ 0.2).
+pk::PopulationParameters BolusStart() {
+  pk::PopulationParameters start;
+  start.theta = Eigen::Vector2d(0.005, 1.0);
+  start.omega = 0.1 * Eigen::MatrixXd::Identity(2, 2);
+  start.sigma = Eigen::VectorXd::Constant(1, 0.2);
+  return start;
+}
+
 void PopulationCase(const char* name, const pk::PopulationProblem& problem, const pk::PopulationParameters& start,
                     pk::PopulationMethod method = pk::PopulationMethod::kFocei) {
   pk::PopulationOptions options;
@@ -448,15 +464,8 @@ void LaplaceHessian(const std::string& data_dir) {
 }
 
 void PopulationEstimation(const std::string& data_dir) {
-  std::printf("\n== population estimation: FOCEI, 1cmt_iv, η on CL and V, proportional error, one thread ==\n");
-  std::printf("%-14s %9s %9s %11s %9s %9s %11s %10s %9s\n", "data", "OFV", "evals", "fit (ms)", "fd evals",
-              "fd/impl", "|ΔOFV| fd", "grad/OFV", "2 thr/1");
-  pk::PopulationParameters start;
-  start.theta.resize(2);
-  start.omega = 0.1 * Eigen::MatrixXd::Identity(2, 2);
-  start.sigma.resize(1);
-  start.theta << 0.005, 1.0;
-  start.sigma << 0.2;
+  EstimationTable("population estimation: FOCEI, 1cmt_iv, η on CL and V, proportional error, one thread");
+  pk::PopulationParameters start = BolusStart();
   const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
   PopulationCase("phenobarbital", BolusProblem(pheno), start);
   // NONMEM's own phenobarbital model from its model file: CL and V per kg, V larger at Apgar < 5.
@@ -484,13 +493,8 @@ void PopulationEstimation(const std::string& data_dir) {
 // FO fits (no mode searches: the linearisation at η = 0) by its exact gradient against differences of
 // the OFV, on the problems of the FOCEI table above, for the cost of each method.
 void FirstOrderEstimation(const std::string& data_dir) {
-  std::printf("\n== population estimation: FO, exact gradient against differences of the OFV, one thread ==\n");
-  std::printf("%-14s %9s %9s %11s %9s %9s %11s %10s %9s\n", "data", "OFV", "evals", "fit (ms)", "fd evals",
-              "fd/impl", "|ΔOFV| fd", "grad/OFV", "2 thr/1");
-  pk::PopulationParameters start;
-  start.theta = Eigen::Vector2d(0.005, 1.0);
-  start.omega = 0.1 * Eigen::MatrixXd::Identity(2, 2);
-  start.sigma = Eigen::VectorXd::Constant(1, 0.2);
+  EstimationTable("population estimation: FO, exact gradient against differences of the OFV, one thread");
+  pk::PopulationParameters start = BolusStart();
   const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
   PopulationCase("phenobarbital", BolusProblem(pheno), start, pk::PopulationMethod::kFo);
   start.theta << 3, 15;
@@ -504,13 +508,8 @@ void FirstOrderEstimation(const std::string& data_dir) {
 // phenobarbital and theophylline with its 27 samples below 2 mg/L (M3, three η) on Φ/Γ, and
 // EmaxProblem on the ODE propagator.
 void LaplaceEstimation(const std::string& data_dir) {
-  std::printf("\n== population estimation: Laplace, implicit gradient against differences of the OFV, one thread ==\n");
-  std::printf("%-14s %9s %9s %11s %9s %9s %11s %10s %9s\n", "data", "OFV", "evals", "fit (ms)", "fd evals",
-              "fd/impl", "|ΔOFV| fd", "grad/OFV", "2 thr/1");
-  pk::PopulationParameters start;
-  start.theta = Eigen::Vector2d(0.005, 1.0);
-  start.omega = 0.1 * Eigen::MatrixXd::Identity(2, 2);
-  start.sigma = Eigen::VectorXd::Constant(1, 0.2);
+  EstimationTable("population estimation: Laplace, implicit gradient against differences of the OFV, one thread");
+  pk::PopulationParameters start = BolusStart();
   const auto pheno = std::make_shared<pk::Dataset>(pk::ReadDataset(data_dir + "/phenobarbital.csv"));
   PopulationCase("phenobarbital", BolusProblem(pheno), start, pk::PopulationMethod::kLaplace);
   pk::ObjectiveOptions o;

@@ -97,6 +97,20 @@ std::map<std::string, Case> Cases() {
   return c;
 }
 
+// datasets/wang2007.csv at Wang's (2007) values: θ 0.5 (CL; V held at 1), ω² 0.04, each σ √0.1.
+Case WangCase(const std::string& error, std::vector<double> sigma) {
+  return {"1cmt_iv", "wang2007", error, {"CL"}, {0.5, 1.0}, Diagonal({0.04}), std::move(sigma)};
+}
+
+// A fit that only evaluates at its start (NONMEM's MAXEVAL=0): the tables, without a covariance step.
+pk::PopulationOptions AtStart(pk::PopulationMethod method) {
+  pk::PopulationOptions o;
+  o.method = method;
+  o.max_iterations = 0;
+  o.covariance = false;
+  return o;
+}
+
 pk::PopulationProblem Problem(const Case& c, std::shared_ptr<pk::Dataset> data = nullptr) {
   pk::ObjectiveOptions o;
   o.error_model = pk::MakeResidualError(c.error);
@@ -161,7 +175,7 @@ TEST_CASE("Wang 2007: FO, FOCE and FOCEI objectives equal NONMEM's published val
   const double sd = std::sqrt(0.1);
   for (const Row& r : {Row{"proportional", {sd}, 39.213, 39.207, 39.458}, Row{"additive", {sd}, 0.026, -2.059, -2.059},
                        Row{"combined", {sd, sd}, 39.505, 39.499, 39.735}}) {
-    const Case c{"1cmt_iv", "wang2007", r.error, {"CL"}, {0.5, 1.0}, Diagonal({0.04}), r.sigma};
+    const Case c = WangCase(r.error, r.sigma);
     const pk::PopulationProblem problem = Problem(c);
     REQUIRE(problem.num_subjects() == 10);
     REQUIRE(problem.num_observations() == 20);
@@ -180,13 +194,9 @@ TEST_CASE("Wang 2007: FOCEI's η̂, OBJ_i and table columns equal NONMEM's", "[p
   // NONMEM's $TABLE for the proportional case under FOCEI (5 significant digits), as nlmixr2's tests
   // record it: per subject ETA1 and its OFV_i, and at t = 1 IPRED, CWRES, WRES (NONMEM's NWRES: the FO
   // weighting at η = 0) and IWRES. At t = 0 every prediction is the dose, 10.
-  const Case c{"1cmt_iv", "wang2007", "proportional", {"CL"}, {0.5, 1.0}, Diagonal({0.04}), {std::sqrt(0.1)}};
+  const Case c = WangCase("proportional", {std::sqrt(0.1)});
   const pk::PopulationProblem problem = Problem(c);
-  pk::PopulationOptions o;
-  o.method = pk::PopulationMethod::kFocei;
-  o.max_iterations = 0;
-  o.covariance = false;
-  const pk::PopulationSummary fit = pk::FitPopulation(problem, Parameters(c), o);
+  const pk::PopulationSummary fit = pk::FitPopulation(problem, Parameters(c), AtStart(pk::PopulationMethod::kFocei));
   REQUIRE(fit.subjects.size() == 10);
   REQUIRE(fit.rows.size() == 20);
   const double eta[] = {0.071545, 0.0057045, 0.024947, 0.03195, -0.0047874,
@@ -214,24 +224,19 @@ TEST_CASE("Wang 2007: FOCEI's η̂, OBJ_i and table columns equal NONMEM's", "[p
 
 TEST_CASE("FO's tables take FOCE's post hoc modes and keep FO's OFV_i, and a subject without a mode keeps η = 0",
           "[population][nonmem]") {
-  const Case c{"1cmt_iv", "wang2007", "proportional", {"CL"}, {0.5, 1.0}, Diagonal({0.04}), {std::sqrt(0.1)}};
+  const Case c = WangCase("proportional", {std::sqrt(0.1)});
   const pk::PopulationProblem problem = Problem(c);
-  pk::PopulationOptions o;
-  o.method = pk::PopulationMethod::kFo;
-  o.max_iterations = 0;
-  o.covariance = false;
+  const pk::PopulationOptions o = AtStart(pk::PopulationMethod::kFo);
   const pk::PopulationSummary fit = pk::FitPopulation(problem, Parameters(c), o);
   const pk::PopulationEvaluation fo = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFo);
   const pk::PopulationEvaluation foce = pk::EvaluatePopulation(problem, Parameters(c), pk::PopulationMethod::kFoce);
   REQUIRE(fit.subjects.size() == 10);
   CHECK(fit.eta_estimates.find("post hoc") != std::string::npos);
-  std::vector<double> etas;
   for (size_t i = 0; i < 10; ++i) {
     INFO("subject " << i + 1);
     CHECK(fit.subjects[i].ofv == fo.subjects[i].ofv);
     CHECK(fit.subjects[i].eta(0) == foce.subjects[i].eta(0));
     CHECK(fit.subjects[i].eta(0) != 0);
-    etas.push_back(fit.subjects[i].eta(0));
   }
   CHECK(fit.ofv == Approx(39.213222).margin(5e-7));
   // CL with a kink in η (its slope triples above 0.02): subject 1's FOCE mode lies on the kink and its
@@ -260,12 +265,7 @@ CP ~ proportional(0.31622776601683794)
   pk::ObjectiveOptions declared;
   declared.error_model = pk::DeclaredErrorModel(*kink);
   const pk::PopulationProblem kinked(kink, Data("wang2007"), {"ETA_CL"}, declared);
-  pk::PopulationParameters p;
-  p.theta = Eigen::VectorXd::Constant(2, 0.5);
-  p.theta(1) = 1;
-  p.omega = Diagonal({0.04});
-  p.sigma = Eigen::VectorXd::Constant(1, std::sqrt(0.1));
-  const pk::PopulationSummary k = pk::FitPopulation(kinked, p, o);
+  const pk::PopulationSummary k = pk::FitPopulation(kinked, Parameters(c), o);  // TVCL and V as CL and V
   REQUIRE(k.subjects.size() == 10);
   std::vector<double> found;
   int missing = 0;

@@ -183,6 +183,8 @@ vpc_run "$work/boot_strata" --bootstrap 5 --seed 3 --bootstrap-stratify APGAR
 grep -q "^Bootstrap: 5 replicates (seed 3), stratified on APGAR (10 strata)" "$work/boot_strata/report.txt" ||
   fail "report.txt does not name the strata: $(grep '^Bootstrap' "$work/boot_strata/report.txt")"
 cmp -s "$work/boot/bootstrap.csv" "$work/boot_strata/bootstrap.csv" && fail "strata did not change the draws"
+grep -q "^warning: 5 of the 10 strata of APGAR hold fewer than 5 subjects" "$work/boot_strata/report.txt" ||
+  fail "no warning of the small strata (APGAR 1, 2, 3, 4 and 10 hold fewer than 5 of the 59 neonates)"
 "$pkpop" --model "$root/models/pheno_pop.pkm" --data "$root/datasets/phenobarbital.csv" --bootstrap 5 \
   --bootstrap-stratify ARM -q -o "$work/bad" >"$work/err.txt" 2>&1
 [ $? -eq 2 ] && grep -q "stratify by 'ARM'" "$work/err.txt" || fail "--bootstrap-stratify ARM: $(cat "$work/err.txt")"

@@ -28,6 +28,16 @@ std::vector<std::string> Header(const internal::NumberedLines& lines, const std:
   return SplitCsvLine(lines[(*first)++].second);
 }
 
+// A data line's fields, as many as the header's.
+std::vector<std::string> Fields(const std::string& text, size_t width, const std::string& source, int line) {
+  std::vector<std::string> fields = SplitCsvLine(text);
+  if (fields.size() != width) {
+    throw InputError(source, line, 0, "expected " + std::to_string(width) + " fields as in the header, found " +
+                                          std::to_string(fields.size()));
+  }
+  return fields;
+}
+
 double Number(const std::vector<std::string>& fields, size_t k, const std::string& source, int line) {
   double v = 0;
   if (!internal::ParseDouble(fields[k], &v) || !std::isfinite(v)) {
@@ -93,11 +103,7 @@ EstimatesCovariance ReadEstimatesCovariance(const std::string& path) {
     if (IsSkippedLine(lines[at].second)) continue;
     const int line = lines[at].first;
     last_line = line;
-    const std::vector<std::string> fields = SplitCsvLine(lines[at].second);
-    if (fields.size() != header.size()) {
-      throw InputError(path, line, 0, "expected " + std::to_string(header.size()) + " fields as in the header, found " +
-                                          std::to_string(fields.size()));
-    }
+    const std::vector<std::string> fields = Fields(lines[at].second, header.size(), path, line);
     if (row == m || fields[0] != out.names[static_cast<size_t>(row)]) {
       throw InputError(path, line, 1, "expected the row of " + (row < m ? out.names[static_cast<size_t>(row)] : "no estimate") +
                                           ", found " + fields[0]);
@@ -147,11 +153,7 @@ std::vector<PopulationEstimates> ReadParameterSets(const std::string& path, cons
   for (; at < lines.size(); ++at) {
     if (IsSkippedLine(lines[at].second)) continue;
     const int line = lines[at].first;
-    const std::vector<std::string> fields = SplitCsvLine(lines[at].second);
-    if (fields.size() != header.size()) {
-      throw InputError(path, line, 0, "expected " + std::to_string(header.size()) + " fields as in the header, found " +
-                                          std::to_string(fields.size()));
-    }
+    const std::vector<std::string> fields = Fields(lines[at].second, header.size(), path, line);
     if (used >= 0 && Number(fields, static_cast<size_t>(used), path, line) != 1) continue;
     Eigen::VectorXd values(static_cast<Eigen::Index>(names.size()));
     for (size_t k = 0; k < columns.size(); ++k) values(static_cast<Eigen::Index>(k)) = Number(fields, columns[k], path, line);

@@ -43,13 +43,13 @@ std::shared_ptr<const Dataset> Resampled(const Dataset& data, const std::vector<
   return out;
 }
 
+// Replicate r: its subjects drawn within `strata` (one value for all when unstratified, which draws as
+// BootstrapSample(seed, r, N) does), fitted again.
 BootstrapReplicate FitReplicate(const PopulationProblem& problem, const PopulationSummary& fit,
-                                const BootstrapOptions& options, int r) {
+                                const BootstrapOptions& options, const std::vector<double>& strata, int r) {
   BootstrapReplicate out;
   out.replicate = r;
-  const std::vector<int> subjects =
-      options.stratify.empty() ? BootstrapSample(options.seed, r, problem.num_subjects())
-                               : BootstrapSample(options.seed, r, BootstrapStrata(problem.data(), options.stratify));
+  const std::vector<int> subjects = BootstrapSample(options.seed, r, strata);
   try {
     const auto& d = problem.impl();
     const PopulationProblem resampled(d.model, Resampled(*d.data, subjects, r), problem.eta_names(), problem.options());
@@ -186,8 +186,10 @@ BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const Pop
   if (!options.IsValid(&why)) throw InputError("bootstrap: " + why);
   BootstrapSummary b;
   b.stratify = options.stratify;
+  const std::vector<double> strata = options.stratify.empty()
+                                         ? std::vector<double>(static_cast<size_t>(problem.num_subjects()), 0.0)
+                                         : BootstrapStrata(problem.data(), options.stratify);
   if (!options.stratify.empty()) {
-    const std::vector<double> strata = BootstrapStrata(problem.data(), options.stratify);
     std::map<double, int> sizes;
     for (double v : strata) ++sizes[v];
     b.strata = static_cast<int>(sizes.size());
@@ -202,7 +204,7 @@ BootstrapSummary BootstrapPopulation(const PopulationProblem& problem, const Pop
   std::mutex progress;
   int done = 0;
   internal::ParallelFor(options.replicates, options.threads, [&](int r) {
-    b.runs[static_cast<size_t>(r)] = FitReplicate(problem, fit, options, r);
+    b.runs[static_cast<size_t>(r)] = FitReplicate(problem, fit, options, strata, r);
     const std::lock_guard<std::mutex> lock(progress);
     ++done;
     if (options.progress) options.progress(done);

@@ -364,10 +364,6 @@ bool LineSearch(const SubjectModel& s, const PopulationPoint& p, const Eigen::Ve
   return false;
 }
 
-}  // namespace
-
-namespace {
-
 // FO: no mode. At η = 0 with V held there, l, ∇l and H = Ω⁻¹ + GᵀV⁻¹G are FOCE's, and by the
 // determinant lemma and Woodbury's identity (C = GΩGᵀ + V, r = y − f₀, ∇l = −2GᵀV⁻¹r)
 //   log det C + rᵀC⁻¹r = l + log det Ω + log det H − ¼ ∇lᵀH⁻¹∇l.

@@ -1,6 +1,8 @@
 // Parameter sets drawn from the estimates' uncertainty (pk/uncertainty.h).
 #include "pk/uncertainty.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -28,27 +30,26 @@ int EtaPosition(const PopulationEstimates& p, const Model& model, const std::str
 
 // A model file's SAME blocks repeat the block declared before them: their Ω follows that block's,
 // where the run held the tie (its covariance names none of the block's variances; a run whose
-// --block regrouped the block estimated it on its own, and the covariance names it).
-void TieSameBlocks(const Model& model, const std::vector<bool>& named_variance, PopulationEstimates* p) {
+// --block regrouped the block estimated it on its own, and the covariance names it). The copies, as
+// positions in Ω: {to row, to column, from row, from column}, found once for every draw.
+std::vector<std::array<int, 4>> SameCopies(const Model& model, const PopulationEstimates& p,
+                                           const std::vector<bool>& named_variance) {
+  std::vector<std::array<int, 4>> copies;
   const auto& blocks = model.declarations().omega_blocks;
   for (size_t b = 1; b < blocks.size(); ++b) {
     if (!blocks[b].same || blocks[b].etas.size() != blocks[b - 1].etas.size()) continue;
-    const size_t n = blocks[b].etas.size();
-    bool held = true;
-    for (size_t i = 0; i < n; ++i) {
-      const int at = EtaPosition(*p, model, blocks[b].etas[i]);
-      held = held && at >= 0 && !named_variance[static_cast<size_t>(at)];
+    std::vector<int> to, from;
+    for (size_t i = 0; i < blocks[b].etas.size(); ++i) {
+      to.push_back(EtaPosition(p, model, blocks[b].etas[i]));
+      from.push_back(EtaPosition(p, model, blocks[b - 1].etas[i]));
     }
-    for (size_t i = 0; held && i < n; ++i) {
-      for (size_t j = 0; j < n; ++j) {
-        const int to_i = EtaPosition(*p, model, blocks[b].etas[i]), to_j = EtaPosition(*p, model, blocks[b].etas[j]);
-        const int from_i = EtaPosition(*p, model, blocks[b - 1].etas[i]);
-        const int from_j = EtaPosition(*p, model, blocks[b - 1].etas[j]);
-        if (to_i < 0 || to_j < 0 || from_i < 0 || from_j < 0) continue;
-        p->omega(to_i, to_j) = p->omega(from_i, from_j);
-      }
+    const bool held = std::all_of(to.begin(), to.end(), [&](int at) { return at >= 0 && !named_variance[static_cast<size_t>(at)]; }) &&
+                      std::all_of(from.begin(), from.end(), [](int at) { return at >= 0; });
+    for (size_t i = 0; held && i < to.size(); ++i) {
+      for (size_t j = 0; j < to.size(); ++j) copies.push_back({to[i], to[j], from[i], from[j]});
     }
   }
+  return copies;
 }
 
 // Where a named natural value sits in a set of estimates.
@@ -156,6 +157,7 @@ std::vector<PopulationEstimates> DrawFromCovariance(const PopulationEstimates& e
       named_variance[static_cast<size_t>(slots.back().a)] = true;
     }
   }
+  const std::vector<std::array<int, 4>> same = SameCopies(model, estimates, named_variance);
   std::vector<PopulationEstimates> out;
   int rejected = 0;
   for (int r = 0; r < count; ++r) {
@@ -167,7 +169,7 @@ std::vector<PopulationEstimates> DrawFromCovariance(const PopulationEstimates& e
       PopulationEstimates set = estimates;
       const Eigen::VectorXd x = centre + factor * z;
       for (Eigen::Index k = 0; k < m; ++k) Set(slots[static_cast<size_t>(k)], x(k), &set);
-      TieSameBlocks(model, named_variance, &set);
+      for (const auto& [ti, tj, fi, fj] : same) set.omega(ti, tj) = set.omega(fi, fj);
       std::string why;
       if (InParameterSpace(set, model, &why)) {
         out.push_back(std::move(set));
