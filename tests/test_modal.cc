@@ -28,7 +28,7 @@ double MaxRel(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
 }
 
 // Fixed (not estimated) dose modifiers: the schedule is recorded with them.
-const std::vector<pk_test::Scenario>& Scenarios() {
+const std::vector<pk_test::Scenario>& FixedModifierScenarios() {
   static const std::vector<pk_test::Scenario> s = {
       {"bolus", "1,0,100,0,0,0,0,1,.\n", {"F1"}, {1.0}},
       {"infusion", "1,0,100,40,0,0,0,1,.\n", {"F1"}, {1.0}},
@@ -154,7 +154,7 @@ TEST_CASE("modal and Padé paths agree on every linear model and event scenario"
   const auto model_name = GENERATE(as<std::string>{}, "1cmt_iv", "1cmt_oral", "2cmt_iv", "2cmt_oral", "3cmt_iv",
                                    "3cmt_oral");
   const auto model = pk::MakeModel(model_name);
-  for (const pk_test::Scenario& sc : Scenarios()) {
+  for (const pk_test::Scenario& sc : FixedModifierScenarios()) {
     const auto error_model = GENERATE(pk::MakeResidualError("least-squares"), pk::MakeResidualError("combined"));
     INFO(model_name << " / " << sc.name << " / " << error_model->name());
     pk::ObjectiveOptions on, off;
@@ -236,7 +236,7 @@ std::shared_ptr<const pk::LinearModel> ParentMetabolite(bool depot) {
 TEST_CASE("modal and Padé paths agree where the exchange is not reversible", "[modal]") {
   for (bool depot : {false, true}) {
     const auto model = ParentMetabolite(depot);
-    for (const pk_test::Scenario& sc : Scenarios()) {
+    for (const pk_test::Scenario& sc : FixedModifierScenarios()) {
       INFO(model->name() << " / " << sc.name);
       pk::ObjectiveOptions on, off;
       off.modal_propagation = false;

@@ -2,6 +2,7 @@
 #ifndef PK_SRC_INTERNAL_TEXT_H_
 #define PK_SRC_INTERNAL_TEXT_H_
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -9,6 +10,9 @@
 
 namespace pk {
 namespace internal {
+
+/// A value not computed; the tables write it as missing.
+inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 std::string ToUpper(std::string s);
 std::string ToLower(std::string s);

@@ -23,7 +23,7 @@ namespace {
 using internal::Cell;
 using internal::Num;
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using internal::kNaN;
 constexpr double kLog2Pi = 1.8378770664093454836;
 
 // μ and Ω as one point of the EM map.

@@ -22,7 +22,7 @@
 namespace pk {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using internal::kNaN;
 
 // The drawn subjects as a dataset of their own, renumbered 1…N in the order drawn.
 std::shared_ptr<const Dataset> Resampled(const Dataset& data, const std::vector<int>& subjects, int replicate) {

@@ -19,7 +19,7 @@
 namespace pk {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using internal::kNaN;
 
 // #{k : values(k) < x} / K, with 0 and 1 moved to 1/(2K) and 1 − 1/(2K).
 double BoundedFraction(const Eigen::Ref<const Eigen::RowVectorXd>& values, double x) {

@@ -12,11 +12,12 @@
 #include <boost/math/distributions/students_t.hpp>
 
 #include "pk/npde.h"
+#include "internal_text.h"
 
 namespace pk {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using internal::kNaN;
 
 double NormalCdf(double z, bool upper = false) {
   const boost::math::normal_distribution<double> n;

@@ -11,6 +11,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "internal_text.h"
 #include "ordered_parallel.h"
 #include "pk/error.h"
 #include "pk/output.h"
@@ -18,7 +19,7 @@
 namespace pk {
 namespace {
 
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+using internal::kNaN;
 
 // The distinct times of one DVID's values and how many values each has.
 struct Times {
