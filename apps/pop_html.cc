@@ -236,7 +236,8 @@ list Estimates(const PopulationProblem& problem, const PopulationSummary& fit) {
   return rows;
 }
 
-// The bootstrap's table: each parameter's estimate and SE beside the replicates' median, SE and interval.
+// The bootstrap's table: each parameter's estimate and SE beside the replicates' median, mean, bias, SE
+// and interval.
 void Bootstrap(const BootstrapSummary& b, const PopulationSummary& fit, object* page) {
   list rows;
   for (size_t k = 0; k < b.parameters.size() && k < fit.estimates.size(); ++k) {
@@ -246,6 +247,8 @@ void Bootstrap(const BootstrapSummary& b, const PopulationSummary& fit, object* 
                           {"estimate", Sig(p.estimate, 4)},
                           {"se", Sig(fit.estimates[k].se, 3)},
                           {"median", Sig(p.fixed ? NAN : p.median, 4)},
+                          {"mean", Sig(p.fixed ? NAN : p.mean, 4)},
+                          {"bias", Sig(p.fixed ? NAN : p.bias, 3)},
                           {"bse", Sig(p.fixed ? NAN : p.se, 3)},
                           {"interval", Text(shown ? Sig(p.lower, 4) + " to " + Sig(p.upper, 4) : p.fixed ? "fixed" : "")}});
   }

@@ -133,6 +133,9 @@ TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[b
   CHECK(one.parameters[0].lower == Approx(cl[0] + 0.125 * (cl[1] - cl[0])).epsilon(1e-15));  // h = 1 + 5·0.025
   CHECK(one.parameters[0].upper == Approx(cl[4] + 0.875 * (cl[5] - cl[4])).epsilon(1e-15));
   CHECK(one.parameters[0].se == Approx(std::sqrt(ss / 5)).epsilon(1e-13));
+  CHECK(one.parameters[0].mean == Approx(mean).epsilon(1e-15));
+  CHECK(one.parameters[0].bias == Approx(mean - fit.estimates[0].estimate).margin(1e-12 * mean));
+  CHECK_THAT(one.FullReport(), Catch::Contains("median        mean        bias    bootstrap SE"));
   // The names of a block's covariance hold a comma: quoted in the header.
   CHECK(pk::BootstrapCsv(one).substr(0, pk::BootstrapCsv(one).find('\n')) ==
         "REPLICATE,CONVERGED,BOUNDARY,USED,OFV,CL,V,OMEGA(CL),\"OMEGA(V,CL)\",OMEGA(V),SIGMA_PROP");
@@ -144,6 +147,38 @@ TEST_CASE("a bootstrap's replicates and table do not depend on the threads", "[b
   o.replicates = 2;
   o.fit.max_iterations = 0;  // every replicate would stay at the estimates
   CHECK_THROWS_AS(pk::BootstrapPopulation(problem, fit, o), pk::InputError);
+}
+
+TEST_CASE("a fit without its tables (a bootstrap replicate's) has the estimates, OFV and SEs of one with them",
+          "[bootstrap][population]") {
+  const pk::PopulationProblem problem = SimulatedProblem();
+  for (pk::PopulationMethod method : {pk::PopulationMethod::kFo, pk::PopulationMethod::kFocei}) {
+    INFO(pk::ToString(method));
+    pk::PopulationOptions o;
+    o.method = method;
+    o.max_iterations = 30;
+    const pk::PopulationSummary with = pk::FitPopulation(problem, problem.DefaultParameters(), o);
+    o.tables = false;
+    const pk::PopulationSummary without = pk::FitPopulation(problem, problem.DefaultParameters(), o);
+    REQUIRE(with.estimates.size() == without.estimates.size());
+    CHECK(with.ofv == without.ofv);
+    CHECK(with.evaluations == without.evaluations);
+    for (size_t k = 0; k < with.estimates.size(); ++k) {
+      INFO(with.estimates[k].name);
+      CHECK(with.estimates[k].estimate == without.estimates[k].estimate);
+      CHECK(with.estimates[k].se == without.estimates[k].se);
+      CHECK(with.estimates[k].se > 0);
+    }
+    CHECK(with.subjects.size() == 40);
+    CHECK(with.rows.size() == 240);
+    CHECK(with.eta_shrinkage_sd.size() == 2);
+    CHECK_THAT(with.FullReport(), Catch::Contains("shrinkage (SD form"));
+    CHECK(without.subjects.empty());
+    CHECK(without.rows.empty());
+    CHECK(without.eta_shrinkage_sd.size() == 0);
+    CHECK_THAT(without.FullReport(), Catch::Contains("no tables: η̂, residuals and shrinkage not formed") &&
+                                         !Catch::Contains("shrinkage (SD form"));
+  }
 }
 
 TEST_CASE("the bootstrap's draws are a stream apart from every subject's η and ε", "[bootstrap][simulation]") {

@@ -166,21 +166,21 @@ cmp -s <(grep -v '^OFV' "$work/vpc/population_estimates.csv") <(grep -v '^OFV' "
   fail "--init-from with --max-evaluations 0 moved the estimates"
 grep -q "MAXEVAL=0" "$work/vpc_of_run/report.txt" || fail "report.txt should say that nothing was estimated"
 [ -s "$work/vpc_of_run/vpc.csv" ] || fail "no VPC of the run"
-# A bootstrap of 5 replicates: bootstrap.csv in the set, a section of report.html and of report.txt, the
+# A bootstrap of 3 replicates: bootstrap.csv in the set, a section of report.html and of report.txt, the
 # same on one thread and on two.
-vpc_run "$work/boot" --bootstrap 5 --seed 3 -j 2
+vpc_run "$work/boot" --bootstrap 3 --seed 3 -j 2
 grep -q "^bootstrap.csv," "$work/boot/MANIFEST" || fail "bootstrap.csv is not in the MANIFEST"
-[ "$(tail -n +2 "$work/boot/bootstrap.csv" | wc -l)" -eq 5 ] || fail "bootstrap.csv: expected 5 replicates"
+[ "$(tail -n +2 "$work/boot/bootstrap.csv" | wc -l)" -eq 3 ] || fail "bootstrap.csv: expected 3 replicates"
 head -1 "$work/boot/bootstrap.csv" | grep -q "^REPLICATE,CONVERGED,BOUNDARY,USED,OFV,TVCL,TVV,APGV," ||
   fail "bootstrap.csv header"
 grep -q "<h2>Bootstrap</h2>" "$work/boot/report.html" || fail "report.html has no bootstrap section"
-grep -q "^Bootstrap: 5 replicates (seed 3)" "$work/boot/report.txt" || fail "report.txt has no bootstrap table"
-vpc_run "$work/boot_serial" --bootstrap 5 --seed 3 -j 1
+grep -q "^Bootstrap: 3 replicates (seed 3)" "$work/boot/report.txt" || fail "report.txt has no bootstrap table"
+vpc_run "$work/boot_serial" --bootstrap 3 --seed 3 -j 1
 cmp -s "$work/boot/bootstrap.csv" "$work/boot_serial/bootstrap.csv" || fail "threads changed bootstrap.csv"
 # Stratified on Apgar (PsN's -stratify_on): said in the report, other draws than unstratified; an unknown
 # column, or strata without a bootstrap, are option errors before any fitting.
-vpc_run "$work/boot_strata" --bootstrap 5 --seed 3 --bootstrap-stratify APGAR
-grep -q "^Bootstrap: 5 replicates (seed 3), stratified on APGAR (10 strata)" "$work/boot_strata/report.txt" ||
+vpc_run "$work/boot_strata" --bootstrap 3 --seed 3 --bootstrap-stratify APGAR
+grep -q "^Bootstrap: 3 replicates (seed 3), stratified on APGAR (10 strata)" "$work/boot_strata/report.txt" ||
   fail "report.txt does not name the strata: $(grep '^Bootstrap' "$work/boot_strata/report.txt")"
 cmp -s "$work/boot/bootstrap.csv" "$work/boot_strata/bootstrap.csv" && fail "strata did not change the draws"
 grep -q "^warning: 5 of the 10 strata of APGAR hold fewer than 5 subjects" "$work/boot_strata/report.txt" ||
@@ -297,7 +297,7 @@ cmp -s "$work/plain.csv" "$work/uncertain.csv" && fail "--uncertainty covariance
 "$pksim" --model "$root/models/pheno_pop.pkm" --population "$work/boot" "${regimen[@]}" --param WT=1.2 --param APGAR=7 \
   --uncertainty "$work/boot" --out "$work/uncertain_boot.csv" 2>"$work/err.txt" ||
   fail "pksim --uncertainty from a bootstrap: $(cat "$work/err.txt")"
-grep -q "from one of the 5 used replicates of .*bootstrap.csv" "$work/err.txt" ||
+grep -q "from one of the 3 used replicates of .*bootstrap.csv" "$work/err.txt" ||
   fail "no note of the bootstrap's sets: $(cat "$work/err.txt")"
 "$pksim" --model "$root/models/pheno_pop.pkm" --population "$work/vpc" "${regimen[@]}" --param WT=1.2 --param APGAR=7 \
   --uncertainty covariance >"$work/err.txt" 2>&1

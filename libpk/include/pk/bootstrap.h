@@ -3,8 +3,9 @@
 // 1…N (a subject drawn twice is two subjects, as NONMEM would read it), and fits the model again
 // from the original estimates with the original method and structure. Over the replicates whose fit
 // converged (and, by default as PsN, with no estimate near a boundary), each parameter gets its
-// median, a percentile interval (R's quantile type 7; 2.5th and 97.5th by default) and the
-// bootstrap SE (the replicates' SD, divisor R − 1), beside the original estimate.
+// median, mean and bias (mean − estimate), a percentile interval (R's quantile type 7; 2.5th and
+// 97.5th by default) and the bootstrap SE (the replicates' SD, divisor R − 1), beside the original
+// estimate.
 //
 // Stratified (PsN's -stratify_on), each subject position draws among the subjects of its own stratum,
 // the value of a data column on the subject's first record, so every replicate keeps each stratum's
@@ -69,7 +70,11 @@ struct BootstrapReplicate {
 struct BootstrapParameter {
   std::string name;
   double estimate = 0;  ///< the original fit's
-  double median = 0, lower = 0, upper = 0, se = 0;  ///< over the converged replicates (NaN: none)
+  double median = 0, lower = 0, upper = 0, se = 0;  ///< over the used replicates (NaN: none)
+  double mean = 0;  ///< over the used replicates (NaN: none)
+  /// mean − estimate, as PsN's bias: a bias large against the SE says the estimator is biased at
+  /// this design (or that the estimate is poorly determined).
+  double bias = 0;
   bool fixed = false;
 };
 

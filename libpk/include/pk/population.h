@@ -206,6 +206,11 @@ struct PopulationOptions {
   /// ODE propagator); false: central differences of the exact ∇l, as NONMEM forms them (a check).
   bool exact_conditional_hessian = true;
   bool covariance = true;               ///< run the covariance step
+  /// The tables after the fit: each subject's η̂ (under FO post hoc, FOCE's mode at the estimate)
+  /// and OFV_i (PopulationSummary::subjects), its rows of PRED, IPRED, CWRES, … (rows) and the
+  /// shrinkages. false: the estimates, the OFV and the covariance step only, as a bootstrap's
+  /// replicates need (under FO the post hoc modes cost about a FOCE evaluation).
+  bool tables = true;
   CovarianceMatrix covariance_matrix = CovarianceMatrix::kSandwich;
   /// Called after each outer evaluation that improves the OFV (for a progress line); may be empty.
   std::function<void(int evaluation, double ofv, double gradient_norm)> progress;

@@ -56,6 +56,7 @@ BootstrapReplicate FitReplicate(const PopulationProblem& problem, const Populati
     PopulationOptions o = options.fit;
     o.method = fit.method;
     o.covariance = false;
+    o.tables = false;  // a replicate gives its estimates only
     o.threads = 1;
     o.progress = nullptr;
     o.distribution = nullptr;  // every subject here: the replicates, not the subjects, are spread
@@ -95,6 +96,8 @@ void Summarise(const PopulationSummary& fit, BootstrapSummary* b) {
     for (double x : v) mean += x / static_cast<double>(v.size());
     for (double x : v) ss += (x - mean) * (x - mean);
     p.se = v.size() > 1 ? std::sqrt(ss / static_cast<double>(v.size() - 1)) : kNaN;
+    p.mean = v.empty() ? kNaN : mean;
+    p.bias = p.mean - p.estimate;
     p.median = Percentile(&v, 50);
     p.lower = Percentile(&v, (100 - b->interval) / 2);
     p.upper = Percentile(&v, (100 + b->interval) / 2);
@@ -237,12 +240,14 @@ std::string BootstrapSummary::FullReport() const {
   std::ostringstream out;
   out << BriefReport();
   const std::string pi = internal::Num(interval, "%g") + "% interval";
-  out << "  parameter            estimate      median    bootstrap SE   " << pi << "\n";
+  out << "  parameter            estimate      median        mean        bias    bootstrap SE   " << pi << "\n";
   for (const BootstrapParameter& p : parameters) {
     std::string name = p.name;
     name.resize(std::max<size_t>(name.size(), 18), ' ');
-    out << "  " << name << internal::Cell(p.estimate, "%.6g", 12) << internal::Cell(p.fixed ? kNaN : p.median, "%.6g", 12)
-        << internal::Cell(p.fixed ? kNaN : p.se, "%.4g", 15) << "   ";
+    const auto shown = [&](double v) { return p.fixed ? kNaN : v; };
+    out << "  " << name << internal::Cell(p.estimate, "%.6g", 12) << internal::Cell(shown(p.median), "%.6g", 12)
+        << internal::Cell(shown(p.mean), "%.6g", 12) << internal::Cell(shown(p.bias), "%.4g", 12)
+        << internal::Cell(shown(p.se), "%.4g", 15) << "   ";
     if (p.fixed || !std::isfinite(p.lower)) {
       out << (p.fixed ? "(fixed)" : "–");
     } else {

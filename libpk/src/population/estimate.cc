@@ -489,9 +489,9 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   summary.processes = options.distribution ? options.distribution->size() : 1;
   if (final_eval.ok) {
     eta = internal::Etas(final_eval.modes, initial.omega.rows());
-    if (options.method == PopulationMethod::kFo) {
+    if (options.tables && options.method == PopulationMethod::kFo) {
       internal::PostHocDiagnostics(engine, final_eval, &summary);
-    } else {
+    } else if (options.tables) {
       internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
     }
     if (options.covariance) {

@@ -1,5 +1,6 @@
 // PopulationSummary's reports: NONMEM-like tables of θ, Ω and σ with SE and RSE%, shrinkage
 // and the objective.
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -18,6 +19,30 @@ std::string MethodName(PopulationMethod m) {
     case PopulationMethod::kLaplace: return "Laplace";
   }
   return "?";
+}
+
+// The shrinkages of η (each) and ε, SD form and variance form.
+std::string ShrinkageTable(const PopulationSummary& s) {
+  std::ostringstream out;
+  out << "  shrinkage (SD form; variance form in parentheses)\n";
+  for (Eigen::Index k = 0; k < s.eta_shrinkage_sd.size(); ++k) {
+    const auto at = static_cast<size_t>(k);
+    std::string name = at < s.eta_names.size() ? "η(" + s.eta_names[at] + ")" : "η" + std::to_string(k + 1);
+    // Padded to 12 bytes with at least one space after it (η takes two bytes).
+    name.resize(std::max<size_t>(name.size() + 1, 12), ' ');
+    out << "    " << name << internal::Num(100 * s.eta_shrinkage_sd(k), "%.1f") << "%  ("
+        << internal::Num(100 * s.eta_shrinkage_variance(k), "%.1f") << "%)\n";
+  }
+  out << "    ε         " << internal::Num(100 * s.epsilon_shrinkage_sd, "%.1f") << "%  ("
+      << internal::Num(100 * s.epsilon_shrinkage_variance, "%.1f") << "%)"
+      << (s.epsilon_shrinkage_sd_by_output.empty() ? "" : "  (every output)") << "\n";
+  for (size_t k = 0; k < s.epsilon_shrinkage_sd_by_output.size(); ++k) {
+    std::string name = "ε(DVID " + std::to_string(k + 1) + ")";  // ε takes two bytes, η too
+    name.resize(std::max<size_t>(name.size() + 2, 12), ' ');
+    out << "    " << name << internal::Num(100 * s.epsilon_shrinkage_sd_by_output[k], "%.1f") << "%  ("
+        << internal::Num(100 * s.epsilon_shrinkage_variance_by_output[k], "%.1f") << "%)\n";
+  }
+  return out.str();
 }
 
 }  // namespace
@@ -92,22 +117,10 @@ std::string PopulationSummary::FullReport() const {
     if (!covariance_derivatives.empty()) out << "  (" << covariance_derivatives << ")\n";
     for (const std::string& w : CovarianceWarnings()) out << "  warning: " << w << "\n";
   }
-  out << "\n  shrinkage (SD form; variance form in parentheses)\n";
-  for (Eigen::Index k = 0; k < eta_shrinkage_sd.size(); ++k) {
-    std::string name = k < static_cast<Eigen::Index>(eta_names.size()) ? "η(" + eta_names[static_cast<size_t>(k)] + ")"
-                                                                      : "η" + std::to_string(k + 1);
-    // Padded to 12 bytes with at least one space after it (η takes two bytes).
-    name.resize(std::max<size_t>(name.size() + 1, 12), ' ');
-    out << "    " << name << internal::Num(100 * eta_shrinkage_sd(k), "%.1f") << "%  ("
-        << internal::Num(100 * eta_shrinkage_variance(k), "%.1f") << "%)\n";
-  }
-  out << "    ε         " << internal::Num(100 * epsilon_shrinkage_sd, "%.1f") << "%  ("
-      << internal::Num(100 * epsilon_shrinkage_variance, "%.1f") << "%)" << (epsilon_shrinkage_sd_by_output.empty() ? "" : "  (every output)") << "\n";
-  for (size_t k = 0; k < epsilon_shrinkage_sd_by_output.size(); ++k) {
-    std::string name = "ε(DVID " + std::to_string(k + 1) + ")";  // ε takes two bytes, η too
-    name.resize(std::max<size_t>(name.size() + 2, 12), ' ');
-    out << "    " << name << internal::Num(100 * epsilon_shrinkage_sd_by_output[k], "%.1f") << "%  ("
-        << internal::Num(100 * epsilon_shrinkage_variance_by_output[k], "%.1f") << "%)\n";
+  if (eta_shrinkage_sd.size() > 0) {
+    out << "\n" << ShrinkageTable(*this);
+  } else {
+    out << "\n  no tables: η̂, residuals and shrinkage not formed (PopulationOptions::tables false)\n";
   }
   for (const PopulationSubject& s : subjects) {
     if (!s.ok) out << "  subject " << FormatNumber(s.id) << ": " << s.message << "\n";
