@@ -120,7 +120,8 @@ std::string PopulationSummary::FullReport() const {
   if (eta_shrinkage_sd.size() > 0) {
     out << "\n" << ShrinkageTable(*this);
   } else {
-    out << "\n  no tables: η̂, residuals and shrinkage not formed (PopulationOptions::tables false)\n";
+    out << "\n  no tables: η̂, residuals and shrinkage not formed (PopulationOptions::tables false, or no OFV at "
+           "the estimate)\n";
   }
   for (const PopulationSubject& s : subjects) {
     if (!s.ok) out << "  subject " << FormatNumber(s.id) << ": " << s.message << "\n";
