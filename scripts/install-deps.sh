@@ -4,6 +4,7 @@ set -euo pipefail
 
 packages=(
   g++ cmake make                    # toolchain
+  ninja-build                       # scripts/test.sh's builds: starts a target's sources as soon as they are ready
   clang                             # libFuzzer for the dataset reader's fuzz target (scripts/fuzz.sh)
   libeigen3-dev                     # linear algebra, matrix exponential, AutoDiff
   libsundials-dev                   # CVODES (ODE propagator)
