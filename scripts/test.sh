@@ -26,6 +26,6 @@ cmake --build build-asan -j "$jobs"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir build-asan --output-on-failure -j "$jobs"
 
-# The dataset reader and its filters under libFuzzer for a short budget on every core (fork mode; some
-# 200 000 inputs, 30 s of one process gave about 260 000; scripts/fuzz.sh N for longer).
+# The dataset reader and its filters under libFuzzer for a short budget on every core (fork mode: 370 000
+# inputs in a CI run, where 30 s of one process ran 260 000; scripts/fuzz.sh N for longer).
 scripts/fuzz.sh 20
