@@ -164,8 +164,8 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   std::vector<std::pair<std::string, std::string>> svgs;
   const std::string html = HtmlReport(fits, context, &svgs);
 
-  // The set is complete when its manifest is written, last; until then it has none.
-  BeginOutputSet(dir);
+  // The set is complete when its manifest is written, last; until then the last run's manifest
+  // vouches for its files that this run has not rewritten, and for none of this run's.
   std::vector<std::string> written;
   const auto write = [&](const std::string& name, const std::string& contents) {
     WriteFileAtomically(dir + "/" + name, contents);

@@ -405,10 +405,11 @@ std::string ReportText(const pk::PopulationSummary& fit, const pk::cli::Populati
          (context.npde ? "\n" + context.npde->FullReport() : "");
 }
 
-// The output set, whole or not at all. Its contents are built before the set is opened, and simtab.csv
-// (the longest to write) is simulated before it too: until the new MANIFEST, a set written before (the
-// fit's own, Main) stays whole, the new simtab.csv not listed in it. A failed simulation is returned
-// (the other results are written); anything else throws.
+// The output set, whole or not at all. Its contents are built before the first file is written, and
+// simtab.csv (the longest to write) is simulated before it too. Until the new MANIFEST, the set written
+// before (the fit's own, Main) vouches for its files this write has not changed: the estimates, tables
+// and .ext stay readable if pkpop is stopped during it. A failed simulation is returned (the other
+// results are written); anything else throws.
 std::string WriteOutputs(const std::string& dir, const pk::PopulationProblem& problem, const pk::PopulationSummary& fit,
                          const pk::cli::PopulationReportContext& context,
                          const pk::cli::PopulationSimulationRequest& simulation) {
@@ -442,7 +443,6 @@ std::string WriteOutputs(const std::string& dir, const pk::PopulationProblem& pr
       failure = std::string("the simulation for simtab.csv failed (the other results are written): ") + e.what();
     }
   }
-  pk::BeginOutputSet(dir);
   std::vector<std::string> names;
   for (const auto& [name, text] : files) {
     pk::WriteFileAtomically(dir + "/" + name, text);

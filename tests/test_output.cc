@@ -123,27 +123,35 @@ TEST_CASE("an AtomicFile writes a device in place instead of renaming a file ove
 
 TEST_CASE("an output set is complete with its manifest, and readers refuse it otherwise", "[output]") {
   const std::string dir = TempDir("set");
-  pk::BeginOutputSet(dir);
   pk::WriteFileAtomically(dir + "/estimates.csv", "ID,PARAMETER,ESTIMATE\n1,CL,2\n");
   pk::WriteFileAtomically(dir + "/fit_details.csv", "ID\n1\n");
-  // Killed here: no manifest, and fit_details.csv marks the directory as a pkfit set.
+  pk::WriteFileAtomically(dir + "/subject_7.svg", "<svg/>\n");
+  // The first run killed here: no manifest, and fit_details.csv marks the directory as a pkfit set.
   CHECK_THROWS_WITH(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"),
                     Catch::Contains("has no MANIFEST") && Catch::Contains("did not finish"));
-  pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv"}, "pkfit");
+  pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv", "subject_7.svg"}, "pkfit");
   CHECK_NOTHROW(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"));
-  // The next run begins: the old manifest and the files it lists go first; a file of the user's own stays.
+  // The next run writes over the last one's files; a file of the user's own stays.
   pk::WriteFileAtomically(dir + "/notes.txt", "mine\n");
-  pk::BeginOutputSet(dir);
-  CHECK_FALSE(std::filesystem::exists(dir + "/MANIFEST"));
-  CHECK_FALSE(std::filesystem::exists(dir + "/estimates.csv"));
-  CHECK_FALSE(std::filesystem::exists(dir + "/fit_details.csv"));
-  CHECK(std::filesystem::exists(dir + "/notes.txt"));
-  pk::WriteFileAtomically(dir + "/estimates.csv", "ID,PARAMETER,ESTIMATE\n1,CL,2\n");
-  pk::WriteFileAtomically(dir + "/fit_details.csv", "ID\n1\n");
-  CHECK_THROWS(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"));
-  pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv"}, "pkfit");
-  // A file changed after the run, or one the run did not write.
   pk::WriteFileAtomically(dir + "/estimates.csv", "ID,PARAMETER,ESTIMATE\n1,CL,3\n");
+  pk::WriteFileAtomically(dir + "/fit_details.csv", "ID\n1\n");
+  pk::WriteFileAtomically(dir + "/summary.csv", "ID\n1\n");
+  // Killed here: what it rewrote differently, or wrote new, is refused; what it has not touched, or
+  // rewrote byte for byte, is the last complete set's and stays readable.
+  CHECK_THROWS_WITH(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"),
+                    Catch::Contains("differs from the file pkfit wrote"));
+  CHECK_THROWS_WITH(pk::CheckOutputSet(dir + "/summary.csv", "pkfit", "fit_details.csv"),
+                    Catch::Contains("is not one of the files"));
+  CHECK_NOTHROW(pk::CheckOutputSet(dir + "/fit_details.csv", "pkfit", "fit_details.csv"));
+  CHECK_NOTHROW(pk::CheckOutputSet(dir + "/subject_7.svg", "pkfit", "fit_details.csv"));
+  // Complete: the new set is readable, and the last run's file it did not write again is gone.
+  pk::CompleteOutputSet(dir, {"estimates.csv", "fit_details.csv", "summary.csv"}, "pkfit");
+  CHECK_NOTHROW(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"));
+  CHECK_NOTHROW(pk::CheckOutputSet(dir + "/summary.csv", "pkfit", "fit_details.csv"));
+  CHECK_FALSE(std::filesystem::exists(dir + "/subject_7.svg"));
+  CHECK(std::filesystem::exists(dir + "/notes.txt"));
+  // A file changed after the run, or one the run did not write.
+  pk::WriteFileAtomically(dir + "/estimates.csv", "ID,PARAMETER,ESTIMATE\n1,CL,4\n");
   CHECK_THROWS_WITH(pk::CheckOutputSet(dir + "/estimates.csv", "pkfit", "fit_details.csv"),
                     Catch::Contains("differs from the file pkfit wrote"));
   pk::WriteFileAtomically(dir + "/derived.csv", "x\n");

@@ -1,12 +1,14 @@
 // Output sets: a manifest written last marks the files of one run as complete (pk/output.h).
 #include <boost/crc.hpp>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <vector>
 
 #include <unistd.h>
 
@@ -51,34 +53,27 @@ std::string Hex(unsigned v) {
   return buf;
 }
 
+// The files `directory`'s manifest lists, when it has one. Names with a path are not a run's own
+// (a manifest edited by hand), and are left out.
+std::vector<std::string> ListedFiles(const std::string& directory) {
+  std::vector<std::string> names;
+  std::ifstream in(directory + "/" + kManifestName);
+  std::string line;
+  while (std::getline(in, line)) {
+    const auto fields = internal::SplitCsvLine(line);
+    if (fields.size() != 3 || fields[0] == "FILE" || fields[0].empty() || fields[0][0] == '#') continue;
+    if (fields[0].find('/') != std::string::npos || fields[0] == "." || fields[0] == "..") continue;
+    names.push_back(fields[0]);
+  }
+  return names;
+}
+
 std::string DirectoryOf(const std::string& path) {
   const fs::path parent = fs::path(path).parent_path();
   return parent.empty() ? "." : parent.string();
 }
 
 }  // namespace
-
-void BeginOutputSet(const std::string& directory) {
-  const std::string manifest = directory + "/" + kManifestName;
-  // The previous run's files, as its manifest lists them: a file this run does not write again must
-  // not stay beside its new set (a plot of a subject the new data lacks, say). Names with a path are
-  // not ours to remove.
-  std::ifstream in(manifest);
-  std::string line;
-  while (std::getline(in, line)) {
-    const auto fields = internal::SplitCsvLine(line);
-    if (fields.size() != 3 || fields[0] == "FILE" || fields[0].empty() || fields[0][0] == '#') continue;
-    if (fields[0].find('/') != std::string::npos || fields[0] == "." || fields[0] == "..") continue;
-    const std::string old = directory + "/" + fields[0];
-    if (std::remove(old.c_str()) != 0 && errno != ENOENT) {
-      throw std::runtime_error(old + ": cannot remove the previous run's file");
-    }
-  }
-  in.close();
-  if (std::remove(manifest.c_str()) != 0 && errno != ENOENT) {
-    throw std::runtime_error(manifest + ": cannot remove the previous run's manifest");
-  }
-}
 
 void CompleteOutputSet(const std::string& directory, const std::vector<std::string>& files,
                        const std::string& program) {
@@ -94,7 +89,14 @@ void CompleteOutputSet(const std::string& directory, const std::vector<std::stri
     if (!Fingerprinted(directory + "/" + name, &f)) throw std::runtime_error(directory + "/" + name + ": cannot read back");
     text << name << "," << f.bytes << "," << Hex(f.crc32) << "\n";
   }
+  const std::vector<std::string> previous = ListedFiles(directory);
   WriteFileAtomically(directory + "/" + kManifestName, text.str());
+  // The last run's files that this one did not write again (a plot of a subject the new data lack,
+  // say) must not stay beside the new set. One that cannot be removed is listed nowhere now, and
+  // readers refuse it, so the set stays whole and the run is not failed for it.
+  for (const std::string& name : previous) {
+    if (std::find(files.begin(), files.end(), name) == files.end()) std::remove((directory + "/" + name).c_str());
+  }
 }
 
 void CheckOutputSet(const std::string& path, const std::string& program, const std::string& marker) {

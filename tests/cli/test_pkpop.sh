@@ -208,6 +208,16 @@ grep -q "^bootstrap.csv," "$work/stopped/MANIFEST" && fail "the stopped bootstra
   --init-from "$work/stopped" --max-evaluations 0 -q -o "$work/stopped_again" 2>"$work/err.txt" ||
   fail "the set written before a stopped bootstrap cannot be read: $(cat "$work/err.txt")"
 grep -q "^FOCEI: OFV 730.8947" "$work/stopped_again/report.txt" || fail "the stopped run's estimates: $(head -1 "$work/stopped_again/report.txt")"
+# Nor does pkpop stopped while it writes the set with the analyses: until its MANIFEST, the fit's own
+# vouches for the files the second set holds byte for byte, which are all the fit's (the same run,
+# finished, lists them with the same size and CRC-32 as the first set, written before the analyses).
+"$pkpop" --model 1cmt_iv --data "$root/datasets/phenobarbital.csv" --eta CL,V --error proportional --no-covariance \
+  --simulate 1 -q -o "$work/finished" >/dev/null 2>&1 || fail "the run with --simulate 1 failed"
+for f in population_estimates.csv sdtab.csv patab.csv subjects.csv iterations.csv covariance.csv pkpop.ext pkpop.phi; do
+  first=$(grep "^$f," "$work/stopped/MANIFEST"); second=$(grep "^$f," "$work/finished/MANIFEST")
+  [ -n "$first" ] && [ "$first" = "$second" ] || fail "$f: the fit's set lists '$first', the set with the analyses '$second'"
+done
+grep -q "^simtab.csv," "$work/finished/MANIFEST" || fail "simtab.csv is not in the finished run's MANIFEST"
 
 # Inter-occasion variability: models/iov_pop.pkm's IOV2 and IOV3 ~ SAME as IOV1, tabled with IOV1's value
 # and flagged SAME (at the initial estimates: the table, not the fit, is under test here).

@@ -42,20 +42,22 @@ void RemoveStaleTemporaries(const std::string& directory);
 //
 // A program that writes several files that belong together (pkfit's estimates, details,
 // predictions and report) marks the set complete with a manifest, written last: MANIFEST in
-// the directory lists each file of the run with its size and CRC-32. The program removes the
-// old manifest before it writes the first file, so a run killed half-way leaves a directory
-// without one, and readers of the set refuse it instead of mixing two runs.
+// the directory lists each file of the run with its size and CRC-32, and a reader accepts a
+// file only as the manifest lists it. A new run writes its files over the last run's and then
+// its own manifest over the last one, so while it runs (or if it is killed half-way) a file it
+// has rewritten is refused, and one it has not yet touched, or rewrote byte for byte (pkpop's
+// estimates when it writes its set again with a VPC), stays readable as the last complete set's.
+// Two runs are never mixed, and a killed run loses none of the last set's files it had not
+// rewritten. A directory whose first run was killed has no manifest; readers refuse it by a
+// marker file of the program's (CheckOutputSet).
 
 /// The manifest's file name, "MANIFEST".
 extern const char* const kManifestName;
 
-/// Removes `directory`'s manifest and the files it lists (the set is about to change: a file of
-/// the previous run that this one does not write again would otherwise stay beside the new set).
-/// Other files of the directory are left alone.
-void BeginOutputSet(const std::string& directory);
-
 /// Writes `directory`'s manifest for `files` (names within the directory, already written),
-/// with a line naming `program`.
+/// with a line naming `program`, in place of the last run's; then removes the files the last
+/// manifest listed that `files` do not (they must not stay beside the new set). Other files of
+/// the directory are left alone.
 void CompleteOutputSet(const std::string& directory, const std::vector<std::string>& files,
                        const std::string& program);
 
