@@ -70,6 +70,9 @@ void AddPopulationSimulationOptions(po::options_description* desc) {
       "vpc-percentiles", po::value<std::string>()->default_value("5,50,95"), "the percentiles the VPC compares")(
       "vpc-interval", po::value<double>()->default_value(90), "the simulated percentiles' interval, %")(
       "pcvpc", "prediction-corrected VPC (Bergstrand et al. 2011): each value scaled by its bin's median PRED over its own")(
+      "pvcvpc",
+      "prediction- and variability-corrected VPC (PsN's -varcorr): a pcVPC whose values' deviations from the bin's "
+      "median PRED are also scaled by the bin's median spread over their own (simulates the replicates twice)")(
       "vpc-lower-bound", po::value<double>()->default_value(0), "pcVPC: the data's lower bound")(
       "vpc-stratify", po::value<std::string>(),
       "a data column to stratify the VPC by (a panel for each of its values, at most 20), e.g. DOSE or STUDY")(
@@ -118,11 +121,12 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   const int replicates = vm["vpc"].as<int>();
   if (replicates < 0 || replicates > 100000) throw InputError("--vpc: expected 0 to 100000 replicates");
   const bool vpc_only = !vm["vpc-bins"].defaulted() || !vm["vpc-percentiles"].defaulted() || !vm["vpc-min-bin"].defaulted() ||
-                        !vm["vpc-interval"].defaulted() || vm.count("pcvpc") || !vm["vpc-lower-bound"].defaulted() ||
+                        !vm["vpc-interval"].defaulted() || vm.count("pcvpc") || vm.count("pvcvpc") ||
+                        !vm["vpc-lower-bound"].defaulted() ||
                         vm.count("vpc-lloq") || vm.count("vpc-stratify");
   if (replicates == 0) {
     if (vpc_only) {
-      throw InputError("--vpc-bins, --vpc-min-bin, --vpc-percentiles, --vpc-interval, --pcvpc, --vpc-lower-bound, "
+      throw InputError("--vpc-bins, --vpc-min-bin, --vpc-percentiles, --vpc-interval, --pcvpc, --pvcvpc, --vpc-lower-bound, "
                        "--vpc-lloq and --vpc-stratify need --vpc N");
     }
     if (r.simulate == 0 && npde == 0 && r.bootstrap == 0 && !vm["seed"].defaulted()) {
@@ -139,7 +143,8 @@ PopulationSimulationRequest ParsePopulationSimulation(const po::variables_map& v
   for (const std::string& p : Commas(vm["vpc-percentiles"].as<std::string>())) o.percentiles.push_back(Number("--vpc-percentiles", p));
   o.interval = vm["vpc-interval"].as<double>();
   o.min_bin_count = vm["vpc-min-bin"].as<int>();
-  o.prediction_corrected = vm.count("pcvpc") > 0;
+  o.variability_corrected = vm.count("pvcvpc") > 0;
+  o.prediction_corrected = vm.count("pcvpc") > 0 || o.variability_corrected;  // --pvcvpc implies it
   o.lower_bound = vm["vpc-lower-bound"].as<double>();
   if (vm.count("vpc-lloq")) o.lloq = vm["vpc-lloq"].as<double>();
   if (vm.count("vpc-stratify")) o.stratify = vm["vpc-stratify"].as<std::string>();
@@ -280,9 +285,11 @@ std::string VpcSvg(const VpcSummary& vpc, const Model& model) {
     const std::string name = dvid >= 1 && static_cast<size_t>(dvid) <= names.size() ? names[static_cast<size_t>(dvid - 1)] : "";
     const std::string where = (vpc.stratify.empty() ? "" : " · " + vpc.stratify + " = " + FormatNumber(stratum)) +
                               (dvids.size() > 1 ? " · DVID " + std::to_string(dvid) + (name.empty() ? "" : " (" + name + ")") : "");
-    o.title = std::string(vpc.prediction_corrected ? "Prediction-corrected VPC" : "VPC") + where + " · " +
+    o.title = vpc.Kind() + where + " · " +
               std::to_string(vpc.replicates) + " replicates";
-    o.y_label = vpc.prediction_corrected ? "prediction-corrected DV" : "DV";
+    o.y_label = vpc.variability_corrected ? "prediction- and variability-corrected DV"
+                : vpc.prediction_corrected  ? "prediction-corrected DV"
+                                            : "DV";
     o.width = 900;
     all.push_back(std::move(series));
     options.push_back(o);

@@ -307,7 +307,7 @@ VpcInput ReadVpcInput() {
 
 }  // namespace
 
-TEST_CASE("VPC statistics equal R's, plain and prediction-corrected", "[vpc]") {
+TEST_CASE("VPC statistics equal R's, plain, prediction-corrected and variability-corrected", "[vpc]") {
   const VpcInput input = ReadVpcInput();
   REQUIRE(input.replicates.size() == 30);
   const auto reference = [] {
@@ -323,15 +323,20 @@ TEST_CASE("VPC statistics equal R's, plain and prediction-corrected", "[vpc]") {
     }
     return rows;
   }();
-  REQUIRE(reference.size() == 54);  // 3 corrections × 2 DVID × 3 bins × 3 percentiles
-  for (int corrected = 0; corrected < 3; ++corrected) {  // none, lb = 0, lb = 0.5
+  REQUIRE(reference.size() == 72);  // 4 corrections × 2 DVID × 3 bins × 3 percentiles
+  for (int corrected = 0; corrected < 4; ++corrected) {  // none, lb = 0, lb = 0.5, pvcVPC (lb = 0)
     pk::VpcOptions o;
     o.bin_edges = {0, 3, 8, 30};
     o.percentiles = {10, 50, 90};
     o.interval = 80;
     o.prediction_corrected = corrected > 0;
+    o.variability_corrected = corrected == 3;
     o.lower_bound = corrected == 2 ? 0.5 : 0;
     pk::VpcAccumulator vpc(input.design, o);
+    if (o.variability_corrected) {
+      for (const auto& r : input.replicates) vpc.AddVariability(r);
+      vpc.EndVariability();
+    }
     for (const auto& r : input.replicates) vpc.Add(r);
     const pk::VpcSummary s = vpc.Finish();
     CHECK(s.replicates == 30);
@@ -592,6 +597,128 @@ TEST_CASE("a VPC of the model's own data keeps the percentiles in their interval
   const pk::VpcSummary pc = pk::ComputeVpc(problem, truth, o);
   CHECK(pc.outside <= 5);
   CHECK(pc.observations.size() == good.observations.size());
+  // pvcVPC: the truth passes, Ω a tenth of it fails in the tails, and two threads give the same table.
+  o.variability_corrected = true;
+  const pk::VpcSummary pvc = pk::ComputeVpc(problem, truth, o);
+  INFO(pvc.BriefReport());
+  CHECK(pvc.outside <= 5);
+  CHECK(pk::VpcCsv(pvc) != pk::VpcCsv(pc));
+  CHECK(pk::VpcCsv(pk::ComputeVpc(problem, truth, [&] {
+          pk::VpcOptions one = o;
+          one.threads = 1;
+          return one;
+        }())) == pk::VpcCsv(pvc));
+  const pk::VpcSummary pvc_bad = pk::ComputeVpc(problem, narrow, o);
+  int pvc_tails_outside = 0;
+  for (const pk::VpcBin& b : pvc_bad.bins) {
+    for (size_t k : {size_t{0}, size_t{2}}) {
+      pvc_tails_outside += b.observed[k] < b.simulated_lower[k] || b.observed[k] > b.simulated_upper[k];
+    }
+  }
+  CHECK(pvc_tails_outside >= 10);
+}
+
+// pvcVPC by its definition (Bergstrand et al. 2011), computed here from the values: pcY = Y·PRED_b/PRED
+// (lb = 0), sd_ij the standard deviation of sample ij's pcY over the replicates, sd_b their median in
+// the bin, pvcY = PRED_b + (pcY − PRED_b)·sd_b/sd_ij, for the observations and for every replicate.
+TEST_CASE("pvcVPC scales each deviation from the bin's PRED by the bin's median spread over the sample's own",
+          "[vpc]") {
+  const std::vector<double> pred = {2, 4, 5, 8, 10}, dv = {2.5, 3, 6, 7, 13};
+  pk::SimulationDesign design;
+  design.subjects.resize(pred.size());
+  for (size_t i = 0; i < pred.size(); ++i) {
+    auto& s = design.subjects[i];
+    s.id = static_cast<double>(i + 1);
+    s.time = {4};
+    s.dvid = {1};
+    s.censored = {0};
+    s.dv = Eigen::VectorXd::Constant(1, dv[i]);
+    s.pred = Eigen::VectorXd::Constant(1, pred[i]);
+  }
+  // Six replicates; additive deviations of unequal size, so that the samples' spreads differ.
+  const std::vector<double> shift = {-1, 0.5, 2, -0.3, 1.1, -2.2}, size = {0.2, 1, 3, 0.5, 2};
+  std::vector<std::vector<std::vector<double>>> replicates;
+  for (size_t r = 0; r < shift.size(); ++r) {
+    std::vector<std::vector<double>> values(pred.size());
+    for (size_t i = 0; i < pred.size(); ++i) values[i] = {pred[i] + shift[(r + i) % shift.size()] * size[i]};
+    replicates.push_back(values);
+  }
+  const double pred_b = 5;  // the median PRED
+  std::vector<double> sd(pred.size());
+  for (size_t i = 0; i < pred.size(); ++i) {
+    double sum = 0, squares = 0;
+    for (const auto& values : replicates) sum += values[i][0] * pred_b / pred[i];
+    const double mean = sum / static_cast<double>(replicates.size());
+    for (const auto& values : replicates) squares += std::pow(values[i][0] * pred_b / pred[i] - mean, 2);
+    sd[i] = std::sqrt(squares / static_cast<double>(replicates.size() - 1));
+  }
+  std::vector<double> sorted = sd;
+  std::sort(sorted.begin(), sorted.end());
+  const double sd_b = sorted[2];  // the median of five
+  const auto corrected = [&](const std::vector<double>& y) {
+    std::vector<double> out;
+    for (size_t i = 0; i < y.size(); ++i) out.push_back(pred_b + (y[i] * pred_b / pred[i] - pred_b) * sd_b / sd[i]);
+    return out;
+  };
+  pk::VpcOptions o;
+  o.prediction_corrected = o.variability_corrected = true;
+  o.replicates = static_cast<int>(replicates.size());
+  pk::VpcAccumulator vpc(design, o);
+  CHECK_THROWS_AS(vpc.Add(replicates[0]), std::logic_error);  // the spreads come first
+  for (const auto& values : replicates) vpc.AddVariability(values);
+  vpc.EndVariability();
+  CHECK_THROWS_AS(vpc.AddVariability(replicates[0]), std::logic_error);
+  for (const auto& values : replicates) vpc.Add(values);
+  const pk::VpcSummary v = vpc.Finish();
+  CHECK(v.variability_corrected);
+  CHECK(v.Kind() == "Prediction- and variability-corrected VPC");
+  REQUIRE(v.bins.size() == 1);
+  const pk::VpcBin& b = v.bins[0];
+  std::vector<double> observed = corrected(dv);
+  for (size_t i = 0; i < dv.size(); ++i) CHECK(v.observations[i].value == Approx(observed[i]).epsilon(1e-13));
+  std::vector<std::vector<double>> by_percentile(o.percentiles.size());
+  for (const auto& values : replicates) {
+    std::vector<double> y;
+    for (const auto& subject : values) y.push_back(subject[0]);
+    std::vector<double> c = corrected(y);
+    for (size_t k = 0; k < o.percentiles.size(); ++k) by_percentile[k].push_back(pk::Percentile(&c, o.percentiles[k]));
+  }
+  for (size_t k = 0; k < o.percentiles.size(); ++k) {
+    CHECK(b.observed[k] == Approx(pk::Percentile(&observed, o.percentiles[k])).epsilon(1e-13));
+    CHECK(b.simulated_lower[k] == Approx(pk::Percentile(&by_percentile[k], 5)).epsilon(1e-13));
+    CHECK(b.simulated_median[k] == Approx(pk::Percentile(&by_percentile[k], 50)).epsilon(1e-13));
+    CHECK(b.simulated_upper[k] == Approx(pk::Percentile(&by_percentile[k], 95)).epsilon(1e-13));
+  }
+  // The correction moved the values: the spreads differ (sd from about 0.26 to 3.7 here).
+  CHECK(*std::max_element(sd.begin(), sd.end()) > 5 * *std::min_element(sd.begin(), sd.end()));
+  pk::VpcOptions pc = o;
+  pc.variability_corrected = false;
+  pk::VpcAccumulator plain(design, pc);
+  for (const auto& values : replicates) plain.Add(values);
+  CHECK(plain.Finish().bins[0].observed[2] != Approx(b.observed[2]));
+
+  // Proportional deviations, the same in every sample: equal spreads of pcY, and pvcVPC is pcVPC.
+  pk::VpcAccumulator same_spread(design, o), pc_only(design, pc);
+  std::vector<std::vector<std::vector<double>>> proportional;
+  for (double d : shift) {
+    std::vector<std::vector<double>> values(pred.size());
+    for (size_t i = 0; i < pred.size(); ++i) values[i] = {pred[i] * (1 + 0.1 * d)};
+    proportional.push_back(values);
+  }
+  for (const auto& values : proportional) same_spread.AddVariability(values);
+  same_spread.EndVariability();
+  for (const auto& values : proportional) {
+    same_spread.Add(values);
+    pc_only.Add(values);
+  }
+  const pk::VpcSummary a = same_spread.Finish(), c = pc_only.Finish();
+  for (size_t k = 0; k < o.percentiles.size(); ++k) {
+    CHECK(a.bins[0].observed[k] == Approx(c.bins[0].observed[k]).epsilon(1e-12));
+    CHECK(a.bins[0].simulated_median[k] == Approx(c.bins[0].simulated_median[k]).epsilon(1e-12));
+  }
+  // Not a pvcVPC: no first pass.
+  pk::VpcAccumulator not_pvc(design, pc);
+  CHECK_THROWS_AS(not_pvc.EndVariability(), std::logic_error);
 }
 
 TEST_CASE("VPC options are checked", "[vpc]") {
@@ -607,6 +734,11 @@ TEST_CASE("VPC options are checked", "[vpc]") {
       [](pk::VpcOptions* x) { x->bin_edges = {1}; },
       [](pk::VpcOptions* x) { x->bin_edges = {0, 2, 2}; },
       [](pk::VpcOptions* x) { x->max_bins = 0; },
+      [](pk::VpcOptions* x) { x->variability_corrected = true; },  // without the prediction correction
+      [](pk::VpcOptions* x) {
+        x->prediction_corrected = x->variability_corrected = true;
+        x->replicates = 1;  // no spread from one replicate
+      },
       [](pk::VpcOptions* x) { x->threads = 0; }};
   for (const auto& change : bad) {
     pk::VpcOptions x;

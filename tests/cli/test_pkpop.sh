@@ -151,6 +151,13 @@ vpc_run "$work/vpc_other" --vpc 50 --seed 12 --pcvpc --vpc-bins 0,24,48,96,400
 cmp -s "$work/vpc/vpc.csv" "$work/vpc_other/vpc.csv" && fail "another seed gave the same vpc.csv"
 [ "$(tail -n +2 "$work/vpc_other/vpc.csv" | wc -l)" -eq 12 ] || fail "vpc.csv with 4 given bins: expected 12 rows"
 grep -q "Prediction-corrected VPC" "$work/vpc_other/vpc.svg" || fail "the pcVPC's title"
+# pvcVPC (--pvcvpc implies the prediction correction): the same bins, other values, its own title.
+vpc_run "$work/vpc_pvc" --vpc 50 --seed 12 --pvcvpc --vpc-bins 0,24,48,96,400
+[ "$(tail -n +2 "$work/vpc_pvc/vpc.csv" | wc -l)" -eq 12 ] || fail "pvcVPC vpc.csv with 4 given bins: expected 12 rows"
+cmp -s "$work/vpc_other/vpc.csv" "$work/vpc_pvc/vpc.csv" && fail "the variability correction changed nothing"
+grep -q "Prediction- and variability-corrected VPC" "$work/vpc_pvc/vpc.svg" || fail "the pvcVPC's title"
+grep -q "Prediction- and variability-corrected VPC: 50 replicates" "$work/vpc_pvc/report.html" ||
+  fail "report.html does not name the pvcVPC"
 # Stratified by Apgar score: a panel per score, the column first in vpc.csv.
 vpc_run "$work/vpc_apgar" --vpc 20 --vpc-stratify apgar --vpc-bins 2
 head -1 "$work/vpc_apgar/vpc.csv" | grep -q "^APGAR,DVID,BIN," || fail "the stratified vpc.csv's header"
@@ -345,6 +352,7 @@ expect_error "--omega CL:V: the two η are not in one Ω block" "${pheno[@]}" --
 expect_error "initial Ω block of CL is not positive definite" "${pheno[@]}" --block CL,V --omega CL:V=1
 expect_error "--vpc: expected 0 to 100000 replicates" "${pheno[@]}" --vpc -1
 expect_error "need --vpc N" "${pheno[@]}" --pcvpc
+expect_error "need --vpc N" "${pheno[@]}" --pvcvpc
 expect_error "--vpc: the bin edges must increase" "${pheno[@]}" --vpc 10 --vpc-bins 0,5,5
 expect_error "--vpc: the percentiles must increase" "${pheno[@]}" --vpc 10 --vpc-percentiles 95,5
 expect_error "--seed: expected a whole number" "${pheno[@]}" --simulate 2 --seed -3

@@ -58,6 +58,12 @@ struct VpcOptions {
   /// in time (1: none merged).
   int min_bin_count = 5;
   bool prediction_corrected = false;              ///< pcVPC
+  /// pvcVPC (Bergstrand et al. 2011; PsN's -varcorr): each prediction-corrected value's deviation
+  /// from PRED_b is also scaled by the bin's median spread over that sample's own (the standard
+  /// deviations of its prediction-corrected values over the replicates), so that samples of unequal
+  /// variability (a proportional error at unequal predictions, say) can share a bin. Needs
+  /// prediction_corrected and at least 2 replicates; the replicates are simulated twice.
+  bool variability_corrected = false;
   double lower_bound = 0;                         ///< pcVPC's lb
   /// A lower limit of quantification for every DVID (PsN's -lloq): values below it count as
   /// censored. NaN: the data's CENS = 1 rows give the limits.
@@ -76,7 +82,7 @@ struct VpcObservation {
   double id = 0;
   double time = 0;
   int dvid = 1;
-  double value = 0;  ///< DV, or its prediction-corrected value
+  double value = 0;  ///< DV, or its prediction- (and variability-) corrected value
   int bin = -1;      ///< index into VpcSummary::bins
 };
 
@@ -99,6 +105,7 @@ struct VpcSummary {
   std::vector<double> percentiles;
   double interval = 90;
   bool prediction_corrected = false;
+  bool variability_corrected = false;
   int replicates = 0;
   std::uint64_t seed = 0;
   std::string binning;  ///< how the bins were chosen
@@ -114,14 +121,27 @@ struct VpcSummary {
   int outside = 0, compared = 0;
 
   std::string BriefReport() const;
+  /// "VPC", "Prediction-corrected VPC" or "Prediction- and variability-corrected VPC".
+  std::string Kind() const;
 };
 
 /// Gathers a VPC: the observed side at construction, then replicates one at a time, each a
 /// simulated value per observation (memory: the bins × percentiles × replicates statistics, not
 /// the simulated values). Throws pk::InputError for invalid options or a design without values.
+///
+/// A pvcVPC (VpcOptions::variability_corrected) needs each sample's spread before any value can be
+/// corrected: every replicate goes first to AddVariability, then EndVariability, then the same
+/// replicates to Add (or Summarise and Append). The observed side is formed by EndVariability.
 class VpcAccumulator {
  public:
   VpcAccumulator(const SimulationDesign& design, const VpcOptions& options);
+  /// pvcVPC's first pass: a replicate's values (as Add takes them) join each sample's mean and
+  /// variance of its prediction-corrected values (Welford's update; limits do not apply here).
+  void AddVariability(const SimulatedReplicate& replicate);
+  void AddVariability(const std::vector<std::vector<double>>& values);
+  /// Ends the first pass: the samples' scales sd_b/sd_ij (sd_b the median over the bin; 1 where a
+  /// spread is not positive) and the observed side. Throws std::logic_error without pvcVPC.
+  void EndVariability();
   /// A replicate's simulated values, per subject and sample as in the design; subjects with
   /// ok = false are left out.
   void Add(const SimulatedReplicate& replicate);
@@ -146,8 +166,13 @@ class VpcAccumulator {
     int subject, index, bin;
     double pc_scale;      // (PRED_b − lb)/(PRED − lb), 1 without prediction correction
     double lower, upper;  // the sample's limits (−∞, +∞ without)
+    double observed;      // DV, ∓∞ when censored below (above) its limit
+    double vc_scale;      // pvcVPC: sd_b/sd_ij, 1 without
+    // pvcVPC's first pass: the count, mean and sum of squared deviations of its pc values.
+    double n, mean, m2;
   };
   void Bin(const SimulationDesign& design);
+  void Observe();  // the observed side, from the samples' `observed`
   void AddValue(const Sample& s, double y, std::vector<std::vector<double>>* by_bin) const;
   VpcOptions options_;
   VpcSummary summary_;
@@ -155,6 +180,7 @@ class VpcAccumulator {
   /// [bin][percentile] → the replicates' simulated percentile; [bin] → their censored fractions
   std::vector<std::vector<std::vector<double>>> simulated_;
   std::vector<std::vector<double>> simulated_censored_;
+  bool corrections_ready_ = true;  // false until EndVariability, for a pvcVPC
 };
 
 /// Throws pk::InputError unless `options` are valid for `problem`: IsValid, and a stratification

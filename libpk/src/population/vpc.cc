@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <functional>
 #include <limits>
 #include <map>
 #include <set>
@@ -171,6 +172,10 @@ bool VpcOptions::IsValid(std::string* error) const {
   if (max_bins < 1) return fail("max_bins must be at least 1, not " + std::to_string(max_bins));
   if (min_bin_count < 1) return fail("min_bin_count must be at least 1, not " + std::to_string(min_bin_count));
   if (!std::isfinite(lower_bound)) return fail("the lower bound must be finite");
+  if (variability_corrected && !prediction_corrected) {
+    return fail("the variability correction (pvcVPC) applies to prediction-corrected values: it needs the prediction correction");
+  }
+  if (variability_corrected && replicates < 2) return fail("the variability correction needs at least 2 replicates");
   if (std::isinf(lloq)) return fail("the LLOQ must be finite (or NaN: none)");
   if (threads < 1) return fail("threads must be at least 1, not " + std::to_string(threads));
   return true;
@@ -239,6 +244,7 @@ VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions&
   summary_.percentiles = options.percentiles;
   summary_.interval = options.interval;
   summary_.prediction_corrected = options.prediction_corrected;
+  summary_.variability_corrected = options.variability_corrected;
   summary_.seed = options.seed;
   summary_.stratify = design.stratify;
   const std::map<int, Limits> limits = DataLimits(design, options.lloq);
@@ -250,32 +256,42 @@ VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions&
       if (s.censored[j] > 0) l.lower = dv;  // its own limit
       if (s.censored[j] < 0) l.upper = dv;
       summary_.limits = summary_.limits || std::isfinite(l.lower);
-      samples_.push_back({static_cast<int>(i), static_cast<int>(j), -1, 1.0, l.lower, l.upper});
+      const double inf = std::numeric_limits<double>::infinity();
+      const double observed = s.censored[j] > 0 ? -inf : s.censored[j] < 0 ? inf : dv;
+      samples_.push_back({static_cast<int>(i), static_cast<int>(j), -1, 1.0, l.lower, l.upper, observed, 1.0, 0, 0, 0});
     }
   }
   if (samples_.empty()) throw InputError("VPC: the data have no observations");
   Bin(design);
-  // The observed side: censored observations at ∓∞, as simulated values beyond their limits.
-  std::vector<std::vector<double>> by_bin(summary_.bins.size());
   for (const Sample& s : samples_) {
     const SimulationDesign::Subject& subject = design.subjects[static_cast<size_t>(s.subject)];
     const auto j = static_cast<size_t>(s.index);
-    const double inf = std::numeric_limits<double>::infinity();
-    const double dv = subject.censored[j] > 0 ? -inf : subject.censored[j] < 0 ? inf : subject.dv(s.index);
-    AddValue(s, dv, &by_bin);
+    summary_.observations.push_back({subject.id, subject.time[j], subject.dvid[j], kNaN, s.bin});
+  }
+  // A pvcVPC's observed side waits for the spreads (EndVariability).
+  corrections_ready_ = !options.variability_corrected;
+  if (corrections_ready_) Observe();
+  simulated_.assign(summary_.bins.size(), std::vector<std::vector<double>>(options.percentiles.size()));
+  simulated_censored_.assign(summary_.bins.size(), {});
+}
+
+// The observed side: censored observations at ∓∞, as simulated values beyond their limits.
+void VpcAccumulator::Observe() {
+  std::vector<std::vector<double>> by_bin(summary_.bins.size());
+  for (size_t k = 0; k < samples_.size(); ++k) {
+    const Sample& s = samples_[k];
+    AddValue(s, s.observed, &by_bin);
     const double shown = by_bin[static_cast<size_t>(s.bin)].back();
     if (std::isinf(shown)) ++summary_.censored;
-    summary_.observations.push_back({subject.id, subject.time[j], subject.dvid[j], shown, s.bin});
+    summary_.observations[k].value = shown;
   }
   for (size_t b = 0; b < summary_.bins.size(); ++b) {
     VpcBin& bin = summary_.bins[b];
     bin.censored_observed = by_bin[b].empty() ? 0 : static_cast<double>(std::count(by_bin[b].begin(), by_bin[b].end(),
                                                                       -std::numeric_limits<double>::infinity())) /
                                                         static_cast<double>(by_bin[b].size());
-    for (double p : options.percentiles) bin.observed.push_back(Percentile(&by_bin[b], p));
+    for (double p : options_.percentiles) bin.observed.push_back(Percentile(&by_bin[b], p));
   }
-  simulated_.assign(summary_.bins.size(), std::vector<std::vector<double>>(options.percentiles.size()));
-  simulated_censored_.assign(summary_.bins.size(), {});
 }
 
 // Each DVID's bins, each sample's bin (those outside given edges left out), the bins' times, and
@@ -360,7 +376,61 @@ void VpcAccumulator::AddValue(const Sample& s, double y, std::vector<std::vector
   const double lb = options_.lower_bound;
   double v = y < s.lower ? -inf : y > s.upper ? inf : y;
   if (std::isfinite(v) && options_.prediction_corrected) v = lb + (v - lb) * s.pc_scale;
+  if (std::isfinite(v) && options_.variability_corrected) {
+    const double pred_b = summary_.bins[static_cast<size_t>(s.bin)].pred_median;
+    v = pred_b + (v - pred_b) * s.vc_scale;
+  }
   (*by_bin)[static_cast<size_t>(s.bin)].push_back(v);
+}
+
+void VpcAccumulator::AddVariability(const SimulatedReplicate& replicate) {
+  std::vector<std::vector<double>> values(replicate.subjects.size());
+  for (size_t i = 0; i < replicate.subjects.size(); ++i) {
+    const SimulatedSubject& s = replicate.subjects[i];
+    if (s.ok) values[i].assign(s.dv.data(), s.dv.data() + s.dv.size());
+  }
+  AddVariability(values);
+}
+
+void VpcAccumulator::AddVariability(const std::vector<std::vector<double>>& values) {
+  if (!options_.variability_corrected || corrections_ready_) {
+    throw std::logic_error("VpcAccumulator::AddVariability: not a pvcVPC, or after EndVariability");
+  }
+  const double lb = options_.lower_bound;
+  for (Sample& s : samples_) {
+    const std::vector<double>& subject = values.at(static_cast<size_t>(s.subject));
+    if (subject.empty()) continue;
+    const double y = subject.at(static_cast<size_t>(s.index));
+    if (!std::isfinite(y)) continue;
+    const double v = lb + (y - lb) * s.pc_scale;
+    s.n += 1;
+    const double d = v - s.mean;
+    s.mean += d / s.n;
+    s.m2 += d * (v - s.mean);
+  }
+}
+
+void VpcAccumulator::EndVariability() {
+  if (!options_.variability_corrected || corrections_ready_) {
+    throw std::logic_error("VpcAccumulator::EndVariability: not a pvcVPC, or called twice");
+  }
+  // sd_ij over the replicates; sd_b the median of a bin's (those with a spread).
+  std::vector<double> sd(samples_.size(), kNaN);
+  std::vector<std::vector<double>> by_bin(summary_.bins.size());
+  for (size_t k = 0; k < samples_.size(); ++k) {
+    const Sample& s = samples_[k];
+    if (s.n >= 2) sd[k] = std::sqrt(s.m2 / (s.n - 1));
+    if (sd[k] > 0) by_bin[static_cast<size_t>(s.bin)].push_back(sd[k]);
+  }
+  std::vector<double> median(by_bin.size(), kNaN);
+  for (size_t b = 0; b < by_bin.size(); ++b) median[b] = Median(by_bin[b]);
+  for (size_t k = 0; k < samples_.size(); ++k) {
+    Sample& s = samples_[k];
+    const double sd_b = median[static_cast<size_t>(s.bin)];
+    s.vc_scale = sd[k] > 0 && std::isfinite(sd_b) ? sd_b / sd[k] : 1.0;
+  }
+  corrections_ready_ = true;
+  Observe();
 }
 
 VpcAccumulator::ReplicateStatistics VpcAccumulator::Summarise(const SimulatedReplicate& replicate) const {
@@ -380,6 +450,7 @@ VpcAccumulator::ReplicateStatistics VpcAccumulator::Summarise(const SimulatedRep
 }
 
 VpcAccumulator::ReplicateStatistics VpcAccumulator::Summarise(const std::vector<std::vector<double>>& values) const {
+  if (!corrections_ready_) throw std::logic_error("VpcAccumulator: a pvcVPC takes its replicates after EndVariability");
   std::vector<std::vector<double>> by_bin(summary_.bins.size());
   for (const Sample& s : samples_) {
     const std::vector<double>& subject = values.at(static_cast<size_t>(s.subject));
@@ -415,6 +486,7 @@ void VpcAccumulator::Add(const SimulatedReplicate& replicate) { Append(Summarise
 void VpcAccumulator::Add(const std::vector<std::vector<double>>& values) { Append(Summarise(values)); }
 
 VpcSummary VpcAccumulator::Finish() const {
+  if (!corrections_ready_) throw std::logic_error("VpcAccumulator::Finish: a pvcVPC before EndVariability");
   VpcSummary out = summary_;
   const double tail = (100 - options_.interval) / 2;
   const auto interval = [&](std::vector<double> v, double* lower, double* median, double* upper) {
@@ -475,10 +547,29 @@ VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParamete
   simulation.replicates = options.replicates;
   simulation.seed = options.seed;
   simulation.threads = 1;  // a replicate's subjects on one thread; the replicates on options.threads
-  // Replicates simulated and summarised on the workers, appended in order, in chunks: a replicate of
-  // a small design takes tens of microseconds, about what handing it between threads costs.
-  using Chunk = std::vector<VpcAccumulator::ReplicateStatistics>;
+  // Replicates simulated (and summarised) on the workers, handed over in order, in chunks: a replicate
+  // of a small design takes tens of microseconds, about what handing it between threads costs.
   const int n = options.replicates, chunk = std::max(1, std::min(16, n / (8 * options.threads)));
+  const auto each_replicate = [&](const std::function<void(SimulatedReplicate&&)>& take) {
+    using Chunk = std::vector<SimulatedReplicate>;
+    internal::OrderedParallel<Chunk>(
+        (n + chunk - 1) / chunk, options.threads, 4 * options.threads,
+        [&](int c) {
+          Chunk out;
+          for (int r = c * chunk; r < std::min(n, (c + 1) * chunk); ++r) {
+            out.push_back(SimulateReplicate(problem, parameters, simulation, r));
+          }
+          return out;
+        },
+        [&](int, Chunk&& replicates) {
+          for (auto& r : replicates) take(std::move(r));
+        });
+  };
+  if (options.variability_corrected) {  // the samples' spreads over the same replicates, first
+    each_replicate([&](SimulatedReplicate&& r) { vpc.AddVariability(r); });
+    vpc.EndVariability();
+  }
+  using Chunk = std::vector<VpcAccumulator::ReplicateStatistics>;
   internal::OrderedParallel<Chunk>(
       (n + chunk - 1) / chunk, options.threads, 4 * options.threads,
       [&](int c) {
@@ -494,9 +585,14 @@ VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParamete
   return vpc.Finish();
 }
 
+std::string VpcSummary::Kind() const {
+  if (variability_corrected) return "Prediction- and variability-corrected VPC";
+  return prediction_corrected ? "Prediction-corrected VPC" : "VPC";
+}
+
 std::string VpcSummary::BriefReport() const {
   std::ostringstream out;
-  out << (prediction_corrected ? "Prediction-corrected VPC" : "VPC") << ": " << replicates << " replicates (seed "
+  out << Kind() << ": " << replicates << " replicates (seed "
       << seed << "), " << bins.size() << " bins (" << binning << "), " << observations.size() << " observed values";
   if (censored > 0) out << ", " << censored << " of them beyond a limit of quantification (counted as censored on both sides)";
   out << ".\n";
