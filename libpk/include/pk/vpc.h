@@ -139,6 +139,11 @@ class VpcAccumulator {
   /// variance of its prediction-corrected values (Welford's update; limits do not apply here).
   void AddVariability(const SimulatedReplicate& replicate);
   void AddVariability(const std::vector<std::vector<double>>& values);
+  /// AddVariability in two steps, as Summarise and Append: a replicate's prediction-corrected value
+  /// of each sample (NaN where it has none), which threads may form, then their addition in order.
+  std::vector<double> VariabilityValues(const SimulatedReplicate& replicate) const;
+  std::vector<double> VariabilityValues(const std::vector<std::vector<double>>& values) const;
+  void AppendVariability(const std::vector<double>& values);
   /// Ends the first pass: the samples' scales sd_b/sd_ij (sd_b the median over the bin; 1 where a
   /// spread is not positive) and the observed side. Throws std::logic_error without pvcVPC.
   void EndVariability();

@@ -384,29 +384,49 @@ void VpcAccumulator::AddValue(const Sample& s, double y, std::vector<std::vector
 }
 
 void VpcAccumulator::AddVariability(const SimulatedReplicate& replicate) {
+  AppendVariability(VariabilityValues(replicate));
+}
+
+void VpcAccumulator::AddVariability(const std::vector<std::vector<double>>& values) {
+  AppendVariability(VariabilityValues(values));
+}
+
+std::vector<double> VpcAccumulator::VariabilityValues(const SimulatedReplicate& replicate) const {
   std::vector<std::vector<double>> values(replicate.subjects.size());
   for (size_t i = 0; i < replicate.subjects.size(); ++i) {
     const SimulatedSubject& s = replicate.subjects[i];
     if (s.ok) values[i].assign(s.dv.data(), s.dv.data() + s.dv.size());
   }
-  AddVariability(values);
+  return VariabilityValues(values);
 }
 
-void VpcAccumulator::AddVariability(const std::vector<std::vector<double>>& values) {
+std::vector<double> VpcAccumulator::VariabilityValues(const std::vector<std::vector<double>>& values) const {
   if (!options_.variability_corrected || corrections_ready_) {
     throw std::logic_error("VpcAccumulator::AddVariability: not a pvcVPC, or after EndVariability");
   }
   const double lb = options_.lower_bound;
-  for (Sample& s : samples_) {
+  std::vector<double> out(samples_.size(), kNaN);
+  for (size_t k = 0; k < samples_.size(); ++k) {
+    const Sample& s = samples_[k];
     const std::vector<double>& subject = values.at(static_cast<size_t>(s.subject));
     if (subject.empty()) continue;
     const double y = subject.at(static_cast<size_t>(s.index));
-    if (!std::isfinite(y)) continue;
-    const double v = lb + (y - lb) * s.pc_scale;
+    if (std::isfinite(y)) out[k] = lb + (y - lb) * s.pc_scale;
+  }
+  return out;
+}
+
+void VpcAccumulator::AppendVariability(const std::vector<double>& values) {
+  if (!options_.variability_corrected || corrections_ready_ || values.size() != samples_.size()) {
+    throw std::logic_error("VpcAccumulator::AppendVariability: not a pvcVPC, after EndVariability, or another VPC's values");
+  }
+  for (size_t k = 0; k < samples_.size(); ++k) {  // Welford's update of the sample's mean and squared deviations
+    if (std::isnan(values[k])) continue;
+    Sample& s = samples_[k];
     s.n += 1;
-    const double d = v - s.mean;
+    const double d = values[k] - s.mean;
     s.mean += d / s.n;
-    s.m2 += d * (v - s.mean);
+    s.m2 += d * (values[k] - s.mean);
   }
 }
 
@@ -539,6 +559,27 @@ void CheckVpcOptions(const PopulationProblem& problem, const VpcOptions& options
   }
 }
 
+namespace {
+
+// make(r) for r = 0…n−1 on `threads` workers, each result handed to take in the order of r. In chunks:
+// a replicate of a small design takes tens of microseconds, about what handing it between threads costs.
+template <typename T>
+void InOrder(int n, int threads, const std::function<T(int)>& make, const std::function<void(T&&)>& take) {
+  const int chunk = std::max(1, std::min(16, n / (8 * threads)));
+  internal::OrderedParallel<std::vector<T>>(
+      (n + chunk - 1) / chunk, threads, 4 * threads,
+      [&](int c) {
+        std::vector<T> out;
+        for (int r = c * chunk; r < std::min(n, (c + 1) * chunk); ++r) out.push_back(make(r));
+        return out;
+      },
+      [&](int, std::vector<T>&& items) {
+        for (T& item : items) take(std::move(item));
+      });
+}
+
+}  // namespace
+
 VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParameters& parameters,
                       const VpcOptions& options) {
   CheckVpcOptions(problem, options);
@@ -547,41 +588,17 @@ VpcSummary ComputeVpc(const PopulationProblem& problem, const PopulationParamete
   simulation.replicates = options.replicates;
   simulation.seed = options.seed;
   simulation.threads = 1;  // a replicate's subjects on one thread; the replicates on options.threads
-  // Replicates simulated (and summarised) on the workers, handed over in order, in chunks: a replicate
-  // of a small design takes tens of microseconds, about what handing it between threads costs.
-  const int n = options.replicates, chunk = std::max(1, std::min(16, n / (8 * options.threads)));
-  const auto each_replicate = [&](const std::function<void(SimulatedReplicate&&)>& take) {
-    using Chunk = std::vector<SimulatedReplicate>;
-    internal::OrderedParallel<Chunk>(
-        (n + chunk - 1) / chunk, options.threads, 4 * options.threads,
-        [&](int c) {
-          Chunk out;
-          for (int r = c * chunk; r < std::min(n, (c + 1) * chunk); ++r) {
-            out.push_back(SimulateReplicate(problem, parameters, simulation, r));
-          }
-          return out;
-        },
-        [&](int, Chunk&& replicates) {
-          for (auto& r : replicates) take(std::move(r));
-        });
-  };
+  const int n = options.replicates;
   if (options.variability_corrected) {  // the samples' spreads over the same replicates, first
-    each_replicate([&](SimulatedReplicate&& r) { vpc.AddVariability(r); });
+    InOrder<std::vector<double>>(
+        n, options.threads,
+        [&](int r) { return vpc.VariabilityValues(SimulateReplicate(problem, parameters, simulation, r)); },
+        [&](std::vector<double>&& values) { vpc.AppendVariability(values); });
     vpc.EndVariability();
   }
-  using Chunk = std::vector<VpcAccumulator::ReplicateStatistics>;
-  internal::OrderedParallel<Chunk>(
-      (n + chunk - 1) / chunk, options.threads, 4 * options.threads,
-      [&](int c) {
-        Chunk out;
-        for (int r = c * chunk; r < std::min(n, (c + 1) * chunk); ++r) {
-          out.push_back(vpc.Summarise(SimulateReplicate(problem, parameters, simulation, r)));
-        }
-        return out;
-      },
-      [&](int, Chunk&& statistics) {
-        for (const auto& s : statistics) vpc.Append(s);
-      });
+  InOrder<VpcAccumulator::ReplicateStatistics>(
+      n, options.threads, [&](int r) { return vpc.Summarise(SimulateReplicate(problem, parameters, simulation, r)); },
+      [&](VpcAccumulator::ReplicateStatistics&& statistics) { vpc.Append(statistics); });
   return vpc.Finish();
 }
 
