@@ -165,7 +165,7 @@ void WriteFitOutputs(const std::string& dir, const std::vector<SubjectFit>& fits
   const std::string html = HtmlReport(fits, context, &svgs);
 
   // The set is complete when its manifest is written, last; until then the last run's manifest
-  // vouches for its files that this run has not rewritten, and for none of this run's.
+  // vouches for the files this run has not changed (untouched, or rewritten byte for byte).
   std::vector<std::string> written;
   const auto write = [&](const std::string& name, const std::string& contents) {
     WriteFileAtomically(dir + "/" + name, contents);

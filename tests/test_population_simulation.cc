@@ -323,15 +323,15 @@ TEST_CASE("VPC statistics equal R's, plain, prediction-corrected and variability
     }
     return rows;
   }();
-  REQUIRE(reference.size() == 72);  // 4 corrections × 2 DVID × 3 bins × 3 percentiles
-  for (int corrected = 0; corrected < 4; ++corrected) {  // none, lb = 0, lb = 0.5, pvcVPC (lb = 0)
+  REQUIRE(reference.size() == 90);  // 5 corrections × 2 DVID × 3 bins × 3 percentiles
+  for (int corrected = 0; corrected < 5; ++corrected) {  // none, lb = 0, lb = 0.5, pvcVPC with lb = 0 and 0.5
     pk::VpcOptions o;
     o.bin_edges = {0, 3, 8, 30};
     o.percentiles = {10, 50, 90};
     o.interval = 80;
     o.prediction_corrected = corrected > 0;
-    o.variability_corrected = corrected == 3;
-    o.lower_bound = corrected == 2 ? 0.5 : 0;
+    o.variability_corrected = corrected >= 3;
+    o.lower_bound = corrected == 2 || corrected == 4 ? 0.5 : 0;
     pk::VpcAccumulator vpc(input.design, o);
     if (o.variability_corrected) {
       for (const auto& r : input.replicates) vpc.AddVariability(r);
@@ -716,6 +716,25 @@ TEST_CASE("pvcVPC scales each deviation from the bin's PRED by the bin's median 
     CHECK(a.bins[0].observed[k] == Approx(c.bins[0].observed[k]).epsilon(1e-12));
     CHECK(a.bins[0].simulated_median[k] == Approx(c.bins[0].simulated_median[k]).epsilon(1e-12));
   }
+  // Subject 5 simulated in 2 of the 6 replicates (fewer than half): its spread is not estimated, it
+  // keeps its pcY and is counted, and the bin's sd_b is the median of the other four.
+  auto with_gaps = replicates;
+  for (size_t r = 0; r < 4; ++r) with_gaps[r][4].clear();
+  pk::VpcAccumulator sparse(design, o);
+  for (const auto& values : with_gaps) sparse.AddVariability(values);
+  sparse.EndVariability();
+  for (const auto& values : with_gaps) sparse.Add(values);
+  const pk::VpcSummary g = sparse.Finish();
+  CHECK(g.unscaled == 1);
+  CHECK(g.BriefReport().find("1 observations whose spread over the replicates cannot be estimated") != std::string::npos);
+  CHECK(g.observations[4].value == Approx(dv[4] * pred_b / pred[4]).epsilon(1e-14));
+  std::vector<double> four(sd.begin(), sd.begin() + 4);
+  std::sort(four.begin(), four.end());
+  const double sd_b4 = (four[1] + four[2]) / 2;
+  for (size_t i = 0; i < 4; ++i) {
+    CHECK(g.observations[i].value == Approx(pred_b + (dv[i] * pred_b / pred[i] - pred_b) * sd_b4 / sd[i]).epsilon(1e-13));
+  }
+  CHECK(v.unscaled == 0);
   // Not a pvcVPC: no first pass.
   pk::VpcAccumulator not_pvc(design, pc);
   CHECK_THROWS_AS(not_pvc.EndVariability(), std::logic_error);

@@ -3,7 +3,8 @@
 # from R's own generator: the statistics, not a model, are under test) and vpc_reference.csv (the
 # VPC with bin edges 0, 3, 8, 30 and the 10th, 50th, 90th percentiles, their 80% interval: plain
 # (CORRECTED 0), prediction-corrected with lower bound 0 (1) and with lower bound 0.5 (2), and
-# prediction- and variability-corrected with lower bound 0 (3)), percentiles by R's quantile(type = 7).
+# prediction- and variability-corrected with lower bound 0 (3) and 0.5 (4)), percentiles by R's
+# quantile(type = 7).
 # Run from the repository root: Rscript tests/reference/make_vpc_reference.R
 set.seed(20261127)
 subjects <- 20
@@ -35,29 +36,29 @@ pc_values <- function(d, bins, lb) {  # Bergstrand 2011: lb + (y - lb) (PRED_bin
 }
 # pvcVPC (Bergstrand 2011): PRED_bin + (pcY - PRED_bin) sd_bin / sd_ij, sd_ij the standard deviation of
 # sample ij's pcY over the replicates (1..30), sd_bin the median of the sd_ij of its bin.
-pvc_values <- function(d) {
+pvc_values <- function(d, lb) {
   observed <- input[input$REP == 0, ]
   bins <- bin_of(d$TIME)
   pred_bin <- tapply(observed$PRED, list(observed$DVID, bin_of(observed$TIME)), median)
   pb <- pred_bin[cbind(as.character(d$DVID), as.character(bins))]
   simulated <- input[input$REP > 0, ]
-  pc <- pc_values(simulated, bin_of(simulated$TIME), 0)
+  pc <- pc_values(simulated, bin_of(simulated$TIME), lb)
   sd_ij <- tapply(pc, list(simulated$SUBJECT, simulated$SAMPLE), sd)
   first <- simulated$REP == 1
   sd_bin <- tapply(sd_ij[cbind(simulated$SUBJECT[first] + 1, simulated$SAMPLE[first] + 1)],
                    list(simulated$DVID[first], bin_of(simulated$TIME[first])), median)
   s <- sd_ij[cbind(d$SUBJECT + 1, d$SAMPLE + 1)]
-  pb + (pc_values(d, bins, 0) - pb) * sd_bin[cbind(as.character(d$DVID), as.character(bins))] / s
+  pb + (pc_values(d, bins, lb) - pb) * sd_bin[cbind(as.character(d$DVID), as.character(bins))] / s
 }
 out <- list()
-for (corrected in c(0, 1, 2, 3)) {
-  lb <- if (corrected == 2) 0.5 else 0
+for (corrected in c(0, 1, 2, 3, 4)) {
+  lb <- if (corrected %in% c(2, 4)) 0.5 else 0
   for (dvid in sort(unique(input$DVID))) {
     for (b in seq_len(length(edges) - 1)) {
       observed <- input[input$REP == 0, ]
       values_of <- function(d) {
         keep <- d$DVID == dvid & bin_of(d$TIME) == b
-        v <- if (corrected == 3) pvc_values(d) else if (corrected > 0) pc_values(d, bin_of(d$TIME), lb) else d$DV
+        v <- if (corrected >= 3) pvc_values(d, lb) else if (corrected > 0) pc_values(d, bin_of(d$TIME), lb) else d$DV
         v[keep]
       }
       obs <- values_of(observed)

@@ -46,10 +46,13 @@ void RemoveStaleTemporaries(const std::string& directory);
 // file only as the manifest lists it. A new run writes its files over the last run's and then
 // its own manifest over the last one, so while it runs (or if it is killed half-way) a file it
 // has rewritten is refused, and one it has not yet touched, or rewrote byte for byte (pkpop's
-// estimates when it writes its set again with a VPC), stays readable as the last complete set's.
-// Two runs are never mixed, and a killed run loses none of the last set's files it had not
-// rewritten. A directory whose first run was killed has no manifest; readers refuse it by a
-// marker file of the program's (CheckOutputSet).
+// estimates when it writes its set again with a VPC), stays readable as the last complete set's:
+// a killed run loses none of the last set's files it had not rewritten. A directory whose first
+// run was killed has no manifest; readers refuse it by a marker file of the program's
+// (CheckOutputSet). Not handled: two programs writing one directory at once (there is no lock), a
+// reader that checks two files while a run completes its set between the checks (it could pair
+// files of two runs), and a killed run's new files, which no manifest lists and nothing removes
+// (readers refuse them).
 
 /// The manifest's file name, "MANIFEST".
 extern const char* const kManifestName;

@@ -116,6 +116,9 @@ struct VpcSummary {
   bool limits = false;        ///< some DVID has a limit: the bins' censored fractions mean something
   int outside_edges = 0;      ///< observations outside the given bin edges, left out
   int uncorrectable = 0;      ///< pcVPC: observations whose PRED is not above lb or not finite, left out
+  /// pvcVPC: observations whose spread cannot be estimated (simulated in fewer than half the
+  /// replicates, or without spread), shown prediction-corrected only (scale 1)
+  int unscaled = 0;
   int failed_simulations = 0; ///< subject-replicates that could not be simulated
   /// Observed percentiles outside their simulated interval, of those with a value.
   int outside = 0, compared = 0;
@@ -144,8 +147,10 @@ class VpcAccumulator {
   std::vector<double> VariabilityValues(const SimulatedReplicate& replicate) const;
   std::vector<double> VariabilityValues(const std::vector<std::vector<double>>& values) const;
   void AppendVariability(const std::vector<double>& values);
-  /// Ends the first pass: the samples' scales sd_b/sd_ij (sd_b the median over the bin; 1 where a
-  /// spread is not positive) and the observed side. Throws std::logic_error without pvcVPC.
+  /// Ends the first pass: the samples' scales sd_b/sd_ij (sd_b the median over the bin) and the
+  /// observed side. A sample simulated in fewer than half the replicates (at least 2), or without
+  /// spread, keeps scale 1 and is counted (VpcSummary::unscaled): a standard deviation from a few
+  /// values would rescale it by noise. Throws std::logic_error without pvcVPC.
   void EndVariability();
   /// A replicate's simulated values, per subject and sample as in the design; subjects with
   /// ok = false are left out.
@@ -186,6 +191,7 @@ class VpcAccumulator {
   std::vector<std::vector<std::vector<double>>> simulated_;
   std::vector<std::vector<double>> simulated_censored_;
   bool corrections_ready_ = true;  // false until EndVariability, for a pvcVPC
+  int variability_replicates_ = 0;  // replicates of pvcVPC's first pass
 };
 
 /// Throws pk::InputError unless `options` are valid for `problem`: IsValid, and a stratification

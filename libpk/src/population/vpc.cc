@@ -420,6 +420,7 @@ void VpcAccumulator::AppendVariability(const std::vector<double>& values) {
   if (!options_.variability_corrected || corrections_ready_ || values.size() != samples_.size()) {
     throw std::logic_error("VpcAccumulator::AppendVariability: not a pvcVPC, after EndVariability, or another VPC's values");
   }
+  ++variability_replicates_;
   for (size_t k = 0; k < samples_.size(); ++k) {  // Welford's update of the sample's mean and squared deviations
     if (std::isnan(values[k])) continue;
     Sample& s = samples_[k];
@@ -434,12 +435,13 @@ void VpcAccumulator::EndVariability() {
   if (!options_.variability_corrected || corrections_ready_) {
     throw std::logic_error("VpcAccumulator::EndVariability: not a pvcVPC, or called twice");
   }
-  // sd_ij over the replicates; sd_b the median of a bin's (those with a spread).
+  // sd_ij over the replicates, from at least half of them; sd_b the median of a bin's.
+  const double needed = std::max(2.0, 0.5 * variability_replicates_);
   std::vector<double> sd(samples_.size(), kNaN);
   std::vector<std::vector<double>> by_bin(summary_.bins.size());
   for (size_t k = 0; k < samples_.size(); ++k) {
     const Sample& s = samples_[k];
-    if (s.n >= 2) sd[k] = std::sqrt(s.m2 / (s.n - 1));
+    if (s.n >= needed) sd[k] = std::sqrt(s.m2 / (s.n - 1));
     if (sd[k] > 0) by_bin[static_cast<size_t>(s.bin)].push_back(sd[k]);
   }
   std::vector<double> median(by_bin.size(), kNaN);
@@ -447,7 +449,9 @@ void VpcAccumulator::EndVariability() {
   for (size_t k = 0; k < samples_.size(); ++k) {
     Sample& s = samples_[k];
     const double sd_b = median[static_cast<size_t>(s.bin)];
-    s.vc_scale = sd[k] > 0 && std::isfinite(sd_b) ? sd_b / sd[k] : 1.0;
+    const double scale = sd[k] > 0 ? sd_b / sd[k] : kNaN;  // NaN or ∞: not estimable
+    s.vc_scale = std::isfinite(scale) ? scale : 1.0;
+    if (!std::isfinite(scale)) ++summary_.unscaled;
   }
   corrections_ready_ = true;
   Observe();
@@ -617,6 +621,10 @@ std::string VpcSummary::BriefReport() const {
   if (uncorrectable > 0) {
     out << uncorrectable << " observations whose PRED is not above the lower bound (or cannot be evaluated) are left out "
                             "of the prediction correction.\n";
+  }
+  if (unscaled > 0) {
+    out << unscaled << " observations whose spread over the replicates cannot be estimated (simulated in fewer than half "
+                       "of them, or without spread) are prediction-corrected only.\n";
   }
   if (failed_simulations > 0) out << failed_simulations << " subject-replicates could not be simulated and are left out.\n";
   out << outside << " of " << compared << " observed percentiles lie outside their simulated " << FormatNumber(interval)
