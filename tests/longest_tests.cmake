@@ -6,7 +6,6 @@
 set_tests_properties("simulation–estimation: Laplace and FOCEI recover a known population, FO as far as it can"
                      PROPERTIES COST 50)
 set_tests_properties("second-order sensitivities on the ODE propagator agree with differences and with Φ/Γ's"
-                     "mutated datasets are accepted or rejected with a location, never crash"
                      "third derivatives of the predictions agree with differences of the second ones"
                      "ODE routes agree: forward sensitivities, adjoint and finite differences"
                      PROPERTIES COST 18)

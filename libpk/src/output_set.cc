@@ -2,7 +2,6 @@
 #include <boost/crc.hpp>
 
 #include <algorithm>
-#include <cerrno>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>

@@ -489,10 +489,12 @@ PopulationSummary FitPopulation(const PopulationProblem& problem, const Populati
   summary.processes = options.distribution ? options.distribution->size() : 1;
   if (final_eval.ok) {
     eta = internal::Etas(final_eval.modes, initial.omega.rows());
-    if (options.tables && options.method == PopulationMethod::kFo) {
-      internal::PostHocDiagnostics(engine, final_eval, &summary);
-    } else if (options.tables) {
-      internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
+    if (options.tables) {
+      if (options.method == PopulationMethod::kFo) {
+        internal::PostHocDiagnostics(engine, final_eval, &summary);
+      } else {
+        internal::PopulationDiagnostics(engine, summary.parameters, final_eval.modes, &summary);
+      }
     }
     if (options.covariance) {
       internal::PopulationCovariance(engine, packing, eta, internal::UsesImplicitGradient(options),

@@ -237,6 +237,25 @@ std::map<int, Limits> DataLimits(const SimulationDesign& design, double lloq) {
 
 }  // namespace
 
+namespace {
+
+// A replicate's simulated values as Add takes them: each subject's, empty for one that failed
+// (counted in *failed when given).
+std::vector<std::vector<double>> SimulatedValues(const SimulatedReplicate& replicate, int* failed = nullptr) {
+  std::vector<std::vector<double>> values(replicate.subjects.size());
+  for (size_t i = 0; i < replicate.subjects.size(); ++i) {
+    const SimulatedSubject& s = replicate.subjects[i];
+    if (s.ok) {
+      values[i].assign(s.dv.data(), s.dv.data() + s.dv.size());
+    } else if (failed) {
+      ++*failed;
+    }
+  }
+  return values;
+}
+
+}  // namespace
+
 VpcAccumulator::VpcAccumulator(const SimulationDesign& design, const VpcOptions& options) : options_(options) {
   std::string why;
   if (!options.IsValid(&why)) throw InputError("VPC: " + why);
@@ -392,12 +411,7 @@ void VpcAccumulator::AddVariability(const std::vector<std::vector<double>>& valu
 }
 
 std::vector<double> VpcAccumulator::VariabilityValues(const SimulatedReplicate& replicate) const {
-  std::vector<std::vector<double>> values(replicate.subjects.size());
-  for (size_t i = 0; i < replicate.subjects.size(); ++i) {
-    const SimulatedSubject& s = replicate.subjects[i];
-    if (s.ok) values[i].assign(s.dv.data(), s.dv.data() + s.dv.size());
-  }
-  return VariabilityValues(values);
+  return VariabilityValues(SimulatedValues(replicate));
 }
 
 std::vector<double> VpcAccumulator::VariabilityValues(const std::vector<std::vector<double>>& values) const {
@@ -458,17 +472,8 @@ void VpcAccumulator::EndVariability() {
 }
 
 VpcAccumulator::ReplicateStatistics VpcAccumulator::Summarise(const SimulatedReplicate& replicate) const {
-  std::vector<std::vector<double>> values(replicate.subjects.size());
   int failed = 0;
-  for (size_t i = 0; i < replicate.subjects.size(); ++i) {
-    const SimulatedSubject& s = replicate.subjects[i];
-    if (!s.ok) {
-      ++failed;
-      continue;
-    }
-    values[i].assign(s.dv.data(), s.dv.data() + s.dv.size());
-  }
-  ReplicateStatistics out = Summarise(values);
+  ReplicateStatistics out = Summarise(SimulatedValues(replicate, &failed));
   out.failed = failed;
   return out;
 }
