@@ -523,21 +523,25 @@ TEST_CASE("StageTape: each stage's products equal a recording of its own, over s
       wfx_ref.push_back(wfx);
       theta_ref += wft;
     }
-    pk::internal::StageTape tape(sys, theta);
-    for (int step = 0; step < steps; ++step) {
-      tape.NewStep();
-      for (int s = 0; s < stages; ++s) {
-        Eigen::VectorXd f;
-        tape.Record(points[step * stages + s], &f);
-        CHECK(MaxAbs(f - f_ref[step * stages + s]) <= 1e-14 * (1 + MaxAbs(f_ref[step * stages + s])));
+    for (const bool compressed : {false, true}) {
+      INFO("compressed " << compressed);
+      pk::internal::StageTape tape(sys, theta, compressed);
+      CHECK(tape.compressed() == (compressed && !sys.is_linear()));  // every nonlinear one here compresses
+      for (int step = 0; step < steps; ++step) {
+        tape.NewStep();
+        for (int s = 0; s < stages; ++s) {
+          Eigen::VectorXd f;
+          tape.Record(points[step * stages + s], &f);
+          CHECK(MaxAbs(f - f_ref[step * stages + s]) <= 1e-14 * (1 + MaxAbs(f_ref[step * stages + s])));
+        }
+        for (int s = stages - 1; s >= 0; --s) {
+          Eigen::VectorXd wfx;
+          tape.Sweep(s, weights[step * stages + s], &wfx);
+          CHECK(MaxAbs(wfx - wfx_ref[step * stages + s]) <= 1e-14 * (1 + MaxAbs(wfx_ref[step * stages + s])));
+        }
       }
-      for (int s = stages - 1; s >= 0; --s) {
-        Eigen::VectorXd wfx;
-        tape.Sweep(s, weights[step * stages + s], &wfx);
-        CHECK(MaxAbs(wfx - wfx_ref[step * stages + s]) <= 1e-14 * (1 + MaxAbs(wfx_ref[step * stages + s])));
-      }
+      CHECK(MaxAbs(tape.ThetaProduct() - theta_ref) <= 1e-14 * (1 + MaxAbs(theta_ref)));
     }
-    CHECK(MaxAbs(tape.ThetaProduct() - theta_ref) <= 1e-14 * (1 + MaxAbs(theta_ref)));
   }
 }
 
@@ -545,7 +549,8 @@ TEST_CASE("StageTape: a recording made on the thread's tape meanwhile is caught"
   const auto model = pk::MakeModel("1cmt_oral_mm");
   const pk::internal::OdeSystem sys(*model);
   const Eigen::VectorXd theta = Spread(*model), x = Eigen::VectorXd::Constant(sys.n(), 2.0);
-  pk::internal::StageTape tape(sys, theta);
+  pk::internal::StageTape tape(sys, theta, /*compressed=*/false);  // recorded: the compressed one uses no tape
+  REQUIRE_FALSE(tape.compressed());
   Eigen::VectorXd f, wfx, wft;
   tape.Record(x, &f);
   sys.RhsVectorJacobian(x * 1.5, theta, x, &f, &wfx, &wft);  // records f on the same tape

@@ -5,7 +5,8 @@
 // tape (pk::TapeScalar) and swept forward for f_x and f_θ and backward for the
 // adjoint's λᵀf_x and λᵀf_θ; g's directional derivatives come from forward mode
 // (pk::Dual), its gradient at an adjoint's sample from the tape. So both Rhs and
-// Output must compile with T = double, pk::Dual, pk::HyperDual, pk::HyperDual3 and pk::TapeScalar.
+// Output must compile with T = double, pk::Dual, pk::HyperDual, pk::HyperDual3 and pk::TapeScalar, and Rhs
+// also with pk::FixedDual<W> and pk::SparsityScalar (the one-step adjoint's compressed Jacobians).
 // The input u is the vector of infusion rates into each compartment and adds
 // to f; boluses are jumps of x. Such a model is propagated by the ODE propagator
 // (Dormand–Prince or CVODES, docs/ode_routes.md); linear catalogue models can use
@@ -42,8 +43,10 @@
 #include <Eigen/Core>
 
 #include "pk/dual.h"
+#include "pk/fixed_dual.h"
 #include "pk/hyper_dual.h"
 #include "pk/model.h"
+#include "pk/sparsity_scalar.h"
 #include "pk/tape_scalar.h"
 
 namespace pk {
@@ -89,6 +92,7 @@ struct ThirdDirections {
 
 namespace internal {
 class StageTape;  // records f at a one-step method's stages (libpk/src/ode/ode_system.h)
+class ColouredJacobian;  // compressed Jacobians of f (libpk/src/ode/coloured_jacobian.h)
 }  // namespace internal
 
 /// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use
@@ -150,9 +154,18 @@ class OdeModel : public Model {
   virtual void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const = 0;
   /// Evaluates output `output` with tape variables x (n) and θ (m), recording it on the active tape.
   virtual TapeScalar RecordOutput(int output, const TapeScalar* x, const TapeScalar* theta) const = 0;
+  /// f on the lanes of a compressed Jacobian (pk/fixed_dual.h), for the widths libpk uses (4, 6, 8).
+  /// A model that cannot evaluate on them returns false (the default), and its adjoint records f
+  /// on the tape instead.
+  virtual bool ColouredRhs(const FixedDual<4>*, const FixedDual<4>*, FixedDual<4>*) const { return false; }
+  virtual bool ColouredRhs(const FixedDual<6>*, const FixedDual<6>*, FixedDual<6>*) const { return false; }
+  virtual bool ColouredRhs(const FixedDual<8>*, const FixedDual<8>*, FixedDual<8>*) const { return false; }
+  /// f's dependence on x and θ (pk/sparsity_scalar.h); false (the default) when unknown.
+  virtual bool RhsSparsity(const SparsityScalar*, const SparsityScalar*, SparsityScalar*) const { return false; }
 
  private:
   friend class internal::StageTape;
+  friend class internal::ColouredJacobian;
   unsigned long id_;  // identifies this model in the per-thread recordings (an address may be reused)
 };
 
@@ -238,6 +251,22 @@ class AutoDiffOdeModel final : public OdeModel {
 
  protected:
   void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const override { f_.Rhs(x, theta, f); }
+  bool ColouredRhs(const FixedDual<4>* x, const FixedDual<4>* theta, FixedDual<4>* f) const override {
+    f_.Rhs(x, theta, f);
+    return true;
+  }
+  bool ColouredRhs(const FixedDual<6>* x, const FixedDual<6>* theta, FixedDual<6>* f) const override {
+    f_.Rhs(x, theta, f);
+    return true;
+  }
+  bool ColouredRhs(const FixedDual<8>* x, const FixedDual<8>* theta, FixedDual<8>* f) const override {
+    f_.Rhs(x, theta, f);
+    return true;
+  }
+  bool RhsSparsity(const SparsityScalar* x, const SparsityScalar* theta, SparsityScalar* f) const override {
+    f_.Rhs(x, theta, f);
+    return true;
+  }
   TapeScalar RecordOutput(int output, const TapeScalar* x, const TapeScalar* theta) const override {
     return f_.Output(output, x, theta);
   }

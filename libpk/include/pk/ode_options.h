@@ -26,6 +26,11 @@ struct OdeOptions {
   /// each one forward a second time during the sweep (false: about one more
   /// forward solve, storage of one segment instead of all).
   bool adjoint_store_all_segments = true;
+  /// Adjoint of the one-step method (Propagator::kRungeKutta): take wᵀf_x and wᵀf_θ at each stage from
+  /// a compressed sparse Jacobian (f evaluated once on a few forward-mode lanes) when f's pattern
+  /// compresses into at most 8 lanes and f never looks at a value; otherwise, or when false, from a
+  /// recording of f swept backward. Both are exact; they differ by rounding (docs/ode_routes.md).
+  bool compressed_jacobians = true;
   /// Steady states of nonlinear models: Newton iterations on x = P(x) allowed.
   int max_newton_iterations = 50;
 

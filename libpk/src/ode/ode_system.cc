@@ -158,13 +158,15 @@ double OdeSystem::ObserveGradient(int key, const Eigen::VectorXd& x, const Eigen
 
 int OdeSystem::central_key() const { return ode_ ? 1 : model_.central_compartment(); }
 
-StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta)
+StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta, bool compressed)
     : sys_(system), theta_(theta), n_(system.n()), m_(static_cast<int>(theta.size())) {
   if (sys_.is_linear()) {
     a_ = sys_.linear()->SystemMatrix<double>(theta);
     contraction_ = Eigen::MatrixXd::Zero(n_, n_);
     return;
   }
+  if (compressed) coloured_ = ColouredJacobian::For(*sys_.nonlinear(), theta);
+  if (coloured_) return;
   Tape& tape = Tape::Active();
   tape.Clear();
   theta_vars_.reserve(static_cast<size_t>(m_));
@@ -175,10 +177,11 @@ StageTape::StageTape(const OdeSystem& system, const Eigen::VectorXd& theta)
 }
 
 StageTape::~StageTape() {
-  if (!sys_.is_linear()) Tape::Active().Clear();
+  if (!sys_.is_linear() && !coloured_) Tape::Active().Clear();
 }
 
 void StageTape::NewStep() {
+  if (coloured_) return coloured_->NewStep();
   start_.assign(1, m_ + n_);
   f_node_.clear();
   points_.clear();
@@ -192,6 +195,7 @@ void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
     points_.push_back(x);
     return;
   }
+  if (coloured_) return coloured_->Record(x, f);
   xs_.resize(static_cast<size_t>(n_));
   for (int i = 0; i < n_; ++i) xs_[static_cast<size_t>(i)] = TapeScalar::OnTape(x(i), m_ + i);
   fs_.assign(static_cast<size_t>(n_), TapeScalar());
@@ -213,6 +217,7 @@ void StageTape::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx)
     contraction_.noalias() += w * points_.at(s).transpose();
     return;
   }
+  if (coloured_) return coloured_->Sweep(stage, w, wfx);
   const Tape& tape = Tape::Active();
   if (tape.size() != start_.back()) throw std::logic_error("StageTape: the thread's tape was recorded on meanwhile");
   if (zeroed_ < tape.size()) {  // this step's nodes, once a step
@@ -237,6 +242,7 @@ Eigen::VectorXd StageTape::ThetaProduct() const {
                                                             contraction_);
     return c.derivatives().size() ? Eigen::VectorXd(c.derivatives()) : Eigen::VectorXd::Zero(m_);
   }
+  if (coloured_) return coloured_->ThetaProduct();
   return Eigen::Map<const Eigen::VectorXd>(adj_.data(), m_);
 }
 

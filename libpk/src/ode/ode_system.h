@@ -17,6 +17,7 @@
 #include "pk/dataset.h"
 #include "pk/linear_model.h"
 #include "pk/ode_model.h"
+#include "ode/coloured_jacobian.h"
 
 namespace pk {
 namespace internal {
@@ -79,9 +80,11 @@ class OdeSystem {
 /// wᵀf_x = Aᵀw, and wᵀf_θ = ∂⟨Σ w Xᵀ, A(θ)⟩/∂θ is contracted once, in ThetaProduct.
 /// The thread's tape is this object's until it is destroyed (which clears it); a recording made on
 /// it meanwhile by anything else is detected at the next Sweep (std::logic_error).
+/// With `compressed`, a nonlinear f whose Jacobian compresses into at most 8 lanes
+/// (coloured_jacobian.h) is evaluated on them instead of recorded, and the tape is not used.
 class StageTape {
  public:
-  StageTape(const OdeSystem& system, const Eigen::VectorXd& theta);
+  StageTape(const OdeSystem& system, const Eigen::VectorXd& theta, bool compressed = true);
   ~StageTape();
   StageTape(const StageTape&) = delete;
   StageTape& operator=(const StageTape&) = delete;
@@ -95,8 +98,11 @@ class StageTape {
   void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
   /// Σ wᵀf_θ over every stage swept since construction.
   Eigen::VectorXd ThetaProduct() const;
+  /// Whether the stages are evaluated on a compressed Jacobian's lanes rather than recorded.
+  bool compressed() const { return coloured_ != nullptr; }
 
  private:
+  std::unique_ptr<ColouredJacobian> coloured_;
   const OdeSystem& sys_;
   const Eigen::VectorXd& theta_;
   int n_, m_;

@@ -1,0 +1,134 @@
+// libpk: a forward-mode scalar with a fixed number of derivative lanes.
+//
+// pk::Dual carries as many derivatives as it is given, in a heap vector. FixedDual<W> carries exactly
+// W of them in place, so an evaluation allocates nothing and each operation is a short loop the
+// compiler vectorises. libpk evaluates a model's right-hand side on it for a compressed Jacobian:
+// columns of [f_x f_θ] that never meet in a row share a lane (Curtis, Powell and Reid's column
+// colouring), so W lanes give every nonzero of a sparse Jacobian at once. The one-step method's
+// discrete adjoint takes its vector–Jacobian products from there (src/ode/coloured_jacobian.h). A model
+// never uses this type directly; its Rhs only has to be a template on the scalar type.
+//
+// Values are computed with the same double operations as the model on double, so f is the same bits.
+#ifndef PK_FIXED_DUAL_H_
+#define PK_FIXED_DUAL_H_
+
+#include <cmath>
+
+namespace pk {
+
+template <int W>
+class FixedDual {
+ public:
+  static_assert(W > 0, "FixedDual needs at least one lane");
+  FixedDual() : FixedDual(0.0) {}
+  FixedDual(double value) : v_(value) {  // NOLINT: constants convert implicitly
+    for (int j = 0; j < W; ++j) d_[j] = 0;
+  }
+
+  double value() const { return v_; }
+  /// The derivative in lane j (0 ≤ j < W).
+  double derivative(int j) const { return d_[j]; }
+  double& derivative(int j) { return d_[j]; }
+
+  friend FixedDual operator+(const FixedDual& a, const FixedDual& b) {
+    FixedDual r(Uninitialised{}, a.v_ + b.v_);
+    for (int j = 0; j < W; ++j) r.d_[j] = a.d_[j] + b.d_[j];
+    return r;
+  }
+  friend FixedDual operator-(const FixedDual& a, const FixedDual& b) {
+    FixedDual r(Uninitialised{}, a.v_ - b.v_);
+    for (int j = 0; j < W; ++j) r.d_[j] = a.d_[j] - b.d_[j];
+    return r;
+  }
+  friend FixedDual operator*(const FixedDual& a, const FixedDual& b) {
+    FixedDual r(Uninitialised{}, a.v_ * b.v_);
+    for (int j = 0; j < W; ++j) r.d_[j] = a.d_[j] * b.v_ + a.v_ * b.d_[j];
+    return r;
+  }
+  friend FixedDual operator/(const FixedDual& a, const FixedDual& b) {
+    // (a/b)' = (a' − (a/b) b') / b; the quotient exactly as in double.
+    const double q = a.v_ / b.v_, inv = 1 / b.v_;
+    FixedDual r(Uninitialised{}, q);
+    for (int j = 0; j < W; ++j) r.d_[j] = (a.d_[j] - q * b.d_[j]) * inv;
+    return r;
+  }
+  FixedDual operator-() const {
+    FixedDual r(Uninitialised{}, -v_);
+    for (int j = 0; j < W; ++j) r.d_[j] = -d_[j];
+    return r;
+  }
+  FixedDual operator+() const { return *this; }
+  FixedDual& operator+=(const FixedDual& o) { return *this = *this + o; }
+  FixedDual& operator-=(const FixedDual& o) { return *this = *this - o; }
+  FixedDual& operator*=(const FixedDual& o) { return *this = *this * o; }
+  FixedDual& operator/=(const FixedDual& o) { return *this = *this / o; }
+
+  // Comparisons look at the values only (a model may branch on them).
+  friend bool operator<(const FixedDual& a, const FixedDual& b) { return a.v_ < b.v_; }
+  friend bool operator>(const FixedDual& a, const FixedDual& b) { return a.v_ > b.v_; }
+  friend bool operator<=(const FixedDual& a, const FixedDual& b) { return a.v_ <= b.v_; }
+  friend bool operator>=(const FixedDual& a, const FixedDual& b) { return a.v_ >= b.v_; }
+
+  /// f(v) with derivative f'(v)·d: the chain rule for the functions below.
+  FixedDual Chain(double f, double df) const {
+    FixedDual r(Uninitialised{}, f);
+    for (int j = 0; j < W; ++j) r.d_[j] = df * d_[j];
+    return r;
+  }
+  /// f(v, w) with partials: the chain rule for two arguments.
+  static FixedDual Chain2(double f, const FixedDual& x, double dx, const FixedDual& y, double dy) {
+    FixedDual r(Uninitialised{}, f);
+    for (int j = 0; j < W; ++j) r.d_[j] = dx * x.d_[j] + dy * y.d_[j];
+    return r;
+  }
+
+ private:
+  struct Uninitialised {};
+  FixedDual(Uninitialised, double value) : v_(value) {}  // every lane written by the caller
+  double v_;
+  double d_[W];
+};
+
+template <int W>
+FixedDual<W> exp(const FixedDual<W>& x) {
+  const double e = std::exp(x.value());
+  return x.Chain(e, e);
+}
+template <int W>
+FixedDual<W> log(const FixedDual<W>& x) {
+  return x.Chain(std::log(x.value()), 1 / x.value());
+}
+template <int W>
+FixedDual<W> sqrt(const FixedDual<W>& x) {
+  const double s = std::sqrt(x.value());
+  return x.Chain(s, 0.5 / s);
+}
+template <int W>
+FixedDual<W> abs(const FixedDual<W>& x) {
+  return x.value() < 0 ? -x : x;
+}
+template <int W>
+FixedDual<W> fabs(const FixedDual<W>& x) {
+  return abs(x);
+}
+/// x^p for a constant p, as pk::Dual and pk::TapeScalar take it.
+template <int W>
+FixedDual<W> pow(const FixedDual<W>& x, double p) {
+  return x.Chain(std::pow(x.value(), p), p == 0 ? 0.0 : p * std::pow(x.value(), p - 1));
+}
+/// x^p; at x ≤ 0 the derivative with respect to p is taken as 0 (as for pk::TapeScalar).
+template <int W>
+FixedDual<W> pow(const FixedDual<W>& x, const FixedDual<W>& p) {
+  const double v = std::pow(x.value(), p.value());
+  const double dx = p.value() == 0 ? 0.0 : p.value() * std::pow(x.value(), p.value() - 1);
+  const double dp = x.value() > 0 ? v * std::log(x.value()) : 0.0;
+  return FixedDual<W>::Chain2(v, x, dx, p, dp);
+}
+template <int W>
+FixedDual<W> pow(double x, const FixedDual<W>& p) {
+  return pow(FixedDual<W>(x), p);
+}
+
+}  // namespace pk
+
+#endif  // PK_FIXED_DUAL_H_

@@ -1,0 +1,188 @@
+// Compressed sparse Jacobians of f: the pattern, its colouring, and the stages' products (see the header).
+#include "ode/coloured_jacobian.h"
+
+#include <algorithm>
+#include <stdexcept>
+#include <utility>
+
+namespace pk {
+namespace internal {
+namespace {
+
+constexpr int kMaxModelsKept = 4;  // colourings kept per thread
+
+// Greedy colouring of the columns in their order: each takes the least colour no column sharing one of
+// its rows has. Chains and other banded patterns come out optimal in this order.
+void Colour(JacobianColouring* c) {
+  const int columns = c->n + c->m;
+  std::vector<std::vector<int>> in_row(static_cast<size_t>(c->n));  // the columns met in each row so far
+  c->colour.assign(static_cast<size_t>(columns), 0);
+  std::vector<char> taken;
+  for (int k = 0; k < columns; ++k) {
+    taken.assign(static_cast<size_t>(columns) + 1, 0);
+    for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) {
+      for (int other : in_row[static_cast<size_t>(c->rows[p])]) taken[static_cast<size_t>(c->colour[other])] = 1;
+    }
+    int colour = 0;
+    while (taken[static_cast<size_t>(colour)]) ++colour;
+    c->colour[static_cast<size_t>(k)] = colour;
+    if (c->column_start[k] < c->column_start[k + 1]) c->colours = std::max(c->colours, colour + 1);
+    for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) in_row[static_cast<size_t>(c->rows[p])].push_back(k);
+  }
+}
+
+}  // namespace
+
+std::shared_ptr<const JacobianColouring> ColouredJacobian::ColouringOf(const OdeModel& model) {
+  thread_local std::vector<std::pair<unsigned long, std::shared_ptr<const JacobianColouring>>> kept;
+  for (auto it = kept.begin(); it != kept.end(); ++it) {
+    if (it->first == model.id_) {
+      std::rotate(kept.begin(), it, it + 1);  // the most recent first
+      return kept.front().second;
+    }
+  }
+  auto c = std::make_shared<JacobianColouring>();
+  c->n = model.num_compartments();
+  c->m = model.num_parameters();
+  std::vector<SparsityScalar> x, theta, f(static_cast<size_t>(c->n));
+  for (int i = 0; i < c->n; ++i) x.push_back(SparsityScalar::Input(i));
+  for (int k = 0; k < c->m; ++k) theta.push_back(SparsityScalar::Input(c->n + k));
+  const long reads = SparsityScalar::ValueReads();
+  const bool known = model.RhsSparsity(x.data(), theta.data(), f.data());
+  c->looks_at_values = SparsityScalar::ValueReads() != reads;
+  // The pattern by columns.
+  c->column_start.assign(static_cast<size_t>(c->n + c->m) + 1, 0);
+  for (const SparsityScalar& fi : f) {
+    for (int k : fi.inputs()) ++c->column_start[static_cast<size_t>(k) + 1];
+  }
+  for (size_t k = 1; k < c->column_start.size(); ++k) c->column_start[k] += c->column_start[k - 1];
+  c->rows.resize(static_cast<size_t>(c->column_start.back()));
+  std::vector<int> next(c->column_start.begin(), c->column_start.end() - 1);
+  for (int i = 0; i < c->n; ++i) {
+    for (int k : f[static_cast<size_t>(i)].inputs()) c->rows[static_cast<size_t>(next[static_cast<size_t>(k)]++)] = i;
+  }
+  Colour(c.get());
+  if (known && !c->looks_at_values) {
+    for (int w : {4, 6, 8}) {
+      if (c->colours <= w) {
+        c->width = w;
+        break;
+      }
+    }
+  }
+  for (int k = 0; k < c->n + c->m; ++k) {
+    for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) {
+      c->lane_offset.push_back(c->rows[p] * c->width + c->colour[static_cast<size_t>(k)]);
+    }
+  }
+  kept.insert(kept.begin(), {model.id_, c});
+  if (kept.size() > kMaxModelsKept) kept.pop_back();
+  return c;
+}
+
+std::unique_ptr<ColouredJacobian> ColouredJacobian::For(const OdeModel& model, const Eigen::VectorXd& theta) {
+  std::shared_ptr<const JacobianColouring> c = ColouringOf(model);
+  if (c->width == 0) return nullptr;
+  return std::unique_ptr<ColouredJacobian>(new ColouredJacobian(model, std::move(c), theta));
+}
+
+ColouredJacobian::ColouredJacobian(const OdeModel& model, std::shared_ptr<const JacobianColouring> colouring,
+                                   const Eigen::VectorXd& theta)
+    : model_(model),
+      colouring_(std::move(colouring)),
+      c_(*colouring_),
+      weighted_(static_cast<size_t>(c_.n) * static_cast<size_t>(c_.width), 0.0),
+      weighted_sum_(weighted_.size(), 0.0) {
+  switch (c_.width) {
+    case 4: Seed(theta, &lanes4_); break;
+    case 6: Seed(theta, &lanes6_); break;
+    default: Seed(theta, &lanes8_); break;
+  }
+}
+
+// θ's lanes once (θ is constant over the steps); each x_i's seed is set again with its value (Evaluate).
+template <int W>
+void ColouredJacobian::Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes) {
+  lanes->x.assign(static_cast<size_t>(c_.n), FixedDual<W>(0.0));
+  lanes->theta.clear();
+  for (int k = 0; k < c_.m; ++k) {
+    lanes->theta.emplace_back(theta(k));
+    lanes->theta.back().derivative(c_.colour[static_cast<size_t>(c_.n + k)]) = 1;
+  }
+}
+
+// f on the lanes, into the step's next stage slot.
+template <int W>
+void ColouredJacobian::Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f) {
+  const size_t n = static_cast<size_t>(c_.n), first = static_cast<size_t>(stages_) * n;
+  if (lanes->f.size() < first + n) lanes->f.resize(first + n);
+  for (size_t i = 0; i < n; ++i) {
+    lanes->x[i] = FixedDual<W>(x(static_cast<Eigen::Index>(i)));
+    lanes->x[i].derivative(c_.colour[i]) = 1;
+  }
+  FixedDual<W>* const out = lanes->f.data() + first;
+  if (!model_.ColouredRhs(lanes->x.data(), lanes->theta.data(), out)) {
+    throw std::logic_error("ColouredJacobian: the model gave its pattern but cannot evaluate on FixedDual");
+  }
+  f->resize(c_.n);
+  for (size_t i = 0; i < n; ++i) (*f)(static_cast<Eigen::Index>(i)) = out[i].value();
+}
+
+void ColouredJacobian::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
+  switch (c_.width) {
+    case 4: Evaluate(x, &lanes4_, f); break;
+    case 6: Evaluate(x, &lanes6_, f); break;
+    default: Evaluate(x, &lanes8_, f); break;
+  }
+  ++stages_;
+}
+
+// w_i times each lane of f_i: entry (i, c) is w_i J_ik for the one column k of colour c with a nonzero in
+// row i, if any (no two columns of a colour share a row). Added to the running sum for the θ columns.
+template <int W>
+void ColouredJacobian::Weigh(const FixedDual<W>* lanes, const double* w) {
+  double* const t = weighted_.data();
+  double* const sum = weighted_sum_.data();
+  for (int i = 0; i < c_.n; ++i) {
+    for (int l = 0; l < W; ++l) {
+      t[i * W + l] = w[i] * lanes[i].derivative(l);
+      sum[i * W + l] += t[i * W + l];
+    }
+  }
+}
+
+// (wᵀf_x)_k = Σ over column k's rows i of w_i J_ik, read from the weighted lanes; the θ columns are
+// picked out of their running sum once, by ThetaProduct.
+void ColouredJacobian::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx) {
+  if (stage < 0 || stage >= stages_) throw std::logic_error("ColouredJacobian: a stage not recorded in this step");
+  const size_t first = static_cast<size_t>(stage) * static_cast<size_t>(c_.n);
+  switch (c_.width) {
+    case 4: Weigh(lanes4_.f.data() + first, w.data()); break;
+    case 6: Weigh(lanes6_.f.data() + first, w.data()); break;
+    default: Weigh(lanes8_.f.data() + first, w.data()); break;
+  }
+  const int* const offset = c_.lane_offset.data();
+  const int* const start = c_.column_start.data();
+  const double* const t = weighted_.data();
+  wfx->resize(c_.n);
+  for (int k = 0; k < c_.n; ++k) {
+    double sum = 0;
+    for (int p = start[k]; p < start[k + 1]; ++p) sum += t[offset[p]];
+    (*wfx)(k) = sum;
+  }
+}
+
+Eigen::VectorXd ColouredJacobian::ThetaProduct() const {
+  Eigen::VectorXd product(c_.m);
+  for (int k = 0; k < c_.m; ++k) {
+    double sum = 0;
+    for (int p = c_.column_start[c_.n + k]; p < c_.column_start[c_.n + k + 1]; ++p) {
+      sum += weighted_sum_[static_cast<size_t>(c_.lane_offset[p])];
+    }
+    product(k) = sum;
+  }
+  return product;
+}
+
+}  // namespace internal
+}  // namespace pk

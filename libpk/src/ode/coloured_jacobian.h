@@ -1,0 +1,86 @@
+// Compressed sparse Jacobians of f for the one-step method's discrete adjoint (not installed).
+//
+// The adjoint needs wᵀ[f_x f_θ] at every stage X_i of every step (rk_solver.cc). A recording of f on
+// the tape and a sweep of it cost about ten evaluations of f for a cheap right-hand side
+// (docs/performance.md §9). When the Jacobian is sparse, forward mode is cheaper: columns that never
+// share a row are given one lane of pk::FixedDual<W> (Curtis, Powell and Reid 1974), so one evaluation
+// of f on W lanes holds every nonzero, J_ik = (f_i)'[colour(k)], and wᵀJ is a sum over the nonzeros.
+// A chain of compartments, where f_i reads x_{i−1}, x_i and their transfer parameters, needs 6 lanes
+// whatever its length. The pattern is found once per model by evaluating f on pk::SparsityScalar; a
+// model whose f looks at a value (a branch could change the pattern) keeps the tape, as does one that
+// needs more than 8 lanes.
+#ifndef PK_SRC_ODE_COLOURED_JACOBIAN_H_
+#define PK_SRC_ODE_COLOURED_JACOBIAN_H_
+
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pk/fixed_dual.h"
+#include "pk/ode_model.h"
+
+namespace pk {
+namespace internal {
+
+/// The sparsity pattern of [f_x f_θ] (columns x_0…x_{n−1}, then θ_0…θ_{m−1}) and a colouring of its
+/// columns in which no two columns of a colour share a row.
+struct JacobianColouring {
+  int n = 0, m = 0;
+  int colours = 0;  ///< lanes needed
+  int width = 0;    ///< lanes used (4, 6 or 8); 0: no compressed Jacobian for this model
+  bool looks_at_values = false;  ///< f compared or read a value: the pattern may change with x, θ
+  std::vector<int> colour;        ///< of each column
+  std::vector<int> column_start;  ///< column k's rows are rows[column_start[k], column_start[k + 1])
+  std::vector<int> rows;
+  /// For each nonzero, where a row-major n × width array of a stage's lanes holds it: rows[p]·width +
+  /// the colour of its column.
+  std::vector<int> lane_offset;
+};
+
+/// wᵀf_x and wᵀf_θ at the stages of one step, as StageTape (ode_system.h) offers them, from a compressed
+/// Jacobian at each stage: Record evaluates f once on FixedDual<W> and keeps the stage's lanes, Sweep
+/// weighs them by w and sums each x column's nonzeros; the θ columns' sums wait for ThetaProduct.
+class ColouredJacobian {
+ public:
+  /// The model's colouring, found at its first use on this thread (the last few models are kept).
+  static std::shared_ptr<const JacobianColouring> ColouringOf(const OdeModel& model);
+  /// Null when the model has no compressed Jacobian (JacobianColouring::width == 0).
+  static std::unique_ptr<ColouredJacobian> For(const OdeModel& model, const Eigen::VectorXd& theta);
+
+  void NewStep() { stages_ = 0; }
+  void Record(const Eigen::VectorXd& x, Eigen::VectorXd* f);
+  void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
+  /// Σ wᵀf_θ over every stage swept since construction.
+  Eigen::VectorXd ThetaProduct() const;
+
+ private:
+  ColouredJacobian(const OdeModel& model, std::shared_ptr<const JacobianColouring> colouring,
+                   const Eigen::VectorXd& theta);
+  template <int W>
+  struct Lanes {
+    std::vector<FixedDual<W>> x, theta;
+    std::vector<FixedDual<W>> f;  // f at each stage recorded this step, n a stage
+  };
+  template <int W>
+  void Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes);
+  template <int W>
+  void Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f);
+  template <int W>
+  void Weigh(const FixedDual<W>* lanes, const double* w);
+
+  const OdeModel& model_;
+  std::shared_ptr<const JacobianColouring> colouring_;
+  const JacobianColouring& c_;
+  Lanes<4> lanes4_;
+  Lanes<6> lanes6_;
+  Lanes<8> lanes8_;
+  int stages_ = 0;
+  std::vector<double> weighted_;      // n × width: w_i times lane l of f_i at the stage being swept
+  std::vector<double> weighted_sum_;  // the same summed over every stage swept
+};
+
+}  // namespace internal
+}  // namespace pk
+
+#endif  // PK_SRC_ODE_COLOURED_JACOBIAN_H_

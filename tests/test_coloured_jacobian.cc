@@ -1,0 +1,353 @@
+// Compressed sparse Jacobians for the one-step method's discrete adjoint (src/ode/coloured_jacobian.h):
+// the scalar types, the pattern and its colouring, each stage's products against the tape's, and the
+// gradients the adjoint gives with and without them.
+#include <catch2/catch.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "ode/coloured_jacobian.h"
+#include "ode/ode_system.h"
+#include "pk/fixed_dual.h"
+#include "pk/model_file.h"
+#include "pk/objective.h"
+#include "pk/ode_model.h"
+#include "pk/sparsity_scalar.h"
+#include "test_util.h"
+
+namespace {
+
+using Need = pk::Objective::Need;
+
+double MaxAbs(const Eigen::MatrixXd& m) { return m.size() ? m.cwiseAbs().maxCoeff() : 0.0; }
+
+// Every operation and function FixedDual offers, in one expression of two variables.
+template <typename T>
+T Expression(const T& a, const T& b) {
+  T r = a * b - a / b + (-a) + exp(b / a) + log(a + b) + sqrt(a * a + b) + pow(a, 2.5) + pow(a, b) +
+        pow(2.0, b) + fabs(b - a) + abs(a - b);
+  r += a;
+  r -= 0.5 * b;
+  r *= b;
+  r /= a + 1.0;
+  return r;
+}
+
+// pkbench's saturable chain: x_i flows to x_{i+1} at VMAX_i x_i/(KM_i + x_i); θ = (VMAX, KM).
+struct SaturableChain {
+  int n;
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    T inflow(0.0);
+    for (int i = 0; i < n; ++i) {
+      const T out = p[i] * x[i] / (p[n + i] + x[i]);
+      dxdt[i] = inflow - out;
+      inflow = out;
+    }
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const {
+    return x[n - 1];
+  }
+};
+
+std::shared_ptr<const pk::Model> Chain(int n) {
+  pk::OdeModelSpec spec;
+  spec.name = "chain";
+  for (int i = 1; i <= n; ++i) spec.compartments.push_back("X" + std::to_string(i));
+  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"VMAX" + std::to_string(i), 40.0 + i});
+  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"KM" + std::to_string(i), 5.0 + 0.1 * i});
+  spec.central = n;
+  return pk::MakeOdeModel(spec, SaturableChain{n});
+}
+
+// Every compartment feeds every other: the x columns all share rows, so 9 need 9 lanes (more than 8).
+struct Dense9 {
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    T total(0.0);
+    for (int i = 0; i < 9; ++i) total += x[i];
+    for (int i = 0; i < 9; ++i) dxdt[i] = p[0] * total - x[i];
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const {
+    return x[0];
+  }
+};
+
+std::shared_ptr<const pk::Model> Dense() {
+  pk::OdeModelSpec spec;
+  spec.name = "dense9";
+  for (int i = 1; i <= 9; ++i) spec.compartments.push_back("X" + std::to_string(i));
+  spec.parameters = {{"K", 0.01}};
+  return pk::MakeOdeModel(spec, Dense9());
+}
+
+// One-compartment Michaelis–Menten elimination whose rate is switched off by a branch below a threshold.
+const char kBranchModel[] = R"($PROBLEM branch  elimination switched by a branch
+$PARAM
+VMAX = 20  mg/h
+KM   = 2   mg/L
+V    = 30  L
+$CMT
+CENTRAL  dose central
+$ODE
+C = CENTRAL / V
+if (C > 0.01) {
+  R = VMAX * C / (KM + C)
+} else {
+  R = 0
+}
+d/dt(CENTRAL) = -R
+$OUTPUT
+CP = C
+)";
+
+// No two columns of one colour have a row in common, and every column has a colour below `colours`.
+bool ValidColouring(const pk::internal::JacobianColouring& c) {
+  for (int k = 0; k < c.n + c.m; ++k) {
+    if (c.colour[static_cast<size_t>(k)] < 0) return false;
+    if (c.column_start[k] < c.column_start[k + 1] && c.colour[static_cast<size_t>(k)] >= c.colours) return false;
+    for (int l = k + 1; l < c.n + c.m; ++l) {
+      if (c.colour[static_cast<size_t>(k)] != c.colour[static_cast<size_t>(l)]) continue;
+      for (int p = c.column_start[k]; p < c.column_start[k + 1]; ++p) {
+        for (int q = c.column_start[l]; q < c.column_start[l + 1]; ++q) {
+          if (c.rows[static_cast<size_t>(p)] == c.rows[static_cast<size_t>(q)]) return false;
+        }
+      }
+    }
+  }
+  return true;
+}
+
+// The pattern by finite differences of f at a generic point: entries that move with the column.
+std::vector<std::vector<int>> DifferencedPattern(const pk::internal::OdeSystem& sys, const Eigen::VectorXd& x,
+                                                 const Eigen::VectorXd& theta) {
+  const int n = sys.n(), m = sys.num_theta();
+  std::vector<std::vector<int>> rows(static_cast<size_t>(n + m));
+  Eigen::VectorXd f0;
+  sys.Rhs(x, theta, &f0);
+  for (int k = 0; k < n + m; ++k) {
+    Eigen::VectorXd xk = x, tk = theta, f;
+    if (k < n) xk(k) *= 1 + 1e-6;
+    else tk(k - n) *= 1 + 1e-6;
+    sys.Rhs(xk, tk, &f);
+    for (int i = 0; i < n; ++i) {
+      if (f(i) != f0(i)) rows[static_cast<size_t>(k)].push_back(i);
+    }
+  }
+  return rows;
+}
+
+Eigen::VectorXd Spread(const pk::Model& model) {
+  Eigen::VectorXd theta = model.default_parameters();
+  for (Eigen::Index i = 0; i < theta.size(); ++i) theta(i) *= 1 + 0.1 * static_cast<double>(i);
+  return theta;
+}
+
+std::shared_ptr<pk::Dataset> ChainData() {
+  std::ostringstream csv;
+  csv << "ID,TIME,AMT,EVID,CMT,DV\n1,0,100,1,1,.\n";
+  for (double t : {0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0}) {
+    csv << "1," << t << ",0,0,0," << 5 * std::exp(-0.1 * t) + 0.3 << "\n";
+  }
+  return std::make_shared<pk::Dataset>(pk::ParseDataset(csv.str(), "chain.csv"));
+}
+
+pk::ObjectiveOptions RkOptions(double rtol, bool compressed) {
+  pk::ObjectiveOptions o;
+  o.propagator = pk::Propagator::kRungeKutta;
+  o.ode.relative_tolerance = rtol;
+  o.ode.absolute_tolerance = rtol * 1e-2;
+  o.ode.compressed_jacobians = compressed;
+  return o;
+}
+
+}  // namespace
+
+TEST_CASE("FixedDual: the values of double and the derivatives of Dual, lane by lane", "[coloured]") {
+  for (const auto& ab : {std::pair<double, double>{1.7, 0.4}, {0.3, 2.9}, {5.0, 5.0}}) {
+    const double a = ab.first, b = ab.second;
+    pk::FixedDual<4> fa(a), fb(b);
+    fa.derivative(0) = 1, fa.derivative(2) = 0.5;  // lanes: d/da, 0, d/da/2 + d/db, d/db/3
+    fb.derivative(2) = 1, fb.derivative(3) = 1.0 / 3;
+    const pk::FixedDual<4> r = Expression(fa, fb);
+    const pk::Dual r_ref = Expression(pk::Dual(a, 2, 0), pk::Dual(b, 2, 1));
+    CHECK(r.value() == Expression(a, b));  // the same double operations, the same bits
+    const double da = r_ref.derivatives()(0), db = r_ref.derivatives()(1);
+    const double scale = 1 + std::fabs(da) + std::fabs(db);
+    CHECK(std::fabs(r.derivative(0) - da) <= 1e-14 * scale);
+    CHECK(r.derivative(1) == 0);
+    CHECK(std::fabs(r.derivative(2) - (0.5 * da + db)) <= 1e-14 * scale);
+    CHECK(std::fabs(r.derivative(3) - db / 3) <= 1e-14 * scale);
+  }
+}
+
+TEST_CASE("SparsityScalar: the inputs each result depends on, and every look at a value counted", "[coloured]") {
+  const pk::SparsityScalar a = pk::SparsityScalar::Input(3), b = pk::SparsityScalar::Input(1),
+                           c = pk::SparsityScalar::Input(7);
+  const long reads = pk::SparsityScalar::ValueReads();
+  CHECK(Expression(a, b).inputs() == std::vector<int>{1, 3});
+  CHECK((a * 2.0 + exp(c)).inputs() == std::vector<int>{3, 7});
+  CHECK(pk::SparsityScalar(4.0).inputs().empty());
+  CHECK((pk::SparsityScalar(4.0) * c).inputs() == std::vector<int>{7});
+  CHECK(pk::SparsityScalar::ValueReads() == reads);  // abs and fabs above do not look
+  const bool less = a < b;
+  (void)less;
+  const long after_comparison = pk::SparsityScalar::ValueReads();
+  CHECK(after_comparison > reads);
+  (void)c.value();
+  CHECK(pk::SparsityScalar::ValueReads() == after_comparison + 1);
+}
+
+TEST_CASE("Jacobian colourings: valid, the differenced pattern, 6 lanes for a chain of any length", "[coloured]") {
+  const auto file_branch = pk::ParseModel(kBranchModel, "branch.pkm");
+  std::vector<std::shared_ptr<const pk::Model>> models = {Chain(3), Chain(32), Dense(), file_branch};
+  for (const char* name : {"1cmt_iv_mm", "1cmt_oral_mm", "2cmt_iv_mm", "1cmt_iv_emax"}) {
+    models.push_back(pk::MakeModel(name));
+    models.push_back(pk::LoadModelFile(std::string(PK_SOURCE_DIR) + "/models/" + name + ".pkm"));
+  }
+  for (const auto& model : models) {
+    INFO(model->name());
+    const auto* ode = dynamic_cast<const pk::OdeModel*>(model.get());
+    REQUIRE(ode != nullptr);
+    const auto c = pk::internal::ColouredJacobian::ColouringOf(*ode);
+    CHECK(ValidColouring(*c));
+    // The pattern holds the differenced one (a structural nonzero may vanish at a point, not the converse).
+    const pk::internal::OdeSystem sys(*model);
+    Eigen::VectorXd x(sys.n());
+    for (int i = 0; i < sys.n(); ++i) x(i) = 3.0 + 0.7 * i;
+    const auto differenced = DifferencedPattern(sys, x, Spread(*model));
+    // (Not where f looked at a value: its pattern is then that of the branch taken, and unused.)
+    for (int k = 0; k < c->n + c->m && !c->looks_at_values; ++k) {
+      const std::vector<int> rows(c->rows.begin() + c->column_start[k], c->rows.begin() + c->column_start[k + 1]);
+      for (int i : differenced[static_cast<size_t>(k)]) {
+        INFO("column " << k << " row " << i);
+        CHECK(std::find(rows.begin(), rows.end(), i) != rows.end());
+      }
+    }
+    if (model->name() == "chain") {
+      // f_i reads x_{i−1}, x_i and their VMAX and KM: f_x bidiagonal, f_θ 4 a row (2 in the first).
+      CHECK(c->column_start.back() == 6 * c->n - 3);
+      CHECK(c->colours <= 6);
+      if (c->n == 32) CHECK(c->colours == 6);
+      CHECK(c->width == (c->colours <= 4 ? 4 : 6));
+    } else if (model->name() == "dense9") {
+      CHECK(c->colours == 10);  // nine x columns and K, all in every row
+      CHECK(c->width == 0);
+      CHECK(pk::internal::ColouredJacobian::For(*ode, Spread(*model)) == nullptr);
+    } else if (model->name() == "branch") {
+      CHECK(c->looks_at_values);
+      CHECK(c->width == 0);
+    } else {
+      CHECK_FALSE(c->looks_at_values);
+      CHECK(c->width >= c->colours);
+    }
+  }
+  // The check can fail: two chain columns that share a row, given one colour.
+  auto broken = *pk::internal::ColouredJacobian::ColouringOf(*dynamic_cast<const pk::OdeModel*>(Chain(4).get()));
+  broken.colour[1] = broken.colour[0];
+  CHECK_FALSE(ValidColouring(broken));
+}
+
+TEST_CASE("StageTape compressed: each stage's products equal the recording's, over several steps", "[coloured][rk]") {
+  for (const auto& model : {Chain(12), pk::MakeModel("1cmt_iv_emax"), pk::MakeModel("2cmt_iv_mm"),
+                            pk::MakeModel("1cmt_oral_mm"),
+                            pk::LoadModelFile(std::string(PK_SOURCE_DIR) + "/models/1cmt_oral_mm.pkm")}) {
+    INFO(model->name());
+    const pk::internal::OdeSystem sys(*model);
+    const int n = sys.n();
+    const Eigen::VectorXd theta = Spread(*model);
+    const int steps = 3, stages = 6;
+    std::vector<Eigen::VectorXd> points, weights;
+    for (int k = 0; k < steps * stages; ++k) {
+      Eigen::VectorXd x(n), w(n);
+      for (int i = 0; i < n; ++i) {
+        x(i) = 5.0 + 3.0 * i + 0.7 * k;
+        w(i) = std::sin(1.0 + i + 2.0 * k);
+      }
+      points.push_back(x);
+      weights.push_back(w);
+    }
+    // The same stages through both, the recording's first (the compressed one does not use the tape).
+    std::vector<Eigen::VectorXd> f_of[2], wfx_of[2];
+    Eigen::VectorXd theta_of[2];
+    for (int compressed = 0; compressed < 2; ++compressed) {
+      pk::internal::StageTape tape(sys, theta, compressed == 1);
+      CHECK(tape.compressed() == (compressed == 1));
+      for (int step = 0; step < steps; ++step) {
+        tape.NewStep();
+        for (int s = 0; s < stages; ++s) {
+          Eigen::VectorXd f;
+          tape.Record(points[static_cast<size_t>(step * stages + s)], &f);
+          f_of[compressed].push_back(f);
+        }
+        for (int s = stages - 1; s >= 0; --s) {
+          Eigen::VectorXd wfx;
+          tape.Sweep(s, weights[static_cast<size_t>(step * stages + s)], &wfx);
+          wfx_of[compressed].push_back(wfx);
+        }
+      }
+      theta_of[compressed] = tape.ThetaProduct();
+      if (compressed == 1) {
+        Eigen::VectorXd wfx;
+        CHECK_THROWS_AS(tape.Sweep(stages, weights[0], &wfx), std::logic_error);  // not recorded this step
+      }
+    }
+    for (size_t k = 0; k < f_of[0].size(); ++k) {
+      CHECK(f_of[1][k] == f_of[0][k]);  // the same double operations
+      CHECK(MaxAbs(wfx_of[1][k] - wfx_of[0][k]) <= 1e-14 * (1 + MaxAbs(wfx_of[0][k])));
+    }
+    CHECK(MaxAbs(theta_of[1] - theta_of[0]) <= 1e-14 * (1 + MaxAbs(theta_of[0])));
+  }
+}
+
+TEST_CASE("the discrete adjoint with compressed Jacobians: the recording's gradient, differences, forward",
+          "[coloured][rk][gradient]") {
+  // Catalogue models over the event scenarios: the same loss, and the gradient of the recording's to
+  // rounding (amplified by the sum over steps: measured 1e-13).
+  for (const char* name : {"1cmt_oral_mm", "2cmt_iv_mm", "1cmt_iv_emax"}) {
+    const auto model = pk::MakeModel(name);
+    for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
+      INFO(name << " / " << sc.name);
+      const auto data = pk_test::ScenarioData(sc);
+      const pk::Objective compressed(model, data, 0, RkOptions(1e-10, true));
+      const pk::Objective recorded(model, data, 0, RkOptions(1e-10, false));
+      Eigen::VectorXd values;
+      std::vector<int> free;
+      pk_test::ScenarioValues(compressed, sc, &values, &free);
+      const auto a = compressed.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+      const auto b = recorded.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+      REQUIRE(a.ok);
+      REQUIRE(b.ok);
+      CHECK(a.value == b.value);
+      CHECK(MaxAbs(a.gradient - b.gradient) <= 1e-10 * MaxAbs(b.gradient));
+    }
+  }
+  // The chain of 16 (6 lanes for 48 columns) against central differences of the objective solved to
+  // 1e-12 and against forward sensitivities. Before the adjoint's forward pass kept its steps within
+  // Dormand–Prince's stability boundary (rk_solver.cc, kStableStep) this was 4e-6 off.
+  const auto chain = Chain(16);
+  const auto data = ChainData();
+  const pk::Objective obj(chain, data, 0, RkOptions(1e-10, true));
+  const pk::Objective recorded(chain, data, 0, RkOptions(1e-10, false));
+  const pk::Objective tight(chain, data, 0, RkOptions(1e-12, true));
+  const Eigen::VectorXd values = obj.DefaultValues();
+  std::vector<int> free;
+  for (int i = 0; i < 32; i += 3) free.push_back(i);
+  const auto adj = obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  const auto rec = recorded.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  const auto fwd = obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+  REQUIRE(adj.ok);
+  REQUIRE(fwd.ok);
+  const Eigen::VectorXd fd = pk_test::CentralDifferences(tight, values, free);
+  const double scale = MaxAbs(fwd.gradient);
+  INFO("adjoint " << adj.gradient.transpose() << "\nfd      " << fd.transpose());
+  CHECK(MaxAbs(adj.gradient - fd) <= 1e-6 * scale);
+  CHECK(MaxAbs(adj.gradient - fwd.gradient) <= 1e-8 * scale);
+  CHECK(MaxAbs(adj.gradient - rec.gradient) <= 1e-10 * scale);
+}
