@@ -687,25 +687,34 @@ int main(int argc, char** argv) {
     // The same chains through Dormand–Prince (rk): its loss against CVODES's, and its routes' cost.
     for (const double vmax_scale : {1.0, 0.1}) {
       std::printf("== the same chain, VMAX_i = %g(40 + i), through Dormand-Prince (rk), rtol 1e-8 ==\n", vmax_scale);
-      std::printf("%4s %4s %14s %16s %14s %14s %16s %14s\n", "n", "m", "rk solve (ms)", "ode solve / rk", "(a) / solve",
-                  "(b) / solve", "(b) stored bytes", "(b)/solve steps");
+      // (b) takes its stage products from compressed Jacobians; "(b) tape" records f on the tape instead
+      // (OdeOptions::compressed_jacobians = false). |(b)−(a)|: the adjoint's gradient against forward
+      // sensitivities, relative to the largest entry of (a).
+      std::printf("%4s %4s %14s %16s %14s %14s %14s %16s %14s %12s\n", "n", "m", "rk solve (ms)", "ode solve / rk",
+                  "(a) / solve", "(b) / solve", "(b) tape/solve", "(b) stored bytes", "(b)/solve steps", "|(b)-(a)|");
       for (int n : {1, 2, 4, 8, 16, 24, 32}) {
         pk::ObjectiveOptions rk_options;
         rk_options.propagator = pk::Propagator::kRungeKutta;
+        pk::ObjectiveOptions tape_options = rk_options;
+        tape_options.ode.compressed_jacobians = false;
         const pk::Objective rk(Chain(n, vmax_scale), OneDose("1", 100), 0, rk_options);
+        const pk::Objective rk_tape(Chain(n, vmax_scale), OneDose("1", 100), 0, tape_options);
         const pk::Objective ode(Chain(n, vmax_scale), OneDose("1", 100), 0, CvodesOptions());
         const Eigen::VectorXd v = rk.DefaultValues();
         std::vector<int> free;
         for (int i = 0; i < 2 * n; ++i) free.push_back(i);
         const auto adj = rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint);
+        const auto fwd = rk.Evaluate(v, free, Need::kGradient, Route::kForward);
         const auto plain = rk.Evaluate(v, free, Need::kValue);
         const Timing t = Interleaved({[&] { g_sink = rk.Evaluate(v, free, Need::kValue).value; },
                                       [&] { g_sink = ode.Evaluate(v, free, Need::kValue).value; },
                                       [&] { g_sink = rk.Evaluate(v, free, Need::kGradient, Route::kForward).value; },
-                                      [&] { g_sink = rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
-        std::printf("%4d %4d %14.3f %16.2f %14.2f %14.2f %16ld %14.2f\n", n, 2 * n, t.base_seconds * 1e3, t.ratios[1],
-                    t.ratios[2], t.ratios[3], adj.ode_statistics.peak_adjoint_bytes,
-                    double(adj.ode_statistics.steps) / double(plain.ode_statistics.steps));
+                                      [&] { g_sink = rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; },
+                                      [&] { g_sink = rk_tape.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
+        std::printf("%4d %4d %14.3f %16.2f %14.2f %14.2f %14.2f %16ld %14.2f %12.1e\n", n, 2 * n, t.base_seconds * 1e3,
+                    t.ratios[1], t.ratios[2], t.ratios[3], t.ratios[4], adj.ode_statistics.peak_adjoint_bytes,
+                    double(adj.ode_statistics.steps) / double(plain.ode_statistics.steps),
+                    (adj.gradient - fwd.gradient).cwiseAbs().maxCoeff() / fwd.gradient.cwiseAbs().maxCoeff());
         std::fflush(stdout);
       }
       std::printf("\n");

@@ -2,6 +2,7 @@
 #include "ode/coloured_jacobian.h"
 
 #include <algorithm>
+#include <cmath>
 #include <stdexcept>
 #include <utility>
 
@@ -111,30 +112,65 @@ void ColouredJacobian::Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes) {
   }
 }
 
-// f on the lanes, into the step's next stage slot.
+// f on the lanes at x, into out[0, n).
 template <int W>
-void ColouredJacobian::Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f) {
-  const size_t n = static_cast<size_t>(c_.n), first = static_cast<size_t>(stages_) * n;
-  if (lanes->f.size() < first + n) lanes->f.resize(first + n);
-  for (size_t i = 0; i < n; ++i) {
-    lanes->x[i] = FixedDual<W>(x(static_cast<Eigen::Index>(i)));
-    lanes->x[i].derivative(c_.colour[i]) = 1;
+void ColouredJacobian::Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, FixedDual<W>* out) {
+  for (int i = 0; i < c_.n; ++i) {
+    FixedDual<W>& xi = lanes->x[static_cast<size_t>(i)];
+    xi = FixedDual<W>(x(i));
+    xi.derivative(c_.colour[static_cast<size_t>(i)]) = 1;
   }
-  FixedDual<W>* const out = lanes->f.data() + first;
   if (!model_.ColouredRhs(lanes->x.data(), lanes->theta.data(), out)) {
     throw std::logic_error("ColouredJacobian: the model gave its pattern but cannot evaluate on FixedDual");
   }
+}
+
+// Into the step's next stage slot.
+template <int W>
+void ColouredJacobian::RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f) {
+  const size_t n = static_cast<size_t>(c_.n), first = static_cast<size_t>(stages_) * n;
+  if (lanes->f.size() < first + n) lanes->f.resize(first + n);
+  FixedDual<W>* const out = lanes->f.data() + first;
+  Evaluate(x, lanes, out);
   f->resize(c_.n);
   for (size_t i = 0; i < n; ++i) (*f)(static_cast<Eigen::Index>(i)) = out[i].value();
 }
 
 void ColouredJacobian::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
   switch (c_.width) {
-    case 4: Evaluate(x, &lanes4_, f); break;
-    case 6: Evaluate(x, &lanes6_, f); break;
-    default: Evaluate(x, &lanes8_, f); break;
+    case 4: RecordStage(x, &lanes4_, f); break;
+    case 6: RecordStage(x, &lanes6_, f); break;
+    default: RecordStage(x, &lanes8_, f); break;
   }
   ++stages_;
+}
+
+// Σ_k |J_ik| over the x columns of each row, from one evaluation into the scratch slot.
+template <int W>
+double ColouredJacobian::RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes) {
+  lanes->scratch.resize(static_cast<size_t>(c_.n));
+  Evaluate(x, lanes, lanes->scratch.data());
+  row_sums_.assign(static_cast<size_t>(c_.n), 0.0);
+  for (int k = 0; k < c_.n; ++k) {
+    const int colour = c_.colour[static_cast<size_t>(k)];
+    for (int p = c_.column_start[k]; p < c_.column_start[k + 1]; ++p) {
+      const size_t row = static_cast<size_t>(c_.rows[static_cast<size_t>(p)]);
+      row_sums_[row] += std::fabs(lanes->scratch[row].derivative(colour));
+    }
+  }
+  double norm = 0;
+  for (double r : row_sums_) {
+    if (!(r <= norm)) norm = r;  // a NaN row is kept: the caller tests finiteness
+  }
+  return norm;
+}
+
+double ColouredJacobian::StateRowSumNorm(const Eigen::VectorXd& x) {
+  switch (c_.width) {
+    case 4: return RowSumNorm(x, &lanes4_);
+    case 6: return RowSumNorm(x, &lanes6_);
+    default: return RowSumNorm(x, &lanes8_);
+  }
 }
 
 // w_i times each lane of f_i: entry (i, c) is w_i J_ik for the one column k of colour c with a nonzero in

@@ -53,6 +53,9 @@ class ColouredJacobian {
   void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
   /// Σ wᵀf_θ over every stage swept since construction.
   Eigen::VectorXd ThetaProduct() const;
+  /// ‖f_x(x)‖∞ (the largest row sum of |f_x|) from one evaluation on the lanes; NaN or ∞ as f gives it.
+  /// Does not touch the step's stages.
+  double StateRowSumNorm(const Eigen::VectorXd& x);
 
  private:
   ColouredJacobian(const OdeModel& model, std::shared_ptr<const JacobianColouring> colouring,
@@ -60,12 +63,17 @@ class ColouredJacobian {
   template <int W>
   struct Lanes {
     std::vector<FixedDual<W>> x, theta;
-    std::vector<FixedDual<W>> f;  // f at each stage recorded this step, n a stage
+    std::vector<FixedDual<W>> f;        // f at each stage recorded this step, n a stage
+    std::vector<FixedDual<W>> scratch;  // StateRowSumNorm's evaluation
   };
   template <int W>
   void Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes);
   template <int W>
-  void Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f);
+  void Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, FixedDual<W>* out);
+  template <int W>
+  void RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f);
+  template <int W>
+  double RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes);
   template <int W>
   void Weigh(const FixedDual<W>* lanes, const double* w);
 
@@ -78,6 +86,7 @@ class ColouredJacobian {
   int stages_ = 0;
   std::vector<double> weighted_;      // n × width: w_i times lane l of f_i at the stage being swept
   std::vector<double> weighted_sum_;  // the same summed over every stage swept
+  std::vector<double> row_sums_;      // StateRowSumNorm's
 };
 
 }  // namespace internal
