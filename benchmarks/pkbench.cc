@@ -33,6 +33,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <functional>
@@ -64,6 +65,15 @@
 namespace {
 
 double g_min_time = 0.05;
+
+// An evaluation whose figures a table reports: a failed one would report nothing true, so it stops.
+const pk::Objective::Evaluation& Checked(const pk::Objective::Evaluation& e, const char* what) {
+  if (!e.ok) {
+    std::fprintf(stderr, "pkbench: %s failed: %s\n", what, e.message.c_str());
+    std::exit(1);
+  }
+  return e;
+}
 
 // Seconds per call of each function. The functions are timed in interleaved
 // rounds (each round runs every function for about --min-time seconds), so a
@@ -703,9 +713,10 @@ int main(int argc, char** argv) {
         const Eigen::VectorXd v = rk.DefaultValues();
         std::vector<int> free;
         for (int i = 0; i < 2 * n; ++i) free.push_back(i);
-        const auto adj = rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint);
-        const auto fwd = rk.Evaluate(v, free, Need::kGradient, Route::kForward);
-        const auto plain = rk.Evaluate(v, free, Need::kValue);
+        const auto adj = Checked(rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint), "the rk adjoint");
+        const auto fwd = Checked(rk.Evaluate(v, free, Need::kGradient, Route::kForward), "rk forward sensitivities");
+        const auto plain = Checked(rk.Evaluate(v, free, Need::kValue), "the rk loss");
+        Checked(rk_tape.Evaluate(v, free, Need::kGradient, Route::kAdjoint), "the recorded rk adjoint");
         const Timing t = Interleaved({[&] { g_sink = rk.Evaluate(v, free, Need::kValue).value; },
                                       [&] { g_sink = ode.Evaluate(v, free, Need::kValue).value; },
                                       [&] { g_sink = rk.Evaluate(v, free, Need::kGradient, Route::kForward).value; },

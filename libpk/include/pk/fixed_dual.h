@@ -69,20 +69,32 @@ class FixedDual {
   friend bool operator<=(const FixedDual& a, const FixedDual& b) { return a.v_ <= b.v_; }
   friend bool operator>=(const FixedDual& a, const FixedDual& b) { return a.v_ >= b.v_; }
 
-  /// f(v) with derivative f'(v)·d: the chain rule for the functions below.
+  /// f(v) with derivative f'(v)·d: the chain rule for the functions below. Where f'(v) is infinite
+  /// (sqrt, log, pow at 0) a lane whose tangent is 0 stays 0, not 0·∞ = NaN: a lane holds several
+  /// columns of a compressed Jacobian, and those that do not pass through v must keep their finite
+  /// derivatives, as a reverse sweep gives them.
   FixedDual Chain(double f, double df) const {
     FixedDual r(Uninitialised{}, f);
-    for (int j = 0; j < W; ++j) r.d_[j] = df * d_[j];
+    if (std::isfinite(df)) {
+      for (int j = 0; j < W; ++j) r.d_[j] = df * d_[j];
+    } else {
+      for (int j = 0; j < W; ++j) r.d_[j] = Times(df, d_[j]);
+    }
     return r;
   }
-  /// f(v, w) with partials: the chain rule for two arguments.
+  /// f(v, w) with partials: the chain rule for two arguments (infinite partials as in Chain).
   static FixedDual Chain2(double f, const FixedDual& x, double dx, const FixedDual& y, double dy) {
     FixedDual r(Uninitialised{}, f);
-    for (int j = 0; j < W; ++j) r.d_[j] = dx * x.d_[j] + dy * y.d_[j];
+    if (std::isfinite(dx) && std::isfinite(dy)) {
+      for (int j = 0; j < W; ++j) r.d_[j] = dx * x.d_[j] + dy * y.d_[j];
+    } else {
+      for (int j = 0; j < W; ++j) r.d_[j] = Times(dx, x.d_[j]) + Times(dy, y.d_[j]);
+    }
     return r;
   }
 
  private:
+  static double Times(double partial, double tangent) { return tangent == 0 ? 0.0 : partial * tangent; }
   struct Uninitialised {};
   FixedDual(Uninitialised, double value) : v_(value) {}  // every lane written by the caller
   double v_;

@@ -28,11 +28,35 @@ void Colour(JacobianColouring* c) {
     while (taken[static_cast<size_t>(colour)]) ++colour;
     c->colour[static_cast<size_t>(k)] = colour;
     if (c->column_start[k] < c->column_start[k + 1]) c->colours = std::max(c->colours, colour + 1);
-    for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) in_row[static_cast<size_t>(c->rows[p])].push_back(k);
+    for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) {
+      in_row[static_cast<size_t>(c->rows[p])].push_back(k);
+    }
   }
 }
 
 }  // namespace
+
+template <int W>
+bool ColouredJacobian::EvaluatesOnLanes(const OdeModel& model) {
+  const std::vector<FixedDual<W>> x(static_cast<size_t>(model.num_compartments()), FixedDual<W>(1.0)),
+      theta(static_cast<size_t>(model.num_parameters()), FixedDual<W>(1.0));
+  std::vector<FixedDual<W>> f(x.size());
+  try {
+    return model.ColouredRhs(x.data(), theta.data(), f.data());
+  } catch (const std::exception&) {
+    return true;  // it evaluates, only not at this point
+  }
+}
+
+// Whether the model's f runs on FixedDual<width> at all: a model may give its pattern and still not
+// offer the lanes (OdeModel's defaults decline), and must then keep the tape, asked once here.
+bool ColouredJacobian::EvaluatesOnLanes(const OdeModel& model, int width) {
+  switch (width) {
+    case 4: return EvaluatesOnLanes<4>(model);
+    case 6: return EvaluatesOnLanes<6>(model);
+    default: return EvaluatesOnLanes<8>(model);
+  }
+}
 
 std::shared_ptr<const JacobianColouring> ColouredJacobian::ColouringOf(const OdeModel& model) {
   thread_local std::vector<std::pair<unsigned long, std::shared_ptr<const JacobianColouring>>> kept;
@@ -49,7 +73,13 @@ std::shared_ptr<const JacobianColouring> ColouredJacobian::ColouringOf(const Ode
   for (int i = 0; i < c->n; ++i) x.push_back(SparsityScalar::Input(i));
   for (int k = 0; k < c->m; ++k) theta.push_back(SparsityScalar::Input(c->n + k));
   const long reads = SparsityScalar::ValueReads();
-  const bool known = model.RhsSparsity(x.data(), theta.data(), f.data());
+  bool known = false;
+  try {
+    known = model.RhsSparsity(x.data(), theta.data(), f.data());
+  } catch (const std::exception&) {
+    // f checked a value and refused it (a SparsityScalar's value is 0): no pattern, the tape serves.
+    f.assign(f.size(), SparsityScalar());
+  }
   c->looks_at_values = SparsityScalar::ValueReads() != reads;
   // The pattern by columns.
   c->column_start.assign(static_cast<size_t>(c->n + c->m) + 1, 0);
@@ -70,6 +100,7 @@ std::shared_ptr<const JacobianColouring> ColouredJacobian::ColouringOf(const Ode
         break;
       }
     }
+    if (c->width > 0 && !EvaluatesOnLanes(model, c->width)) c->width = 0;
   }
   for (int k = 0; k < c->n + c->m; ++k) {
     for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) {
@@ -104,6 +135,7 @@ ColouredJacobian::ColouredJacobian(const OdeModel& model, std::shared_ptr<const 
 // θ's lanes once (θ is constant over the steps); each x_i's seed is set again with its value (Evaluate).
 template <int W>
 void ColouredJacobian::Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes) {
+  if (theta.size() != c_.m) throw std::invalid_argument("ColouredJacobian: θ has the wrong size");
   lanes->x.assign(static_cast<size_t>(c_.n), FixedDual<W>(0.0));
   lanes->theta.clear();
   for (int k = 0; k < c_.m; ++k) {
@@ -120,8 +152,10 @@ void ColouredJacobian::Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, Fixed
     xi = FixedDual<W>(x(i));
     xi.derivative(c_.colour[static_cast<size_t>(i)]) = 1;
   }
+  std::fill(out, out + c_.n, FixedDual<W>(0.0));  // a row f leaves unset is 0, as on the tape
   if (!model_.ColouredRhs(lanes->x.data(), lanes->theta.data(), out)) {
-    throw std::logic_error("ColouredJacobian: the model gave its pattern but cannot evaluate on FixedDual");
+    // ColouringOf asked the model once (EvaluatesOnLanes): a model that declines later is inconsistent.
+    throw std::logic_error("ColouredJacobian: the model evaluated on FixedDual once and declines now");
   }
 }
 
@@ -160,7 +194,8 @@ double ColouredJacobian::RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes) {
   }
   double norm = 0;
   for (double r : row_sums_) {
-    if (!(r <= norm)) norm = r;  // a NaN row is kept: the caller tests finiteness
+    if (std::isnan(r)) return r;  // the caller tests finiteness
+    norm = std::max(norm, r);
   }
   return norm;
 }

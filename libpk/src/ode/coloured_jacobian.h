@@ -60,6 +60,9 @@ class ColouredJacobian {
  private:
   ColouredJacobian(const OdeModel& model, std::shared_ptr<const JacobianColouring> colouring,
                    const Eigen::VectorXd& theta);
+  static bool EvaluatesOnLanes(const OdeModel& model, int width);
+  template <int W>
+  static bool EvaluatesOnLanes(const OdeModel& model);
   template <int W>
   struct Lanes {
     std::vector<FixedDual<W>> x, theta;

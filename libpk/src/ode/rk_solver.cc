@@ -108,6 +108,10 @@ constexpr long kStiffnessCheckEvery = 25;
 // gradient was 5e-5 off at rtol 1e-8 (1.5e-6 at 1e-10), converging as rtol only when atol was made
 // negligible. With the cap it agrees with the forward route to 1e-7 at 1e-8 and 9e-10 at 1e-10, for
 // 6% more steps there (tests/test_coloured_jacobian.cc).
+// A binding cap counts as stability-limited in CheckStiffening (it is given the control's proposal,
+// and kStableStep > kStabilityLimited), deliberately: steps the accuracy would allow but stability
+// forbids are what stiffness means, and the segment goes to RODAS4 as it would without the cap, where
+// the control's steps would hover at the boundary. The cap changes the steps, not that decision.
 constexpr double kStableStep = 3.3;
 constexpr long kStableStepEvery = 5;
 constexpr double kStabilityLimited = 2.5;
@@ -162,7 +166,11 @@ struct RkSolver::Impl {
   bool Stiff(const SegmentInput& in, const Eigen::VectorXd& x0) { return in.h * RowSumNorm(in, x0) > kStiffness; }
   // ‖f_x(x)‖∞, 0 when not finite (Dormand–Prince may still pass).
   double RowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) const {
-    return FiniteOrZero(sys.StateJacobian(x, in.theta).cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>());
+    return FiniteOrZero(StateRowSumNorm(in, x));
+  }
+  // ‖f_x(x)‖∞ as it is, NaN or ∞ included.
+  double StateRowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) const {
+    return sys.StateJacobian(x, in.theta).cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>();
   }
   static double FiniteOrZero(double norm) { return std::isfinite(norm) ? norm : 0.0; }
   // The periodic test above, after `count` steps of the segment, the last proposal `dt`, at x;
@@ -245,8 +253,9 @@ struct RkSolver::Impl {
         opt.compressed_jacobians && !sys.is_linear() ? ColouredJacobian::For(*sys.nonlinear(), in.theta) : nullptr;
     while (t < in.h) {
       if (count % kStableStepEvery == 0) {
-        const double norm = lanes ? FiniteOrZero(lanes->StateRowSumNorm(*x)) : RowSumNorm(in, *x);
-        stable_step = norm > 0 ? kStableStep / norm : 0;
+        // A norm that is not finite (f_x undefined at this x) leaves the last bound in place.
+        const double norm = lanes ? lanes->StateRowSumNorm(*x) : StateRowSumNorm(in, *x);
+        if (std::isfinite(norm)) stable_step = norm > 0 ? kStableStep / norm : 0;
       }
       if (stable_step > 0) dt = std::min(dt, stable_step);
       const bool last = dt >= in.h - t;
