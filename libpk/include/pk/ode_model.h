@@ -111,7 +111,8 @@ class OdeModel : public Model {
   virtual void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const = 0;
   /// f and, for k directions (columns of dx, n×k, and dtheta, m×k), the
   /// directional derivatives df = f_x dx + f_θ dtheta (n×k). With dx = [I 0]
-  /// and dtheta = [0 I] they are the Jacobians [f_x f_θ].
+  /// and dtheta = [0 I] they are the Jacobians [f_x f_θ]. Up to 8 directions are one evaluation of f
+  /// on pk::FixedDual lanes; more, a sweep of the recording.
   void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
                       const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const;
   /// f and the vector–Jacobian products wᵀf_x (n) and wᵀf_θ (m), by one
@@ -166,6 +167,10 @@ class OdeModel : public Model {
  private:
   friend class internal::StageTape;
   friend class internal::ColouredJacobian;
+  // RhsDirectional on W ≥ k lanes; false when the model does not evaluate on them.
+  template <int W>
+  bool DirectionalOnLanes(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
+                          const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const;
   unsigned long id_;  // identifies this model in the per-thread recordings (an address may be reused)
 };
 

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <stdexcept>
 #include <utility>
 
@@ -132,11 +133,13 @@ ColouredJacobian::ColouredJacobian(const OdeModel& model, std::shared_ptr<const 
   }
 }
 
-// θ's lanes once (θ is constant over the steps); each x_i's seed is set again with its value (Evaluate).
+// θ's lanes and x's seeds once (θ is constant over the steps, and f does not write its inputs); an
+// evaluation only sets x's values (Evaluate).
 template <int W>
 void ColouredJacobian::Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes) {
   if (theta.size() != c_.m) throw std::invalid_argument("ColouredJacobian: θ has the wrong size");
   lanes->x.assign(static_cast<size_t>(c_.n), FixedDual<W>(0.0));
+  for (int i = 0; i < c_.n; ++i) lanes->x[static_cast<size_t>(i)].derivative(c_.colour[static_cast<size_t>(i)]) = 1;
   lanes->theta.clear();
   for (int k = 0; k < c_.m; ++k) {
     lanes->theta.emplace_back(theta(k));
@@ -147,11 +150,7 @@ void ColouredJacobian::Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes) {
 // f on the lanes at x, into out[0, n).
 template <int W>
 void ColouredJacobian::Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, FixedDual<W>* out) {
-  for (int i = 0; i < c_.n; ++i) {
-    FixedDual<W>& xi = lanes->x[static_cast<size_t>(i)];
-    xi = FixedDual<W>(x(i));
-    xi.derivative(c_.colour[static_cast<size_t>(i)]) = 1;
-  }
+  for (int i = 0; i < c_.n; ++i) lanes->x[static_cast<size_t>(i)].set_value(x(i));
   std::fill(out, out + c_.n, FixedDual<W>(0.0));  // a row f leaves unset is 0, as on the tape
   if (!model_.ColouredRhs(lanes->x.data(), lanes->theta.data(), out)) {
     // ColouringOf asked the model once (EvaluatesOnLanes): a model that declines later is inconsistent.
@@ -215,9 +214,25 @@ void ColouredJacobian::Weigh(const FixedDual<W>* lanes, const double* w) {
   double* const t = weighted_.data();
   double* const sum = weighted_sum_.data();
   for (int i = 0; i < c_.n; ++i) {
-    for (int l = 0; l < W; ++l) {
-      t[i * W + l] = w[i] * lanes[i].derivative(l);
-      sum[i * W + l] += t[i * W + l];
+    const double* const d = lanes[i].derivatives();
+    double* const ti = t + i * W;
+    double* const si = sum + i * W;
+    int l = 0;
+#if defined(__GNUC__)
+    typedef double Two __attribute__((vector_size(16)));  // as in FixedDual: GCC left this loop scalar
+    for (; l + 2 <= W; l += 2) {
+      Two lane, total;
+      std::memcpy(&lane, d + l, sizeof lane);
+      std::memcpy(&total, si + l, sizeof total);
+      lane *= w[i];
+      total += lane;
+      std::memcpy(ti + l, &lane, sizeof lane);
+      std::memcpy(si + l, &total, sizeof total);
+    }
+#endif
+    for (; l < W; ++l) {
+      ti[l] = w[i] * d[l];
+      si[l] += ti[l];
     }
   }
 }

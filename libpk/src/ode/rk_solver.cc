@@ -165,17 +165,32 @@ struct RkSolver::Impl {
   mutable OdeStatistics combined;  // stats plus the fallback's, for statistics()
   bool Stiff(const SegmentInput& in, const Eigen::VectorXd& x0) { return in.h * RowSumNorm(in, x0) > kStiffness; }
   // ‖f_x(x)‖∞, 0 when not finite (Dormand–Prince may still pass).
-  double RowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) const {
-    return FiniteOrZero(StateRowSumNorm(in, x));
-  }
-  // ‖f_x(x)‖∞ as it is, NaN or ∞ included.
-  double StateRowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) const {
+  double RowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) { return FiniteOrZero(StateRowSumNorm(in, x)); }
+  // ‖f_x(x)‖∞ as it is, NaN or ∞ included: from one evaluation of f on the lanes of a compressed
+  // Jacobian where the model has one (the stiffness checks' f_x in n tangent directions were a tenth
+  // of a solve of a 16-compartment chain), else from f_x. Every check of every route takes it here,
+  // so a replay decides as its forward pass did.
+  double StateRowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) {
+    if (ColouredJacobian* lanes = NormLanes(in.theta)) return lanes->StateRowSumNorm(x);
     return sys.StateJacobian(x, in.theta).cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>();
   }
+  // The lanes for θ (null without them), made again when θ changes.
+  ColouredJacobian* NormLanes(const Eigen::VectorXd& theta) {
+    if (!opt.compressed_jacobians || sys.is_linear()) return nullptr;
+    if (!norm_lanes_made || norm_theta.size() != theta.size() || norm_theta != theta) {
+      norm_lanes = ColouredJacobian::For(*sys.nonlinear(), theta);
+      norm_theta = theta;
+      norm_lanes_made = true;
+    }
+    return norm_lanes.get();
+  }
+  std::unique_ptr<ColouredJacobian> norm_lanes;
+  Eigen::VectorXd norm_theta;
+  bool norm_lanes_made = false;
   static double FiniteOrZero(double norm) { return std::isfinite(norm) ? norm : 0.0; }
   // The periodic test above, after `count` steps of the segment, the last proposal `dt`, at x;
   // *in_a_row counts the segment's consecutive checks that found the step stability-limited.
-  void CheckStiffening(const SegmentInput& in, long count, double dt, const Eigen::VectorXd& x, int* in_a_row) const {
+  void CheckStiffening(const SegmentInput& in, long count, double dt, const Eigen::VectorXd& x, int* in_a_row) {
     if (count > kStiffBudget) throw StiffSegment();
     if (count % kStiffnessCheckEvery != 0) return;
     *in_a_row = dt * RowSumNorm(in, x) > kStabilityLimited ? *in_a_row + 1 : 0;
@@ -248,13 +263,10 @@ struct RkSolver::Impl {
     std::vector<double>& starts = starts_buf;  // the steps' starts, n numbers each
     starts.clear();
     double stable_step = 0;  // kStableStep / ‖f_x‖∞ (0: no bound)
-    // ‖f_x‖∞ from a compressed Jacobian where the model has one: an evaluation on 4–8 lanes, not n.
-    const std::unique_ptr<ColouredJacobian> lanes =
-        opt.compressed_jacobians && !sys.is_linear() ? ColouredJacobian::For(*sys.nonlinear(), in.theta) : nullptr;
     while (t < in.h) {
       if (count % kStableStepEvery == 0) {
         // A norm that is not finite (f_x undefined at this x) leaves the last bound in place.
-        const double norm = lanes ? lanes->StateRowSumNorm(*x) : StateRowSumNorm(in, *x);
+        const double norm = StateRowSumNorm(in, *x);
         if (std::isfinite(norm)) stable_step = norm > 0 ? kStableStep / norm : 0;
       }
       if (stable_step > 0) dt = std::min(dt, stable_step);
