@@ -341,6 +341,42 @@ TEST_CASE("ColouredJacobian: ‖f_x‖∞ exact, NaN kept from any row, a model 
   CHECK(MaxAbs(adj.gradient - fwd.gradient) <= 1e-7 * MaxAbs(fwd.gradient));
 }
 
+TEST_CASE("RhsDirectional and OutputDirectional on lanes (k ≤ 8) equal the recording's and Dual's (k > 8)",
+          "[coloured]") {
+  for (const auto& model : {Chain(5), pk::MakeModel("1cmt_iv_emax"), pk::MakeModel("2cmt_iv_mm"),
+                            pk::LoadModelFile(std::string(PK_SOURCE_DIR) + "/models/1cmt_oral_mm.pkm")}) {
+    INFO(model->name());
+    const auto* ode = dynamic_cast<const pk::OdeModel*>(model.get());
+    const int n = ode->num_compartments(), m = ode->num_parameters();
+    const Eigen::VectorXd theta = Spread(*model);
+    Eigen::VectorXd x(n);
+    for (int i = 0; i < n; ++i) x(i) = 2.0 + 1.3 * i;
+    // Twelve directions; their first k through each route, k = 3, 6 and 8 on lanes, all 12 not.
+    Eigen::MatrixXd dx(n, 12), dtheta(m, 12);
+    for (int j = 0; j < 12; ++j) {
+      for (int i = 0; i < n; ++i) dx(i, j) = std::sin(1.0 + i + 3.0 * j);
+      for (int r = 0; r < m; ++r) dtheta(r, j) = std::cos(2.0 + r + 5.0 * j);
+    }
+    Eigen::VectorXd f_all, f;
+    Eigen::MatrixXd df_all, df;
+    ode->RhsDirectional(x, theta, dx, dtheta, &f_all, &df_all);
+    double y_all, y;
+    Eigen::RowVectorXd dy_all, dy;
+    ode->OutputDirectional(1, x, theta, dx, dtheta, &y_all, &dy_all);
+    for (int k : {3, 6, 8}) {
+      INFO("k = " << k);
+      ode->RhsDirectional(x, theta, dx.leftCols(k), dtheta.leftCols(k), &f, &df);
+      CHECK(f == f_all);  // f in double either way
+      REQUIRE(df.cols() == k);
+      CHECK(MaxAbs(df - df_all.leftCols(k)) <= 1e-14 * (1 + MaxAbs(df_all)));
+      ode->OutputDirectional(1, x, theta, dx.leftCols(k), dtheta.leftCols(k), &y, &dy);
+      CHECK(y == y_all);
+      REQUIRE(dy.size() == k);
+      CHECK(MaxAbs(dy - dy_all.leftCols(k)) <= 1e-14 * (1 + MaxAbs(dy_all)));
+    }
+  }
+}
+
 TEST_CASE("StageTape compressed: each stage's products equal the recording's, over several steps", "[coloured][rk]") {
   for (const auto& model : {Chain(12), pk::MakeModel("1cmt_iv_emax"), pk::MakeModel("2cmt_iv_mm"),
                             pk::MakeModel("1cmt_oral_mm"),
