@@ -30,7 +30,8 @@ struct OdeOptions {
   /// a compressed sparse Jacobian (f evaluated once on a few forward-mode lanes) when f's pattern
   /// compresses into at most 8 lanes and f never looks at a value; otherwise, or when false, from a
   /// recording of f swept backward. Both are exact; they differ by rounding (docs/ode_routes.md). The
-  /// adjoint's forward pass also takes ‖f_x‖∞, which bounds its steps, from the compressed Jacobian.
+  /// one-step method's stiffness checks and the adjoint's step bound also take ‖f_x‖∞ from the
+  /// compressed Jacobian (one evaluation on the lanes instead of n directions).
   bool compressed_jacobians = true;
   /// Steady states of nonlinear models: Newton iterations on x = P(x) allowed.
   int max_newton_iterations = 50;
