@@ -2,6 +2,7 @@
 // of f on the tape (pk/tape_scalar.h).
 #include "pk/ode_model.h"
 
+#include <algorithm>
 #include <atomic>
 #include <vector>
 
@@ -103,45 +104,48 @@ Recording& Recorded(unsigned long id, int n, const Eigen::VectorXd& x, const Eig
 // Direction j in lane j of each input (lanes past k stay 0), f once: its values are f's in double,
 // bit for bit, and lane j of f_i is (f_x dx + f_θ dtheta)_ij. Nothing is recorded or allocated; for a
 // few directions this is several times quicker than recording f and sweeping the tangents forward
-// (the forward sensitivities' right-hand side: docs/performance.md §9).
+// (the forward sensitivities' right-hand side: docs/performance.md §9). dx and df are n×k, column-major.
 template <int W>
-bool OdeModel::DirectionalOnLanes(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
-                                  const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const {
-  static thread_local std::vector<FixedDual<W>> xs, ts, fs;
+bool OdeModel::DirectionalOnLanes(const double* x, const double* dx, int k, const Eigen::VectorXd& theta,
+                                  const Eigen::MatrixXd& dtheta, double* f, double* df) const {
+  static thread_local std::vector<FixedDual<W>> lanes;  // x, θ, then f
   const int n = num_compartments();
-  const Eigen::Index m = theta.size(), k = dx.cols();
-  xs.resize(static_cast<size_t>(n));
-  ts.resize(static_cast<size_t>(m));
+  const int m = static_cast<int>(theta.size());
+  lanes.resize(static_cast<size_t>(2 * n + m));
+  FixedDual<W>* const xs = lanes.data();
+  FixedDual<W>* const ts = xs + n;
+  FixedDual<W>* const fs = ts + m;
   for (int i = 0; i < n; ++i) {
-    xs[static_cast<size_t>(i)] = FixedDual<W>(x(i));
-    for (Eigen::Index j = 0; j < k; ++j) xs[static_cast<size_t>(i)].derivative(static_cast<int>(j)) = dx(i, j);
+    xs[i] = FixedDual<W>(x[i]);
+    for (int j = 0; j < k; ++j) xs[i].derivative(j) = dx[i + j * n];
   }
-  for (Eigen::Index r = 0; r < m; ++r) {
-    ts[static_cast<size_t>(r)] = FixedDual<W>(theta(r));
-    for (Eigen::Index j = 0; j < k; ++j) ts[static_cast<size_t>(r)].derivative(static_cast<int>(j)) = dtheta(r, j);
+  for (int r = 0; r < m; ++r) {
+    ts[r] = FixedDual<W>(theta(r));
+    for (int j = 0; j < k; ++j) ts[r].derivative(j) = dtheta(r, j);
   }
-  fs.assign(static_cast<size_t>(n), FixedDual<W>(0.0));
-  if (!ColouredRhs(xs.data(), ts.data(), fs.data())) return false;
-  f->resize(n);
-  df->resize(n, k);
+  std::fill(fs, fs + n, FixedDual<W>(0.0));
+  if (!ColouredRhs(xs, ts, fs)) return false;
   for (int i = 0; i < n; ++i) {
-    const FixedDual<W>& fi = fs[static_cast<size_t>(i)];
-    (*f)(i) = fi.value();
-    for (Eigen::Index j = 0; j < k; ++j) (*df)(i, j) = fi.derivative(static_cast<int>(j));
+    f[i] = fs[i].value();
+    for (int j = 0; j < k; ++j) df[i + j * n] = fs[i].derivative(j);
   }
   return true;
+}
+
+bool OdeModel::DirectionalOnLanes(const double* x, const double* dx, int k, const Eigen::VectorXd& theta,
+                                  const Eigen::MatrixXd& dtheta, double* f, double* df) const {
+  if (k <= 4) return DirectionalOnLanes<4>(x, dx, k, theta, dtheta, f, df);
+  if (k <= 6) return DirectionalOnLanes<6>(x, dx, k, theta, dtheta, f, df);
+  if (k <= 8) return DirectionalOnLanes<8>(x, dx, k, theta, dtheta, f, df);
+  return false;
 }
 
 void OdeModel::RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
                               const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const {
   const Eigen::Index k = dx.cols();
-  if (k <= 4) {
-    if (DirectionalOnLanes<4>(x, theta, dx, dtheta, f, df)) return;
-  } else if (k <= 6) {
-    if (DirectionalOnLanes<6>(x, theta, dx, dtheta, f, df)) return;
-  } else if (k <= 8) {
-    if (DirectionalOnLanes<8>(x, theta, dx, dtheta, f, df)) return;
-  }
+  f->resize(num_compartments());
+  df->resize(num_compartments(), k);
+  if (DirectionalOnLanes(x.data(), dx.data(), static_cast<int>(k), theta, dtheta, f->data(), df->data())) return;
   // Forward mode over the recording: each node's tangents are its parents' times its recorded
   // partials. Unlike Dual, nothing is allocated per operation.
   const int n = num_compartments();

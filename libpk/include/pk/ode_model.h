@@ -93,6 +93,7 @@ struct ThirdDirections {
 namespace internal {
 class StageTape;  // records f at a one-step method's stages (libpk/src/ode/ode_system.h)
 class ColouredJacobian;  // compressed Jacobians of f (libpk/src/ode/coloured_jacobian.h)
+class OdeSystem;         // the propagators' view of a model (libpk/src/ode/ode_system.h)
 }  // namespace internal
 
 /// The runtime interface of a nonlinear model. Implemented by AutoDiffOdeModel (use
@@ -167,10 +168,14 @@ class OdeModel : public Model {
  private:
   friend class internal::StageTape;
   friend class internal::ColouredJacobian;
-  // RhsDirectional on W ≥ k lanes; false when the model does not evaluate on them.
+  friend class internal::OdeSystem;
+  // RhsDirectional's f (n) and df (n×k, column-major) on W ≥ k lanes, with dx (n×k, column-major); false
+  // when k > 8 or the model does not evaluate on lanes.
+  bool DirectionalOnLanes(const double* x, const double* dx, int k, const Eigen::VectorXd& theta,
+                          const Eigen::MatrixXd& dtheta, double* f, double* df) const;
   template <int W>
-  bool DirectionalOnLanes(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
-                          const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const;
+  bool DirectionalOnLanes(const double* x, const double* dx, int k, const Eigen::VectorXd& theta,
+                          const Eigen::MatrixXd& dtheta, double* f, double* df) const;
   unsigned long id_;  // identifies this model in the per-thread recordings (an address may be reused)
 };
 

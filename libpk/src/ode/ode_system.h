@@ -40,6 +40,13 @@ class OdeSystem {
   /// f and f_x dx + f_θ dtheta (n×k).
   void RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
                       const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const;
+  /// The same into raw storage, x (n) and dx (n×k, column-major) read in place, f (n) and df (n×k) written
+  /// in place, when a nonlinear model evaluates k ≤ 8 directions on lanes; false otherwise (nothing written):
+  /// a solver's right-hand side then need not copy its state out and back.
+  bool RhsDirectionalInPlace(const double* x, const double* dx, int k, const Eigen::VectorXd& theta,
+                             const Eigen::MatrixXd& dtheta, double* f, double* df) const {
+    return ode_ != nullptr && ode_->DirectionalOnLanes(x, dx, k, theta, dtheta, f, df);
+  }
   /// f, wᵀf_x and wᵀf_θ (reverse mode for nonlinear models).
   void RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::VectorXd& w,
                          Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const;

@@ -572,14 +572,23 @@ void RkSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x, Ei
   z.segment(n, nk) = Eigen::Map<const Eigen::VectorXd>(s->data(), nk);
   const Rhs rhs = [&](const State& zz, State& dz, double t) {
     ++d.stats.rhs_evaluations;
-    Eigen::VectorXd& xs = d.x_buf;
-    xs = zz.head(n);
-    d.s_buf = Eigen::Map<const Eigen::MatrixXd>(zz.data() + n, n, k);
-    d.sys.RhsDirectional(xs, in.theta, d.s_buf, in.dtheta, &d.f_buf, &d.df_buf);
-    if (in.du.cols() == k) d.df_buf += in.du;
     dz.resize(zz.size());
-    dz.head(n) = d.f_buf + in.u;
-    dz.segment(n, nk) = Eigen::Map<const Eigen::VectorXd>(d.df_buf.data(), nk);
+    Eigen::VectorXd& xs = d.x_buf;
+    // On lanes straight from z into dz where the model has them (a small model's right-hand side is
+    // mostly copies otherwise); x and S are copied out for the recording's route and the loss.
+    const bool in_place =
+        d.sys.RhsDirectionalInPlace(zz.data(), zz.data() + n, k, in.theta, in.dtheta, dz.data(), dz.data() + n);
+    if (!in_place || with_loss) {
+      xs = zz.head(n);
+      d.s_buf = Eigen::Map<const Eigen::MatrixXd>(zz.data() + n, n, k);
+    }
+    if (!in_place) {
+      d.sys.RhsDirectional(xs, in.theta, d.s_buf, in.dtheta, &d.f_buf, &d.df_buf);
+      dz.head(n) = d.f_buf;
+      dz.segment(n, nk) = Eigen::Map<const Eigen::VectorXd>(d.df_buf.data(), nk);
+    }
+    dz.head(n) += in.u;
+    if (in.du.cols() == k) dz.segment(n, nk) += Eigen::Map<const Eigen::VectorXd>(in.du.data(), nk);
     if (with_loss) {
       Eigen::VectorXd dl;
       double lt = 0;
