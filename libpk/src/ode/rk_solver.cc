@@ -5,6 +5,7 @@
 #include <cmath>
 #include <exception>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <string>
 
@@ -26,9 +27,46 @@ using State = Eigen::VectorXd;
 // Odeint's default sizes its buffers once.
 using Stepper = odeint::runge_kutta_dopri5<State, double, State, double, odeint::vector_space_algebra,
                                            odeint::default_operations, odeint::always_resizer>;
-using Dense = odeint::result_of::make_dense_output<Stepper>::type;
 using Rhs = std::function<void(const State& z, State& dz, double t)>;
-using Controlled = odeint::controlled_runge_kutta<Stepper>;
+
+// Odeint's default error norm, max_i |e_i| / (atol + rtol (|x_i| + |h| |x'_i|)), in one loop over the
+// state: on Eigen vectors Odeint's expression for it allocated four temporaries a step, a tenth of a
+// small model's fit. The same operations in the same order, so the same steps; a NaN in any entry
+// gives NaN (Eigen's maxCoeff left that to the SIMD instruction's whim).
+class ErrorNorm {
+ public:
+  typedef double value_type;
+  typedef odeint::vector_space_algebra algebra_type;
+  typedef odeint::default_operations operations_type;
+
+  ErrorNorm(double atol, double rtol) : atol_(atol), rtol_(rtol) {}
+  template <class Time>
+  double error(const State& x, const State& dxdt, State& err, Time dt) const {
+    algebra_type algebra;
+    return error(algebra, x, dxdt, err, dt);
+  }
+  template <class Time>
+  double error(algebra_type&, const State& x, const State& dxdt, State& err, Time dt) const {
+    const double a_dxdt = 1.0 * std::abs(dt);  // Odeint's a_dxdt = 1 times |dt|
+    double norm = 0;
+    bool nan = false;
+    for (Eigen::Index i = 0; i < err.size(); ++i) {
+      err(i) = std::abs(err(i)) / (atol_ + rtol_ * (1.0 * std::abs(x(i)) + a_dxdt * std::abs(dxdt(i))));
+      nan = nan || std::isnan(err(i));
+      norm = std::max(norm, err(i));
+    }
+    return nan ? std::numeric_limits<double>::quiet_NaN() : norm;
+  }
+
+ private:
+  double atol_, rtol_;
+};
+using Controlled = odeint::controlled_runge_kutta<Stepper, ErrorNorm>;
+using Dense = odeint::dense_output_runge_kutta<Controlled>;
+
+Dense MakeDense(double atol, double rtol) {
+  return Dense(Controlled(ErrorNorm(atol, rtol), Controlled::step_adjuster_type(), Stepper()));
+}
 
 // Dormand–Prince 5(4), the tableau Odeint's runge_kutta_dopri5 steps with: the stages of a step are
 // recomputed from its start for the discrete adjoint (Odeint does not expose them). b₇ = 0, so the
@@ -130,7 +168,7 @@ struct RkSolver::Impl {
   std::vector<double> starts_buf;
 
   // The problem the stepper is on, for a segment that continues it (see rk_solver.h).
-  Dense dense = odeint::make_dense_output(1e-10, 1e-8, Stepper());
+  Dense dense = MakeDense(1e-10, 1e-8);
   struct Continuation {
     bool at_end = false;
     double t = 0;  // the stepper's time at the end of the last segment
@@ -154,7 +192,7 @@ struct RkSolver::Impl {
   long stored_bytes = 0;
 
   Impl(const OdeSystem& s, const OdeOptions& o, bool tape) : sys(s), opt(o), n(s.n()), replay(tape) {
-    dense = odeint::make_dense_output(opt.absolute_tolerance, opt.relative_tolerance, Stepper());
+    dense = MakeDense(opt.absolute_tolerance, opt.relative_tolerance);
   }
 
   // Stiff segments go to RODAS4 (rosenbrock.h): whether one is stiff is decided from the segment
@@ -256,7 +294,7 @@ struct RkSolver::Impl {
       sys.Rhs(z, in.theta, &f_buf);
       dz = f_buf + in.u;
     };
-    Controlled stepper(Controlled::error_checker_type(opt.absolute_tolerance, opt.relative_tolerance));
+    Controlled stepper(ErrorNorm(opt.absolute_tolerance, opt.relative_tolerance));
     double t = 0, dt = carry != nullptr && *carry > 0 ? std::min(*carry, in.h) : InitialStep(*x, rhs, in.h);
     long count = 0, tries = 0;
     int limited = 0;  // CheckStiffening's consecutive stability-limited checks
@@ -408,7 +446,7 @@ struct RkSolver::Impl {
 void DormandPrinceTo(const std::function<void(const Eigen::VectorXd&, Eigen::VectorXd*)>& f, double h, double atol,
                      double rtol, long max_steps, Eigen::VectorXd* z, double* first_step) {
   const Rhs rhs = [&](const State& zz, State& dz, double) { f(zz, &dz); };
-  Controlled stepper(Controlled::error_checker_type(atol, rtol));
+  Controlled stepper(ErrorNorm(atol, rtol));
   double t = 0, dt = *first_step > 0 ? std::min(h, *first_step) : h;
   long steps = 0;
   while (t < h) {
