@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <stdexcept>
 #include <vector>
 
 #include "internal_text.h"
@@ -143,6 +144,7 @@ bool OdeModel::DirectionalOnLanes(const double* x, const double* dx, int k, cons
 void OdeModel::RhsDirectional(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& dx,
                               const Eigen::MatrixXd& dtheta, Eigen::VectorXd* f, Eigen::MatrixXd* df) const {
   const Eigen::Index k = dx.cols();
+  if (dtheta.cols() != k) throw std::invalid_argument("RhsDirectional: dx and dtheta differ in columns");
   f->resize(num_compartments());
   df->resize(num_compartments(), k);
   if (DirectionalOnLanes(x.data(), dx.data(), static_cast<int>(k), theta, dtheta, f->data(), df->data())) return;

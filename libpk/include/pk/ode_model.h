@@ -36,6 +36,7 @@
 #define PK_ODE_MODEL_H_
 
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
@@ -188,7 +189,7 @@ class AutoDiffOdeModel final : public OdeModel {
   const Functor& functor() const { return f_; }
 
   void Rhs(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::VectorXd* f) const override {
-    f->resize(num_compartments());
+    f->setZero(num_compartments());  // a row f leaves unset is 0, as on the lanes and the tape
     f_.Rhs(x.data(), theta.data(), f->data());
   }
 
@@ -200,6 +201,7 @@ class AutoDiffOdeModel final : public OdeModel {
                          const Eigen::MatrixXd& dx, const Eigen::MatrixXd& dtheta, double* y,
                          Eigen::RowVectorXd* dy) const override {
     // Up to 8 directions on FixedDual lanes, as RhsDirectional: nothing allocated per call.
+    if (dx.cols() != dtheta.cols()) throw std::invalid_argument("OutputDirectional: dx and dtheta differ in columns");
     if (dx.cols() <= 4) return OutputOnLanes<4>(output, x, theta, dx, dtheta, y, dy);
     if (dx.cols() <= 8) return OutputOnLanes<8>(output, x, theta, dx, dtheta, y, dy);
     std::vector<Dual> xd, td;

@@ -45,7 +45,7 @@ bool ColouredJacobian::EvaluatesOnLanes(const OdeModel& model) {
   try {
     return model.ColouredRhs(x.data(), theta.data(), f.data());
   } catch (const std::exception&) {
-    return true;  // it evaluates, only not at this point
+    return false;  // f never looked at a value here, so it would throw at every point: the tape serves
   }
 }
 

@@ -32,7 +32,8 @@ using Rhs = std::function<void(const State& z, State& dz, double t)>;
 // Odeint's default error norm, max_i |e_i| / (atol + rtol (|x_i| + |h| |x'_i|)), in one loop over the
 // state: on Eigen vectors Odeint's expression for it allocated four temporaries a step, a tenth of a
 // small model's fit. The same operations in the same order, so the same steps; a NaN in any entry
-// gives NaN (Eigen's maxCoeff left that to the SIMD instruction's whim).
+// rejects the step (Odeint accepts a NaN norm, and Eigen's maxCoeff had left NaN to the SIMD
+// instruction's whim), so a trial step that left f's domain is retried five times shorter.
 class ErrorNorm {
  public:
   typedef double value_type;
@@ -55,7 +56,7 @@ class ErrorNorm {
       nan = nan || std::isnan(err(i));
       norm = std::max(norm, err(i));
     }
-    return nan ? std::numeric_limits<double>::quiet_NaN() : norm;
+    return nan ? std::numeric_limits<double>::infinity() : norm;  // rejected: the control retries smaller
   }
 
  private:
