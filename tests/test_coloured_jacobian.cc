@@ -115,6 +115,31 @@ struct Refuses {
   }
 };
 
+// A Hill-type rate x₀^K with x₀ at 0 and K < 1: ∂f/∂x₀ is infinite there, every other partial finite.
+struct PowerAtZero {
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    dxdt[0] = -p[1] * sqrt(x[0]);
+    dxdt[1] = pow(x[0], p[0]) - p[1] * x[1];
+  }
+  template <typename T>
+  T Output(int, const T* x, const T* p) const {
+    return x[1] + pow(x[0], p[0]);
+  }
+};
+
+// A depot that f leaves unset (a model text's compartment with no d/dt line): its row is 0 on every route.
+struct UnsetRow {
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    dxdt[1] = -p[0] * x[1] + p[1] * x[0];
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const {
+    return x[1];
+  }
+};
+
 template <typename Functor>
 std::shared_ptr<const pk::Model> Small(const char* name, int n, Functor f) {
   pk::OdeModelSpec spec;
@@ -374,6 +399,73 @@ TEST_CASE("RhsDirectional and OutputDirectional on lanes (k ≤ 8) equal the rec
       REQUIRE(dy.size() == k);
       CHECK(MaxAbs(dy - dy_all.leftCols(k)) <= 1e-14 * (1 + MaxAbs(dy_all)));
     }
+  }
+}
+
+TEST_CASE("Directions that miss an infinite partial stay finite on every route, for any number of them",
+          "[coloured]") {
+  // At x₀ = 0 with K = 0.8, x₀^K and √x₀ have infinite slopes in x₀. Direction 0 moves x₀; the other
+  // eleven do not, and their derivatives are finite and the same whether they go on lanes (k ≤ 8), on
+  // the recording's tangents (f, k > 8) or on Dual (the output, k > 8): 0·∞ made them NaN on the latter.
+  const auto model = Small("power_at_zero", 2, PowerAtZero());
+  const auto* ode = dynamic_cast<const pk::OdeModel*>(model.get());
+  const Eigen::VectorXd theta = model->default_parameters();
+  Eigen::VectorXd x(2);
+  x << 0.0, 3.0;
+  Eigen::MatrixXd dx = Eigen::MatrixXd::Zero(2, 12), dtheta(2, 12);
+  dx(0, 0) = 1;
+  for (int j = 0; j < 12; ++j) {
+    if (j > 0) dx(1, j) = std::sin(1.0 + 3.0 * j);
+    dtheta(0, j) = std::cos(2.0 + 5.0 * j);
+    dtheta(1, j) = std::sin(0.5 + 2.0 * j);
+  }
+  Eigen::VectorXd f8, f12;
+  Eigen::MatrixXd df8, df12;
+  ode->RhsDirectional(x, theta, dx.leftCols(8), dtheta.leftCols(8), &f8, &df8);
+  ode->RhsDirectional(x, theta, dx, dtheta, &f12, &df12);
+  double y8, y12;
+  Eigen::RowVectorXd dy8, dy12;
+  ode->OutputDirectional(1, x, theta, dx.leftCols(8), dtheta.leftCols(8), &y8, &dy8);
+  ode->OutputDirectional(1, x, theta, dx, dtheta, &y12, &dy12);
+  CHECK(f8 == f12);
+  CHECK(y8 == y12);
+  for (const auto* d : {&df8, &df12}) CHECK(std::isinf((*d)(1, 0)));
+  CHECK(std::isinf(dy8(0)));
+  CHECK(std::isinf(dy12(0)));
+  for (int j = 1; j < 12; ++j) {
+    INFO("direction " << j);
+    // f₁ = x₀^K − K2 x₁: along j, −K2 dx₁ − x₁ dK2 (x₀^K's partial in K is 0 at x₀ = 0).
+    const double expected_f1 = -theta(1) * dx(1, j) - x(1) * dtheta(1, j);
+    CHECK(df12(0, j) == 0);  // −K2 √x₀: √0 · dK2, and x₀ does not move
+    CHECK(std::fabs(df12(1, j) - expected_f1) <= 1e-15 * (1 + std::fabs(expected_f1)));
+    CHECK(dy12(j) == dx(1, j));
+    if (j < 8) {
+      CHECK(df8(0, j) == df12(0, j));
+      CHECK(df8(1, j) == df12(1, j));
+      CHECK(dy8(j) == dy12(j));
+    }
+  }
+}
+
+TEST_CASE("A row f leaves unset is 0 in Rhs, on lanes and on the recording's tangents", "[coloured]") {
+  const auto model = Small("unset_row", 2, UnsetRow());
+  const auto* ode = dynamic_cast<const pk::OdeModel*>(model.get());
+  const Eigen::VectorXd theta = model->default_parameters();
+  Eigen::VectorXd x(2), f;
+  x << 2.0, 3.0;
+  f = Eigen::VectorXd::Constant(2, 7.0);  // stale values that must not survive
+  ode->Rhs(x, theta, &f);
+  CHECK(f(0) == 0);
+  CHECK(f(1) == -theta(0) * x(1) + theta(1) * x(0));
+  for (int k : {3, 12}) {
+    INFO("k = " << k);
+    const Eigen::MatrixXd dx = Eigen::MatrixXd::Ones(2, k), dtheta = Eigen::MatrixXd::Ones(2, k);
+    Eigen::VectorXd fd = Eigen::VectorXd::Constant(2, 7.0);
+    Eigen::MatrixXd df = Eigen::MatrixXd::Constant(2, k, 7.0);
+    ode->RhsDirectional(x, theta, dx, dtheta, &fd, &df);
+    CHECK(fd == f);
+    CHECK(df.row(0).isZero(0));
+    CHECK(df.row(1).isApprox(Eigen::RowVectorXd::Constant(k, -theta(0) - x(1) + theta(1) + x(0))));
   }
 }
 

@@ -81,9 +81,19 @@ class Dual {
   friend bool operator<=(const Dual& a, const Dual& b) { return a.v_ <= b.v_; }
   friend bool operator>=(const Dual& a, const Dual& b) { return a.v_ >= b.v_; }
 
-  /// f(v) with derivative f'(v)·d: the chain rule for the functions below.
+  /// f(v) with derivative f'(v)·d: the chain rule for the functions below. Where f'(v) is infinite
+  /// (sqrt, log, pow at 0) a derivative that is 0 stays 0, not 0·∞ = NaN, as on pk::FixedDual's lanes
+  /// and pk::Tape's tangents: a direction that does not pass through v keeps its finite derivative.
   Dual Chain(double f, double df) const {
-    return Dual(f, d_.size() ? DualDerivatives(df * d_) : DualDerivatives());
+    if (d_.size() == 0) return Dual(f);
+    if (std::isfinite(df)) return Dual(f, DualDerivatives(df * d_));
+    return Dual(f, DualDerivatives(d_.unaryExpr([df](double t) { return t == 0 ? 0.0 : df * t; })));
+  }
+  /// f(x, y) with partials ∂f/∂x and ∂f/∂y: the chain rule for two arguments.
+  static Dual Chain2(double f, const Dual& x, double dx, const Dual& y, double dy) {
+    Dual r = x.Chain(f, dx);
+    r.Axpy(1.0, y.Chain(0.0, dy).d_);
+    return r;
   }
 
  private:
@@ -116,12 +126,14 @@ inline Dual pow(const Dual& x, double p) {
   const double v = std::pow(x.value(), p);
   return x.Chain(v, p == 0 ? 0.0 : p * std::pow(x.value(), p - 1));
 }
-/// x^p = exp(p log x) for x > 0; at x = 0 the value is 0 (p > 0) and the
-/// derivative with respect to p is taken as 0.
+/// x^p; at x ≤ 0 the derivative with respect to p is taken as 0. The value is std::pow's and the
+/// partials are those of pk::TapeScalar and pk::FixedDual, so the routes agree where 0^p is met.
 inline Dual pow(const Dual& x, const Dual& p) {
   if (p.derivatives().size() == 0) return pow(x, p.value());
-  if (x.value() == 0) return pow(x, p.value()) + Dual(0.0) * p;
-  return exp(p * log(x));
+  const double v = std::pow(x.value(), p.value());
+  const double dx = p.value() == 0 ? 0.0 : p.value() * std::pow(x.value(), p.value() - 1);
+  const double dp = x.value() > 0 ? v * std::log(x.value()) : 0.0;
+  return Dual::Chain2(v, x, dx, p, dp);
 }
 inline Dual pow(double x, const Dual& p) { return pow(Dual(x), p); }
 

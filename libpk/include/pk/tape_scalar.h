@@ -74,6 +74,9 @@ class Tape {
   /// (node-major), the derivatives of that node along `width` directions. The
   /// rows of the independent variables (the nodes without parents) are set by
   /// the caller; every other row is computed here from its parents'.
+  /// Where a partial is infinite (sqrt, log, pow at 0) a tangent that is 0 stays 0, not 0·∞ = NaN, as
+  /// on pk::Dual and pk::FixedDual: directions that do not pass through the point keep their finite
+  /// derivatives, whatever their number.
   void Tangents(int width, std::vector<double>* tangents) const {
     double* t = tangents->data();
     const size_t w = static_cast<size_t>(width);
@@ -82,11 +85,14 @@ class Tape {
       if (n.a < 0) continue;
       double* row = t + k * w;
       const double* ra = t + n.a * w;
+      const bool finite = std::isfinite(n.da) && (n.b < 0 || std::isfinite(n.db));
       if (n.b < 0) {
-        for (size_t j = 0; j < w; ++j) row[j] = n.da * ra[j];
+        for (size_t j = 0; j < w; ++j) row[j] = finite ? n.da * ra[j] : Times(n.da, ra[j]);
       } else {
         const double* rb = t + n.b * w;
-        for (size_t j = 0; j < w; ++j) row[j] = n.da * ra[j] + n.db * rb[j];
+        for (size_t j = 0; j < w; ++j) {
+          row[j] = finite ? n.da * ra[j] + n.db * rb[j] : Times(n.da, ra[j]) + Times(n.db, rb[j]);
+        }
       }
     }
   }
@@ -97,6 +103,7 @@ class Tape {
   }
 
  private:
+  static double Times(double partial, double tangent) { return tangent == 0 ? 0.0 : partial * tangent; }
   // The sweep's loop on its own: inlined into a caller with more live values, its adjoints' base was
   // spilled and reloaded at every node.
 #if defined(__GNUC__)
