@@ -615,3 +615,20 @@ TEST_CASE("Dormand-Prince: a saturable chain is not judged stiff, and the adjoin
   INFO("steps: solve " << values.ode_statistics.steps << ", adjoint's pass " << adjoint.ode_statistics.steps);
   CHECK(adjoint.ode_statistics.steps <= 1.15 * values.ode_statistics.steps);
 }
+
+#include "ode/rk_solver.h"
+
+TEST_CASE("Dormand-Prince: a trial step whose error estimate is NaN is rejected, not accepted", "[rk]") {
+  // z' = −z, written so that f is NaN wherever z < 0 (0·√z), which the true solution never reaches. A
+  // first trial step of 20 puts the second stage at 1 − 20/5 < 0: its error estimate is NaN, which
+  // Odeint's own control accepted (NaN > 1 is false), and the solution became NaN. Rejected, the step
+  // is retried five times shorter until the stages stay where f is defined.
+  const auto rhs = [](const Eigen::VectorXd& z, Eigen::VectorXd* f) {
+    *f = -z + 0.0 * z.array().sqrt().matrix();
+  };
+  Eigen::VectorXd z = Eigen::VectorXd::Ones(1);
+  double first_step = 0;  // try the whole interval first
+  pk::internal::DormandPrinceTo(rhs, 20.0, 1e-14, 1e-10, 100000, &z, &first_step);
+  REQUIRE(std::isfinite(z(0)));
+  CHECK(std::fabs(z(0) - std::exp(-20.0)) <= 1e-8 * std::exp(-20.0) + 1e-13);
+}

@@ -113,12 +113,25 @@ void StageAdjoint(int i, double h, const Eigen::VectorXd& lambda, const Eigen::M
 }
 
 // One segment's accepted steps, for the discrete adjoint: the state at each step's start and its length.
+// The starts are `count` columns of n numbers in the solver's arena (RkSolver::Impl::Starts), from `first`.
 struct StoredSteps {
   SegmentInput in;
-  Eigen::MatrixXd x;  // n × steps
+  size_t first = 0;
+  Eigen::Index count = 0;
   std::vector<double> h;
-  bool stiff = false;  // a stiff segment: Rosenbrock's, from x.col(0) (its start) in the backward pass
+  bool stiff = false;  // a stiff segment: Rosenbrock's, from its one column (its start) in the backward pass
+  int shares = -1;     // ≥ 0: in.dtheta and in.du are left empty, and are stored segment `shares`'s
 };
+
+// The step starts of an adjoint's stored segments, one array whose capacity stays with the thread between
+// evaluations. Each evaluation's solver held them in arrays of its own, some hundreds of kB on a 32-state
+// chain: freed at the heap's top, glibc gave the pages back to the kernel (brk) and the next evaluation
+// took them again, page faults and all, 3000 times in pkbench's run of the chains (the adjoint's cost
+// at n = 32 went from 5.7 solves to 7.3–8.5 after the smaller chains had shaped the heap).
+std::vector<double>& KeptArena() {
+  static thread_local std::vector<double> arena;
+  return arena;
+}
 
 // h·‖f_x‖∞ above which a segment is stiff for an explicit method: Dormand–Prince's stability region
 // reaches about 3.3 along the negative axis, so stability alone would take some 300 steps, however
@@ -166,7 +179,47 @@ struct RkSolver::Impl {
   OdeStatistics stats;
   Eigen::MatrixXd s_buf, df_buf;  // scratch of the right-hand sides
   Eigen::VectorXd x_buf, f_buf, start_buf;
-  std::vector<double> starts_buf;
+  std::vector<double> arena;  // StoredSteps' starts (see KeptArena)
+  Eigen::Map<const Eigen::MatrixXd> Starts(const StoredSteps& s) const {
+    return Eigen::Map<const Eigen::MatrixXd>(arena.data() + s.first, n, s.count);
+  }
+  // A stored segment's input, its ∂θ/∂p (m×k) and ∂u/∂p (n×k) held once for the segments that follow
+  // with the same ones: on the 32-state chain with 64 free parameters they were 48 kB copied a segment,
+  // whose release at the end of each evaluation had glibc trim the heap (see KeptArena).
+  void KeepInput(const SegmentInput& in, StoredSteps* steps) const {
+    SegmentInput& kept = steps->in;
+    kept.h = in.h;
+    kept.u = in.u;
+    kept.theta = in.theta;
+    kept.continuous = in.continuous;
+    kept.auc_key = in.auc_key;
+    steps->shares = -1;
+    if (!stored.empty()) {
+      const int last = stored.back().shares >= 0 ? stored.back().shares : static_cast<int>(stored.size()) - 1;
+      const SegmentInput& o = stored[static_cast<size_t>(last)].in;
+      if (Same(o.dtheta, in.dtheta) && Same(o.du, in.du)) {
+        steps->shares = last;
+        kept.dtheta.resize(0, 0);
+        kept.du.resize(0, 0);
+        return;
+      }
+    }
+    kept.dtheta = in.dtheta;
+    kept.du = in.du;
+  }
+  static bool Same(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+    return a.rows() == b.rows() && a.cols() == b.cols() && a == b;
+  }
+  const SegmentInput& Owner(const StoredSteps& s) const {
+    return s.shares >= 0 ? stored[static_cast<size_t>(s.shares)].in : s.in;
+  }
+  // The segment's whole input (a copy when it shares).
+  SegmentInput WholeInput(const StoredSteps& s) const {
+    SegmentInput in = s.in;
+    in.dtheta = Owner(s).dtheta;
+    in.du = Owner(s).du;
+    return in;
+  }
 
   // The problem the stepper is on, for a segment that continues it (see rk_solver.h).
   Dense dense = MakeDense(1e-10, 1e-8);
@@ -194,6 +247,15 @@ struct RkSolver::Impl {
 
   Impl(const OdeSystem& s, const OdeOptions& o, bool tape) : sys(s), opt(o), n(s.n()), replay(tape) {
     dense = MakeDense(opt.absolute_tolerance, opt.relative_tolerance);
+    arena.swap(KeptArena());  // the thread's (a second solver alive at once starts its own)
+    arena.clear();
+  }
+  ~Impl() {
+    std::vector<double>& kept = KeptArena();
+    if (arena.capacity() > kept.capacity()) {
+      arena.clear();
+      kept.swap(arena);
+    }
   }
 
   // Stiff segments go to RODAS4 (rosenbrock.h): whether one is stiff is decided from the segment
@@ -275,7 +337,10 @@ struct RkSolver::Impl {
       FixedEndSteps(in, x, steps, carry);
     } catch (const StiffSegment&) {
       *x = start_of_segment;
-      if (steps) *steps = StoredSteps();
+      if (steps) {
+        arena.resize(steps->first);
+        *steps = StoredSteps();
+      }
       return false;
     }
     return true;
@@ -299,8 +364,11 @@ struct RkSolver::Impl {
     double t = 0, dt = carry != nullptr && *carry > 0 ? std::min(*carry, in.h) : InitialStep(*x, rhs, in.h);
     long count = 0, tries = 0;
     int limited = 0;  // CheckStiffening's consecutive stability-limited checks
-    std::vector<double>& starts = starts_buf;  // the steps' starts, n numbers each
-    starts.clear();
+    if (steps) {
+      steps->first = arena.size();  // the steps' starts follow, n numbers each
+      steps->count = 0;
+      steps->h.clear();
+    }
     double stable_step = 0;  // kStableStep / ‖f_x‖∞ (0: no bound)
     while (t < in.h) {
       if (count % kStableStepEvery == 0) {
@@ -322,7 +390,7 @@ struct RkSolver::Impl {
       tries = 0;  // consecutive rejections, as Odeint's own checker counts them
       if (!x->allFinite()) throw NumericalFailure("the ODE solution is not finite at t = " + std::to_string(tt));
       if (steps) {
-        starts.insert(starts.end(), start_buf.data(), start_buf.data() + n);
+        arena.insert(arena.end(), start_buf.data(), start_buf.data() + n);
         steps->h.push_back(length);
       }
       t = last ? in.h : tt;
@@ -336,8 +404,8 @@ struct RkSolver::Impl {
       CheckStiffening(in, count, dt, *x, &limited);
     }
     if (steps) {
-      steps->in = in;
-      steps->x = Eigen::Map<const Eigen::MatrixXd>(starts.data(), n, static_cast<Eigen::Index>(steps->h.size()));
+      KeepInput(in, steps);
+      steps->count = static_cast<Eigen::Index>(steps->h.size());
     }
   }
 
@@ -350,16 +418,19 @@ struct RkSolver::Impl {
   void Backward(const StoredSteps& steps, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                 Eigen::RowVectorXd* q) {
     const SegmentInput& in = steps.in;
-    const int k = static_cast<int>(in.dtheta.cols());
+    const Eigen::MatrixXd& dtheta = Owner(steps).dtheta;
+    const Eigen::MatrixXd& du = Owner(steps).du;
+    const int k = static_cast<int>(dtheta.cols());
     StageTape stages(sys, in.theta, opt.compressed_jacobians);
     Eigen::VectorXd lambda = lambda_end, kappa_sum = Eigen::VectorXd::Zero(n);
     Eigen::MatrixXd stage_k(n, kStages), xi(n, kStages);
     Eigen::VectorXd f, wfx, start(n), point(n), kappa(n), lambda_next(n);
-    for (Eigen::Index step = steps.x.cols() - 1; step >= 0; --step) {
+    const Eigen::Map<const Eigen::MatrixXd> starts = Starts(steps);
+    for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
       // The stages, forward again, each recorded (the last one's slope does not enter a stage point).
       stages.NewStep();
-      start = steps.x.col(step);
+      start = starts.col(step);
       for (int i = 0; i < kStages; ++i) {
         StagePoint(i, h, start, stage_k, &point);
         stages.Record(point, &f);
@@ -378,8 +449,8 @@ struct RkSolver::Impl {
       ++stats.backward_steps;
     }
     *lambda_start = lambda;
-    *q = stages.ThetaProduct().transpose() * in.dtheta;
-    if (in.du.cols() == k) *q += kappa_sum.transpose() * in.du;
+    *q = stages.ThetaProduct().transpose() * dtheta;
+    if (du.cols() == k) *q += kappa_sum.transpose() * du;
   }
 
   // Hairer, Nørsett and Wanner's first step: 1% of the state's scale over its rate's, at most h.
@@ -478,11 +549,13 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl::Carry& c = d.carry;
   if (!(c.step > 0 && in.theta == c.theta && in.u == c.u && *x == c.x)) c.step = 0;
   if (!(in.h > kEmptySegment)) {
-    steps.in = in;  // no steps: the backward pass passes λ through
+    d.KeepInput(in, &steps);  // no steps: the backward pass passes λ through
   } else if (!d.ReplaySteps(in, x, &steps, &c.step)) {
-    steps.in = in;
+    d.KeepInput(in, &steps);
     steps.stiff = true;
-    steps.x = *x;  // the start and RODAS4's steps, for the backward pass
+    steps.first = d.arena.size();  // the start and RODAS4's steps, for the backward pass
+    steps.count = 1;
+    d.arena.insert(d.arena.end(), x->data(), x->data() + d.n);
     d.Rodas().Advance(in, x, &steps.h);
     c.step = 0;
   }
@@ -491,7 +564,7 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
     c.u = in.u;
     c.x = *x;
   }
-  d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.x.size() + static_cast<long>(steps.h.size()));
+  d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.count * d.n + static_cast<long>(steps.h.size()));
   d.stored.push_back(std::move(steps));
   d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
   return static_cast<int>(d.stored.size()) - 1;
@@ -502,7 +575,8 @@ void RkSolver::BackwardStored(int handle, const AdjointScales& /*scales*/, const
                               Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   const StoredSteps& steps = impl_->stored.at(static_cast<size_t>(handle));
   if (steps.stiff) {
-    impl_->Rodas().AdjointSegment(steps.in, steps.x.col(0), steps.h, lambda_end, lambda_start, q);
+    const Eigen::VectorXd start = impl_->Starts(steps).col(0);
+    impl_->Rodas().AdjointSegment(impl_->WholeInput(steps), start, steps.h, lambda_end, lambda_start, q);
     return;
   }
   impl_->Backward(steps, lambda_end, lambda_start, q);
@@ -525,6 +599,7 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
     return;
   }
   impl_->Backward(steps, lambda_end, lambda_start, q);
+  impl_->arena.resize(steps.first);  // this segment's starts were needed for its backward pass only
 }
 RkSolver::~RkSolver() = default;
 
