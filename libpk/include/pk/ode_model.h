@@ -29,6 +29,12 @@
 //   std::shared_ptr<const pk::Model> model = pk::MakeOdeModel(spec, OneCmtIvMm());
 //
 // f must not depend on time explicitly (events carry all time dependence).
+// Rhs and Output must not themselves evaluate a libpk model: the tape and the lanes' buffers are kept
+// per thread and are not re-entrant. A row of dxdt that Rhs leaves unset is 0. Where a partial is
+// infinite (sqrt, log or pow at 0), a direction whose tangent is 0 keeps a derivative of 0 on every
+// scalar type above, so the derivatives do not depend on which type, or how many directions, libpk
+// uses. libpk's "same bits" between double and the lanes assume the compiler does not contract a*b+c
+// into an FMA differently in the two (GCC and clang do not at their default x86-64 baseline).
 // Outputs are numbered from 1; an observation measures output DVID (a data
 // column, default 1). Output 1 is the model's "central concentration" used by
 // pksim's CP column and exposure metrics.

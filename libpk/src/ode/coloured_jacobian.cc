@@ -103,9 +103,11 @@ std::shared_ptr<const JacobianColouring> ColouredJacobian::ColouringOf(const Ode
     }
     if (c->width > 0 && !EvaluatesOnLanes(model, c->width)) c->width = 0;
   }
+  c->theta_lanes_begin = c->width;
   for (int k = 0; k < c->n + c->m; ++k) {
     for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) {
       c->lane_offset.push_back(c->rows[p] * c->width + c->colour[static_cast<size_t>(k)]);
+      if (k >= c->n) c->theta_lanes_begin = std::min(c->theta_lanes_begin, c->colour[static_cast<size_t>(k)] & ~1);
     }
   }
   kept.insert(kept.begin(), {model.id_, c});
@@ -124,8 +126,7 @@ ColouredJacobian::ColouredJacobian(const OdeModel& model, std::shared_ptr<const 
     : model_(model),
       colouring_(std::move(colouring)),
       c_(*colouring_),
-      weighted_(static_cast<size_t>(c_.n) * static_cast<size_t>(c_.width), 0.0),
-      weighted_sum_(weighted_.size(), 0.0) {
+      weighted_sum_(static_cast<size_t>(c_.n) * static_cast<size_t>(c_.width), 0.0) {
   switch (c_.width) {
     case 4: Seed(theta, &lanes4_); break;
     case 6: Seed(theta, &lanes6_); break;
@@ -207,54 +208,50 @@ double ColouredJacobian::StateRowSumNorm(const Eigen::VectorXd& x) {
   }
 }
 
-// w_i times each lane of f_i: entry (i, c) is w_i J_ik for the one column k of colour c with a nonzero in
-// row i, if any (no two columns of a colour share a row). Added to the running sum for the θ columns.
+// (wᵀf_x)_k = Σ over column k's rows i of w_i J_ik, J_ik read from the lane of k's colour; and w_i times
+// each θ lane of f_i added to the running sum, from which ThetaProduct picks the θ columns once (an entry
+// (i, c) of the sum belongs to the one column of colour c with a nonzero in row i, if any: no two columns
+// of a colour share a row). The products and their order are those of weighing every lane first and
+// gathering after, as this did before (the same bits), without storing the weighed lanes, and without
+// summing lanes no θ column uses.
 template <int W>
-void ColouredJacobian::Weigh(const FixedDual<W>* lanes, const double* w) {
-  double* const t = weighted_.data();
-  double* const sum = weighted_sum_.data();
+void ColouredJacobian::SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx) {
+  const int* const start = c_.column_start.data();
+  const int* const rows = c_.rows.data();
+  for (int k = 0; k < c_.n; ++k) {
+    const int colour = c_.colour[static_cast<size_t>(k)];
+    double sum = 0;
+    for (int p = start[k]; p < start[k + 1]; ++p) sum += w[rows[p]] * lanes[rows[p]].derivative(colour);
+    wfx[k] = sum;
+  }
+  const int begin = c_.theta_lanes_begin;
+  double* const total = weighted_sum_.data();
   for (int i = 0; i < c_.n; ++i) {
     const double* const d = lanes[i].derivatives();
-    double* const ti = t + i * W;
-    double* const si = sum + i * W;
-    int l = 0;
+    double* const si = total + i * W;
+    int l = begin;
 #if defined(__GNUC__)
     typedef double Two __attribute__((vector_size(16)));  // as in FixedDual: GCC left this loop scalar
     for (; l + 2 <= W; l += 2) {
-      Two lane, total;
+      Two lane, sum;
       std::memcpy(&lane, d + l, sizeof lane);
-      std::memcpy(&total, si + l, sizeof total);
-      lane *= w[i];
-      total += lane;
-      std::memcpy(ti + l, &lane, sizeof lane);
-      std::memcpy(si + l, &total, sizeof total);
+      std::memcpy(&sum, si + l, sizeof sum);
+      sum += lane * w[i];
+      std::memcpy(si + l, &sum, sizeof sum);
     }
 #endif
-    for (; l < W; ++l) {
-      ti[l] = w[i] * d[l];
-      si[l] += ti[l];
-    }
+    for (; l < W; ++l) si[l] += w[i] * d[l];
   }
 }
 
-// (wᵀf_x)_k = Σ over column k's rows i of w_i J_ik, read from the weighted lanes; the θ columns are
-// picked out of their running sum once, by ThetaProduct.
 void ColouredJacobian::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx) {
   if (stage < 0 || stage >= stages_) throw std::logic_error("ColouredJacobian: a stage not recorded in this step");
   const size_t first = static_cast<size_t>(stage) * static_cast<size_t>(c_.n);
-  switch (c_.width) {
-    case 4: Weigh(lanes4_.f.data() + first, w.data()); break;
-    case 6: Weigh(lanes6_.f.data() + first, w.data()); break;
-    default: Weigh(lanes8_.f.data() + first, w.data()); break;
-  }
-  const int* const offset = c_.lane_offset.data();
-  const int* const start = c_.column_start.data();
-  const double* const t = weighted_.data();
   wfx->resize(c_.n);
-  for (int k = 0; k < c_.n; ++k) {
-    double sum = 0;
-    for (int p = start[k]; p < start[k + 1]; ++p) sum += t[offset[p]];
-    (*wfx)(k) = sum;
+  switch (c_.width) {
+    case 4: SweepLanes(lanes4_.f.data() + first, w.data(), wfx->data()); break;
+    case 6: SweepLanes(lanes6_.f.data() + first, w.data(), wfx->data()); break;
+    default: SweepLanes(lanes8_.f.data() + first, w.data(), wfx->data()); break;
   }
 }
 

@@ -36,6 +36,10 @@ struct JacobianColouring {
   /// For each nonzero, where a row-major n × width array of a stage's lanes holds it: rows[p]·width +
   /// the colour of its column.
   std::vector<int> lane_offset;
+  /// The lanes from which θ's products are summed, [theta_lanes_begin, width): the least colour of a θ
+  /// column with a nonzero, rounded down to even (lanes go two at a time); width when θ has none. On a
+  /// chain the x columns take colours 0 and 1, and the sweep skips them.
+  int theta_lanes_begin = 0;
 };
 
 /// wᵀf_x and wᵀf_θ at the stages of one step, as StageTape (ode_system.h) offers them, from a compressed
@@ -78,7 +82,7 @@ class ColouredJacobian {
   template <int W>
   double RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes);
   template <int W>
-  void Weigh(const FixedDual<W>* lanes, const double* w);
+  void SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx);
 
   const OdeModel& model_;
   std::shared_ptr<const JacobianColouring> colouring_;
@@ -87,8 +91,7 @@ class ColouredJacobian {
   Lanes<6> lanes6_;
   Lanes<8> lanes8_;
   int stages_ = 0;
-  std::vector<double> weighted_;      // n × width: w_i times lane l of f_i at the stage being swept
-  std::vector<double> weighted_sum_;  // the same summed over every stage swept
+  std::vector<double> weighted_sum_;  // n × width: w_i times lane l of f_i, summed over every stage swept
   std::vector<double> row_sums_;      // StateRowSumNorm's
 };
 
