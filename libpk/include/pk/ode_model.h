@@ -30,10 +30,13 @@
 //
 // f must not depend on time explicitly (events carry all time dependence).
 // Rhs and Output must not themselves evaluate a libpk model: the tape and the lanes' buffers are kept
-// per thread and are not re-entrant. A row of dxdt that Rhs leaves unset is 0. Where a partial is
-// infinite (sqrt, log or pow at 0), a direction whose tangent is 0 keeps a derivative of 0 on every
-// scalar type above, so the derivatives do not depend on which type, or how many directions, libpk
-// uses. libpk's "same bits" between double and the lanes assume the compiler does not contract a*b+c
+// per thread and are not re-entrant. A row of dxdt that Rhs leaves unset is 0. Where a function's
+// partial is infinite (sqrt, log or pow at 0), a direction whose tangent is 0 keeps a derivative of 0
+// on every first-order type (Dual, FixedDual's lanes, the tape's tangents), whatever the number of
+// directions. Products and quotients are not guarded: 0 times an infinite tangent (x·√y at
+// x = y = 0) or an infinite operand (−K/x at x = 0) can give NaN on the lanes (up to 8 directions)
+// where Dual or the tape gives 0 (a guard in FixedDual's * made f on lanes 1.6 times slower).
+// libpk's "same bits" between double and the lanes assume the compiler does not contract a*b+c
 // into an FMA differently in the two (GCC and clang do not at their default x86-64 baseline).
 // Outputs are numbered from 1; an observation measures output DVID (a data
 // column, default 1). Output 1 is the model's "central concentration" used by
