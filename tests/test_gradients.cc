@@ -651,9 +651,10 @@ std::shared_ptr<const pk::Model> MovingCovariateModel(bool nonlinear) {
   return pk::ParseModel(text, "moving_cov.pkm", pk::RandomEffects::kParameters);
 }
 
-std::shared_ptr<pk::Dataset> MovingCovariateData() {
-  std::vector<std::pair<double, std::string>> rows = {{0, "1,0,100,0,0,0,0,1,.,1,60"},
-                                                      {12, "1,12,100,0,12,1,0,1,.,1,75"}};
+// modelled_rate: the doses at 12 and 24 h are infusions at the rate R1 (RATE = -1).
+std::shared_ptr<pk::Dataset> MovingCovariateData(bool modelled_rate = false) {
+  std::vector<std::pair<double, std::string>> rows = {
+      {0, "1,0,100,0,0,0,0,1,.,1,60"}, {12, std::string("1,12,100,") + (modelled_rate ? "-1" : "0") + ",12,1,0,1,.,1,75"}};
   for (int k = 1; k <= 40; ++k) {
     const double t = 0.2 * std::pow(k, 1.4);
     std::ostringstream row;
@@ -691,6 +692,37 @@ TEST_CASE("moving doses with a time-varying covariate, two outputs and many dist
     compared += CheckThirdDerivatives(obj, values, free, nonlinear ? 1e-5 : 1e-6);
   }
   CHECK(compared >= (pk_test::kSanitized ? 50 : 75));
+}
+
+TEST_CASE("Dormand-Prince's adjoint where du/dp changes between segments (infusions at a modelled rate)",
+          "[gradient][rk][adjoint]") {
+  // The adjoint's stored segments share ∂θ/∂p and ∂u/∂p with the segment before while they are the
+  // same, and hold their own from where they change: ∂u/∂R1 is nonzero during the infusions at the
+  // modelled rate R1 and zero between them, and the weight changes at 10 h. The gradient must see
+  // each segment's own. Also with every segment replayed (adjoint_store_all_segments = false).
+  using Need = pk::Objective::Need;
+  for (const bool store_all : {true, false}) {
+    INFO("store all segments: " << store_all);
+    pk::ObjectiveOptions options;
+    options.propagator = pk::Propagator::kRungeKutta;
+    options.ode.relative_tolerance = 1e-11;
+    options.ode.absolute_tolerance = 1e-13;
+    options.ode.adjoint_store_all_segments = store_all;
+    const pk::Objective obj(MovingCovariateModel(true), MovingCovariateData(true), 0, options);
+    Eigen::VectorXd values = obj.DefaultValues();
+    values(obj.ParameterIndex("ETA_F")) = -0.2;
+    values(obj.ParameterIndex("ETA_L")) = 0.15;
+    values(obj.ParameterIndex("R1")) = 35;
+    std::vector<int> free;
+    for (int i = 0; i < static_cast<int>(values.size()); ++i) free.push_back(i);
+    const auto fwd = obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kForward);
+    const auto adj = obj.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+    REQUIRE(fwd.ok);
+    REQUIRE(adj.ok);
+    const double scale = fwd.gradient.cwiseAbs().maxCoeff();
+    INFO("forward " << fwd.gradient.transpose() << "\nadjoint " << adj.gradient.transpose());
+    CHECK((adj.gradient - fwd.gradient).cwiseAbs().maxCoeff() <= 1e-7 * scale);
+  }
 }
 
 TEST_CASE("higher derivatives of an output with a baseline (its offset d(θ) by AD)", "[gradient][second-order]") {
