@@ -185,7 +185,8 @@ struct RkSolver::Impl {
   }
   // A stored segment's input, its ∂θ/∂p (m×k) and ∂u/∂p (n×k) held once for the segments that follow
   // with the same ones: on the 32-state chain with 64 free parameters they were 48 kB copied a segment,
-  // whose release at the end of each evaluation had glibc trim the heap (see KeptArena).
+  // whose release at the end of each evaluation had glibc trim the heap (see KeptArena). It copies
+  // every field of SegmentInput but those two by name: a field added there must be added here.
   void KeepInput(const SegmentInput& in, StoredSteps* steps) const {
     SegmentInput& kept = steps->in;
     kept.h = in.h;
