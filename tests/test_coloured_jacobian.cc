@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <memory>
 #include <sstream>
 #include <stdexcept>
@@ -580,4 +581,110 @@ TEST_CASE("the discrete adjoint with compressed Jacobians: the recording's gradi
   CHECK(MaxAbs(radj.gradient - rrec.gradient) <= 1e-10 * scale);
   CHECK(MaxAbs(radj.gradient - fd) <= 1e-6 * scale);
   CHECK(MaxAbs(radj.gradient - fwd.gradient) <= 1e-8 * scale);
+}
+
+namespace {
+
+// Sets which clone pk::internal::CallOnLanes takes, and restores it.
+class LanesClone {
+ public:
+  explicit LanesClone(bool avx2) : saved_(pk::internal::LanesOnAvx2()) { pk::internal::LanesOnAvx2() = avx2; }
+  ~LanesClone() { pk::internal::LanesOnAvx2() = saved_; }
+  LanesClone(const LanesClone&) = delete;
+  LanesClone& operator=(const LanesClone&) = delete;
+
+ private:
+  bool saved_;
+};
+
+template <int W>
+struct FixedDualBits {
+  double value = 0;
+  double lanes[W] = {};
+  bool operator==(const FixedDualBits& o) const {
+    return std::memcmp(this, &o, sizeof *this) == 0;  // NaN and −0 compared as bits
+  }
+};
+
+template <int W>
+FixedDualBits<W> ExpressionOnLanes(bool avx2) {
+  pk::FixedDual<W> a(1.7), b(0.6);
+  for (int j = 0; j < W; ++j) {
+    a.derivative(j) = std::sin(1.0 + j);
+    b.derivative(j) = std::cos(2.0 + 3 * j);
+  }
+  FixedDualBits<W> out;
+  const LanesClone clone(avx2);
+  pk::internal::CallOnLanes([&] {
+    const pk::FixedDual<W> r = Expression(a, b);
+    out.value = r.value();
+    for (int j = 0; j < W; ++j) out.lanes[j] = r.derivative(j);
+  });
+  return out;
+}
+
+// A Michaelis–Menten model with an oral depot, written as model text (an interpreted program on lanes).
+const char kTextModel[] = R"($PROBLEM text  oral depot, saturable elimination
+$PARAM
+KA   = 1.2 1/h
+VMAX = 20  mg/h
+KM   = 2   mg/L
+V    = 30  L
+$CMT
+DEPOT    dose
+CENTRAL  central
+$ODE
+C = CENTRAL / V
+d/dt(DEPOT) = -KA * DEPOT
+d/dt(CENTRAL) = KA * DEPOT - VMAX * C / (KM + C)
+$OUTPUT
+CP = C
+)";
+
+}  // namespace
+
+TEST_CASE("The AVX2 clone of f on lanes and of the sweep gives the baseline's bits", "[coloured][rk][gradient]") {
+  if (!pk::internal::LanesOnAvx2()) {
+    WARN("this build or CPU has no AVX2 clone: only the baseline lanes run here");
+  }
+  // Every operation and function of FixedDual, at each width libpk uses.
+  CHECK(ExpressionOnLanes<4>(true) == ExpressionOnLanes<4>(false));
+  CHECK(ExpressionOnLanes<6>(true) == ExpressionOnLanes<6>(false));
+  CHECK(ExpressionOnLanes<8>(true) == ExpressionOnLanes<8>(false));
+  // The adjoint (f on lanes and the sweeps) and forward sensitivities (f on lanes for k ≤ 8): a
+  // catalogue model over every event scenario, model text, and the chain (6 lanes, 4 of them θ's).
+  struct Case {
+    std::shared_ptr<const pk::Model> model;
+    std::shared_ptr<pk::Dataset> data;
+    const pk_test::Scenario* scenario;
+  };
+  std::vector<Case> cases;
+  for (const pk_test::Scenario& sc : pk_test::OdeScenarios()) {
+    cases.push_back({pk::MakeModel("1cmt_oral_mm"), pk_test::ScenarioData(sc), &sc});
+  }
+  cases.push_back({pk::ParseModel(kTextModel, "text.pkm"), ChainData(), nullptr});
+  cases.push_back({Chain(16), ChainData(), nullptr});
+  for (const Case& c : cases) {
+    INFO(c.model->name() << " / " << (c.scenario ? c.scenario->name : "one bolus"));
+    const pk::Objective obj(c.model, c.data, 0, RkOptions(1e-8, true));
+    Eigen::VectorXd values = obj.DefaultValues();
+    std::vector<int> free;
+    for (int i = 0; i < c.model->num_parameters(); ++i) free.push_back(i);
+    if (c.scenario != nullptr) pk_test::ScenarioValues(obj, *c.scenario, &values, &free);
+    for (const auto route : {pk::GradientRoute::kAdjoint, pk::GradientRoute::kForward}) {
+      pk::Objective::Evaluation on, off;
+      {
+        const LanesClone clone(true);
+        on = obj.Evaluate(values, free, Need::kGradient, route);
+      }
+      {
+        const LanesClone clone(false);
+        off = obj.Evaluate(values, free, Need::kGradient, route);
+      }
+      REQUIRE(on.ok);
+      REQUIRE(off.ok);
+      CHECK(on.value == off.value);
+      CHECK(on.gradient == off.gradient);
+    }
+  }
 }

@@ -37,30 +37,30 @@ class FixedDual {
 
   friend FixedDual operator+(const FixedDual& a, const FixedDual& b) {
     FixedDual r(Uninitialised{}, a.v_ + b.v_);
-    Lanewise(&r, a, b, [](auto x, auto y) { return x + y; });
+    Lanewise(&r, a, b, [](auto& z, const auto& x, const auto& y) { z = x + y; });
     return r;
   }
   friend FixedDual operator-(const FixedDual& a, const FixedDual& b) {
     FixedDual r(Uninitialised{}, a.v_ - b.v_);
-    Lanewise(&r, a, b, [](auto x, auto y) { return x - y; });
+    Lanewise(&r, a, b, [](auto& z, const auto& x, const auto& y) { z = x - y; });
     return r;
   }
   friend FixedDual operator*(const FixedDual& a, const FixedDual& b) {
     FixedDual r(Uninitialised{}, a.v_ * b.v_);
     const double av = a.v_, bv = b.v_;
-    Lanewise(&r, a, b, [av, bv](auto x, auto y) { return x * bv + av * y; });
+    Lanewise(&r, a, b, [av, bv](auto& z, const auto& x, const auto& y) { z = x * bv + av * y; });
     return r;
   }
   friend FixedDual operator/(const FixedDual& a, const FixedDual& b) {
     // (a/b)' = (a' − (a/b) b') / b; the quotient exactly as in double.
     const double q = a.v_ / b.v_, inv = 1 / b.v_;
     FixedDual r(Uninitialised{}, q);
-    Lanewise(&r, a, b, [q, inv](auto x, auto y) { return (x - q * y) * inv; });
+    Lanewise(&r, a, b, [q, inv](auto& z, const auto& x, const auto& y) { z = (x - q * y) * inv; });
     return r;
   }
   FixedDual operator-() const {
     FixedDual r(Uninitialised{}, -v_);
-    Lanewise(&r, *this, *this, [](auto x, auto) { return -x; });
+    Lanewise(&r, *this, *this, [](auto& z, const auto& x, const auto&) { z = -x; });
     return r;
   }
   FixedDual operator+() const { return *this; }
@@ -82,7 +82,7 @@ class FixedDual {
   FixedDual Chain(double f, double df) const {
     FixedDual r(Uninitialised{}, f);
     if (std::isfinite(df)) {
-      Lanewise(&r, *this, *this, [df](auto x, auto) { return df * x; });
+      Lanewise(&r, *this, *this, [df](auto& z, const auto& x, const auto&) { z = df * x; });
     } else {
       for (int j = 0; j < W; ++j) r.d_[j] = Times(df, d_[j]);
     }
@@ -92,7 +92,7 @@ class FixedDual {
   static FixedDual Chain2(double f, const FixedDual& x, double dx, const FixedDual& y, double dy) {
     FixedDual r(Uninitialised{}, f);
     if (std::isfinite(dx) && std::isfinite(dy)) {
-      Lanewise(&r, x, y, [dx, dy](auto a, auto b) { return dx * a + dy * b; });
+      Lanewise(&r, x, y, [dx, dy](auto& z, const auto& a, const auto& b) { z = dx * a + dy * b; });
     } else {
       for (int j = 0; j < W; ++j) r.d_[j] = Times(dx, x.d_[j]) + Times(dy, y.d_[j]);
     }
@@ -109,16 +109,20 @@ class FixedDual {
   static void Lanewise(FixedDual* r, const FixedDual& a, const FixedDual& b, F f) {
     int j = 0;
 #if defined(__GNUC__)
+    typedef double Four __attribute__((vector_size(32)));
     typedef double Two __attribute__((vector_size(16)));
-    for (; j + 2 <= W; j += 2) {
-      Two x, y;
-      std::memcpy(&x, a.d_ + j, sizeof x);
-      std::memcpy(&y, b.d_ + j, sizeof y);
-      const Two z = f(x, y);
-      std::memcpy(r->d_ + j, &z, sizeof z);
-    }
+    for (; j + 4 <= W; j += 4) Group<Four>(r->d_ + j, a.d_ + j, b.d_ + j, f);
+    for (; j + 2 <= W; j += 2) Group<Two>(r->d_ + j, a.d_ + j, b.d_ + j, f);
 #endif
-    for (; j < W; ++j) r->d_[j] = f(a.d_[j], b.d_[j]);
+    for (; j < W; ++j) f(r->d_[j], a.d_[j], b.d_[j]);
+  }
+  template <typename V, typename F>
+  static void Group(double* r, const double* a, const double* b, F f) {
+    V x, y, z;
+    std::memcpy(&x, a, sizeof x);
+    std::memcpy(&y, b, sizeof y);
+    f(z, x, y);
+    std::memcpy(r, &z, sizeof z);
   }
   struct Uninitialised {};
   FixedDual(Uninitialised, double value) : v_(value) {}  // every lane written by the caller
@@ -166,6 +170,42 @@ FixedDual<W> pow(double x, const FixedDual<W>& p) {
   return pow(FixedDual<W>(x), p);
 }
 
+namespace internal {
+
+// A model's f on lanes, compiled a second time for AVX2 (x86-64 CPUs since 2013). Debian builds for the
+// x86-64 baseline (SSE2, two lanes an instruction); where the CPU has AVX2 the clone takes four. The
+// clone inlines everything f calls (flatten), so the model's own template code, FixedDual's operators
+// included, is compiled for AVX2 too. AVX2 brings no FMA (that is a separate flag), so the clone does
+// the same IEEE operations in the same order as the baseline: the same bits (tests/test_coloured_jacobian.cc).
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__) && !defined(PK_NO_AVX2_LANES)
+#define PK_AVX2_LANES 1
+template <typename F>
+__attribute__((target("avx2"), flatten)) void CallOnAvx2(const F& f) {
+  f();
+}
+#endif
+
+/// Whether CallOnLanes takes the AVX2 clone: the CPU has AVX2 and libpk was not built for it already.
+/// Tests set it to false to compare the two; set it only while no thread evaluates a model.
+inline bool& LanesOnAvx2() {
+#ifdef PK_AVX2_LANES
+  static bool on = __builtin_cpu_supports("avx2");
+#else
+  static bool on = false;
+#endif
+  return on;
+}
+
+/// f() (an evaluation of a model on FixedDual lanes), through the AVX2 clone where LanesOnAvx2().
+template <typename F>
+void CallOnLanes(const F& f) {
+#ifdef PK_AVX2_LANES
+  if (LanesOnAvx2()) return CallOnAvx2(f);
+#endif
+  f();
+}
+
+}  // namespace internal
 }  // namespace pk
 
 #endif  // PK_FIXED_DUAL_H_

@@ -276,15 +276,15 @@ class AutoDiffOdeModel final : public OdeModel {
  protected:
   void RecordRhs(const TapeScalar* x, const TapeScalar* theta, TapeScalar* f) const override { f_.Rhs(x, theta, f); }
   bool ColouredRhs(const FixedDual<4>* x, const FixedDual<4>* theta, FixedDual<4>* f) const override {
-    f_.Rhs(x, theta, f);
+    internal::CallOnLanes([&] { f_.Rhs(x, theta, f); });
     return true;
   }
   bool ColouredRhs(const FixedDual<6>* x, const FixedDual<6>* theta, FixedDual<6>* f) const override {
-    f_.Rhs(x, theta, f);
+    internal::CallOnLanes([&] { f_.Rhs(x, theta, f); });
     return true;
   }
   bool ColouredRhs(const FixedDual<8>* x, const FixedDual<8>* theta, FixedDual<8>* f) const override {
-    f_.Rhs(x, theta, f);
+    internal::CallOnLanes([&] { f_.Rhs(x, theta, f); });
     return true;
   }
   bool RhsSparsity(const SparsityScalar* x, const SparsityScalar* theta, SparsityScalar* f) const override {

@@ -13,6 +13,16 @@ namespace {
 
 constexpr int kMaxModelsKept = 4;  // colourings kept per thread
 
+// sum += weight · lanes over one group of V (a vector type of 2 or 4 doubles).
+template <typename V>
+void AddWeighted(double weight, const double* lanes, double* sum) {
+  V d, s;
+  std::memcpy(&d, lanes, sizeof d);
+  std::memcpy(&s, sum, sizeof s);
+  s += d * weight;
+  std::memcpy(sum, &s, sizeof s);
+}
+
 // Greedy colouring of the columns in their order: each takes the least colour no column sharing one of
 // its rows has. Chains and other banded patterns come out optimal in this order.
 void Colour(JacobianColouring* c) {
@@ -231,14 +241,11 @@ void ColouredJacobian::SweepLanes(const FixedDual<W>* lanes, const double* w, do
     double* const si = total + i * W;
     int l = begin;
 #if defined(__GNUC__)
-    typedef double Two __attribute__((vector_size(16)));  // as in FixedDual: GCC left this loop scalar
-    for (; l + 2 <= W; l += 2) {
-      Two lane, sum;
-      std::memcpy(&lane, d + l, sizeof lane);
-      std::memcpy(&sum, si + l, sizeof sum);
-      sum += lane * w[i];
-      std::memcpy(si + l, &sum, sizeof sum);
-    }
+    // As in FixedDual: GCC left this loop scalar. Four lanes an instruction in the AVX2 clone.
+    typedef double Four __attribute__((vector_size(32)));
+    typedef double Two __attribute__((vector_size(16)));
+    for (; l + 4 <= W; l += 4) AddWeighted<Four>(w[i], d + l, si + l);
+    for (; l + 2 <= W; l += 2) AddWeighted<Two>(w[i], d + l, si + l);
 #endif
     for (; l < W; ++l) si[l] += w[i] * d[l];
   }
@@ -249,9 +256,9 @@ void ColouredJacobian::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorX
   const size_t first = static_cast<size_t>(stage) * static_cast<size_t>(c_.n);
   wfx->resize(c_.n);
   switch (c_.width) {
-    case 4: SweepLanes(lanes4_.f.data() + first, w.data(), wfx->data()); break;
-    case 6: SweepLanes(lanes6_.f.data() + first, w.data(), wfx->data()); break;
-    default: SweepLanes(lanes8_.f.data() + first, w.data(), wfx->data()); break;
+    case 4: CallOnLanes([&] { SweepLanes(lanes4_.f.data() + first, w.data(), wfx->data()); }); break;
+    case 6: CallOnLanes([&] { SweepLanes(lanes6_.f.data() + first, w.data(), wfx->data()); }); break;
+    default: CallOnLanes([&] { SweepLanes(lanes8_.f.data() + first, w.data(), wfx->data()); }); break;
   }
 }
 
