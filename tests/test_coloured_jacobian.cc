@@ -141,6 +141,20 @@ struct UnsetRow {
   }
 };
 
+// The first row added to rather than set: on double it starts from 0 (Rhs zeroes f first), and so
+// must it on lanes, whose buffer holds the last step's stage.
+struct AddsToRow {
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    dxdt[0] += -p[0] * x[0];
+    dxdt[1] = p[0] * x[0] - p[1] * x[1];
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const {
+    return x[1];
+  }
+};
+
 template <typename Functor>
 std::shared_ptr<const pk::Model> Small(const char* name, int n, Functor f) {
   pk::OdeModelSpec spec;
@@ -685,6 +699,31 @@ TEST_CASE("The AVX2 clone of f on lanes and of the sweep gives the baseline's bi
       REQUIRE(off.ok);
       CHECK(on.value == off.value);
       CHECK(on.gradient == off.gradient);
+    }
+  }
+}
+
+TEST_CASE("Stage lanes of a model that leaves a row unset or adds to it start from 0 at every step",
+          "[coloured]") {
+  const auto chain = Chain(4);
+  CHECK(pk::internal::ColouredJacobian::ColouringOf(*dynamic_cast<const pk::OdeModel*>(chain.get()))->sets_every_row);
+  for (const auto& model : {Small("unset_row", 2, UnsetRow()), Small("adds_to_row", 2, AddsToRow())}) {
+    INFO(model->name());
+    const auto* ode = dynamic_cast<const pk::OdeModel*>(model.get());
+    const Eigen::VectorXd theta = model->default_parameters();
+    CHECK_FALSE(pk::internal::ColouredJacobian::ColouringOf(*ode)->sets_every_row);
+    const auto lanes = pk::internal::ColouredJacobian::For(*ode, theta);
+    REQUIRE(lanes != nullptr);
+    Eigen::VectorXd x(2), f, expected, wfx;
+    x << 2.0, 3.0;
+    ode->Rhs(x, theta, &expected);
+    const Eigen::Vector2d w(1.0, 0.0);  // picks row 0 of f_x: 0 (unset), or −K (added to)
+    for (int step = 0; step < 3; ++step) {
+      lanes->NewStep();
+      lanes->Record(x, &f);
+      CHECK(f == expected);
+      lanes->Sweep(0, w, &wfx);
+      CHECK(wfx(0) == (model->name() == "unset_row" ? 0.0 : -theta(0)));
     }
   }
 }

@@ -30,6 +30,7 @@ struct JacobianColouring {
   int colours = 0;  ///< lanes needed
   int width = 0;    ///< lanes used (4, 6 or 8); 0: no compressed Jacobian for this model
   bool looks_at_values = false;  ///< f compared or read a value: the pattern may change with x, θ
+  bool sets_every_row = false;   ///< f wrote each row without reading it first (no need to zero them)
   std::vector<int> colour;        ///< of each column
   std::vector<int> column_start;  ///< column k's rows are rows[column_start[k], column_start[k + 1])
   std::vector<int> rows;
