@@ -74,11 +74,24 @@ void OdeSystem::RhsVectorJacobian(const Eigen::VectorXd& x, const Eigen::VectorX
 }
 
 Eigen::MatrixXd OdeSystem::StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const {
-  if (linear_) return linear_->SystemMatrix<double>(theta);
-  Eigen::VectorXd f;
-  Eigen::MatrixXd df;
-  ode_->RhsDirectional(x, theta, Eigen::MatrixXd::Identity(n_, n_), Eigen::MatrixXd::Zero(m_, n_), &f, &df);
-  return df;
+  Eigen::MatrixXd fx;
+  StateJacobian(x, theta, &fx);
+  return fx;
+}
+
+void OdeSystem::StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::MatrixXd* fx) const {
+  if (linear_) {
+    *fx = linear_->SystemMatrix<double>(theta);
+    return;
+  }
+  // The n unit directions, kept per thread: made at each call (the rk route's stiffness checks, every
+  // 5 steps, where f has no compressed Jacobian) they and f_x churned the heap, which glibc trimmed
+  // and faulted in again (about 300 brk calls an evaluation of the 32-chain's recorded adjoint).
+  thread_local Eigen::MatrixXd unit, zero;
+  thread_local Eigen::VectorXd f;
+  if (unit.rows() != n_) unit = Eigen::MatrixXd::Identity(n_, n_);
+  if (zero.rows() != m_ || zero.cols() != n_) zero = Eigen::MatrixXd::Zero(m_, n_);
+  ode_->RhsDirectional(x, theta, unit, zero, &f, fx);
 }
 
 void OdeSystem::SensitivityJacobians(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& s,

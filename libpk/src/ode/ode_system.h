@@ -52,6 +52,8 @@ class OdeSystem {
                          Eigen::VectorXd* f, Eigen::VectorXd* wfx, Eigen::VectorXd* wftheta) const;
   /// f_x (n×n).
   Eigen::MatrixXd StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta) const;
+  /// The same into *fx, whose storage is reused when it has the size.
+  void StateJacobian(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, Eigen::MatrixXd* fx) const;
   /// B_a = ∂(f_x s_a + f_θ dtheta_a)/∂x (n×n) for each column a of s (n×k) and dtheta (m×k): the
   /// lower blocks of the Jacobian of the stacked sensitivity system (rosenbrock.h).
   void SensitivityJacobians(const Eigen::VectorXd& x, const Eigen::VectorXd& theta, const Eigen::MatrixXd& s,

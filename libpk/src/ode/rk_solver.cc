@@ -274,8 +274,10 @@ struct RkSolver::Impl {
   // so a replay decides as its forward pass did.
   double StateRowSumNorm(const SegmentInput& in, const Eigen::VectorXd& x) {
     if (ColouredJacobian* lanes = NormLanes(in.theta)) return lanes->StateRowSumNorm(x);
-    return sys.StateJacobian(x, in.theta).cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>();
+    sys.StateJacobian(x, in.theta, &fx_buf);
+    return fx_buf.cwiseAbs().rowwise().sum().maxCoeff<Eigen::PropagateNaN>();
   }
+  Eigen::MatrixXd fx_buf;  // StateRowSumNorm's f_x, kept
   // The lanes for θ (null without them), made again when θ changes.
   ColouredJacobian* NormLanes(const Eigen::VectorXd& theta) {
     if (!opt.compressed_jacobians || sys.is_linear()) return nullptr;
