@@ -304,3 +304,30 @@ TEST_CASE("pksim's --columns: the chosen columns of the full CSV, in the chosen 
   CHECK_THROWS_WITH(pk::SimulationColumns(*model, "ID,TIME,id"), Catch::Contains("ID is named twice"));
   CHECK_THROWS_WITH(pk::SimulationColumns(*model, "ID,"), Catch::Contains("an empty name"));
 }
+
+TEST_CASE("a band and a line of one point are drawn with a width (a VPC of one bin)", "[output]") {
+  pk::PlotSeries band{"sim. 50th", {4.0}, {1.0}}, line{"obs. 50th", {4.0}, {2.0}};
+  band.upper = {3.0};
+  band.colour = "#1f77b4";
+  line.colour = "#111111";
+  pk::PlotSeries points{"observed", {1.0, 8.0}, {0.5, 3.5}, true};
+  const std::string svg = pk::RenderSvg({band, points, line}, pk::PlotOptions());
+  // The band: a box 24 px wide from 1 to 3, where a polygon through one x had no area.
+  const size_t box = svg.find("<rect fill=\"#1f77b4\" fill-opacity=\"0.3\"");
+  REQUIRE(box != std::string::npos);
+  CHECK(svg.find("width=\"24\"", box) < svg.find("/>", box));
+  CHECK(svg.find("<polygon") == std::string::npos);
+  // The line: a level through its point, two coordinates 24 px apart at one height.
+  const size_t at = svg.find("<polyline fill=\"none\" stroke=\"#111111\"");
+  REQUIRE(at != std::string::npos);
+  const size_t open = svg.find("points=\"", at) + 8, close = svg.find('"', open);
+  std::istringstream coordinates(svg.substr(open, close - open));
+  double x0, y0, x1, y1;
+  char comma;
+  REQUIRE(static_cast<bool>(coordinates >> x0 >> comma >> y0 >> x1 >> comma >> y1));
+  CHECK(x1 - x0 == Approx(24));
+  CHECK(y0 == y1);
+  // Two points or more are drawn as before: a polygon for the band.
+  band.x = {4.0, 6.0}, band.y = {1.0, 1.5}, band.upper = {3.0, 3.5};
+  CHECK(pk::RenderSvg({band}, pk::PlotOptions()).find("<polygon") != std::string::npos);
+}

@@ -138,6 +138,9 @@ std::string ColourOf(const PlotSeries& s, int k) {
   return s.reference ? "#555555" : PaletteColour(k);
 }
 
+// Half the width of a band or a line with one point (a VPC of one bin), in pixels.
+constexpr double kLoneHalfWidth = 12;
+
 // A band's polygon: along upper, then back along y, over the points whose x and upper are drawn. A
 // lower end of −∞ (a VPC's interval reaching below the limit of quantification) runs to the frame's
 // bottom.
@@ -149,6 +152,13 @@ std::string Band(const PlotSeries& s, const std::string& colour, const Px& px, c
     if (usable(s.x[i], s.upper[i]) && (usable(s.x[i], s.y[i]) || s.y[i] == -HUGE_VAL)) drawn.push_back(i);
   }
   if (drawn.empty()) return "";
+  if (drawn.size() == 1) {  // one x (a VPC of one bin): the interval as a box, where a polygon has no width
+    const size_t i = drawn.front();
+    const double top = py(s.upper[i]), low = s.y[i] == -HUGE_VAL ? bottom : py(s.y[i]);
+    return "<rect fill=\"" + colour + "\" fill-opacity=\"0.3\" stroke=\"none\" x=\"" + Num(px(s.x[i]) - kLoneHalfWidth, 6) +
+           "\" y=\"" + Num(std::min(top, low), 6) + "\" width=\"" + Num(2 * kLoneHalfWidth, 6) + "\" height=\"" +
+           Num(std::fabs(low - top), 6) + "\"/>\n";
+  }
   std::string points;
   for (size_t i : drawn) points += Num(px(s.x[i]), 6) + "," + Num(py(s.upper[i]), 6) + " ";
   for (auto it = drawn.rbegin(); it != drawn.rend(); ++it) {
@@ -226,10 +236,17 @@ std::string RenderSvg(const std::vector<PlotSeries>& series, const PlotOptions& 
             << "\" " << Fill(s, colour) << "/>\n";
       }
     } else {
+      std::vector<size_t> points;
+      for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
+        if (shown(i)) points.push_back(i);
+      }
       svg << "<polyline fill=\"none\" stroke=\"" << colour << "\" stroke-width=\"" << (s.reference ? 1.2 : 1.6) << "\""
           << ((s.reference && s.colour.empty()) || s.dashed ? " stroke-dasharray=\"5,4\"" : "") << " points=\"";
-      for (size_t i = 0; i < std::min(s.x.size(), s.y.size()); ++i) {
-        if (shown(i)) svg << Num(px(s.x[i]), 6) << "," << Num(py(s.y[i]), 6) << " ";
+      if (points.size() == 1) {  // a line of one point has no length: a level across the point instead
+        const double x = px(s.x[points.front()]), y = py(s.y[points.front()]);
+        svg << Num(x - kLoneHalfWidth, 6) << "," << Num(y, 6) << " " << Num(x + kLoneHalfWidth, 6) << "," << Num(y, 6);
+      } else {
+        for (size_t i : points) svg << Num(px(s.x[i]), 6) << "," << Num(py(s.y[i]), 6) << " ";
       }
       svg << "\"/>\n";
     }
