@@ -603,6 +603,23 @@ TEST_CASE("a VPC of the model's own data keeps the percentiles in their interval
   INFO(pvc.BriefReport());
   CHECK(pvc.outside <= 5);
   CHECK(pk::VpcCsv(pvc) != pk::VpcCsv(pc));
+  // Each table names its correction in its last column, on every row.
+  for (const auto& [table, correction] : {std::pair<const pk::VpcSummary*, std::string>{&good, "none"},
+                                          {&pc, "pc"}, {&pvc, "pvc"}}) {
+    const std::string csv = pk::VpcCsv(*table);
+    INFO(csv.substr(0, 400));
+    std::istringstream lines(csv);
+    std::string line;
+    std::getline(lines, line);
+    CHECK(line.size() > 11);
+    CHECK(line.substr(line.size() - 11) == ",CORRECTION");
+    int rows = 0;
+    while (std::getline(lines, line)) {
+      ++rows;
+      CHECK(line.substr(line.rfind(',') + 1) == correction);
+    }
+    CHECK(rows > 0);
+  }
   CHECK(pk::VpcCsv(pk::ComputeVpc(problem, truth, [&] {
           pk::VpcOptions one = o;
           one.threads = 1;

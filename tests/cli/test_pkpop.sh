@@ -132,7 +132,7 @@ vpc_run "$work/vpc" --vpc 50 --simulate 3 --seed 11
 for f in vpc.csv vpc.svg simtab.csv; do
   grep -q "^$f," "$work/vpc/MANIFEST" || fail "$f is not in the MANIFEST"
 done
-head -1 "$work/vpc/vpc.csv" | grep -qx "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER" ||
+head -1 "$work/vpc/vpc.csv" | grep -qx "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER,CORRECTION" ||
   fail "vpc.csv header: $(head -1 "$work/vpc/vpc.csv")"
 # Up to 10 bins (Jenks, those of fewer than 5 samples merged) × 3 percentiles; the bins hold all 155
 # samples, 5 or more each; each interval holds its median.
@@ -151,6 +151,7 @@ vpc_run "$work/vpc_other" --vpc 50 --seed 12 --pcvpc --vpc-bins 0,24,48,96,400
 cmp -s "$work/vpc/vpc.csv" "$work/vpc_other/vpc.csv" && fail "another seed gave the same vpc.csv"
 [ "$(tail -n +2 "$work/vpc_other/vpc.csv" | wc -l)" -eq 12 ] || fail "vpc.csv with 4 given bins: expected 12 rows"
 grep -q "Prediction-corrected VPC" "$work/vpc_other/vpc.svg" || fail "the pcVPC's title"
+awk -F, 'NR > 1 && $NF != "pc" { bad = 1 } END { exit bad }' "$work/vpc_other/vpc.csv" || fail "the pcVPC's vpc.csv does not say pc"
 # pvcVPC (--pvcvpc implies the prediction correction): the same bins, other values, its own title.
 vpc_run "$work/vpc_pvc" --vpc 50 --seed 12 --pvcvpc --vpc-bins 0,24,48,96,400
 [ "$(tail -n +2 "$work/vpc_pvc/vpc.csv" | wc -l)" -eq 12 ] || fail "pvcVPC vpc.csv with 4 given bins: expected 12 rows"

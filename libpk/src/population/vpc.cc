@@ -643,7 +643,12 @@ std::string VpcCsv(const VpcSummary& vpc) {
   const bool strata = !vpc.stratify.empty();
   std::string out = (strata ? vpc.stratify + "," : "") +
                     "DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER";
-  out += vpc.limits ? ",BLQ_OBSERVED,BLQ_SIM_LOWER,BLQ_SIM_MEDIAN,BLQ_SIM_UPPER\n" : "\n";
+  out += vpc.limits ? ",BLQ_OBSERVED,BLQ_SIM_LOWER,BLQ_SIM_MEDIAN,BLQ_SIM_UPPER" : "";
+  // Which values these are, on every row, so that a table read alone says it: none, pc (prediction-
+  // corrected, Bergstrand et al. 2011) or pvc (prediction- and variability-corrected).
+  out += ",CORRECTION\n";
+  const std::string correction =
+      vpc.variability_corrected ? "pvc" : vpc.prediction_corrected ? "pc" : "none";
   int bin_in_panel = 0;
   const VpcBin* last = nullptr;
   for (const VpcBin& b : vpc.bins) {
@@ -660,7 +665,7 @@ std::string VpcCsv(const VpcSummary& vpc) {
       for (double v : {b.censored_observed, b.censored_lower, b.censored_median, b.censored_upper}) {
         if (vpc.limits) out += "," + number(v);
       }
-      out += "\n";
+      out += "," + correction + "\n";
     }
   }
   return out;
