@@ -177,6 +177,9 @@ namespace internal {
 // clone inlines everything f calls (flatten), so the model's own template code, FixedDual's operators
 // included, is compiled for AVX2 too. AVX2 brings no FMA (that is a separate flag), so the clone does
 // the same IEEE operations in the same order as the baseline: the same bits (tests/test_coloured_jacobian.cc).
+// The inlining is GCC's (flatten inlines recursively there, at -O1 and above); clang 14's flatten inlines
+// only the calls written in CallOnAvx2, so under clang the model's code stays the baseline's, called from
+// the clone: the same results, without the speed.
 #if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__) && !defined(PK_NO_AVX2_LANES)
 #define PK_AVX2_LANES 1
 template <typename F>
@@ -185,14 +188,21 @@ __attribute__((target("avx2"), flatten)) void CallOnAvx2(const F& f) {
 }
 #endif
 
-/// Whether CallOnLanes takes the AVX2 clone: the CPU has AVX2 and libpk was not built for it already.
-/// Tests set it to false to compare the two; set it only while no thread evaluates a model.
-inline bool& LanesOnAvx2() {
+/// Whether this build has the AVX2 clone and this CPU can run it.
+inline bool CpuRunsAvx2Clone() {
 #ifdef PK_AVX2_LANES
-  static bool on = __builtin_cpu_supports("avx2");
+  static const bool yes = __builtin_cpu_supports("avx2");
+  return yes;
 #else
-  static bool on = false;
+  return false;
 #endif
+}
+
+/// Whether CallOnLanes takes the AVX2 clone: CpuRunsAvx2Clone() at first. Tests and pkbench set it to
+/// false to compare the two, only while no thread evaluates a model; setting it to true where
+/// CpuRunsAvx2Clone() is false would run AVX2 instructions on a CPU without them.
+inline bool& LanesOnAvx2() {
+  static bool on = CpuRunsAvx2Clone();
   return on;
 }
 

@@ -168,7 +168,9 @@ class OdeModel : public Model {
   virtual TapeScalar RecordOutput(int output, const TapeScalar* x, const TapeScalar* theta) const = 0;
   /// f on the lanes of a compressed Jacobian (pk/fixed_dual.h), for the widths libpk uses (4, 6, 8).
   /// A model that cannot evaluate on them returns false (the default), and its adjoint records f
-  /// on the tape instead.
+  /// on the tape instead. It must write the rows RhsSparsity writes, as RhsSparsity does (the same
+  /// template, as in AutoDiffOdeModel): where RhsSparsity sets every row without reading it, the output
+  /// lanes are not zeroed first and hold an earlier stage's values.
   virtual bool ColouredRhs(const FixedDual<4>*, const FixedDual<4>*, FixedDual<4>*) const { return false; }
   virtual bool ColouredRhs(const FixedDual<6>*, const FixedDual<6>*, FixedDual<6>*) const { return false; }
   virtual bool ColouredRhs(const FixedDual<8>*, const FixedDual<8>*, FixedDual<8>*) const { return false; }

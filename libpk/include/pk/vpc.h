@@ -210,8 +210,8 @@ double Percentile(std::vector<double>* values, double p);
 
 /// The VPC as a table, one row per bin and percentile:
 /// DVID,BIN,TIME,TIME_LOWER,TIME_UPPER,N,PERCENTILE,OBSERVED,SIM_LOWER,SIM_MEDIAN,SIM_UPPER, with the
-/// stratification column first when stratified, and the censored fractions (BLQ_OBSERVED, …) last
-/// when the data have limits.
+/// stratification column first when stratified, the censored fractions (BLQ_OBSERVED, …) when the
+/// data have limits, and last CORRECTION (none, pc or pvc).
 std::string VpcCsv(const VpcSummary& vpc);
 
 }  // namespace pk
