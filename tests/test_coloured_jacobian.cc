@@ -730,3 +730,28 @@ TEST_CASE("Stage lanes of a model that leaves a row unset or adds to it start fr
     }
   }
 }
+
+TEST_CASE("StateJacobian into a kept matrix, models of other n and m in turn: f_x as from the unit directions",
+          "[coloured]") {
+  // Its unit and zero directions are kept per thread and remade when n or m changes: (2, 2), (2, 4)
+  // and (3, 6) in turn, twice, each against f_x from directions made for the call (m growing at the
+  // same n would read past a zero matrix kept too small).
+  const std::vector<std::shared_ptr<const pk::Model>> models = {Small("unset_row", 2, UnsetRow()), Chain(2),
+                                                                Chain(3)};
+  Eigen::MatrixXd kept;
+  for (int round = 0; round < 2; ++round) {
+    for (const auto& model : models) {
+      INFO(model->name() << " with " << model->num_parameters() << " parameters, round " << round);
+      const auto* ode = dynamic_cast<const pk::OdeModel*>(model.get());
+      const int n = model->num_compartments(), m = model->num_parameters();
+      const Eigen::VectorXd theta = Spread(*model), x = Eigen::VectorXd::LinSpaced(n, 1.5, 4.0);
+      Eigen::VectorXd f;
+      Eigen::MatrixXd expected;
+      ode->RhsDirectional(x, theta, Eigen::MatrixXd::Identity(n, n), Eigen::MatrixXd::Zero(m, n), &f, &expected);
+      const pk::internal::OdeSystem sys(*model);
+      sys.StateJacobian(x, theta, &kept);
+      CHECK(kept == expected);
+      CHECK(sys.StateJacobian(x, theta) == expected);
+    }
+  }
+}
