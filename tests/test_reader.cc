@@ -1,5 +1,6 @@
 // The dataset reader: NM-TRAN defaults and every error path, each naming file, line and column.
 #include <cmath>
+#include <cctype>
 #include <clocale>
 #include <cstdio>
 #include <cstdlib>
@@ -480,6 +481,34 @@ TEST_CASE("numbers are read and written the same under a comma-decimal locale", 
   CHECK(d.subjects[0].records[0].amt == 320.5);
   CHECK(d.subjects[0].records[1].dv == 2.84);
   if (comma != nullptr) std::setlocale(LC_ALL, "C");
+}
+
+TEST_CASE("column names are matched in ASCII upper case under a locale whose toupper maps i to a dotted I",
+          "[reader][locale]") {
+  // tests/cli/test_locale.sh runs this with PK_TEST_DOTTED_I_LOCALE set to tr_TR.ISO-8859-9, where the C
+  // toupper('i') is 0xDD; a name upper-cased through it ("ID" from "id") would match no column.
+  const char* turkish = std::getenv("PK_TEST_DOTTED_I_LOCALE");
+  if (turkish != nullptr) {
+    REQUIRE(std::setlocale(LC_ALL, turkish) != nullptr);
+    REQUIRE(std::toupper('i') != 'I');
+  }
+  const pk::Dataset d = pk::ParseDataset("id,time,amt,dv,mdv,cmt,dvid,clint\n1,0,100,.,1,1,1,2\n1,1,0,4.5,0,1,1,2\n",
+                                         "lower.csv");
+  REQUIRE(d.subjects.size() == 1);
+  CHECK(d.subjects[0].records[0].amt == 100);
+  CHECK(d.subjects[0].records[1].dv == 4.5);
+  CHECK(d.ExtraColumn("dvid") == d.ExtraColumn("DVID"));
+  CHECK(d.ExtraColumn("dvid") >= 0);
+  CHECK(d.ExtraColumn("ClInt") >= 0);
+  CHECK(d.ExtraColumn("CLIN") == -1);
+  const auto model = pk::MakeModel("1cmt_iv");
+  pk::SimulationOptions options;
+  options.jobs = 1;
+  const auto sims = pk::Simulate(*model, d, {{"cl", 2}, {"v", 10}}, options);
+  REQUIRE(sims.size() == 1);
+  REQUIRE(sims[0].ok);
+  CHECK(sims[0].rows.back().cp == Approx(10 * std::exp(-0.2)).epsilon(1e-12));
+  if (turkish != nullptr) std::setlocale(LC_ALL, "C");
 }
 
 TEST_CASE("an ID that comes back after other IDs is another subject, numbered as an occurrence", "[reader][trust]") {

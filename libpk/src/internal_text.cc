@@ -12,13 +12,17 @@
 namespace pk {
 namespace internal {
 
+// ASCII only, whatever the C locale: names are ASCII, and a program that embeds libpk may have set a
+// locale whose toupper maps other bytes (and calls through it cost more than the comparison).
 std::string ToUpper(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  for (char& c : s) c = AsciiUpper(c);
   return s;
 }
 
 std::string ToLower(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  for (char& c : s) {
+    if (c >= 'A' && c <= 'Z') c = static_cast<char>(c - 'A' + 'a');
+  }
   return s;
 }
 

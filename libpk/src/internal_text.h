@@ -14,6 +14,9 @@ namespace internal {
 /// A value not computed; the tables write it as missing.
 inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
+/// A letter a–z in upper case; any other byte as it is.
+inline char AsciiUpper(char c) { return c >= 'a' && c <= 'z' ? static_cast<char>(c - 'a' + 'A') : c; }
+/// Upper and lower case of ASCII letters (other bytes unchanged, whatever the C locale).
 std::string ToUpper(std::string s);
 std::string ToLower(std::string s);
 /// The text with control characters and bytes that are not UTF-8 written as \xNN, for messages

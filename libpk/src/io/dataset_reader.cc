@@ -501,10 +501,22 @@ RecordProblem CheckRecord(const Record& r) {
   return {};
 }
 
+namespace {
+
+// Whether `name` in upper case is `upper` (ASCII), without a copy: simulations look columns up per subject.
+bool SameUpper(const std::string& upper, const std::string& name) {
+  if (upper.size() != name.size()) return false;
+  for (size_t k = 0; k < name.size(); ++k) {
+    if (upper[k] != internal::AsciiUpper(name[k])) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
 int Dataset::ExtraColumn(const std::string& name) const {
-  const std::string upper = ToUpper(name);
   for (size_t i = 0; i < extra_columns.size(); ++i) {
-    if (extra_columns[i] == upper) return static_cast<int>(i);
+    if (SameUpper(extra_columns[i], name)) return static_cast<int>(i);
   }
   return -1;
 }
