@@ -154,41 +154,46 @@ bool SimulationOptions::IsValid(std::string* error) const {
   return ode.IsValid(error);
 }
 
-SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int subject,
-                                  const ParameterValues& values, const SimulationOptions& options) {
+internal::SubjectSimulator::SubjectSimulator(const Model& model, const SimulationOptions& options)
+    : model_(model),
+      options_(options),
+      propagator_(ResolvePropagator(model, options.propagator)),
+      layout_(model),
+      columns_read_(ColumnsRead(layout_)) {
   std::string why;
   if (!options.IsValid(&why)) throw InputError(why);
-  const auto* linear = dynamic_cast<const LinearModel*>(&model);
-  const Propagator propagator = ResolvePropagator(model, options.propagator);
-  const ParameterLayout layout(model);
+}
+
+SubjectSimulation internal::SubjectSimulator::Simulate(const Dataset& data, int subject,
+                                                       const Eigen::VectorXd& resolved) const {
   SubjectSimulation out;
   out.id = data.subjects[subject].id;
   // With an output grid: this subject alone, with the grid's records added, in storage this thread
   // keeps from one subject to the next.
   thread_local internal::OutputTimesWorkspace with_times;
   const Dataset* source = &data;
-  if (!options.output_times.empty()) {
-    internal::SubjectWithOutputTimes(data, subject, options.output_times, ColumnsRead(layout), &with_times);
+  if (!options_.output_times.empty()) {
+    internal::SubjectWithOutputTimes(data, subject, options_.output_times, columns_read_, &with_times);
     source = &with_times.one;
     subject = 0;
   }
   internal::PreparedSubject s;
   try {
-    s = internal::PrepareSubject(model, layout, *source, subject, layout.Resolve(values), true, options.check_values);
+    s = internal::PrepareSubject(model_, layout_, *source, subject, resolved, true, options_.check_values);
   } catch (const internal::ParameterValueError& e) {
     out.ok = false;
     out.message = e.what();
     return out;
   }
   try {
-    const internal::OdeSystem sys(model);
-    if (propagator == Propagator::kExact) {
-      internal::ExactPropagator prop(*linear, s.sets, options.track_auc);
-      Run(sys, layout, s, &prop, &out);
+    const internal::OdeSystem sys(model_);
+    if (propagator_ == Propagator::kExact) {
+      internal::ExactPropagator prop(dynamic_cast<const LinearModel&>(model_), s.sets, options_.track_auc);
+      Run(sys, layout_, s, &prop, &out);
     } else {
-      internal::OdePropagator<double> prop(sys, s.sets, 0, options.ode, false, false, options.track_auc, nullptr,
-                                           propagator);
-      Run(sys, layout, s, &prop, &out);
+      internal::OdePropagator<double> prop(sys, s.sets, 0, options_.ode, false, false, options_.track_auc, nullptr,
+                                           propagator_);
+      Run(sys, layout_, s, &prop, &out);
     }
   } catch (const internal::NumericalFailure& e) {
     out.ok = false;
@@ -199,6 +204,11 @@ SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int s
     out.doses.clear();
   }
   return out;
+}
+
+SubjectSimulation SimulateSubject(const Model& model, const Dataset& data, int subject,
+                                  const ParameterValues& values, const SimulationOptions& options) {
+  return internal::SubjectSimulator(model, options)(data, subject, values);
 }
 
 namespace {
@@ -250,8 +260,10 @@ ParameterValues Merged(const ParameterValues& estimates, const ParameterValues& 
 void SimulateEach(const Model& model, const Dataset& data, const ParameterValues& values,
                   const SimulationOptions& options, const SimulationSink& sink) {
   internal::CheckColumns(model, data, false);
+  const internal::SubjectSimulator simulator(model, options);
+  const Eigen::VectorXd resolved = simulator.layout().Resolve(values);
   internal::StreamSimulations(static_cast<int>(data.subjects.size()), options,
-         [&](int i) { return SimulateSubject(model, data, i, values, options); }, sink);
+         [&](int i) { return simulator.Simulate(data, i, resolved); }, sink);
 }
 
 std::vector<SubjectSimulation> Simulate(const Model& model, const Dataset& data, const ParameterValues& values,
@@ -268,13 +280,14 @@ void SimulateEachWithEstimates(const Model& model, const Dataset& data, const st
                                const SimulationOptions& options, const std::string& source,
                                const SimulationSink& sink) {
   internal::CheckColumns(model, data, false);
+  const internal::SubjectSimulator simulate(model, options);
   if (match == EstimatesMatch::kEveryId) {
     if (data.subjects.size() != 1) {
       throw InputError(data.source + ": a regimen to repeat has one subject, not " +
                        std::to_string(data.subjects.size()));
     }
     internal::StreamSimulations(static_cast<int>(estimates.size()), options, [&](int k) {
-      SubjectSimulation sim = SimulateSubject(model, data, 0, Merged(estimates[k].second, overrides), options);
+      SubjectSimulation sim = simulate(data, 0, Merged(estimates[k].second, overrides));
       sim.id = estimates[k].first;
       return sim;
     }, sink);
@@ -285,7 +298,7 @@ void SimulateEachWithEstimates(const Model& model, const Dataset& data, const st
   internal::StreamSimulations(static_cast<int>(data.subjects.size()), options, [&](int i) {
     const auto it = by_id.find(data.subjects[i].id);
     if (it != by_id.end()) {
-      return SimulateSubject(model, data, i, Merged(estimates[it->second].second, overrides), options);
+      return simulate(data, i, Merged(estimates[it->second].second, overrides));
     }
     SubjectSimulation missing;
     missing.id = data.subjects[i].id;

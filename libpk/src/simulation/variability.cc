@@ -142,6 +142,7 @@ void SimulateEachWithVariability(const Model& model, const Dataset& data, const 
     throw InputError("simulation with variability: " + std::to_string(variability.replicates) + " replicates of " +
                      std::to_string(per_replicate) + " subjects are too many (at most 2·10⁹ subjects in all)");
   }
+  const internal::SubjectSimulator simulator(model, options);
   const auto simulate = [&](int item) {
     const int r = item / per_replicate, i = item % per_replicate;
     const size_t set = static_cast<size_t>(r) % sets.size();
@@ -152,7 +153,7 @@ void SimulateEachWithVariability(const Model& model, const Dataset& data, const 
     for (Eigen::Index k = 0; k < z.size(); ++k) z(k) = eta_stream.Next();
     const Eigen::VectorXd eta = factor * z;
     const int subject = variability.subjects > 0 ? 0 : i;
-    SubjectSimulation s = SimulateSubject(model, data, subject, Individual(sets[set], overrides, eta), options);
+    SubjectSimulation s = simulator(data, subject, Individual(sets[set], overrides, eta));
     if (variability.subjects > 0) s.id = i + 1;
     s.replicate = r;
     s.eta = eta;
