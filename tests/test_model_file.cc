@@ -5,6 +5,9 @@
 #include <catch2/catch.hpp>
 
 #include <algorithm>
+#include <cctype>
+#include <clocale>
+#include <cstdlib>
 #include <fstream>
 #include <iterator>
 #include <map>
@@ -239,6 +242,27 @@ TEST_CASE("model files: the base model of the error cases is valid and linear", 
   const auto m = pk::ParseModel(kBase, "base.pkm");
   CHECK(dynamic_cast<const pk::LinearModel*>(m.get()) != nullptr);
   CHECK(m->declarations().parameters[0].unit == "1/h");
+}
+
+TEST_CASE("model files: identifiers are ASCII under a locale whose isalpha takes Latin letters", "[model_file][locale]") {
+  // tests/cli/test_locale.sh runs this under tr_TR.ISO-8859-9, where isalpha(0xE7) ('ç') is true: a
+  // name with that byte must be the same error there as in the C locale, at its line and column.
+  const char* turkish = std::getenv("PK_TEST_DOTTED_I_LOCALE");
+  if (turkish != nullptr) {
+    REQUIRE(std::setlocale(LC_ALL, turkish) != nullptr);
+    REQUIRE(std::isalpha(0xE7));
+  }
+  std::string text = kBase;
+  const size_t k = text.find("K = CL / V");
+  REQUIRE(k != std::string::npos);
+  text.insert(k + 1, "\xE7");
+  try {
+    pk::ParseModel(text, "latin.pkm");
+    FAIL("a name with a byte that is not ASCII was accepted");
+  } catch (const pk::InputError& e) {
+    CHECK_THAT(e.what(), Catch::StartsWith("latin.pkm:10:2:"));
+  }
+  if (turkish != nullptr) std::setlocale(LC_ALL, "C");
 }
 
 TEST_CASE("model files: each kind of error names the file, line and column and what was expected", "[model_file]") {

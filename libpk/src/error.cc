@@ -1,5 +1,7 @@
 #include "pk/error.h"
 
+#include "internal_text.h"
+
 #include <algorithm>
 #include <cctype>
 #include <utility>
@@ -22,8 +24,7 @@ size_t EditDistance(const std::string& a, const std::string& b) {
     size_t diagonal = row[0];
     row[0] = i;
     for (size_t j = 1; j <= b.size(); ++j) {
-      const bool same = std::toupper(static_cast<unsigned char>(a[i - 1])) ==
-                        std::toupper(static_cast<unsigned char>(b[j - 1]));
+      const bool same = internal::AsciiUpper(a[i - 1]) == internal::AsciiUpper(b[j - 1]);
       const size_t next = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (same ? 0 : 1)});
       diagonal = row[j];
       row[j] = next;

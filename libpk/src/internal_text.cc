@@ -36,8 +36,8 @@ std::vector<std::string> OmegaArguments(const std::string& upper) {
 
 std::string Trim(const std::string& s) {
   size_t b = 0, e = s.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
+  while (b < e && AsciiSpace(s[b])) ++b;
+  while (e > b && AsciiSpace(s[e - 1])) --e;
   return s.substr(b, e - b);
 }
 

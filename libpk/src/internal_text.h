@@ -16,6 +16,13 @@ inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 /// A letter a–z in upper case; any other byte as it is.
 inline char AsciiUpper(char c) { return c >= 'a' && c <= 'z' ? static_cast<char>(c - 'a' + 'A') : c; }
+/// Character classes of ASCII, whatever the C locale (<cctype>'s follow it: under a Latin-1 or
+/// Latin-5 locale isalpha accepts 'é', so a model text or a filter would read differently).
+inline bool AsciiAlpha(char c) { return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z'); }
+inline bool AsciiDigit(char c) { return c >= '0' && c <= '9'; }
+inline bool AsciiAlnum(char c) { return AsciiAlpha(c) || AsciiDigit(c); }
+/// Space, tab, newline, vertical tab, form feed, carriage return.
+inline bool AsciiSpace(char c) { return c == ' ' || (c >= '\t' && c <= '\r'); }
 /// Upper and lower case of ASCII letters (other bytes unchanged, whatever the C locale).
 std::string ToUpper(std::string s);
 std::string ToLower(std::string s);

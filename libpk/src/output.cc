@@ -140,8 +140,8 @@ void AppendNumber(std::string* out, double value) {
 bool ParseNumber(const std::string& text, double* value) {
   const char* begin = text.data();
   const char* end = begin + text.size();
-  while (begin < end && std::isspace(static_cast<unsigned char>(*begin))) ++begin;
-  while (end > begin && std::isspace(static_cast<unsigned char>(end[-1]))) --end;
+  while (begin < end && internal::AsciiSpace(*begin)) ++begin;
+  while (end > begin && internal::AsciiSpace(end[-1])) --end;
   const bool plus = begin < end && *begin == '+';  // from_chars takes a minus sign only
   if (plus) ++begin;
   if (begin == end || (plus && (*begin == '+' || *begin == '-'))) return false;

@@ -111,8 +111,8 @@ namespace {
 
 void TrimInPlace(std::string* s) {
   size_t b = 0, e = s->size();
-  while (b < e && std::isspace(static_cast<unsigned char>((*s)[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>((*s)[e - 1]))) --e;
+  while (b < e && internal::AsciiSpace((*s)[b])) ++b;
+  while (e > b && internal::AsciiSpace((*s)[e - 1])) --e;
   s->erase(e);
   s->erase(0, b);
 }

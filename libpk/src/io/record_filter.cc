@@ -95,7 +95,7 @@ bool RecordFilter::DropsLine(const std::string& line) const {
   if (ignore_character_ == 0) return false;
   const auto first = std::find_if(line.begin(), line.end(), [](char c) { return c != ' ' && c != '\t'; });
   if (first == line.end()) return false;
-  if (ignore_character_ == '@') return *first == '@' || std::isalpha(static_cast<unsigned char>(*first));
+  if (ignore_character_ == '@') return *first == '@' || internal::AsciiAlpha(*first);
   return *first == ignore_character_;
 }
 

@@ -11,9 +11,9 @@ namespace internal {
 namespace lang {
 namespace {
 
-bool IsIdentStart(char c) { return std::isalpha(static_cast<unsigned char>(c)) || c == '_'; }
-bool IsIdentChar(char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '.'; }
-bool IsDigit(char c) { return std::isdigit(static_cast<unsigned char>(c)) != 0; }
+bool IsIdentStart(char c) { return AsciiAlpha(c) || c == '_'; }
+bool IsIdentChar(char c) { return AsciiAlnum(c) || c == '_' || c == '.'; }
+bool IsDigit(char c) { return AsciiDigit(c); }
 
 class Lexer {
  public:
