@@ -129,11 +129,12 @@ struct CvodesSolver::Impl {
     double t = 0;    // the memory's time at the end
     long steps = 0;  // CVodeGetNumSteps there (it counts from the last CVodeReInit)
     Eigen::VectorXd x, theta, u;
-    Eigen::MatrixXd s, dtheta, du;
+    Eigen::MatrixXd s, du;
+    SharedMatrix dtheta;
 
     bool Continues(const SegmentInput& in, const Eigen::VectorXd& x0, const Eigen::MatrixXd* s0) const {
       return at_end && in.continuous.empty() && x == x0 && theta == in.theta && u == in.u &&
-             (s0 == nullptr || (s == *s0 && dtheta == in.dtheta && du == in.du));
+             (s0 == nullptr || (s == *s0 && dtheta.Equals(in.dtheta) && du == in.du));
     }
     void Remember(const SegmentInput& in, const Eigen::VectorXd& x1, const Eigen::MatrixXd* s1) {
       at_end = true;
@@ -626,7 +627,7 @@ void CvodesSolver::AdvanceSensitivity(const SegmentInput& in, Eigen::VectorXd* x
 void CvodesSolver::Impl::ForwardStore(Adjoint& a, const SegmentInput& seg, const Eigen::VectorXd& x0,
                                       Eigen::VectorXd* x_end, bool restart, Eigen::VectorXd* xmax) {
   in = &seg;
-  k = static_cast<int>(seg.dtheta.cols());
+  k = static_cast<int>(seg.dtheta->cols());
   with_loss = false;
   with_auc = false;
   if (!a.mem) {
@@ -695,7 +696,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
                                   Eigen::RowVectorXd* q) {
   in = &seg;
   vjp.t = std::numeric_limits<double>::quiet_NaN();
-  k = static_cast<int>(seg.dtheta.cols());
+  k = static_cast<int>(seg.dtheta->cols());
   ListEntries(seg.dtheta, &dtheta_entries);
   if (seg.du.cols() == k) {
     ListEntries(seg.du, &du_entries);
@@ -769,7 +770,7 @@ void CvodesSolver::Impl::Backward(Adjoint& a, const SegmentInput& seg, double t0
     if (!a.atolq) a.atolq.reset(new Vector(kq, a.context ? a.context->ctx : context.ctx));
     constexpr double kSafety = 100.0;
     Map atol = View(a.atolq->v);
-    const Eigen::RowVectorXd scale = seg.theta.cwiseAbs().transpose() * seg.dtheta.cwiseAbs();
+    const Eigen::RowVectorXd scale = seg.theta.cwiseAbs().transpose() * seg.dtheta->cwiseAbs();
     for (int j = 0; j < k; ++j) {
       const double bound = scale(j) > 0 ? opt.relative_tolerance * scales.state / (kSafety * scale(j)) : 0.0;
       atol(j) = std::max(opt.absolute_tolerance, std::isfinite(bound) ? bound : 0.0);
@@ -798,13 +799,13 @@ void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd&
                                   Eigen::RowVectorXd* q) {
   Impl& d = *impl_;
   *lambda_start = lambda_end;
-  q->setZero(in.dtheta.cols());
+  q->setZero(in.dtheta->cols());
   if (Negligible(in.h)) return;
   if (!d.adjoint) d.adjoint.reset(new Impl::Adjoint);
   // Forward over this segment only: checkpoints never straddle a jump.
   d.ForwardStore(*d.adjoint, in, x0, nullptr, true, &d.adjoint->xmax);
   if (d.adjoint->overflowed) {
-    d.adjoint = d.Grown(*d.adjoint, std::max<int>(static_cast<int>(in.dtheta.cols()), 1));
+    d.adjoint = d.Grown(*d.adjoint, std::max<int>(static_cast<int>(in.dtheta->cols()), 1));
     d.ForwardStore(*d.adjoint, in, x0, nullptr, true, &d.adjoint->xmax);
   }
   Impl::Adjoint& a = *d.adjoint;
@@ -815,7 +816,7 @@ void CvodesSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd&
 int CvodesSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   Impl& d = *impl_;
   if (Negligible(in.h)) return -1;
-  const int kq = std::max<int>(static_cast<int>(in.dtheta.cols()), 1);
+  const int kq = std::max<int>(static_cast<int>(in.dtheta->cols()), 1);
   const Impl::Adjoint* last = d.stored.empty() ? nullptr : d.stored.back().get();
   // The same initial value problem continued (see Advance): one trajectory.
   const bool continues = last && last->pool_kq == kq && last->run.Continues(in, *x, nullptr);

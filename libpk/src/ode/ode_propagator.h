@@ -194,7 +194,7 @@ class OdePropagator {
     Eigen::VectorXd f;
     Eigen::MatrixXd forcing;
     sys_.RhsDirectional(x, theta, Eigen::MatrixXd::Zero(n_, p_), seg.dtheta, &f, &forcing);
-    forcing += seg.du;
+    if (seg.du.cols() == forcing.cols()) forcing += seg.du;
     Place(x, sens_ ? Eigen::MatrixXd(-fx.fullPivLu().solve(forcing)) : Eigen::MatrixXd(), add);
     if (tape_on_) {
       TapeStep step;
@@ -309,7 +309,7 @@ class OdePropagator {
   }
   /// θ of parameter set `set`, and ∂θ/∂p (m×P), formed once a set.
   const Eigen::VectorXd& SetTheta(int set) const { return Cached(set).theta; }
-  const Eigen::MatrixXd& SetDtheta(int set) const { return Cached(set).dtheta; }
+  const Eigen::MatrixXd& SetDtheta(int set) const { return *Cached(set).dtheta; }
 
   /// f(x(h)) + u at the end of a segment.
   Eigen::VectorXd FlowAtEnd(const SegmentInput& seg) const {
@@ -319,12 +319,22 @@ class OdePropagator {
   }
 
  private:
+  // ∂u/∂p, with no columns when no rate has a derivative (a bolus regimen): solvers skip it then, and
+  // an adjoint's segments do not carry an n×P block of zeros each.
+  Eigen::MatrixXd InputDerivatives(const Vec<T>& u) const {
+    for (Eigen::Index i = 0; i < u.size(); ++i) {
+      if (HasDerivative(u(i))) return DerivativeMatrix(u, p_);
+    }
+    return Eigen::MatrixXd(u.size(), 0);
+  }
+
   SegmentInput MakeSegment(const T& h, const Vec<T>& u, int set) const {
     SegmentInput seg;
     seg.h = Value(h);
     seg.u = Values(u);
-    seg.du = DerivativeMatrix(u, p_);
-    Theta(set, &seg.theta, &seg.dtheta);
+    seg.du = InputDerivatives(u);
+    seg.theta = SetTheta(set);
+    seg.dtheta = Cached(set).dtheta;  // shared, not copied
     return seg;
   }
 
@@ -394,9 +404,10 @@ class OdePropagator {
       const int params = static_cast<int>(s->cols()) - offset;  // p_, or 0 for the initial states alone
       SegmentInput seg = seg_p;
       seg.du = Eigen::MatrixXd::Zero(n_, offset + params);
-      seg.du.rightCols(params) = seg_p.du.leftCols(params);
-      seg.dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), offset + params);
-      seg.dtheta.rightCols(params) = seg_p.dtheta.leftCols(params);
+      if (seg_p.du.cols() > 0) seg.du.rightCols(params) = seg_p.du.leftCols(params);
+      Eigen::MatrixXd dtheta = Eigen::MatrixXd::Zero(sys_.num_theta(), offset + params);
+      dtheta.rightCols(params) = seg_p.dtheta->leftCols(params);
+      seg.dtheta = std::move(dtheta);
       solver_->AdvanceSensitivity(seg, x, s);
       if (params > 0) {
         Eigen::VectorXd f;
@@ -425,7 +436,7 @@ class OdePropagator {
   struct SetValues {
     bool formed = false;
     Eigen::VectorXd theta;
-    Eigen::MatrixXd dtheta;
+    SharedMatrix dtheta;  // every segment of the set holds this one
   };
   const SetValues& Cached(int set) const {
     SetValues& v = set_values_.at(static_cast<size_t>(set));

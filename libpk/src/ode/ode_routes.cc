@@ -51,10 +51,9 @@ class Collector {
     const int k = o_.sample_of_record[r];
     if (k < 0) return;
     const int key = o_.key_of_record[r];
-    Eigen::VectorXd theta;
-    Eigen::MatrixXd dtheta;
-    prop_->Theta(set, &theta, &dtheta);
+    const Eigen::VectorXd& theta = prop_->SetTheta(set);  // the set's own, not an m×P copy a sample
     if (jacobian_ != nullptr) {
+      const Eigen::MatrixXd& dtheta = prop_->SetDtheta(set);
       // ∂ŷ/∂p = g_x S + g_θ ∂θ/∂p
       Eigen::RowVectorXd dy;
       o_.system->ObserveDirectional(key, prop_->state(), theta, prop_->sensitivity(), dtheta, &(*yhat_)(k), &dy);
@@ -170,7 +169,8 @@ struct OdeAdjoint::Impl {
           if (w == 0) break;
           o.system->ObserveGradient(step.key, step.x1, prop.SetTheta(step.set), &gx, &gtheta);
           *lambda += w * gx;
-          *g += w * (prop.SetDtheta(step.set).transpose() * gtheta);
+          // An output that reads no θ (an amount over a fixed volume) skips the m×P product.
+          if (!gtheta.isZero(0.0)) *g += w * (prop.SetDtheta(step.set).transpose() * gtheta);
           break;
         }
         case TapeStep::kAdvance:

@@ -198,9 +198,10 @@ struct RkSolver::Impl {
     if (!stored.empty()) {
       const int last = stored.back().shares >= 0 ? stored.back().shares : static_cast<int>(stored.size()) - 1;
       const SegmentInput& o = stored[static_cast<size_t>(last)].in;
-      if (Same(o.dtheta, in.dtheta) && Same(o.du, in.du)) {
+      // One parameter set's ∂θ/∂p is one shared matrix: known the same without comparing m×k numbers.
+      if (o.dtheta.Equals(in.dtheta) && Same(o.du, in.du)) {
         steps->shares = last;
-        kept.dtheta.resize(0, 0);
+        kept.dtheta = SharedMatrix();
         kept.du.resize(0, 0);
         return;
       }
@@ -229,10 +230,11 @@ struct RkSolver::Impl {
     double t = 0;  // the stepper's time at the end of the last segment
     int k = -1;    // sensitivity directions (-1: values only)
     Eigen::VectorXd z, theta, u;
-    Eigen::MatrixXd dtheta, du;
+    Eigen::MatrixXd du;
+    SharedMatrix dtheta;
     bool Continues(const SegmentInput& s, const Eigen::VectorXd& z0, int directions) const {
       return at_end && s.continuous.empty() && s.auc_key == 0 && k == directions && z == z0 && theta == s.theta &&
-             u == s.u && (k < 0 || (dtheta == s.dtheta && du == s.du));
+             u == s.u && (k < 0 || (dtheta.Equals(s.dtheta) && du == s.du));
     }
   } last;
 
@@ -589,7 +591,7 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
                               const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start, Eigen::RowVectorXd* q) {
   if (!(in.h > kEmptySegment)) {
     *lambda_start = lambda_end;
-    *q = Eigen::RowVectorXd::Zero(in.dtheta.cols());
+    *q = Eigen::RowVectorXd::Zero(in.dtheta->cols());
     return;
   }
   // The forward steps again from the segment's start (replay mode took these very steps), then back.

@@ -213,11 +213,12 @@ void Rosenbrock::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x
                                 const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                                 Eigen::RowVectorXd* q) {
   const int n = sys_.n();
-  const auto k = in.dtheta.cols();
+  const auto k = in.dtheta->cols();
   // S = [∂x/∂x₀ | ∂x/∂p]: n identity columns, then the parameters' (θ_p and u_p after n zero columns).
   SegmentInput seeded = in;
-  seeded.dtheta = Eigen::MatrixXd::Zero(in.theta.size(), n + k);
-  seeded.dtheta.rightCols(k) = in.dtheta;
+  Eigen::MatrixXd dtheta = Eigen::MatrixXd::Zero(in.theta.size(), n + k);
+  dtheta.rightCols(k) = *in.dtheta;
+  seeded.dtheta = std::move(dtheta);
   seeded.du = Eigen::MatrixXd::Zero(n, n + k);
   if (in.du.cols() == k) seeded.du.rightCols(k) = in.du;
   Eigen::VectorXd x = x0;
