@@ -166,6 +166,7 @@ void ColouredJacobian::Seed(const Eigen::VectorXd& theta, Lanes<W>* lanes) {
   lanes->x.assign(static_cast<size_t>(c_.n), FixedDual<W>(0.0));
   for (int i = 0; i < c_.n; ++i) lanes->x[static_cast<size_t>(i)].derivative(c_.colour[static_cast<size_t>(i)]) = 1;
   lanes->theta.clear();
+  lanes->theta.reserve(static_cast<size_t>(c_.m));
   for (int k = 0; k < c_.m; ++k) {
     lanes->theta.emplace_back(theta(k));
     lanes->theta.back().derivative(c_.colour[static_cast<size_t>(c_.n + k)]) = 1;
@@ -187,16 +188,21 @@ void ColouredJacobian::Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, Fixed
 
 // Into the step's next stage slot.
 template <int W>
-void ColouredJacobian::RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f) {
+void ColouredJacobian::RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, double* f) {
   const size_t n = static_cast<size_t>(c_.n), first = static_cast<size_t>(stages_) * n;
-  if (lanes->f.size() < first + n) lanes->f.resize(first + n);
+  // Room for eight stages at once (Dormand–Prince records six a step), not one more a stage.
+  if (lanes->f.size() < first + n) lanes->f.resize(std::max(first + n, 8 * n));
   FixedDual<W>* const out = lanes->f.data() + first;
   Evaluate(x, lanes, out);
-  f->resize(c_.n);
-  for (size_t i = 0; i < n; ++i) (*f)(static_cast<Eigen::Index>(i)) = out[i].value();
+  for (size_t i = 0; i < n; ++i) f[i] = out[i].value();
 }
 
 void ColouredJacobian::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
+  f->resize(c_.n);
+  Record(x, f->data());
+}
+
+void ColouredJacobian::Record(const Eigen::VectorXd& x, double* f) {
   switch (c_.width) {
     case 4: RecordStage(x, &lanes4_, f); break;
     case 6: RecordStage(x, &lanes6_, f); break;
@@ -268,13 +274,17 @@ void ColouredJacobian::SweepLanes(const FixedDual<W>* lanes, const double* w, do
 }
 
 void ColouredJacobian::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx) {
+  wfx->resize(c_.n);
+  Sweep(stage, w, wfx->data());
+}
+
+void ColouredJacobian::Sweep(int stage, const Eigen::VectorXd& w, double* wfx) {
   if (stage < 0 || stage >= stages_) throw std::logic_error("ColouredJacobian: a stage not recorded in this step");
   const size_t first = static_cast<size_t>(stage) * static_cast<size_t>(c_.n);
-  wfx->resize(c_.n);
   switch (c_.width) {
-    case 4: CallOnLanes([&] { SweepLanes(lanes4_.f.data() + first, w.data(), wfx->data()); }); break;
-    case 6: CallOnLanes([&] { SweepLanes(lanes6_.f.data() + first, w.data(), wfx->data()); }); break;
-    default: CallOnLanes([&] { SweepLanes(lanes8_.f.data() + first, w.data(), wfx->data()); }); break;
+    case 4: CallOnLanes([&] { SweepLanes(lanes4_.f.data() + first, w.data(), wfx); }); break;
+    case 6: CallOnLanes([&] { SweepLanes(lanes6_.f.data() + first, w.data(), wfx); }); break;
+    default: CallOnLanes([&] { SweepLanes(lanes8_.f.data() + first, w.data(), wfx); }); break;
   }
 }
 

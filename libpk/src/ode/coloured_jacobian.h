@@ -55,7 +55,9 @@ class ColouredJacobian {
 
   void NewStep() { stages_ = 0; }
   void Record(const Eigen::VectorXd& x, Eigen::VectorXd* f);
+  void Record(const Eigen::VectorXd& x, double* f);  // n numbers at f
   void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
+  void Sweep(int stage, const Eigen::VectorXd& w, double* wfx);  // n numbers at wfx
   /// Σ wᵀf_θ over every stage swept since construction.
   Eigen::VectorXd ThetaProduct() const;
   /// ‖f_x(x)‖∞ (the largest row sum of |f_x|) from one evaluation on the lanes; NaN or ∞ as f gives it.
@@ -79,7 +81,7 @@ class ColouredJacobian {
   template <int W>
   void Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, FixedDual<W>* out);
   template <int W>
-  void RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, Eigen::VectorXd* f);
+  void RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, double* f);
   template <int W>
   double RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes);
   template <int W>

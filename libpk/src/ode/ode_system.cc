@@ -203,8 +203,13 @@ void StageTape::NewStep() {
 }
 
 void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
+  f->resize(n_);
+  Record(x, f->data());
+}
+
+void StageTape::Record(const Eigen::VectorXd& x, double* f) {
   if (sys_.is_linear()) {
-    *f = a_ * x;
+    Eigen::Map<Eigen::VectorXd>(f, n_).noalias() = a_ * x;
     points_.push_back(x);
     return;
   }
@@ -213,20 +218,24 @@ void StageTape::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
   for (int i = 0; i < n_; ++i) xs_[static_cast<size_t>(i)] = TapeScalar::OnTape(x(i), m_ + i);
   fs_.assign(static_cast<size_t>(n_), TapeScalar());
   sys_.nonlinear()->RecordRhs(xs_.data(), theta_vars_.data(), fs_.data());
-  f->resize(n_);
   const size_t first = f_node_.size();
   f_node_.resize(first + static_cast<size_t>(n_));
   for (int i = 0; i < n_; ++i) {
-    (*f)(i) = fs_[static_cast<size_t>(i)].value();
+    f[i] = fs_[static_cast<size_t>(i)].value();
     f_node_[first + static_cast<size_t>(i)] = fs_[static_cast<size_t>(i)].index();
   }
   start_.push_back(Tape::Active().size());
 }
 
 void StageTape::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx) {
+  wfx->resize(n_);
+  Sweep(stage, w, wfx->data());
+}
+
+void StageTape::Sweep(int stage, const Eigen::VectorXd& w, double* wfx) {
   const size_t s = static_cast<size_t>(stage);
   if (sys_.is_linear()) {
-    *wfx = a_.transpose() * w;
+    Eigen::Map<Eigen::VectorXd>(wfx, n_).noalias() = a_.transpose() * w;
     contraction_.noalias() += w * points_.at(s).transpose();
     return;
   }
@@ -245,8 +254,7 @@ void StageTape::Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx)
     if (node >= 0) adj_[static_cast<size_t>(node)] += w(i);
   }
   tape.Sweep(&adj_, start_.at(s), start_.at(s + 1));
-  wfx->resize(n_);
-  for (int i = 0; i < n_; ++i) (*wfx)(i) = x_adj[i];
+  std::copy(x_adj, x_adj + n_, wfx);
 }
 
 Eigen::VectorXd StageTape::ThetaProduct() const {

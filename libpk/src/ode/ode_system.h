@@ -102,9 +102,13 @@ class StageTape {
   void NewStep();
   /// Records f at x as the next stage of this step, its value into *f.
   void Record(const Eigen::VectorXd& x, Eigen::VectorXd* f);
+  /// The same into n numbers at f (a column of the caller's matrix).
+  void Record(const Eigen::VectorXd& x, double* f);
   /// wᵀf_x at stage `stage` (in recording order) into *wfx, and wᵀf_θ added to ThetaProduct.
   /// Each stage is swept once.
   void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
+  /// The same into n numbers at wfx.
+  void Sweep(int stage, const Eigen::VectorXd& w, double* wfx);
   /// Σ wᵀf_θ over every stage swept since construction.
   Eigen::VectorXd ThetaProduct() const;
   /// Whether the stages are evaluated on a compressed Jacobian's lanes rather than recorded.

@@ -427,35 +427,37 @@ struct RkSolver::Impl {
     const Eigen::MatrixXd& du = Owner(steps).du;
     const int k = static_cast<int>(dtheta.cols());
     StageTape stages(sys, in.theta, opt.compressed_jacobians);
+    // Without input rates, or with rates that no parameter moves, k_i = f(X_i) and Σκ is not needed.
+    const bool with_u = !in.u.isZero(0.0), with_du = du.cols() == k;
     Eigen::VectorXd lambda = lambda_end, kappa_sum = Eigen::VectorXd::Zero(n);
     Eigen::MatrixXd stage_k(n, kStages), xi(n, kStages);
-    Eigen::VectorXd f, wfx, start(n), point(n), kappa(n), lambda_next(n);
+    Eigen::VectorXd start(n), point(n), kappa(n), lambda_next(n);
     const Eigen::Map<const Eigen::MatrixXd> starts = Starts(steps);
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
       // The stages, forward again, each recorded (the last one's slope does not enter a stage point).
+      // Slopes and products go straight into their columns.
       stages.NewStep();
       start = starts.col(step);
       for (int i = 0; i < kStages; ++i) {
-        StagePoint(i, h, start, stage_k, &point);
-        stages.Record(point, &f);
-        stage_k.col(i) = f + in.u;
+        if (i > 0) StagePoint(i, h, start, stage_k, &point);
+        stages.Record(i > 0 ? point : start, stage_k.col(i).data());
+        if (with_u) stage_k.col(i) += in.u;
         ++stats.rhs_evaluations;
       }
       // Their adjoints, backward.
       lambda_next = lambda;
       for (int i = kStages - 1; i >= 0; --i) {
         StageAdjoint(i, h, lambda_next, xi, &kappa);
-        stages.Sweep(i, kappa, &wfx);
-        xi.col(i) = wfx;
-        kappa_sum += kappa;
-        lambda += wfx;
+        stages.Sweep(i, kappa, xi.col(i).data());
+        if (with_du) kappa_sum += kappa;
+        lambda += xi.col(i);
       }
       ++stats.backward_steps;
     }
     *lambda_start = lambda;
     *q = stages.ThetaProduct().transpose() * dtheta;
-    if (du.cols() == k) *q += kappa_sum.transpose() * du;
+    if (with_du) *q += kappa_sum.transpose() * du;
   }
 
   // Hairer, Nørsett and Wanner's first step: 1% of the state's scale over its rate's, at most h.
