@@ -33,6 +33,12 @@ struct OdeOptions {
   /// one-step method's stiffness checks and the adjoint's step bound also take ‖f_x‖∞ from the
   /// compressed Jacobian (one evaluation on the lanes instead of n directions).
   bool compressed_jacobians = true;
+  /// With compressed Jacobians, the one-step method's adjoint evaluates f on the lanes already in its
+  /// forward pass and keeps every stage's lanes, so the backward pass sweeps them without evaluating f
+  /// again: about a sixth less work for 6·(W+1) numbers a state and step kept instead of 1 (W ≤ 8
+  /// lanes). False: the forward pass keeps each step's start, and the backward pass evaluates the stages
+  /// again. The same gradient either way, to the last bit.
+  bool adjoint_keeps_stages = true;
   /// Steady states of nonlinear models: Newton iterations on x = P(x) allowed.
   int max_newton_iterations = 50;
 

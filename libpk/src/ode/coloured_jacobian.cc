@@ -211,6 +211,45 @@ void ColouredJacobian::Record(const Eigen::VectorXd& x, double* f) {
   ++stages_;
 }
 
+template <int W>
+void ColouredJacobian::RecordInto(std::vector<FixedDual<W>>* store, size_t slot, const Eigen::VectorXd& x,
+                                  Lanes<W>* lanes, double* f) {
+  const size_t n = static_cast<size_t>(c_.n), first = slot * n;
+  if (store->size() < first + n) store->resize(std::max(first + n, 2 * store->size()));
+  FixedDual<W>* const out = store->data() + first;
+  Evaluate(x, lanes, out);
+  for (size_t i = 0; i < n; ++i) f[i] = out[i].value();
+}
+
+void ColouredJacobian::RecordSlot(StageSlots* slots, size_t slot, const Eigen::VectorXd& x, double* f) {
+  switch (c_.width) {
+    case 4: RecordInto(&slots->lanes4, slot, x, &lanes4_, f); break;
+    case 6: RecordInto(&slots->lanes6, slot, x, &lanes6_, f); break;
+    default: RecordInto(&slots->lanes8, slot, x, &lanes8_, f); break;
+  }
+}
+
+void ColouredJacobian::SweepSlot(const StageSlots& slots, size_t slot, const Eigen::VectorXd& w, double* wfx) {
+  const size_t first = slot * static_cast<size_t>(c_.n);
+  const auto check = [&](size_t size) {
+    if (first + static_cast<size_t>(c_.n) > size) throw std::logic_error("ColouredJacobian: a slot not recorded");
+  };
+  switch (c_.width) {
+    case 4:
+      check(slots.lanes4.size());
+      CallOnLanes([&] { SweepLanes(slots.lanes4.data() + first, w.data(), wfx); });
+      break;
+    case 6:
+      check(slots.lanes6.size());
+      CallOnLanes([&] { SweepLanes(slots.lanes6.data() + first, w.data(), wfx); });
+      break;
+    default:
+      check(slots.lanes8.size());
+      CallOnLanes([&] { SweepLanes(slots.lanes8.data() + first, w.data(), wfx); });
+      break;
+  }
+}
+
 // Σ_k |J_ik| over the x columns of each row, from one evaluation into the scratch slot.
 template <int W>
 double ColouredJacobian::RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes) {

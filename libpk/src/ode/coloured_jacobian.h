@@ -43,6 +43,22 @@ struct JacobianColouring {
   int theta_lanes_begin = 0;
 };
 
+/// Lanes of f kept at many stages, for an adjoint that keeps the forward pass's stages instead of
+/// evaluating them again backward (ColouredJacobian::RecordSlot): slot k holds n numbers with their
+/// lanes. Only the vector of the colouring's width is used.
+struct StageSlots {
+  std::vector<FixedDual<4>> lanes4;
+  std::vector<FixedDual<6>> lanes6;
+  std::vector<FixedDual<8>> lanes8;
+  void clear() {
+    lanes4.clear();
+    lanes6.clear();
+    lanes8.clear();
+  }
+  /// Numbers held (lanes included), for the adjoint's storage figures.
+  size_t doubles() const { return 5 * lanes4.size() + 7 * lanes6.size() + 9 * lanes8.size(); }
+};
+
 /// wᵀf_x and wᵀf_θ at the stages of one step, as StageTape (ode_system.h) offers them, from a compressed
 /// Jacobian at each stage: Record evaluates f once on FixedDual<W> and keeps the stage's lanes, Sweep
 /// weighs them by w and sums each x column's nonzeros; the θ columns' sums wait for ThetaProduct.
@@ -54,10 +70,17 @@ class ColouredJacobian {
   static std::unique_ptr<ColouredJacobian> For(const OdeModel& model, const Eigen::VectorXd& theta);
 
   void NewStep() { stages_ = 0; }
+  /// Lanes an evaluation uses (4, 6 or 8).
+  int width() const { return c_.width; }
   void Record(const Eigen::VectorXd& x, Eigen::VectorXd* f);
   void Record(const Eigen::VectorXd& x, double* f);  // n numbers at f
   void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
   void Sweep(int stage, const Eigen::VectorXd& w, double* wfx);  // n numbers at wfx
+  /// f at x on the lanes into slot `slot` of *slots (which grows to hold it), its value into n numbers
+  /// at f: a stage kept for SweepSlot. Does not touch the step's stages above.
+  void RecordSlot(StageSlots* slots, size_t slot, const Eigen::VectorXd& x, double* f);
+  /// Sweep's products at a kept slot.
+  void SweepSlot(const StageSlots& slots, size_t slot, const Eigen::VectorXd& w, double* wfx);
   /// Σ wᵀf_θ over every stage swept since construction.
   Eigen::VectorXd ThetaProduct() const;
   /// ‖f_x(x)‖∞ (the largest row sum of |f_x|) from one evaluation on the lanes; NaN or ∞ as f gives it.
@@ -86,6 +109,9 @@ class ColouredJacobian {
   double RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes);
   template <int W>
   void SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx);
+  template <int W>
+  void RecordInto(std::vector<FixedDual<W>>* store, size_t slot, const Eigen::VectorXd& x, Lanes<W>* lanes,
+                  double* f);
 
   const OdeModel& model_;
   std::shared_ptr<const JacobianColouring> colouring_;

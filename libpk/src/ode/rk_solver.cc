@@ -120,6 +120,10 @@ struct StoredSteps {
   Eigen::Index count = 0;
   std::vector<double> h;
   bool stiff = false;  // a stiff segment: Rosenbrock's, from its one column (its start) in the backward pass
+  // With kept stages (OdeOptions::adjoint_keeps_stages): the lanes that evaluated them, and their slots
+  // in the solver's StageSlots, step s's stage i at first_slot + kStages·s + i.
+  std::unique_ptr<ColouredJacobian> lanes;
+  size_t first_slot = 0;
   int shares = -1;     // ≥ 0: in.dtheta and in.du are left empty, and are stored segment `shares`'s
 };
 
@@ -131,6 +135,11 @@ struct StoredSteps {
 std::vector<double>& KeptArena() {
   static thread_local std::vector<double> arena;
   return arena;
+}
+// The kept stages' lanes (OdeOptions::adjoint_keeps_stages), held the same way and for the same reason.
+StageSlots& KeptSlots() {
+  static thread_local StageSlots slots;
+  return slots;
 }
 
 // h·‖f_x‖∞ above which a segment is stiff for an explicit method: Dormand–Prince's stability region
@@ -180,6 +189,8 @@ struct RkSolver::Impl {
   Eigen::MatrixXd s_buf, df_buf;  // scratch of the right-hand sides
   Eigen::VectorXd x_buf, f_buf, start_buf;
   std::vector<double> arena;  // StoredSteps' starts (see KeptArena)
+  StageSlots slots;       // kept stages' lanes (see KeptSlots), [0, slots_used) in use
+  size_t slots_used = 0;
   Eigen::Map<const Eigen::MatrixXd> Starts(const StoredSteps& s) const {
     return Eigen::Map<const Eigen::MatrixXd>(arena.data() + s.first, n, s.count);
   }
@@ -252,6 +263,8 @@ struct RkSolver::Impl {
     dense = MakeDense(opt.absolute_tolerance, opt.relative_tolerance);
     arena.swap(KeptArena());  // the thread's (a second solver alive at once starts its own)
     arena.clear();
+    std::swap(slots, KeptSlots());  // likewise
+    slots_used = 0;
   }
   ~Impl() {
     std::vector<double>& kept = KeptArena();
@@ -259,6 +272,8 @@ struct RkSolver::Impl {
       arena.clear();
       kept.swap(arena);
     }
+    StageSlots& kept_slots = KeptSlots();
+    if (slots.doubles() > kept_slots.doubles()) std::swap(slots, kept_slots);
   }
 
   // Stiff segments go to RODAS4 (rosenbrock.h): whether one is stiff is decided from the segment
@@ -344,7 +359,7 @@ struct RkSolver::Impl {
       *x = start_of_segment;
       if (steps) {
         arena.resize(steps->first);
-        *steps = StoredSteps();
+        *steps = StoredSteps();  // its kept stages, if any, were never counted in slots_used
       }
       return false;
     }
@@ -365,6 +380,26 @@ struct RkSolver::Impl {
       sys.Rhs(z, in.theta, &f_buf);
       dz = f_buf + in.u;
     };
+    // Kept stages: f on the lanes at every stage the stepper evaluates, the step's stage i into slot
+    // base + i. Odeint's FSAL stepper evaluates stage 0 once, at its first step; then each try evaluates
+    // stages 1…5 and the next step's stage 0 (slots base + 1 … base + 6), and a rejected try is
+    // written over by the next.
+    std::unique_ptr<ColouredJacobian> lanes;
+    if (steps && opt.adjoint_keeps_stages && opt.compressed_jacobians && !sys.is_linear()) {
+      lanes = ColouredJacobian::For(*sys.nonlinear(), in.theta);
+    }
+    size_t base = slots_used;
+    bool first_evaluated = false;
+    int call = 0;  // stages evaluated in this try
+    const Rhs kept_rhs = [&](const State& z, State& dz, double) {
+      ++stats.rhs_evaluations;
+      const size_t slot = first_evaluated ? base + 1 + static_cast<size_t>(call++) : base;
+      first_evaluated = true;
+      dz.resize(n);
+      lanes->RecordSlot(&slots, slot, z, dz.data());
+      dz += in.u;  // as rhs adds it
+    };
+    const Rhs& step_rhs = lanes ? kept_rhs : rhs;
     Controlled stepper(ErrorNorm(opt.absolute_tolerance, opt.relative_tolerance));
     double t = 0, dt = carry != nullptr && *carry > 0 ? std::min(*carry, in.h) : InitialStep(*x, rhs, in.h);
     long count = 0, tries = 0;
@@ -387,7 +422,8 @@ struct RkSolver::Impl {
       const double length = step;  // Odeint's step, not fl(t + step) − t
       start_buf = *x;
       double tt = t;
-      if (stepper.try_step(std::cref(rhs), *x, tt, step) == odeint::fail) {
+      call = 0;
+      if (stepper.try_step(std::cref(step_rhs), *x, tt, step) == odeint::fail) {
         dt = step;  // the control's smaller proposal
         if (++tries > 1000) throw NumericalFailure("the Dormand–Prince step size control failed");
         continue;
@@ -397,6 +433,7 @@ struct RkSolver::Impl {
       if (steps) {
         arena.insert(arena.end(), start_buf.data(), start_buf.data() + n);
         steps->h.push_back(length);
+        base += kStages;  // the next step's stage 0 is this one's last evaluation
       }
       t = last ? in.h : tt;
       dt = step;
@@ -411,6 +448,11 @@ struct RkSolver::Impl {
     if (steps) {
       KeepInput(in, steps);
       steps->count = static_cast<Eigen::Index>(steps->h.size());
+      if (lanes && steps->count > 0) {
+        steps->first_slot = slots_used;
+        slots_used = base + 1;
+        steps->lanes = std::move(lanes);
+      }
     }
   }
 
@@ -422,6 +464,7 @@ struct RkSolver::Impl {
   // backward: one recording and one sweep a stage, whatever the number of parameters.
   void Backward(const StoredSteps& steps, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                 Eigen::RowVectorXd* q) {
+    if (steps.lanes) return BackwardKept(steps, lambda_end, lambda_start, q);
     const SegmentInput& in = steps.in;
     const Eigen::MatrixXd& dtheta = Owner(steps).dtheta;
     const Eigen::MatrixXd& du = Owner(steps).du;
@@ -457,6 +500,33 @@ struct RkSolver::Impl {
     }
     *lambda_start = lambda;
     *q = stages.ThetaProduct().transpose() * dtheta;
+    if (with_du) *q += kappa_sum.transpose() * du;
+  }
+
+  // Backward as above, on the stages the forward pass kept (OdeOptions::adjoint_keeps_stages): the
+  // same sweeps in the same order, at the very points the forward pass evaluated.
+  void BackwardKept(const StoredSteps& steps, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
+                    Eigen::RowVectorXd* q) {
+    const Eigen::MatrixXd& dtheta = Owner(steps).dtheta;
+    const Eigen::MatrixXd& du = Owner(steps).du;
+    const bool with_du = du.cols() == dtheta.cols();
+    ColouredJacobian& lanes = *steps.lanes;
+    Eigen::VectorXd lambda = lambda_end, kappa_sum = Eigen::VectorXd::Zero(n), kappa(n), lambda_next(n);
+    Eigen::MatrixXd xi(n, kStages);
+    for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
+      const double h = steps.h[static_cast<size_t>(step)];
+      const size_t base = steps.first_slot + static_cast<size_t>(kStages) * static_cast<size_t>(step);
+      lambda_next = lambda;
+      for (int i = kStages - 1; i >= 0; --i) {
+        StageAdjoint(i, h, lambda_next, xi, &kappa);
+        lanes.SweepSlot(slots, base + static_cast<size_t>(i), kappa, xi.col(i).data());
+        if (with_du) kappa_sum += kappa;
+        lambda += xi.col(i);
+      }
+      ++stats.backward_steps;
+    }
+    *lambda_start = lambda;
+    *q = lanes.ThetaProduct().transpose() * dtheta;
     if (with_du) *q += kappa_sum.transpose() * du;
   }
 
@@ -572,6 +642,10 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
     c.x = *x;
   }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.count * d.n + static_cast<long>(steps.h.size()));
+  if (steps.lanes) {  // the kept stages: kStages a step and the last one's FSAL stage, W + 1 numbers a state
+    const long slots = static_cast<long>(kStages) * steps.count + 1;
+    d.stored_bytes += static_cast<long>(sizeof(double)) * slots * d.n * (steps.lanes->width() + 1);
+  }
   d.stored.push_back(std::move(steps));
   d.stats.peak_adjoint_bytes = std::max(d.stats.peak_adjoint_bytes, d.stored_bytes);
   return static_cast<int>(d.stored.size()) - 1;
@@ -607,6 +681,7 @@ void RkSolver::AdjointSegment(const SegmentInput& in, const Eigen::VectorXd& x0,
   }
   impl_->Backward(steps, lambda_end, lambda_start, q);
   impl_->arena.resize(steps.first);  // this segment's starts were needed for its backward pass only
+  if (steps.lanes) impl_->slots_used = steps.first_slot;  // and its stages likewise
 }
 RkSolver::~RkSolver() = default;
 
