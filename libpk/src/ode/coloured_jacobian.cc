@@ -229,6 +229,18 @@ void ColouredJacobian::RecordSlot(StageSlots* slots, size_t slot, const Eigen::V
   }
 }
 
+double ColouredJacobian::StateRowSumNormAt(const StageSlots& slots, size_t slot) {
+  const size_t first = slot * static_cast<size_t>(c_.n), end = first + static_cast<size_t>(c_.n);
+  const auto check = [&](size_t size) {
+    if (end > size) throw std::logic_error("ColouredJacobian: a slot not recorded");
+  };
+  switch (c_.width) {
+    case 4: check(slots.lanes4.size()); return RowSumNormOf(slots.lanes4.data() + first);
+    case 6: check(slots.lanes6.size()); return RowSumNormOf(slots.lanes6.data() + first);
+    default: check(slots.lanes8.size()); return RowSumNormOf(slots.lanes8.data() + first);
+  }
+}
+
 void ColouredJacobian::SweepSlot(const StageSlots& slots, size_t slot, const Eigen::VectorXd& w, double* wfx) {
   const size_t first = slot * static_cast<size_t>(c_.n);
   const auto check = [&](size_t size) {
@@ -255,12 +267,17 @@ template <int W>
 double ColouredJacobian::RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes) {
   lanes->scratch.resize(static_cast<size_t>(c_.n));
   Evaluate(x, lanes, lanes->scratch.data());
+  return RowSumNormOf(lanes->scratch.data());
+}
+
+template <int W>
+double ColouredJacobian::RowSumNormOf(const FixedDual<W>* f) {
   row_sums_.assign(static_cast<size_t>(c_.n), 0.0);
   for (int k = 0; k < c_.n; ++k) {
     const int colour = c_.colour[static_cast<size_t>(k)];
     for (int p = c_.column_start[k]; p < c_.column_start[k + 1]; ++p) {
       const size_t row = static_cast<size_t>(c_.rows[static_cast<size_t>(p)]);
-      row_sums_[row] += std::fabs(lanes->scratch[row].derivative(colour));
+      row_sums_[row] += std::fabs(f[row].derivative(colour));
     }
   }
   double norm = 0;

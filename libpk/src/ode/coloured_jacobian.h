@@ -81,6 +81,8 @@ class ColouredJacobian {
   void RecordSlot(StageSlots* slots, size_t slot, const Eigen::VectorXd& x, double* f);
   /// Sweep's products at a kept slot.
   void SweepSlot(const StageSlots& slots, size_t slot, const Eigen::VectorXd& w, double* wfx);
+  /// StateRowSumNorm at the point a kept slot was recorded at, from its lanes (no evaluation).
+  double StateRowSumNormAt(const StageSlots& slots, size_t slot);
   /// Σ wᵀf_θ over every stage swept since construction.
   Eigen::VectorXd ThetaProduct() const;
   /// ‖f_x(x)‖∞ (the largest row sum of |f_x|) from one evaluation on the lanes; NaN or ∞ as f gives it.
@@ -107,6 +109,8 @@ class ColouredJacobian {
   void RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, double* f);
   template <int W>
   double RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes);
+  template <int W>
+  double RowSumNormOf(const FixedDual<W>* f);
   template <int W>
   void SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx);
   template <int W>

@@ -311,10 +311,13 @@ struct RkSolver::Impl {
   static double FiniteOrZero(double norm) { return std::isfinite(norm) ? norm : 0.0; }
   // The periodic test above, after `count` steps of the segment, the last proposal `dt`, at x;
   // *in_a_row counts the segment's consecutive checks that found the step stability-limited.
-  void CheckStiffening(const SegmentInput& in, long count, double dt, const Eigen::VectorXd& x, int* in_a_row) {
+  // With `kept`, ‖f_x(x)‖∞ comes from kept slot `slot`, evaluated at x.
+  void CheckStiffening(const SegmentInput& in, long count, double dt, const Eigen::VectorXd& x, int* in_a_row,
+                       ColouredJacobian* kept = nullptr, size_t slot = 0) {
     if (count > kStiffBudget) throw StiffSegment();
     if (count % kStiffnessCheckEvery != 0) return;
-    *in_a_row = dt * RowSumNorm(in, x) > kStabilityLimited ? *in_a_row + 1 : 0;
+    const double norm = kept ? FiniteOrZero(kept->StateRowSumNormAt(slots, slot)) : RowSumNorm(in, x);
+    *in_a_row = dt * norm > kStabilityLimited ? *in_a_row + 1 : 0;
     if (*in_a_row >= kStiffChecksInARow) throw StiffSegment();
   }
   CvodesSolver& Bdf() {
@@ -412,8 +415,9 @@ struct RkSolver::Impl {
     double stable_step = 0;  // kStableStep / ‖f_x‖∞ (0: no bound)
     while (t < in.h) {
       if (count % kStableStepEvery == 0) {
-        // A norm that is not finite (f_x undefined at this x) leaves the last bound in place.
-        const double norm = StateRowSumNorm(in, *x);
+        // A norm that is not finite (f_x undefined at this x) leaves the last bound in place. With kept
+        // stages, the last step's final evaluation was on the lanes at this very x.
+        const double norm = lanes && count > 0 ? lanes->StateRowSumNormAt(slots, base) : StateRowSumNorm(in, *x);
         if (std::isfinite(norm)) stable_step = norm > 0 ? kStableStep / norm : 0;
       }
       if (stable_step > 0) dt = std::min(dt, stable_step);
@@ -443,7 +447,7 @@ struct RkSolver::Impl {
         throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
                                " Dormand–Prince steps between two events");
       }
-      CheckStiffening(in, count, dt, *x, &limited);
+      CheckStiffening(in, count, dt, *x, &limited, lanes ? lanes.get() : nullptr, base);
     }
     if (steps) {
       KeepInput(in, steps);
