@@ -369,6 +369,7 @@ struct RkSolver::Impl {
     return true;
   }
   Eigen::VectorXd start_of_segment;  // ReplaySteps's copy of x
+  std::unique_ptr<Controlled> replay_stepper;  // FixedEndSteps's
 
   // Values only, replay mode: x ← x(h) by controlled steps whose last one ends at h, each accepted
   // step's start and length into *steps when given. The same x and `in` give the same steps, unless
@@ -403,7 +404,11 @@ struct RkSolver::Impl {
       dz += in.u;  // as rhs adds it
     };
     const Rhs& step_rhs = lanes ? kept_rhs : rhs;
-    Controlled stepper(ErrorNorm(opt.absolute_tolerance, opt.relative_tolerance));
+    // One stepper for every segment, reset to evaluate its first slope again: a new one a segment
+    // allocated its ten work vectors each time.
+    if (!replay_stepper) replay_stepper.reset(new Controlled(ErrorNorm(opt.absolute_tolerance, opt.relative_tolerance)));
+    Controlled& stepper = *replay_stepper;
+    stepper.reset();
     double t = 0, dt = carry != nullptr && *carry > 0 ? std::min(*carry, in.h) : InitialStep(*x, rhs, in.h);
     long count = 0, tries = 0;
     int limited = 0;  // CheckStiffening's consecutive stability-limited checks
