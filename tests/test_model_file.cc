@@ -248,8 +248,9 @@ TEST_CASE("model files: identifiers are ASCII under a locale whose isalpha takes
   // tests/cli/test_locale.sh runs this under tr_TR.ISO-8859-9, where isalpha(0xE7) ('ç') is true: a
   // name with that byte must be the same error there as in the C locale, at its line and column.
   const char* turkish = std::getenv("PK_TEST_DOTTED_I_LOCALE");
+  const pk_test::LocaleGuard locale(turkish);
   if (turkish != nullptr) {
-    REQUIRE(std::setlocale(LC_ALL, turkish) != nullptr);
+    REQUIRE(locale.set());
     REQUIRE(std::isalpha(0xE7));
   }
   std::string text = kBase;
@@ -262,7 +263,6 @@ TEST_CASE("model files: identifiers are ASCII under a locale whose isalpha takes
   } catch (const pk::InputError& e) {
     CHECK_THAT(e.what(), Catch::StartsWith("latin.pkm:10:2:"));
   }
-  if (turkish != nullptr) std::setlocale(LC_ALL, "C");
 }
 
 TEST_CASE("model files: each kind of error names the file, line and column and what was expected", "[model_file]") {

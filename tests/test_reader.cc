@@ -17,6 +17,7 @@
 #include "pk/estimates.h"
 #include "pk/output.h"
 #include "pk/simulate.h"
+#include "test_util.h"
 
 namespace {
 
@@ -488,8 +489,9 @@ TEST_CASE("column names are matched in ASCII upper case under a locale whose tou
   // tests/cli/test_locale.sh runs this with PK_TEST_DOTTED_I_LOCALE set to tr_TR.ISO-8859-9, where the C
   // toupper('i') is 0xDD; a name upper-cased through it ("ID" from "id") would match no column.
   const char* turkish = std::getenv("PK_TEST_DOTTED_I_LOCALE");
+  const pk_test::LocaleGuard locale(turkish);
   if (turkish != nullptr) {
-    REQUIRE(std::setlocale(LC_ALL, turkish) != nullptr);
+    REQUIRE(locale.set());
     REQUIRE(std::toupper('i') != 'I');
   }
   const pk::Dataset d = pk::ParseDataset("id,time,amt,dv,mdv,cmt,dvid,clint\n1,0,100,.,1,1,1,2\n1,1,0,4.5,0,1,1,2\n",
@@ -508,7 +510,6 @@ TEST_CASE("column names are matched in ASCII upper case under a locale whose tou
   REQUIRE(sims.size() == 1);
   REQUIRE(sims[0].ok);
   CHECK(sims[0].rows.back().cp == Approx(10 * std::exp(-0.2)).epsilon(1e-12));
-  if (turkish != nullptr) std::setlocale(LC_ALL, "C");
 }
 
 TEST_CASE("an ID that comes back after other IDs is another subject, numbered as an occurrence", "[reader][trust]") {

@@ -3,6 +3,7 @@
 #define PK_TESTS_TEST_UTIL_H_
 
 #include <algorithm>
+#include <clocale>
 #include <cmath>
 #include <memory>
 #include <sstream>
@@ -18,6 +19,22 @@
 #include "pk/simulate.h"
 
 namespace pk_test {
+
+/// Sets the C locale (LC_ALL) to `name` when it is not null, and back to "C" at scope's end, also when
+/// a check fails and the test case ends early.
+class LocaleGuard {
+ public:
+  explicit LocaleGuard(const char* name) : set_(name != nullptr && std::setlocale(LC_ALL, name) != nullptr) {}
+  ~LocaleGuard() {
+    if (set_) std::setlocale(LC_ALL, "C");
+  }
+  LocaleGuard(const LocaleGuard&) = delete;
+  LocaleGuard& operator=(const LocaleGuard&) = delete;
+  bool set() const { return set_; }
+
+ private:
+  bool set_;
+};
 
 /// Simulates CSV text with a catalogue model; requires success.
 inline pk::SubjectSimulation SimulateText(const std::string& model, const std::string& csv,

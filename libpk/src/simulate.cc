@@ -154,15 +154,23 @@ bool SimulationOptions::IsValid(std::string* error) const {
   return ode.IsValid(error);
 }
 
-internal::SubjectSimulator::SubjectSimulator(const Model& model, const SimulationOptions& options)
-    : model_(model),
-      options_(options),
-      propagator_(ResolvePropagator(model, options.propagator)),
-      layout_(model),
-      columns_read_(ColumnsRead(layout_)) {
+namespace {
+
+// The options, once they are valid: checked before anything else is made of them, as SimulateSubject did.
+const SimulationOptions& Valid(const SimulationOptions& options) {
   std::string why;
   if (!options.IsValid(&why)) throw InputError(why);
+  return options;
 }
+
+}  // namespace
+
+internal::SubjectSimulator::SubjectSimulator(const Model& model, const SimulationOptions& options)
+    : model_(model),
+      options_(Valid(options)),
+      propagator_(ResolvePropagator(model, options.propagator)),
+      layout_(model),
+      columns_read_(ColumnsRead(layout_)) {}
 
 SubjectSimulation internal::SubjectSimulator::Simulate(const Dataset& data, int subject,
                                                        const Eigen::VectorXd& resolved) const {
@@ -280,12 +288,12 @@ void SimulateEachWithEstimates(const Model& model, const Dataset& data, const st
                                const SimulationOptions& options, const std::string& source,
                                const SimulationSink& sink) {
   internal::CheckColumns(model, data, false);
+  if (match == EstimatesMatch::kEveryId && data.subjects.size() != 1) {
+    throw InputError(data.source + ": a regimen to repeat has one subject, not " +
+                     std::to_string(data.subjects.size()));
+  }
   const internal::SubjectSimulator simulate(model, options);
   if (match == EstimatesMatch::kEveryId) {
-    if (data.subjects.size() != 1) {
-      throw InputError(data.source + ": a regimen to repeat has one subject, not " +
-                       std::to_string(data.subjects.size()));
-    }
     internal::StreamSimulations(static_cast<int>(estimates.size()), options, [&](int k) {
       SubjectSimulation sim = simulate(data, 0, Merged(estimates[k].second, overrides));
       sim.id = estimates[k].first;

@@ -12,6 +12,7 @@
 #ifndef PK_SRC_ODE_COLOURED_JACOBIAN_H_
 #define PK_SRC_ODE_COLOURED_JACOBIAN_H_
 
+#include <algorithm>
 #include <memory>
 #include <vector>
 
@@ -83,8 +84,9 @@ class ColouredJacobian {
   void SweepSlot(const StageSlots& slots, size_t slot, const Eigen::VectorXd& w, double* wfx);
   /// StateRowSumNorm at the point a kept slot was recorded at, from its lanes (no evaluation).
   double StateRowSumNormAt(const StageSlots& slots, size_t slot);
-  /// Σ wᵀf_θ over every stage swept since construction.
+  /// Σ wᵀf_θ over every stage swept since construction or the last ResetProducts.
   Eigen::VectorXd ThetaProduct() const;
+  void ResetProducts() { std::fill(weighted_sum_.begin(), weighted_sum_.end(), 0.0); }
   /// ‖f_x(x)‖∞ (the largest row sum of |f_x|) from one evaluation on the lanes; NaN or ∞ as f gives it.
   /// Does not touch the step's stages.
   double StateRowSumNorm(const Eigen::VectorXd& x);

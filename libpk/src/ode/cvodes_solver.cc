@@ -134,7 +134,7 @@ struct CvodesSolver::Impl {
 
     bool Continues(const SegmentInput& in, const Eigen::VectorXd& x0, const Eigen::MatrixXd* s0) const {
       return at_end && in.continuous.empty() && x == x0 && theta == in.theta && u == in.u &&
-             (s0 == nullptr || (s == *s0 && dtheta.Equals(in.dtheta) && du == in.du));
+             (s0 == nullptr || (SameMatrix(s, *s0) && dtheta.Equals(in.dtheta) && SameMatrix(du, in.du)));
     }
     void Remember(const SegmentInput& in, const Eigen::VectorXd& x1, const Eigen::MatrixXd* s1) {
       at_end = true;

@@ -302,11 +302,6 @@ class OdePropagator {
     tape_.push_back(std::move(step));
   }
   SegmentSolver& solver() { return *solver_; }
-  /// θ and ∂θ/∂p of a parameter set.
-  void Theta(int set, Eigen::VectorXd* theta, Eigen::MatrixXd* dtheta) const {
-    *theta = SetTheta(set);
-    *dtheta = SetDtheta(set);
-  }
   /// θ of parameter set `set`, and ∂θ/∂p (m×P), formed once a set.
   const Eigen::VectorXd& SetTheta(int set) const { return Cached(set).theta; }
   const Eigen::MatrixXd& SetDtheta(int set) const { return *Cached(set).dtheta; }

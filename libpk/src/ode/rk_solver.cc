@@ -210,7 +210,7 @@ struct RkSolver::Impl {
       const int last = stored.back().shares >= 0 ? stored.back().shares : static_cast<int>(stored.size()) - 1;
       const SegmentInput& o = stored[static_cast<size_t>(last)].in;
       // One parameter set's ∂θ/∂p is one shared matrix: known the same without comparing m×k numbers.
-      if (o.dtheta.Equals(in.dtheta) && Same(o.du, in.du)) {
+      if (o.dtheta.Equals(in.dtheta) && SameMatrix(o.du, in.du)) {
         steps->shares = last;
         kept.dtheta = SharedMatrix();
         kept.du.resize(0, 0);
@@ -219,9 +219,6 @@ struct RkSolver::Impl {
     }
     kept.dtheta = in.dtheta;
     kept.du = in.du;
-  }
-  static bool Same(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
-    return a.rows() == b.rows() && a.cols() == b.cols() && a == b;
   }
   const SegmentInput& Owner(const StoredSteps& s) const {
     return s.shares >= 0 ? stored[static_cast<size_t>(s.shares)].in : s.in;
@@ -245,7 +242,7 @@ struct RkSolver::Impl {
     SharedMatrix dtheta;
     bool Continues(const SegmentInput& s, const Eigen::VectorXd& z0, int directions) const {
       return at_end && s.continuous.empty() && s.auc_key == 0 && k == directions && z == z0 && theta == s.theta &&
-             u == s.u && (k < 0 || (dtheta.Equals(s.dtheta) && du == s.du));
+             u == s.u && (k < 0 || (dtheta.Equals(s.dtheta) && SameMatrix(du, s.du)));
     }
   } last;
 
@@ -263,7 +260,7 @@ struct RkSolver::Impl {
     dense = MakeDense(opt.absolute_tolerance, opt.relative_tolerance);
     arena.swap(KeptArena());  // the thread's (a second solver alive at once starts its own)
     arena.clear();
-    std::swap(slots, KeptSlots());  // likewise
+    if (replay) std::swap(slots, KeptSlots());  // likewise, for a solver that keeps stages at all
     slots_used = 0;
   }
   ~Impl() {
@@ -273,7 +270,7 @@ struct RkSolver::Impl {
       kept.swap(arena);
     }
     StageSlots& kept_slots = KeptSlots();
-    if (slots.doubles() > kept_slots.doubles()) std::swap(slots, kept_slots);
+    if (replay && slots.doubles() > kept_slots.doubles()) std::swap(slots, kept_slots);
   }
 
   // Stiff segments go to RODAS4 (rosenbrock.h): whether one is stiff is decided from the segment
@@ -520,6 +517,7 @@ struct RkSolver::Impl {
     const Eigen::MatrixXd& du = Owner(steps).du;
     const bool with_du = du.cols() == dtheta.cols();
     ColouredJacobian& lanes = *steps.lanes;
+    lanes.ResetProducts();  // a stored segment may be swept again (another seed of the same forward pass)
     Eigen::VectorXd lambda = lambda_end, kappa_sum = Eigen::VectorXd::Zero(n), kappa(n), lambda_next(n);
     Eigen::MatrixXd xi(n, kStages);
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {

@@ -25,6 +25,12 @@ struct ContinuousTerm {
   double w0 = 0, w_slope = 0;    ///< w(t) = w0 + w_slope·(t − t0)
 };
 
+/// The same shape and values (Eigen's == takes the shape as given: different shapes are undefined
+/// there, and ∂u/∂p has either k columns or none).
+inline bool SameMatrix(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+  return a.rows() == b.rows() && a.cols() == b.cols() && a == b;
+}
+
 /// A read-only matrix shared by the values that hold it: ∂θ/∂p is one m×P matrix per parameter set,
 /// held by every segment of that set (and by the adjoint's tape entries and stored segments) instead
 /// of copied into each, which cost O(m·P) a segment and sample: a tenth of a 64-parameter adjoint.
@@ -43,10 +49,7 @@ class SharedMatrix {
   /// The same matrix object (not merely equal values).
   bool SameAs(const SharedMatrix& other) const { return m_ == other.m_; }
   /// The same matrix, or one of the same shape and values.
-  bool Equals(const SharedMatrix& other) const {
-    const Eigen::MatrixXd &a = **this, &b = *other;
-    return SameAs(other) || (a.rows() == b.rows() && a.cols() == b.cols() && a == b);
-  }
+  bool Equals(const SharedMatrix& other) const { return SameAs(other) || SameMatrix(**this, *other); }
 
  private:
   static const Eigen::MatrixXd& Empty() {
