@@ -306,6 +306,7 @@ TEST_CASE("Dormand-Prince: a system that stiffens as the drug clears, and a stea
 #include "hyper_dual_number.h"
 #include "ode/ode_system.h"
 #include "ode/rosenbrock.h"
+#include "ode/rk_solver.h"
 
 TEST_CASE("the stacked sensitivity Jacobian's blocks B_a equal differences of f_x s_a + f_θ θ_a", "[rk][stiff]") {
   for (const char* name : {"1cmt_iv_emax", "2cmt_iv_mm", "1cmt_oral_mm", "2cmt_iv"}) {
@@ -405,6 +406,53 @@ TEST_CASE("RODAS4's adjoint of a segment is the derivative of the computed map a
       const double fd = (value(x0, up) - value(x0, down)) / (2 * h);
       INFO("parameter " << a << ": adjoint " << q(a) << ", differences " << fd);
       CHECK(std::abs(q(a) - fd) <= 1e-6 * std::max(1.0, std::abs(fd)));
+    }
+  }
+}
+
+TEST_CASE("Dormand-Prince: a stored segment swept twice gives the same λ and parameter products",
+          "[rk][adjoint]") {
+  // Two seeds of one forward pass (OdeAdjoint::Gradient twice): the second backward sweep must not add to
+  // the first's θ products, with kept stages and with stages recomputed. Against central differences
+  // of λᵀx(h) too, so that both sweeps are right and not merely alike.
+  const auto model = pk::MakeModel("1cmt_oral_mm");
+  const pk::internal::OdeSystem sys(*model);
+  const int n = sys.n(), m = sys.num_theta();
+  pk::internal::SegmentInput in;
+  in.h = 6;
+  in.u = Eigen::VectorXd::Zero(n);
+  in.theta = model->default_parameters().head(m);
+  in.dtheta = Eigen::MatrixXd::Identity(m, m);
+  in.du = Eigen::MatrixXd(n, 0);
+  Eigen::VectorXd x0 = Eigen::VectorXd::Zero(n);
+  x0(0) = 100;
+  Eigen::VectorXd lambda(n);
+  for (int i = 0; i < n; ++i) lambda(i) = 0.3 + 0.7 * i;
+  for (const bool keep : {true, false}) {
+    INFO("kept stages " << keep);
+    pk::OdeOptions opt;
+    opt.adjoint_keeps_stages = keep;
+    pk::internal::RkSolver rk(sys, opt, true);
+    Eigen::VectorXd x = x0;
+    const int handle = rk.StoreSegment(in, &x);
+    Eigen::VectorXd lambda0, again;
+    Eigen::RowVectorXd q, q_again;
+    rk.BackwardStored(handle, pk::internal::AdjointScales(), lambda, &lambda0, &q);
+    rk.BackwardStored(handle, pk::internal::AdjointScales(), lambda, &again, &q_again);
+    CHECK(again == lambda0);
+    CHECK(q_again == q);
+    for (int a = 0; a < m; ++a) {
+      const double h = 1e-6 * in.theta(a);
+      pk::internal::SegmentInput up = in, down = in;
+      up.theta(a) += h;
+      down.theta(a) -= h;
+      Eigen::VectorXd xu = x0, xd = x0;
+      pk::internal::RkSolver plain(sys, opt, true);
+      plain.Advance(up, &xu);
+      plain.Advance(down, &xd);
+      const double fd = (lambda.dot(xu) - lambda.dot(xd)) / (2 * h);
+      INFO("parameter " << a << ": adjoint " << q(a) << ", differences " << fd);
+      CHECK(std::abs(q(a) - fd) <= 1e-5 * std::max(1.0, std::abs(fd)));
     }
   }
 }
@@ -616,7 +664,6 @@ TEST_CASE("Dormand-Prince: a saturable chain is not judged stiff, and the adjoin
   CHECK(adjoint.ode_statistics.steps <= 1.15 * values.ode_statistics.steps);
 }
 
-#include "ode/rk_solver.h"
 
 TEST_CASE("Dormand-Prince: a trial step whose error estimate is NaN is rejected, not accepted", "[rk]") {
   // z' = −z, written so that f is NaN wherever z < 0 (0·√z), which the true solution never reaches. A

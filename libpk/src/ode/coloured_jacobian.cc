@@ -186,27 +186,18 @@ void ColouredJacobian::Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, Fixed
   }
 }
 
-// Into the step's next stage slot.
-template <int W>
-void ColouredJacobian::RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, double* f) {
-  const size_t n = static_cast<size_t>(c_.n), first = static_cast<size_t>(stages_) * n;
-  // Room for eight stages at once (Dormand–Prince records six a step), not one more a stage.
-  if (lanes->f.size() < first + n) lanes->f.resize(std::max(first + n, 8 * n));
-  FixedDual<W>* const out = lanes->f.data() + first;
-  Evaluate(x, lanes, out);
-  for (size_t i = 0; i < n; ++i) f[i] = out[i].value();
-}
-
 void ColouredJacobian::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
   f->resize(c_.n);
   Record(x, f->data());
 }
 
+// Into the step's next stage slot.
 void ColouredJacobian::Record(const Eigen::VectorXd& x, double* f) {
+  const size_t slot = static_cast<size_t>(stages_);
   switch (c_.width) {
-    case 4: RecordStage(x, &lanes4_, f); break;
-    case 6: RecordStage(x, &lanes6_, f); break;
-    default: RecordStage(x, &lanes8_, f); break;
+    case 4: RecordInto(&lanes4_.f, slot, x, &lanes4_, f); break;
+    case 6: RecordInto(&lanes6_.f, slot, x, &lanes6_, f); break;
+    default: RecordInto(&lanes8_.f, slot, x, &lanes8_, f); break;
   }
   ++stages_;
 }
@@ -215,7 +206,8 @@ template <int W>
 void ColouredJacobian::RecordInto(std::vector<FixedDual<W>>* store, size_t slot, const Eigen::VectorXd& x,
                                   Lanes<W>* lanes, double* f) {
   const size_t n = static_cast<size_t>(c_.n), first = slot * n;
-  if (store->size() < first + n) store->resize(std::max(first + n, 2 * store->size()));
+  // Growing by at least eight stages (Dormand–Prince records six a step), doubling beyond.
+  if (store->size() < first + n) store->resize(std::max({first + n, 2 * store->size(), 8 * n}));
   FixedDual<W>* const out = store->data() + first;
   Evaluate(x, lanes, out);
   for (size_t i = 0; i < n; ++i) f[i] = out[i].value();
@@ -229,36 +221,26 @@ void ColouredJacobian::RecordSlot(StageSlots* slots, size_t slot, const Eigen::V
   }
 }
 
+template <int W>
+const FixedDual<W>* ColouredJacobian::KeptSlot(const std::vector<FixedDual<W>>& store, size_t slot) const {
+  const size_t n = static_cast<size_t>(c_.n), first = slot * n;
+  if (first + n > store.size()) throw std::logic_error("ColouredJacobian: a slot not recorded");
+  return store.data() + first;
+}
+
 double ColouredJacobian::StateRowSumNormAt(const StageSlots& slots, size_t slot) {
-  const size_t first = slot * static_cast<size_t>(c_.n), end = first + static_cast<size_t>(c_.n);
-  const auto check = [&](size_t size) {
-    if (end > size) throw std::logic_error("ColouredJacobian: a slot not recorded");
-  };
   switch (c_.width) {
-    case 4: check(slots.lanes4.size()); return RowSumNormOf(slots.lanes4.data() + first);
-    case 6: check(slots.lanes6.size()); return RowSumNormOf(slots.lanes6.data() + first);
-    default: check(slots.lanes8.size()); return RowSumNormOf(slots.lanes8.data() + first);
+    case 4: return RowSumNormOf(KeptSlot(slots.lanes4, slot));
+    case 6: return RowSumNormOf(KeptSlot(slots.lanes6, slot));
+    default: return RowSumNormOf(KeptSlot(slots.lanes8, slot));
   }
 }
 
 void ColouredJacobian::SweepSlot(const StageSlots& slots, size_t slot, const Eigen::VectorXd& w, double* wfx) {
-  const size_t first = slot * static_cast<size_t>(c_.n);
-  const auto check = [&](size_t size) {
-    if (first + static_cast<size_t>(c_.n) > size) throw std::logic_error("ColouredJacobian: a slot not recorded");
-  };
   switch (c_.width) {
-    case 4:
-      check(slots.lanes4.size());
-      CallOnLanes([&] { SweepLanes(slots.lanes4.data() + first, w.data(), wfx); });
-      break;
-    case 6:
-      check(slots.lanes6.size());
-      CallOnLanes([&] { SweepLanes(slots.lanes6.data() + first, w.data(), wfx); });
-      break;
-    default:
-      check(slots.lanes8.size());
-      CallOnLanes([&] { SweepLanes(slots.lanes8.data() + first, w.data(), wfx); });
-      break;
+    case 4: CallOnLanes([&] { SweepLanes(KeptSlot(slots.lanes4, slot), w.data(), wfx); }); break;
+    case 6: CallOnLanes([&] { SweepLanes(KeptSlot(slots.lanes6, slot), w.data(), wfx); }); break;
+    default: CallOnLanes([&] { SweepLanes(KeptSlot(slots.lanes8, slot), w.data(), wfx); }); break;
   }
 }
 

@@ -51,11 +51,6 @@ struct StageSlots {
   std::vector<FixedDual<4>> lanes4;
   std::vector<FixedDual<6>> lanes6;
   std::vector<FixedDual<8>> lanes8;
-  void clear() {
-    lanes4.clear();
-    lanes6.clear();
-    lanes8.clear();
-  }
   /// Numbers held (lanes included), for the adjoint's storage figures.
   size_t doubles() const { return 5 * lanes4.size() + 7 * lanes6.size() + 9 * lanes8.size(); }
 };
@@ -108,16 +103,18 @@ class ColouredJacobian {
   template <int W>
   void Evaluate(const Eigen::VectorXd& x, Lanes<W>* lanes, FixedDual<W>* out);
   template <int W>
-  void RecordStage(const Eigen::VectorXd& x, Lanes<W>* lanes, double* f);
-  template <int W>
   double RowSumNorm(const Eigen::VectorXd& x, Lanes<W>* lanes);
   template <int W>
   double RowSumNormOf(const FixedDual<W>* f);
   template <int W>
   void SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx);
+  // f at x on the lanes into slot `slot` of *store (n lanes a slot; it grows to hold it), values into f.
   template <int W>
   void RecordInto(std::vector<FixedDual<W>>* store, size_t slot, const Eigen::VectorXd& x, Lanes<W>* lanes,
                   double* f);
+  // Slot `slot` of a store of kept stages; throws std::logic_error when it was never recorded.
+  template <int W>
+  const FixedDual<W>* KeptSlot(const std::vector<FixedDual<W>>& store, size_t slot) const;
 
   const OdeModel& model_;
   std::shared_ptr<const JacobianColouring> colouring_;

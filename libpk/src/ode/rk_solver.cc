@@ -112,6 +112,35 @@ void StageAdjoint(int i, double h, const Eigen::VectorXd& lambda, const Eigen::M
   }
 }
 
+// The reverse of one step of length h, from λ_{n+1} to λ_n (Impl::Backward's recursion): κ_i, then
+// ξ_i = sweep(i, κ_i) (f_x(X_i)ᵀκ_i written into column i of xi), λ += Σ ξ_i, and Σκ kept when ∂u/∂p
+// enters. The recomputing and the kept-stages passes differ only in how they sweep a stage.
+struct StepReverse {
+  StepReverse(Eigen::Index n, bool with_du)
+      : xi(n, kStages), kappa(n), lambda_next(n), kappa_sum(Eigen::VectorXd::Zero(n)), with_du(with_du) {}
+  template <typename Sweep>
+  void Step(double h, Eigen::VectorXd* lambda, const Sweep& sweep) {
+    lambda_next = *lambda;
+    for (int i = kStages - 1; i >= 0; --i) {
+      StageAdjoint(i, h, lambda_next, xi, &kappa);
+      sweep(i, kappa, xi.col(i).data());
+      if (with_du) kappa_sum += kappa;
+      *lambda += xi.col(i);
+    }
+  }
+  // The segment's q = (Σ wᵀf_θ) ∂θ/∂p + (Σκ)ᵀ ∂u/∂p.
+  Eigen::RowVectorXd Parameters(const Eigen::VectorXd& theta_product, const Eigen::MatrixXd& dtheta,
+                                const Eigen::MatrixXd& du) const {
+    Eigen::RowVectorXd q = theta_product.transpose() * dtheta;
+    if (with_du) q += kappa_sum.transpose() * du;
+    return q;
+  }
+
+  Eigen::MatrixXd xi;
+  Eigen::VectorXd kappa, lambda_next, kappa_sum;
+  const bool with_du;
+};
+
 // One segment's accepted steps, for the discrete adjoint: the state at each step's start and its length.
 // The starts are `count` columns of n numbers in the solver's arena (RkSolver::Impl::Starts), from `first`.
 struct StoredSteps {
@@ -449,7 +478,7 @@ struct RkSolver::Impl {
         throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
                                " Dormand–Prince steps between two events");
       }
-      CheckStiffening(in, count, dt, *x, &limited, lanes ? lanes.get() : nullptr, base);
+      CheckStiffening(in, count, dt, *x, &limited, lanes.get(), base);
     }
     if (steps) {
       KeepInput(in, steps);
@@ -476,11 +505,11 @@ struct RkSolver::Impl {
     const Eigen::MatrixXd& du = Owner(steps).du;
     const int k = static_cast<int>(dtheta.cols());
     StageTape stages(sys, in.theta, opt.compressed_jacobians);
-    // Without input rates, or with rates that no parameter moves, k_i = f(X_i) and Σκ is not needed.
-    const bool with_u = !in.u.isZero(0.0), with_du = du.cols() == k;
-    Eigen::VectorXd lambda = lambda_end, kappa_sum = Eigen::VectorXd::Zero(n);
-    Eigen::MatrixXd stage_k(n, kStages), xi(n, kStages);
-    Eigen::VectorXd start(n), point(n), kappa(n), lambda_next(n);
+    const bool with_u = !in.u.isZero(0.0);  // without input rates, k_i = f(X_i)
+    StepReverse reverse(n, du.cols() == k);
+    Eigen::VectorXd lambda = lambda_end;
+    Eigen::MatrixXd stage_k(n, kStages);
+    Eigen::VectorXd start(n), point(n);
     const Eigen::Map<const Eigen::MatrixXd> starts = Starts(steps);
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
@@ -495,18 +524,11 @@ struct RkSolver::Impl {
         ++stats.rhs_evaluations;
       }
       // Their adjoints, backward.
-      lambda_next = lambda;
-      for (int i = kStages - 1; i >= 0; --i) {
-        StageAdjoint(i, h, lambda_next, xi, &kappa);
-        stages.Sweep(i, kappa, xi.col(i).data());
-        if (with_du) kappa_sum += kappa;
-        lambda += xi.col(i);
-      }
+      reverse.Step(h, &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) { stages.Sweep(i, w, wfx); });
       ++stats.backward_steps;
     }
     *lambda_start = lambda;
-    *q = stages.ThetaProduct().transpose() * dtheta;
-    if (with_du) *q += kappa_sum.transpose() * du;
+    *q = reverse.Parameters(stages.ThetaProduct(), dtheta, du);
   }
 
   // Backward as above, on the stages the forward pass kept (OdeOptions::adjoint_keeps_stages): the
@@ -515,26 +537,19 @@ struct RkSolver::Impl {
                     Eigen::RowVectorXd* q) {
     const Eigen::MatrixXd& dtheta = Owner(steps).dtheta;
     const Eigen::MatrixXd& du = Owner(steps).du;
-    const bool with_du = du.cols() == dtheta.cols();
     ColouredJacobian& lanes = *steps.lanes;
     lanes.ResetProducts();  // a stored segment may be swept again (another seed of the same forward pass)
-    Eigen::VectorXd lambda = lambda_end, kappa_sum = Eigen::VectorXd::Zero(n), kappa(n), lambda_next(n);
-    Eigen::MatrixXd xi(n, kStages);
+    StepReverse reverse(n, du.cols() == dtheta.cols());
+    Eigen::VectorXd lambda = lambda_end;
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
-      const double h = steps.h[static_cast<size_t>(step)];
       const size_t base = steps.first_slot + static_cast<size_t>(kStages) * static_cast<size_t>(step);
-      lambda_next = lambda;
-      for (int i = kStages - 1; i >= 0; --i) {
-        StageAdjoint(i, h, lambda_next, xi, &kappa);
-        lanes.SweepSlot(slots, base + static_cast<size_t>(i), kappa, xi.col(i).data());
-        if (with_du) kappa_sum += kappa;
-        lambda += xi.col(i);
-      }
+      reverse.Step(steps.h[static_cast<size_t>(step)], &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) {
+        lanes.SweepSlot(slots, base + static_cast<size_t>(i), w, wfx);
+      });
       ++stats.backward_steps;
     }
     *lambda_start = lambda;
-    *q = lanes.ThetaProduct().transpose() * dtheta;
-    if (with_du) *q += kappa_sum.transpose() * du;
+    *q = reverse.Parameters(lanes.ThetaProduct(), dtheta, du);
   }
 
   // Hairer, Nørsett and Wanner's first step: 1% of the state's scale over its rate's, at most h.
