@@ -13,13 +13,17 @@ namespace {
 
 constexpr int kMaxModelsKept = 4;  // colourings kept per thread
 
-// sum += weight · lanes over one group of V (a vector type of 2 or 4 doubles).
+// One group of V (a vector type of 2 or 4 doubles): weighed = weight · lanes, and sum += weighed unless
+// sum is null.
 template <typename V>
-void AddWeighted(double weight, const double* lanes, double* sum) {
+void Weigh(double weight, const double* lanes, double* weighed, double* sum) {
   V d, s;
   std::memcpy(&d, lanes, sizeof d);
+  d *= weight;
+  std::memcpy(weighed, &d, sizeof d);
+  if (sum == nullptr) return;
   std::memcpy(&s, sum, sizeof s);
-  s += d * weight;
+  s += d;
   std::memcpy(sum, &s, sizeof s);
 }
 
@@ -150,7 +154,8 @@ ColouredJacobian::ColouredJacobian(const OdeModel& model, std::shared_ptr<const 
     : model_(model),
       colouring_(std::move(colouring)),
       c_(*colouring_),
-      weighted_sum_(static_cast<size_t>(c_.n) * static_cast<size_t>(c_.width), 0.0) {
+      weighted_sum_(static_cast<size_t>(c_.n) * static_cast<size_t>(c_.width), 0.0),
+      weighed_(weighted_sum_.size()) {
   switch (c_.width) {
     case 4: Seed(theta, &lanes4_); break;
     case 6: Seed(theta, &lanes6_); break;
@@ -281,35 +286,40 @@ double ColouredJacobian::StateRowSumNorm(const Eigen::VectorXd& x) {
 // (wᵀf_x)_k = Σ over column k's rows i of w_i J_ik, J_ik read from the lane of k's colour; and w_i times
 // each θ lane of f_i added to the running sum, from which ThetaProduct picks the θ columns once (an entry
 // (i, c) of the sum belongs to the one column of colour c with a nonzero in row i, if any: no two columns
-// of a colour share a row). The products and their order are those of weighing every lane first and
-// gathering after, as this did before (the same bits), without storing the weighed lanes, and without
-// summing lanes no θ column uses.
+// of a colour share a row). Every lane of a row is weighed at once, a few lanes an instruction, into
+// the stage's weighed lanes, and the θ lanes added to the running sum as they are; each x column then
+// sums its nonzeros' weighed lanes, one load a nonzero (a gather that weighed as it went took a row, a
+// colour, w and the lane a nonzero, and cost as much as f on the lanes). The products and their order
+// are the same either way (the same bits).
 template <int W>
 void ColouredJacobian::SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx) {
-  // θ's sums first: they read the lanes in order, row by row, which brings a stage kept far away in
-  // memory (OdeOptions::adjoint_keeps_stages) into cache as a stream; the x columns' gathers then find
-  // it there (first, they waited on each row's load: half of the sweep). The two touch different sums.
-  const int begin = c_.theta_lanes_begin;
+  const int n = c_.n, begin = c_.theta_lanes_begin;  // begin is even
   double* const total = weighted_sum_.data();
-  for (int i = 0; i < c_.n; ++i) {
+  double* const weighed = weighed_.data();
+  for (int i = 0; i < n; ++i) {
     const double* const d = lanes[i].derivatives();
+    const double wi = w[i];
+    double* const pi = weighed + i * W;
     double* const si = total + i * W;
-    int l = begin;
+    int l = 0;
 #if defined(__GNUC__)
-    // As in FixedDual: GCC left this loop scalar. Four lanes an instruction in the AVX2 clone.
+    // As in FixedDual: GCC left these loops scalar. Four lanes an instruction in the AVX2 clone.
     typedef double Four __attribute__((vector_size(32)));
     typedef double Two __attribute__((vector_size(16)));
-    for (; l + 4 <= W; l += 4) AddWeighted<Four>(w[i], d + l, si + l);
-    for (; l + 2 <= W; l += 2) AddWeighted<Two>(w[i], d + l, si + l);
+    for (; l + 2 <= begin; l += 2) Weigh<Two>(wi, d + l, pi + l, nullptr);
+    for (; l + 4 <= W; l += 4) Weigh<Four>(wi, d + l, pi + l, si + l);
+    for (; l + 2 <= W; l += 2) Weigh<Two>(wi, d + l, pi + l, si + l);
 #endif
-    for (; l < W; ++l) si[l] += w[i] * d[l];
+    for (; l < W; ++l) {
+      pi[l] = wi * d[l];
+      if (l >= begin) si[l] += pi[l];
+    }
   }
   const int* const start = c_.column_start.data();
-  const int* const rows = c_.rows.data();
-  for (int k = 0; k < c_.n; ++k) {
-    const int colour = c_.colour[static_cast<size_t>(k)];
+  const int* const offset = c_.lane_offset.data();
+  for (int k = 0; k < n; ++k) {
     double sum = 0;
-    for (int p = start[k]; p < start[k + 1]; ++p) sum += w[rows[p]] * lanes[rows[p]].derivative(colour);
+    for (int p = start[k]; p < start[k + 1]; ++p) sum += weighed[offset[p]];
     wfx[k] = sum;
   }
 }

@@ -124,6 +124,7 @@ class ColouredJacobian {
   Lanes<8> lanes8_;
   int stages_ = 0;
   std::vector<double> weighted_sum_;  // n × width: w_i times lane l of f_i, summed over every stage swept
+  std::vector<double> weighed_;       // n × width: the stage being swept's w_i times lane l of f_i
   std::vector<double> row_sums_;      // StateRowSumNorm's
 };
 
