@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <sstream>
 #include <stdexcept>
@@ -742,20 +743,37 @@ TEST_CASE("The rk adjoint on the stages its forward pass kept gives the recomput
     INFO(c.model->name() << " / " << (c.scenario ? c.scenario->name : "one bolus"));
     pk::ObjectiveOptions kept = RkOptions(1e-8, true), again = kept;
     again.ode.adjoint_keeps_stages = false;
-    const pk::Objective with_kept(c.model, c.data, 0, kept), recomputing(c.model, c.data, 0, again);
-    Eigen::VectorXd values = with_kept.DefaultValues();
+    const pk::Objective recomputing(c.model, c.data, 0, again);
+    Eigen::VectorXd values = recomputing.DefaultValues();
     std::vector<int> free;
     for (int i = 0; i < c.model->num_parameters(); ++i) free.push_back(i);
-    if (c.scenario != nullptr) pk_test::ScenarioValues(with_kept, *c.scenario, &values, &free);
-    if (c.km > 0) values(with_kept.ParameterIndex("KM")) = c.km;
-    const auto a = with_kept.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+    if (c.scenario != nullptr) pk_test::ScenarioValues(recomputing, *c.scenario, &values, &free);
+    if (c.km > 0) values(recomputing.ParameterIndex("KM")) = c.km;
     const auto b = recomputing.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
-    REQUIRE(a.ok);
     REQUIRE(b.ok);
-    CHECK(a.value == b.value);
-    CHECK(a.gradient == b.gradient);
-    CHECK(a.ode_statistics.peak_adjoint_bytes > b.ode_statistics.peak_adjoint_bytes);  // the stages kept
-    if (c.km > 0) CHECK(a.ode_statistics.stiff_steps > 0);  // RODAS4 took the stiffening segment
+    // Budgets of kept stages (OdeOptions::adjoint_kept_stage_bytes): one step's (the first segment's
+    // first step; its later ones are evaluated again on the same lanes), every stage (none runs out), a
+    // third of that, and this machine's default: the same bits whichever steps were kept. One step's
+    // comes first: the thread's slots would otherwise hold every stage of this very evaluation from
+    // before, and a step past the kept ones read from them would go unseen.
+    const int width = pk::internal::ColouredJacobian::ColouringOf(*dynamic_cast<const pk::OdeModel*>(c.model.get()))->width;
+    const long slot_bytes = static_cast<long>(sizeof(double)) * c.model->num_compartments() * (width + 1);
+    long every_stage = 0;  // the bytes of every stage kept
+    for (const long budget : {10 * slot_bytes, std::numeric_limits<long>::max(), -3L, 0L}) {
+      INFO("budget " << budget);
+      kept.ode.adjoint_kept_stage_bytes = budget == -3 ? every_stage / 3 : budget;
+      const pk::Objective some_kept(c.model, c.data, 0, kept);
+      const auto a = some_kept.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+      REQUIRE(a.ok);
+      CHECK(a.value == b.value);
+      CHECK(a.gradient == b.gradient);
+      const long extra = a.ode_statistics.peak_adjoint_bytes - b.ode_statistics.peak_adjoint_bytes;
+      if (budget == std::numeric_limits<long>::max()) every_stage = extra;
+      CHECK(extra > 0);  // the stages kept
+      if (budget == -3) CHECK(extra < every_stage);
+      if (budget == 10 * slot_bytes) CHECK(extra == 7 * slot_bytes);  // its 6 stages and the FSAL slot
+      if (c.km > 0) CHECK(a.ode_statistics.stiff_steps > 0);  // RODAS4 took the stiffening segment
+    }
   }
 }
 

@@ -43,6 +43,7 @@ bool OdeOptions::IsValid(std::string* error) const {
   if (!(absolute_tolerance > 0)) return fail("the ODE absolute tolerance must be > 0");
   if (max_steps < 1) return fail("the ODE step limit must be >= 1");
   if (checkpoint_steps < 1) return fail("the checkpoint interval must be >= 1 step");
+  if (adjoint_kept_stage_bytes < 0) return fail("the adjoint's budget of kept stages must be >= 0 bytes");
   if (max_newton_iterations < 1) return fail("the steady-state Newton limit must be >= 1");
   return true;
 }

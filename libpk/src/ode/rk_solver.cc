@@ -9,6 +9,8 @@
 #include <memory>
 #include <string>
 
+#include <unistd.h>
+
 #include <boost/numeric/odeint.hpp>
 #include <boost/numeric/odeint/external/eigen/eigen.hpp>
 
@@ -141,6 +143,28 @@ struct StepReverse {
   const bool with_du;
 };
 
+// A step's stages evaluated again from its start for the backward pass, each recorded by `stages` (a
+// StageTape or a ColouredJacobian) as it is formed: X_0 = x_n, X_i = x_n + h Σ_{j<i} a_ij k_j, with
+// k_i = f(X_i) + u; the slopes go straight into their columns.
+struct StagesAgain {
+  explicit StagesAgain(Eigen::Index n) : k(n, kStages), start(n), point(n) {}
+  template <typename Stages>
+  void Record(Stages* stages, const SegmentInput& in, const Eigen::Ref<const Eigen::VectorXd>& x, double h,
+              OdeStatistics* stats) {
+    const bool with_u = !in.u.isZero(0.0);  // without input rates, k_i = f(X_i)
+    stages->NewStep();
+    start = x;
+    for (int i = 0; i < kStages; ++i) {
+      if (i > 0) StagePoint(i, h, start, k, &point);
+      stages->Record(i > 0 ? point : start, k.col(i).data());
+      if (with_u) k.col(i) += in.u;
+      ++stats->rhs_evaluations;
+    }
+  }
+  Eigen::MatrixXd k;
+  Eigen::VectorXd start, point;
+};
+
 // One segment's accepted steps, for the discrete adjoint: the state at each step's start and its length.
 // The starts are `count` columns of n numbers in the solver's arena (RkSolver::Impl::Starts), from `first`.
 struct StoredSteps {
@@ -150,9 +174,12 @@ struct StoredSteps {
   std::vector<double> h;
   bool stiff = false;  // a stiff segment: Rosenbrock's, from its one column (its start) in the backward pass
   // With kept stages (OdeOptions::adjoint_keeps_stages): the lanes that evaluated them, and their slots
-  // in the solver's StageSlots, step s's stage i at first_slot + kStages·s + i.
+  // in the solver's StageSlots, step s's stage i at first_slot + kStages·s + i, for the first
+  // `kept_steps` steps; the budget of kept stages ran out at the later ones, whose stages the backward
+  // pass evaluates again on the same lanes.
   std::unique_ptr<ColouredJacobian> lanes;
   size_t first_slot = 0;
+  Eigen::Index kept_steps = 0;
   int shares = -1;     // ≥ 0: in.dtheta and in.du are left empty, and are stored segment `shares`'s
 };
 
@@ -169,6 +196,21 @@ std::vector<double>& KeptArena() {
 StageSlots& KeptSlots() {
   static thread_local StageSlots slots;
   return slots;
+}
+
+// Kept stages an evaluation may hold (OdeOptions::adjoint_kept_stage_bytes), in slots of n numbers
+// with `width` lanes each.
+size_t KeptSlotLimit(const OdeOptions& opt, int n, int width) {
+  long bytes = opt.adjoint_kept_stage_bytes;
+  if (bytes == 0) {
+    static const long half_l2 = [] {
+      const long l2 = sysconf(_SC_LEVEL2_CACHE_SIZE);
+      return l2 > 0 ? l2 / 2 : 512L * 1024;
+    }();
+    bytes = half_l2;
+  }
+  const size_t slot = static_cast<size_t>(n) * static_cast<size_t>(width + 1) * sizeof(double);
+  return static_cast<size_t>(bytes) / slot;
 }
 
 // h·‖f_x‖∞ above which a segment is stiff for an explicit method: Dormand–Prince's stability region
@@ -413,12 +455,17 @@ struct RkSolver::Impl {
     // Kept stages: f on the lanes at every stage the stepper evaluates, the step's stage i into slot
     // base + i. Odeint's FSAL stepper evaluates stage 0 once, at its first step; then each try evaluates
     // stages 1…5 and the next step's stage 0 (slots base + 1 … base + 6), and a rejected try is
-    // written over by the next.
+    // written over by the next. Steps are kept while their slots stay within the budget; after it
+    // runs out, f is evaluated in double again (the same values: the lanes' are f's to the bit).
     std::unique_ptr<ColouredJacobian> lanes;
+    size_t base = slots_used, limit = 0;
     if (steps && opt.adjoint_keeps_stages && opt.compressed_jacobians && !sys.is_linear()) {
       lanes = ColouredJacobian::For(*sys.nonlinear(), in.theta);
+      if (lanes) limit = KeptSlotLimit(opt, n, lanes->width());
+      if (lanes && base + 1 + kStages > limit) lanes.reset();  // not one step fits
     }
-    size_t base = slots_used;
+    bool keeping = lanes != nullptr;
+    Eigen::Index kept_steps = 0;
     bool first_evaluated = false;
     int call = 0;  // stages evaluated in this try
     const Rhs kept_rhs = [&](const State& z, State& dz, double) {
@@ -429,7 +476,6 @@ struct RkSolver::Impl {
       lanes->RecordSlot(&slots, slot, z, dz.data());
       dz += in.u;  // as rhs adds it
     };
-    const Rhs& step_rhs = lanes ? kept_rhs : rhs;
     // One stepper for every segment, reset to evaluate its first slope again: a new one a segment
     // allocated its ten work vectors each time.
     if (!replay_stepper) replay_stepper.reset(new Controlled(ErrorNorm(opt.absolute_tolerance, opt.relative_tolerance)));
@@ -448,7 +494,7 @@ struct RkSolver::Impl {
       if (count % kStableStepEvery == 0) {
         // A norm that is not finite (f_x undefined at this x) leaves the last bound in place. With kept
         // stages, the last step's final evaluation was on the lanes at this very x.
-        const double norm = lanes && count > 0 ? lanes->StateRowSumNormAt(slots, base) : StateRowSumNorm(in, *x);
+        const double norm = keeping && count > 0 ? lanes->StateRowSumNormAt(slots, base) : StateRowSumNorm(in, *x);
         if (std::isfinite(norm)) stable_step = norm > 0 ? kStableStep / norm : 0;
       }
       if (stable_step > 0) dt = std::min(dt, stable_step);
@@ -458,7 +504,7 @@ struct RkSolver::Impl {
       start_buf = *x;
       double tt = t;
       call = 0;
-      if (stepper.try_step(std::cref(step_rhs), *x, tt, step) == odeint::fail) {
+      if (stepper.try_step(std::cref(keeping ? kept_rhs : rhs), *x, tt, step) == odeint::fail) {
         dt = step;  // the control's smaller proposal
         if (++tries > 1000) throw NumericalFailure("the Dormand–Prince step size control failed");
         continue;
@@ -468,7 +514,11 @@ struct RkSolver::Impl {
       if (steps) {
         arena.insert(arena.end(), start_buf.data(), start_buf.data() + n);
         steps->h.push_back(length);
+      }
+      if (keeping) {
         base += kStages;  // the next step's stage 0 is this one's last evaluation
+        kept_steps = static_cast<Eigen::Index>(steps->h.size());
+        keeping = base + 1 + kStages <= limit;  // room for the next step's
       }
       t = last ? in.h : tt;
       dt = step;
@@ -478,13 +528,15 @@ struct RkSolver::Impl {
         throw NumericalFailure("too much work: more than " + std::to_string(opt.max_steps) +
                                " Dormand–Prince steps between two events");
       }
-      CheckStiffening(in, count, dt, *x, &limited, lanes.get(), base);
+      // A norm from a kept slot and one from an evaluation at x are the same bits.
+      CheckStiffening(in, count, dt, *x, &limited, kept_steps == count ? lanes.get() : nullptr, base);
     }
     if (steps) {
       KeepInput(in, steps);
       steps->count = static_cast<Eigen::Index>(steps->h.size());
-      if (lanes && steps->count > 0) {
+      if (lanes && kept_steps > 0) {
         steps->first_slot = slots_used;
+        steps->kept_steps = kept_steps;
         slots_used = base + 1;
         steps->lanes = std::move(lanes);
       }
@@ -500,30 +552,17 @@ struct RkSolver::Impl {
   void Backward(const StoredSteps& steps, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                 Eigen::RowVectorXd* q) {
     if (steps.lanes) return BackwardKept(steps, lambda_end, lambda_start, q);
-    const SegmentInput& in = steps.in;
     const Eigen::MatrixXd& dtheta = Owner(steps).dtheta;
     const Eigen::MatrixXd& du = Owner(steps).du;
     const int k = static_cast<int>(dtheta.cols());
+    const SegmentInput& in = steps.in;
     StageTape stages(sys, in.theta, opt.compressed_jacobians);
-    const bool with_u = !in.u.isZero(0.0);  // without input rates, k_i = f(X_i)
     StepReverse reverse(n, du.cols() == k);
     Eigen::VectorXd lambda = lambda_end;
-    Eigen::MatrixXd stage_k(n, kStages);
-    Eigen::VectorXd start(n), point(n);
-    const Eigen::Map<const Eigen::MatrixXd> starts = Starts(steps);
+    StagesAgain again(n);
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
-      // The stages, forward again, each recorded (the last one's slope does not enter a stage point).
-      // Slopes and products go straight into their columns.
-      stages.NewStep();
-      start = starts.col(step);
-      for (int i = 0; i < kStages; ++i) {
-        if (i > 0) StagePoint(i, h, start, stage_k, &point);
-        stages.Record(i > 0 ? point : start, stage_k.col(i).data());
-        if (with_u) stage_k.col(i) += in.u;
-        ++stats.rhs_evaluations;
-      }
-      // Their adjoints, backward.
+      again.Record(&stages, in, Starts(steps).col(step), h, &stats);
       reverse.Step(h, &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) { stages.Sweep(i, w, wfx); });
       ++stats.backward_steps;
     }
@@ -532,7 +571,9 @@ struct RkSolver::Impl {
   }
 
   // Backward as above, on the stages the forward pass kept (OdeOptions::adjoint_keeps_stages): the
-  // same sweeps in the same order, at the very points the forward pass evaluated.
+  // same sweeps in the same order, at the very points the forward pass evaluated. Steps past the kept
+  // ones (the budget ran out) have their stages evaluated again on the same lanes, which a StageTape on
+  // compressed Jacobians would do too: one running sum of θ's products, in the same order either way.
   void BackwardKept(const StoredSteps& steps, const Eigen::VectorXd& lambda_end, Eigen::VectorXd* lambda_start,
                     Eigen::RowVectorXd* q) {
     const Eigen::MatrixXd& dtheta = Owner(steps).dtheta;
@@ -541,11 +582,18 @@ struct RkSolver::Impl {
     lanes.ResetProducts();  // a stored segment may be swept again (another seed of the same forward pass)
     StepReverse reverse(n, du.cols() == dtheta.cols());
     Eigen::VectorXd lambda = lambda_end;
+    StagesAgain again(n);
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
-      const size_t base = steps.first_slot + static_cast<size_t>(kStages) * static_cast<size_t>(step);
-      reverse.Step(steps.h[static_cast<size_t>(step)], &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) {
-        lanes.SweepSlot(slots, base + static_cast<size_t>(i), w, wfx);
-      });
+      const double h = steps.h[static_cast<size_t>(step)];
+      if (step >= steps.kept_steps) {
+        again.Record(&lanes, steps.in, Starts(steps).col(step), h, &stats);
+        reverse.Step(h, &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) { lanes.Sweep(i, w, wfx); });
+      } else {
+        const size_t base = steps.first_slot + static_cast<size_t>(kStages) * static_cast<size_t>(step);
+        reverse.Step(h, &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) {
+          lanes.SweepSlot(slots, base + static_cast<size_t>(i), w, wfx);
+        });
+      }
       ++stats.backward_steps;
     }
     *lambda_start = lambda;
@@ -665,7 +713,7 @@ int RkSolver::StoreSegment(const SegmentInput& in, Eigen::VectorXd* x) {
   }
   d.stored_bytes += static_cast<long>(sizeof(double)) * (steps.count * d.n + static_cast<long>(steps.h.size()));
   if (steps.lanes) {  // the kept stages: kStages a step and the last one's FSAL stage, W + 1 numbers a state
-    const long slots = static_cast<long>(kStages) * steps.count + 1;
+    const long slots = static_cast<long>(kStages) * steps.kept_steps + 1;
     d.stored_bytes += static_cast<long>(sizeof(double)) * slots * d.n * (steps.lanes->width() + 1);
   }
   d.stored.push_back(std::move(steps));
