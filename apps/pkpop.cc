@@ -108,8 +108,11 @@ std::vector<std::string> SplitCommas(const std::vector<std::string>& items) {
   return out;
 }
 
+// ASCII letters in upper case, whatever the C locale, as the library compares names.
 std::string Upper(std::string s) {
-  for (char& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  for (char& c : s) {
+    if (c >= 'a' && c <= 'z') c = static_cast<char>(c - 'a' + 'A');
+  }
   return s;
 }
 
