@@ -3,6 +3,7 @@
 // forward sensitivities and discrete adjoint against central differences of its own objective, steps
 // that samples do not shorten, simulation, and stiff segments handed to RODAS4. (Its fit of synthetic
 // Michaelis–Menten data is tests/test_ode.cc's, run through both integrators.)
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -678,4 +679,31 @@ TEST_CASE("Dormand-Prince: a trial step whose error estimate is NaN is rejected,
   pk::internal::DormandPrinceTo(rhs, 20.0, 1e-14, 1e-10, 100000, &z, &first_step);
   REQUIRE(std::isfinite(z(0)));
   CHECK(std::fabs(z(0) - std::exp(-20.0)) <= 1e-8 * std::exp(-20.0) + 1e-13);
+}
+
+TEST_CASE("SameMatrix and SharedMatrix::Equals compare shapes before values", "[rk]") {
+  // The continuation checks compare ∂u/∂p, which has no columns when no rate depends on p, with the
+  // last segment's; Eigen's == on unequal shapes is undefined in a Release build. A 2×3 and a 3×2
+  // matrix hold the same six numbers in memory here, so a comparison of the numbers alone says equal.
+  Eigen::MatrixXd wide(2, 3), tall(3, 2);
+  wide << 1, 3, 5, 2, 4, 6;
+  tall << 1, 4, 2, 5, 3, 6;
+  REQUIRE(std::equal(wide.data(), wide.data() + 6, tall.data()));
+  CHECK_FALSE(pk::internal::SameMatrix(wide, tall));
+  CHECK_FALSE(pk::internal::SameMatrix(Eigen::MatrixXd(3, 0), Eigen::MatrixXd(0, 3)));
+  CHECK(pk::internal::SameMatrix(Eigen::MatrixXd(3, 0), Eigen::MatrixXd(3, 0)));
+  CHECK(pk::internal::SameMatrix(wide, Eigen::MatrixXd(wide)));
+  Eigen::MatrixXd other = wide;
+  other(1, 2) = 7;
+  CHECK_FALSE(pk::internal::SameMatrix(wide, other));
+
+  const pk::internal::SharedMatrix a(wide), b(tall), a_copy{Eigen::MatrixXd(wide)}, empty;
+  const pk::internal::SharedMatrix a_again = a;
+  CHECK(a_again.SameAs(a));
+  CHECK_FALSE(a_copy.SameAs(a));
+  CHECK(a_copy.Equals(a));  // equal values, another object
+  CHECK_FALSE(a.Equals(b));
+  CHECK_FALSE(a.Equals(empty));
+  CHECK(empty.Equals(pk::internal::SharedMatrix()));
+  CHECK(empty->size() == 0);
 }
