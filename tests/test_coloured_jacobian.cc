@@ -228,6 +228,13 @@ Eigen::VectorXd Spread(const pk::Model& model) {
   return theta;
 }
 
+// Bytes of one kept stage of `model` (n numbers with the colouring's lanes), for budgets of kept stages.
+long SlotBytes(const pk::Model& model) {
+  const auto* ode = dynamic_cast<const pk::OdeModel*>(&model);
+  const int width = pk::internal::ColouredJacobian::ColouringOf(*ode)->width;
+  return static_cast<long>(sizeof(double)) * model.num_compartments() * (width + 1);
+}
+
 std::shared_ptr<pk::Dataset> ChainData() {
   std::ostringstream csv;
   csv << "ID,TIME,AMT,EVID,CMT,DV\n1,0,100,1,1,.\n";
@@ -755,25 +762,67 @@ TEST_CASE("The rk adjoint on the stages its forward pass kept gives the recomput
     // first step; its later ones are evaluated again on the same lanes), every stage (none runs out), a
     // third of that, and this machine's default: the same bits whichever steps were kept. One step's
     // comes first: the thread's slots would otherwise hold every stage of this very evaluation from
-    // before, and a step past the kept ones read from them would go unseen.
-    const int width = pk::internal::ColouredJacobian::ColouringOf(*dynamic_cast<const pk::OdeModel*>(c.model.get()))->width;
-    const long slot_bytes = static_cast<long>(sizeof(double)) * c.model->num_compartments() * (width + 1);
-    long every_stage = 0;  // the bytes of every stage kept
-    for (const long budget : {10 * slot_bytes, std::numeric_limits<long>::max(), -3L, 0L}) {
-      INFO("budget " << budget);
-      kept.ode.adjoint_kept_stage_bytes = budget == -3 ? every_stage / 3 : budget;
-      const pk::Objective some_kept(c.model, c.data, 0, kept);
-      const auto a = some_kept.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+    // before, and a step past the kept ones read from them would go unseen. What is kept shows in the
+    // storage beyond the recomputing adjoint's.
+    const long slot_bytes = SlotBytes(*c.model);
+    const auto adjoint = [&](long budget) {
+      kept.ode.adjoint_kept_stage_bytes = budget;
+      const pk::Objective objective(c.model, c.data, 0, kept);
+      const auto a = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
       REQUIRE(a.ok);
       CHECK(a.value == b.value);
       CHECK(a.gradient == b.gradient);
-      const long extra = a.ode_statistics.peak_adjoint_bytes - b.ode_statistics.peak_adjoint_bytes;
-      if (budget == std::numeric_limits<long>::max()) every_stage = extra;
-      CHECK(extra > 0);  // the stages kept
-      if (budget == -3) CHECK(extra < every_stage);
-      if (budget == 10 * slot_bytes) CHECK(extra == 7 * slot_bytes);  // its 6 stages and the FSAL slot
       if (c.km > 0) CHECK(a.ode_statistics.stiff_steps > 0);  // RODAS4 took the stiffening segment
+      return a.ode_statistics.peak_adjoint_bytes - b.ode_statistics.peak_adjoint_bytes;
+    };
+    {
+      INFO("one step's budget");
+      CHECK(adjoint(10 * slot_bytes) == 7 * slot_bytes);  // its 6 stages and the next one's first
     }
+    const long every_stage = adjoint(std::numeric_limits<long>::max());
+    CHECK(every_stage > 7 * slot_bytes);
+    {
+      INFO("a third of every stage");
+      const long third = adjoint(every_stage / 3);
+      CHECK(third > 0);
+      CHECK(third < every_stage);
+    }
+    {
+      INFO("the default budget");
+      CHECK(adjoint(0) > 0);
+    }
+  }
+}
+
+TEST_CASE("The rk adjoint keeps stages while the next step's fit in the budget, and switches midway",
+          "[coloured][rk][gradient]") {
+  // One segment of many steps (a bolus, one sample 2 h later, before the chain stiffens as the drug
+  // clears and RODAS4 takes the segment): a step's 6 stages and the next step's
+  // first slope take 7 slots, each further step 6 more. A budget of 12 slots keeps one step, 13 keep two,
+  // 6 none; the segment's later steps are evaluated again backward on the same lanes, to the same bits.
+  const auto chain = Chain(4);
+  const auto data = std::make_shared<pk::Dataset>(
+      pk::ParseDataset("ID,TIME,AMT,EVID,CMT,DV\n1,0,100,1,1,.\n1,2,0,0,0,1\n", "one_segment.csv"));
+  pk::ObjectiveOptions kept = RkOptions(1e-8, true), again = kept;
+  again.ode.adjoint_keeps_stages = false;
+  const pk::Objective recomputing(chain, data, 0, again);
+  const Eigen::VectorXd values = recomputing.DefaultValues();
+  std::vector<int> free;
+  for (int i = 0; i < chain->num_parameters(); ++i) free.push_back(i);
+  const auto b = recomputing.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+  REQUIRE(b.ok);
+  REQUIRE(b.ode_statistics.steps > 5);  // the budgets below run out midway
+  REQUIRE(b.ode_statistics.stiff_steps == 0);
+  const long slot = SlotBytes(*chain);
+  for (const std::pair<long, long>& budget_kept : {std::pair<long, long>{13, 13}, {12, 7}, {6, 0}, {19, 19}}) {
+    INFO("a budget of " << budget_kept.first << " slots");
+    kept.ode.adjoint_kept_stage_bytes = budget_kept.first * slot;
+    const pk::Objective objective(chain, data, 0, kept);
+    const auto a = objective.Evaluate(values, free, Need::kGradient, pk::GradientRoute::kAdjoint);
+    REQUIRE(a.ok);
+    CHECK(a.value == b.value);
+    CHECK(a.gradient == b.gradient);
+    CHECK(a.ode_statistics.peak_adjoint_bytes - b.ode_statistics.peak_adjoint_bytes == budget_kept.second * slot);
   }
 }
 

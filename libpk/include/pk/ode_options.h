@@ -39,13 +39,15 @@ struct OdeOptions {
   /// lanes). False: the forward pass keeps each step's start, and the backward pass evaluates the stages
   /// again. The same gradient either way, to the last bit.
   bool adjoint_keeps_stages = true;
-  /// Bytes of kept stages (adjoint_keeps_stages) an evaluation may hold: stages are kept, step by step,
-  /// until the kept lanes reach this, and the steps after that are evaluated again backward. Kept
-  /// stages pay only while the backward pass finds them in cache: on a machine whose memory is slow
-  /// against its arithmetic, sweeping stages that had to come back from memory cost more than
-  /// evaluating them again (docs/performance.md §9). 0 (the default): half of the processor's
-  /// second-level cache as the system reports it, 512 KiB when it does not. The same gradient, to the
-  /// last bit, whatever the budget.
+  /// Bytes of kept stages (adjoint_keeps_stages) one evaluation of one subject may hold on its thread.
+  /// A step keeps 6·n·(W+1)·8 bytes (n states, W ≤ 8 lanes), and the first step of a run of kept steps
+  /// one slot more; steps keep their stages while the next step's fit, and the steps after that keep
+  /// only their start (n + 1 numbers, not counted here), their stages evaluated again in the backward
+  /// pass. A budget below 7·n·(W+1)·8 bytes keeps nothing. Kept stages pay only while the backward pass
+  /// finds them in cache: on a machine whose memory is slow against its arithmetic, sweeping stages that
+  /// had to come back from memory cost more than evaluating them again (docs/performance.md §9). 0 (the
+  /// default): half of the processor's second-level cache as the system reports it, 512 KiB when it
+  /// does not. The same gradient, to the last bit, whatever the budget.
   long adjoint_kept_stage_bytes = 0;
   /// Steady states of nonlinear models: Newton iterations on x = P(x) allowed.
   int max_newton_iterations = 50;

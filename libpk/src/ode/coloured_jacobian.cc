@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <stdexcept>
 #include <utility>
@@ -200,29 +201,35 @@ void ColouredJacobian::Record(const Eigen::VectorXd& x, Eigen::VectorXd* f) {
 void ColouredJacobian::Record(const Eigen::VectorXd& x, double* f) {
   const size_t slot = static_cast<size_t>(stages_);
   switch (c_.width) {
-    case 4: RecordInto(&lanes4_.f, slot, x, &lanes4_, f); break;
-    case 6: RecordInto(&lanes6_.f, slot, x, &lanes6_, f); break;
-    default: RecordInto(&lanes8_.f, slot, x, &lanes8_, f); break;
+    case 4: RecordInto(&lanes4_.f, slot, SIZE_MAX, x, &lanes4_, f); break;
+    case 6: RecordInto(&lanes6_.f, slot, SIZE_MAX, x, &lanes6_, f); break;
+    default: RecordInto(&lanes8_.f, slot, SIZE_MAX, x, &lanes8_, f); break;
   }
   ++stages_;
 }
 
 template <int W>
-void ColouredJacobian::RecordInto(std::vector<FixedDual<W>>* store, size_t slot, const Eigen::VectorXd& x,
-                                  Lanes<W>* lanes, double* f) {
+void ColouredJacobian::RecordInto(std::vector<FixedDual<W>>* store, size_t slot, size_t limit,
+                                  const Eigen::VectorXd& x, Lanes<W>* lanes, double* f) {
   const size_t n = static_cast<size_t>(c_.n), first = slot * n;
-  // Growing by at least eight stages (Dormand–Prince records six a step), doubling beyond.
-  if (store->size() < first + n) store->resize(std::max({first + n, 2 * store->size(), 8 * n}));
+  // Growing by at least eight stages (Dormand–Prince records six a step), doubling beyond, never past
+  // the limit: kept stages have a budget (OdeOptions::adjoint_kept_stage_bytes), and a doubling would
+  // touch up to twice that.
+  if (store->size() < first + n) {
+    const size_t grown = std::max({first + n, 2 * store->size(), 8 * n});
+    store->resize(limit < SIZE_MAX / n ? std::max(first + n, std::min(grown, limit * n)) : grown);
+  }
   FixedDual<W>* const out = store->data() + first;
   Evaluate(x, lanes, out);
   for (size_t i = 0; i < n; ++i) f[i] = out[i].value();
 }
 
-void ColouredJacobian::RecordSlot(StageSlots* slots, size_t slot, const Eigen::VectorXd& x, double* f) {
+void ColouredJacobian::RecordSlot(StageSlots* slots, size_t slot, size_t limit, const Eigen::VectorXd& x,
+                                  double* f) {
   switch (c_.width) {
-    case 4: RecordInto(&slots->lanes4, slot, x, &lanes4_, f); break;
-    case 6: RecordInto(&slots->lanes6, slot, x, &lanes6_, f); break;
-    default: RecordInto(&slots->lanes8, slot, x, &lanes8_, f); break;
+    case 4: RecordInto(&slots->lanes4, slot, limit, x, &lanes4_, f); break;
+    case 6: RecordInto(&slots->lanes6, slot, limit, x, &lanes6_, f); break;
+    default: RecordInto(&slots->lanes8, slot, limit, x, &lanes8_, f); break;
   }
 }
 

@@ -72,9 +72,10 @@ class ColouredJacobian {
   void Record(const Eigen::VectorXd& x, double* f);  // n numbers at f
   void Sweep(int stage, const Eigen::VectorXd& w, Eigen::VectorXd* wfx);
   void Sweep(int stage, const Eigen::VectorXd& w, double* wfx);  // n numbers at wfx
-  /// f at x on the lanes into slot `slot` of *slots (which grows to hold it), its value into n numbers
-  /// at f: a stage kept for SweepSlot. Does not touch the step's stages above.
-  void RecordSlot(StageSlots* slots, size_t slot, const Eigen::VectorXd& x, double* f);
+  /// f at x on the lanes into slot `slot` < `limit` of *slots (which grows to hold it, to at most
+  /// `limit` slots), its value into n numbers at f: a stage kept for SweepSlot. Does not touch the
+  /// step's stages above.
+  void RecordSlot(StageSlots* slots, size_t slot, size_t limit, const Eigen::VectorXd& x, double* f);
   /// Sweep's products at a kept slot.
   void SweepSlot(const StageSlots& slots, size_t slot, const Eigen::VectorXd& w, double* wfx);
   /// StateRowSumNorm at the point a kept slot was recorded at, from its lanes (no evaluation).
@@ -108,10 +109,11 @@ class ColouredJacobian {
   double RowSumNormOf(const FixedDual<W>* f);
   template <int W>
   void SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx);
-  // f at x on the lanes into slot `slot` of *store (n lanes a slot; it grows to hold it), values into f.
+  // f at x on the lanes into slot `slot` of *store (n lanes a slot; it grows to hold it, by doubling up
+  // to `limit` slots), values into f.
   template <int W>
-  void RecordInto(std::vector<FixedDual<W>>* store, size_t slot, const Eigen::VectorXd& x, Lanes<W>* lanes,
-                  double* f);
+  void RecordInto(std::vector<FixedDual<W>>* store, size_t slot, size_t limit, const Eigen::VectorXd& x,
+                  Lanes<W>* lanes, double* f);
   // Slot `slot` of a store of kept stages; throws std::logic_error when it was never recorded.
   template <int W>
   const FixedDual<W>* KeptSlot(const std::vector<FixedDual<W>>& store, size_t slot) const;
