@@ -13,6 +13,8 @@
 #include <string>
 #include <vector>
 
+#include <unistd.h>
+
 #include "ode/coloured_jacobian.h"
 #include "ode/ode_system.h"
 #include "pk/fixed_dual.h"
@@ -790,8 +792,21 @@ TEST_CASE("The rk adjoint on the stages its forward pass kept gives the recomput
     {
       INFO("the default budget");
       CHECK(adjoint(0) > 0);
+      const long l2 = sysconf(_SC_LEVEL2_CACHE_SIZE);  // the default: half of it, 512 KiB when unknown
+      CHECK(adjoint(0) == adjoint(l2 > 0 ? l2 / 2 : 512L * 1024));
     }
   }
+}
+
+TEST_CASE("A negative budget of kept stages is an invalid option", "[coloured][rk]") {
+  pk::OdeOptions o;
+  std::string why;
+  CHECK(o.IsValid(&why));
+  o.adjoint_kept_stage_bytes = 0;
+  CHECK(o.IsValid(&why));
+  o.adjoint_kept_stage_bytes = -1;
+  CHECK_FALSE(o.IsValid(&why));
+  CHECK(why == "the adjoint's budget of kept stages must be >= 0 bytes");
 }
 
 TEST_CASE("The rk adjoint keeps stages while the next step's fit in the budget, and switches midway",

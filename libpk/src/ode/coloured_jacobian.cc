@@ -216,8 +216,8 @@ void ColouredJacobian::RecordInto(std::vector<FixedDual<W>>* store, size_t slot,
   // the limit: kept stages have a budget (OdeOptions::adjoint_kept_stage_bytes), and a doubling would
   // touch up to twice that.
   if (store->size() < first + n) {
-    const size_t grown = std::max({first + n, 2 * store->size(), 8 * n});
-    store->resize(limit < SIZE_MAX / n ? std::max(first + n, std::min(grown, limit * n)) : grown);
+    const size_t cap = limit <= SIZE_MAX / n ? limit * n : SIZE_MAX;  // SIZE_MAX: no limit
+    store->resize(std::max(first + n, std::min(std::max(2 * store->size(), 8 * n), cap)));
   }
   FixedDual<W>* const out = store->data() + first;
   Evaluate(x, lanes, out);

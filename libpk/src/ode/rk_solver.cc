@@ -143,24 +143,25 @@ struct StepReverse {
   const bool with_du;
 };
 
-// A step's stages evaluated again from its start for the backward pass, each recorded by `stages` (a
-// StageTape or a ColouredJacobian) as it is formed: X_0 = x_n, X_i = x_n + h Σ_{j<i} a_ij k_j, with
-// k_i = f(X_i) + u; the slopes go straight into their columns.
+// A segment's steps' stages evaluated again from each step's start for the backward pass, each recorded
+// by `stages` (a StageTape or a ColouredJacobian) as it is formed: X_0 = x_n, X_i = x_n + h Σ_{j<i} a_ij k_j,
+// with k_i = f(X_i) + u; the slopes go straight into their columns.
 struct StagesAgain {
-  explicit StagesAgain(Eigen::Index n) : k(n, kStages), start(n), point(n) {}
+  explicit StagesAgain(const Eigen::VectorXd& u)
+      : u(u), with_u(!u.isZero(0.0)), k(u.size(), kStages), start(u.size()), point(u.size()) {}
   template <typename Stages>
-  void Record(Stages* stages, const SegmentInput& in, const Eigen::Ref<const Eigen::VectorXd>& x, double h,
-              OdeStatistics* stats) {
-    const bool with_u = !in.u.isZero(0.0);  // without input rates, k_i = f(X_i)
+  void Record(Stages* stages, const Eigen::Ref<const Eigen::VectorXd>& x, double h, OdeStatistics* stats) {
     stages->NewStep();
     start = x;
     for (int i = 0; i < kStages; ++i) {
       if (i > 0) StagePoint(i, h, start, k, &point);
       stages->Record(i > 0 ? point : start, k.col(i).data());
-      if (with_u) k.col(i) += in.u;
+      if (with_u) k.col(i) += u;
       ++stats->rhs_evaluations;
     }
   }
+  const Eigen::VectorXd& u;
+  const bool with_u;  // without input rates, k_i = f(X_i)
   Eigen::MatrixXd k;
   Eigen::VectorXd start, point;
 };
@@ -564,10 +565,10 @@ struct RkSolver::Impl {
     StageTape stages(sys, in.theta, opt.compressed_jacobians);
     StepReverse reverse(n, du.cols() == k);
     Eigen::VectorXd lambda = lambda_end;
-    StagesAgain again(n);
+    StagesAgain again(in.u);
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
-      again.Record(&stages, in, Starts(steps).col(step), h, &stats);
+      again.Record(&stages, Starts(steps).col(step), h, &stats);
       reverse.Step(h, &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) { stages.Sweep(i, w, wfx); });
       ++stats.backward_steps;
     }
@@ -587,11 +588,11 @@ struct RkSolver::Impl {
     lanes.ResetProducts();  // a stored segment may be swept again (another seed of the same forward pass)
     StepReverse reverse(n, du.cols() == dtheta.cols());
     Eigen::VectorXd lambda = lambda_end;
-    StagesAgain again(n);
+    StagesAgain again(steps.in.u);
     for (Eigen::Index step = steps.count - 1; step >= 0; --step) {
       const double h = steps.h[static_cast<size_t>(step)];
       if (step >= steps.kept_steps) {
-        again.Record(&lanes, steps.in, Starts(steps).col(step), h, &stats);
+        again.Record(&lanes, Starts(steps).col(step), h, &stats);
         reverse.Step(h, &lambda, [&](int i, const Eigen::VectorXd& w, double* wfx) { lanes.Sweep(i, w, wfx); });
       } else {
         const size_t base = steps.first_slot + static_cast<size_t>(kStages) * static_cast<size_t>(step);
