@@ -205,6 +205,23 @@ bool ValidColouring(const pk::internal::JacobianColouring& c) {
   return true;
 }
 
+// The sweep's table of the x columns' nonzeros: slot j of column k is the j-th of lane_offset's entries
+// for k (rows in order), and padding (n·width, the sweep's 0) after the last; at least one column fills
+// every slot.
+bool ValidGather(const pk::internal::JacobianColouring& c) {
+  if (c.x_gather.size() != static_cast<size_t>(c.x_slots) * static_cast<size_t>(c.n)) return false;
+  bool full = c.x_slots == 0;
+  for (int k = 0; k < c.n; ++k) {
+    const int count = c.column_start[k + 1] - c.column_start[k];
+    full = full || count == c.x_slots;
+    for (int j = 0; j < c.x_slots; ++j) {
+      const int expected = j < count ? c.lane_offset[static_cast<size_t>(c.column_start[k] + j)] : c.n * c.width;
+      if (c.x_gather[static_cast<size_t>(j * c.n + k)] != expected) return false;
+    }
+  }
+  return full;
+}
+
 // The pattern by finite differences of f at a generic point: entries that move with the column.
 std::vector<std::vector<int>> DifferencedPattern(const pk::internal::OdeSystem& sys, const Eigen::VectorXd& x,
                                                  const Eigen::VectorXd& theta) {
@@ -255,6 +272,20 @@ pk::ObjectiveOptions RkOptions(double rtol, bool compressed) {
   return o;
 }
 
+// A FixedDual<W> copied by construction and by assignment keeps its value and each lane's bits.
+template <int W>
+bool CopiesEveryLane() {
+  pk::FixedDual<W> a(-1.25);
+  for (int j = 0; j < W; ++j) a.derivative(j) = 0.5 + j;
+  const pk::FixedDual<W> constructed(a);
+  pk::FixedDual<W> assigned(7.0);
+  assigned = a;
+  for (const pk::FixedDual<W>* copy : {&constructed, static_cast<const pk::FixedDual<W>*>(&assigned)}) {
+    if (std::memcmp(copy, &a, sizeof a) != 0) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 TEST_CASE("FixedDual: the values of double and the derivatives of Dual, lane by lane", "[coloured]") {
@@ -273,6 +304,13 @@ TEST_CASE("FixedDual: the values of double and the derivatives of Dual, lane by 
     CHECK(std::fabs(r.derivative(2) - (0.5 * da + db)) <= 1e-14 * scale);
     CHECK(std::fabs(r.derivative(3) - db / 3) <= 1e-14 * scale);
   }
+}
+
+TEST_CASE("FixedDual copies its value and every lane, at widths copied whole and by groups", "[coloured]") {
+  CHECK(CopiesEveryLane<4>());
+  CHECK(CopiesEveryLane<6>());
+  CHECK(CopiesEveryLane<8>());   // copied four lanes at a time
+  CHECK(CopiesEveryLane<10>());  // and two lanes one by one
 }
 
 TEST_CASE("FixedDual where a derivative is infinite: the lanes that do not pass through it stay finite",
@@ -322,6 +360,7 @@ TEST_CASE("Jacobian colourings: valid, the differenced pattern, 6 lanes for a ch
     REQUIRE(ode != nullptr);
     const auto c = pk::internal::ColouredJacobian::ColouringOf(*ode);
     CHECK(ValidColouring(*c));
+    CHECK(ValidGather(*c));
     // The pattern holds the differenced one (a structural nonzero may vanish at a point, not the converse).
     const pk::internal::OdeSystem sys(*model);
     Eigen::VectorXd x(sys.n());

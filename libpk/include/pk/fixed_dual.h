@@ -16,13 +16,56 @@
 #include <cstring>
 
 namespace pk {
+namespace internal {
+
+// FixedDual's numbers: its value and W lanes, copied as a whole up to 64 bytes. A larger struct GCC
+// copies in 16-byte pieces, and a copy of a result the operators had just stored 32 bytes at a time
+// then waits for stores it cannot forward from: a model's temporaries (a chain's inflow = out) made f
+// on 8 lanes five times as slow as on 6. From 8 lanes the copy goes in the operators' groups.
+template <int W, bool kByGroups = (W >= 8)>
+struct DualNumbers {
+  double v_;
+  double d_[W];
+};
+template <int W>
+struct DualNumbers<W, true> {
+  DualNumbers() = default;
+  DualNumbers(const DualNumbers& o) { Copy(o); }
+  DualNumbers& operator=(const DualNumbers& o) {
+    Copy(o);
+    return *this;
+  }
+  double v_;
+  double d_[W];
+
+ private:
+  void Copy(const DualNumbers& o) {
+    v_ = o.v_;
+    int j = 0;
+#if defined(__GNUC__)
+    typedef double Four __attribute__((vector_size(32)));
+    for (; j + 4 <= W; j += 4) {
+      Four lanes;
+      std::memcpy(&lanes, o.d_ + j, sizeof lanes);
+      std::memcpy(d_ + j, &lanes, sizeof lanes);
+    }
+#endif
+    for (; j < W; ++j) d_[j] = o.d_[j];
+  }
+};
+
+}  // namespace internal
 
 template <int W>
-class FixedDual {
+class FixedDual : private internal::DualNumbers<W> {
+  using internal::DualNumbers<W>::v_;
+  using internal::DualNumbers<W>::d_;
+
  public:
   static_assert(W > 0, "FixedDual needs at least one lane");
   FixedDual() : FixedDual(0.0) {}
-  FixedDual(double value) : v_(value) {  // NOLINT: constants convert implicitly
+  FixedDual(double value) {  // NOLINT: constants convert implicitly
+    v_ = value;
     for (int j = 0; j < W; ++j) d_[j] = 0;
   }
 
@@ -125,9 +168,7 @@ class FixedDual {
     std::memcpy(r, &z, sizeof z);
   }
   struct Uninitialised {};
-  FixedDual(Uninitialised, double value) : v_(value) {}  // every lane written by the caller
-  double v_;
-  double d_[W];
+  FixedDual(Uninitialised, double value) { v_ = value; }  // every lane written by the caller
 };
 
 template <int W>

@@ -28,6 +28,40 @@ void Weigh(double weight, const double* lanes, double* weighed, double* sum) {
   std::memcpy(sum, &s, sizeof s);
 }
 
+// Every lane of each of n rows weighed by its row's w_i into weighed, and the θ lanes [B, W) also added
+// to the running sum. B and W are constants, so each row is a few straight-line instructions.
+template <int W, int B>
+void WeighRows(int n, const FixedDual<W>* lanes, const double* w, double* weighed, double* total) {
+  for (int i = 0; i < n; ++i) {
+    const double* const d = lanes[i].derivatives();
+    const double wi = w[i];
+    double* const pi = weighed + i * W;
+    double* const si = total + i * W;
+    int l = 0;
+#if defined(__GNUC__)
+    // As in FixedDual: GCC left these loops scalar. Four lanes an instruction in the AVX2 clone.
+    typedef double Four __attribute__((vector_size(32)));
+    typedef double Two __attribute__((vector_size(16)));
+    for (; l + 2 <= B; l += 2) Weigh<Two>(wi, d + l, pi + l, nullptr);
+    for (; l + 4 <= W; l += 4) Weigh<Four>(wi, d + l, pi + l, si + l);
+    for (; l + 2 <= W; l += 2) Weigh<Two>(wi, d + l, pi + l, si + l);
+#endif
+    for (; l < W; ++l) {
+      pi[l] = wi * d[l];
+      if (l >= B) si[l] += pi[l];
+    }
+  }
+}
+
+// WeighRows<W, begin> for an even begin ≤ W known only at run time.
+template <int W, int B = 0>
+void WeighRowsFrom(int begin, int n, const FixedDual<W>* lanes, const double* w, double* weighed, double* total) {
+  if constexpr (B < W) {
+    if (begin != B) return WeighRowsFrom<W, B + 2>(begin, n, lanes, w, weighed, total);
+  }
+  WeighRows<W, B>(n, lanes, w, weighed, total);
+}
+
 // Greedy colouring of the columns in their order: each takes the least colour no column sharing one of
 // its rows has. Chains and other banded patterns come out optimal in this order.
 void Colour(JacobianColouring* c) {
@@ -139,6 +173,13 @@ std::shared_ptr<const JacobianColouring> ColouredJacobian::ColouringOf(const Ode
       if (k >= c->n) c->theta_lanes_begin = std::min(c->theta_lanes_begin, c->colour[static_cast<size_t>(k)] & ~1);
     }
   }
+  for (int k = 0; k < c->n; ++k) c->x_slots = std::max(c->x_slots, c->column_start[k + 1] - c->column_start[k]);
+  c->x_gather.assign(static_cast<size_t>(c->x_slots) * static_cast<size_t>(c->n), c->n * c->width);
+  for (int k = 0; k < c->n; ++k) {
+    for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) {
+      c->x_gather[static_cast<size_t>((p - c->column_start[k]) * c->n + k)] = c->lane_offset[static_cast<size_t>(p)];
+    }
+  }
   kept.insert(kept.begin(), {model.id_, c});
   if (kept.size() > kMaxModelsKept) kept.pop_back();
   return c;
@@ -156,7 +197,7 @@ ColouredJacobian::ColouredJacobian(const OdeModel& model, std::shared_ptr<const 
       colouring_(std::move(colouring)),
       c_(*colouring_),
       weighted_sum_(static_cast<size_t>(c_.n) * static_cast<size_t>(c_.width), 0.0),
-      weighed_(weighted_sum_.size()) {
+      weighed_(weighted_sum_.size() + 1, 0.0) {
   switch (c_.width) {
     case 4: Seed(theta, &lanes4_); break;
     case 6: Seed(theta, &lanes6_); break;
@@ -294,40 +335,22 @@ double ColouredJacobian::StateRowSumNorm(const Eigen::VectorXd& x) {
 // each θ lane of f_i added to the running sum, from which ThetaProduct picks the θ columns once (an entry
 // (i, c) of the sum belongs to the one column of colour c with a nonzero in row i, if any: no two columns
 // of a colour share a row). Every lane of a row is weighed at once, a few lanes an instruction, into
-// the stage's weighed lanes, and the θ lanes added to the running sum as they are; each x column then
-// sums its nonzeros' weighed lanes, one load a nonzero (a gather that weighed as it went took a row, a
-// colour, w and the lane a nonzero, and cost as much as f on the lanes). The products and their order
-// are the same either way (the same bits).
+// the stage's weighed lanes, and the θ lanes added to the running sum as they are (WeighRows, its
+// loops unrolled for the colouring's width and first θ lane); each x column then sums its nonzeros'
+// weighed lanes, one load a nonzero, a slot of the gather table at a time over every column
+// (JacobianColouring::x_gather). A gather that weighed as it went took a row, a colour, w and the lane a
+// nonzero and cost as much as f on the lanes; one that looped over each column's nonzeros (CSC) spent
+// half the sweep in its short inner loops. The products and their order are the same in all three (the
+// same bits).
 template <int W>
 void ColouredJacobian::SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx) {
-  const int n = c_.n, begin = c_.theta_lanes_begin;  // begin is even
-  double* const total = weighted_sum_.data();
+  const int n = c_.n;
   double* const weighed = weighed_.data();
-  for (int i = 0; i < n; ++i) {
-    const double* const d = lanes[i].derivatives();
-    const double wi = w[i];
-    double* const pi = weighed + i * W;
-    double* const si = total + i * W;
-    int l = 0;
-#if defined(__GNUC__)
-    // As in FixedDual: GCC left these loops scalar. Four lanes an instruction in the AVX2 clone.
-    typedef double Four __attribute__((vector_size(32)));
-    typedef double Two __attribute__((vector_size(16)));
-    for (; l + 2 <= begin; l += 2) Weigh<Two>(wi, d + l, pi + l, nullptr);
-    for (; l + 4 <= W; l += 4) Weigh<Four>(wi, d + l, pi + l, si + l);
-    for (; l + 2 <= W; l += 2) Weigh<Two>(wi, d + l, pi + l, si + l);
-#endif
-    for (; l < W; ++l) {
-      pi[l] = wi * d[l];
-      if (l >= begin) si[l] += pi[l];
-    }
-  }
-  const int* const start = c_.column_start.data();
-  const int* const offset = c_.lane_offset.data();
-  for (int k = 0; k < n; ++k) {
-    double sum = 0;
-    for (int p = start[k]; p < start[k + 1]; ++p) sum += weighed[offset[p]];
-    wfx[k] = sum;
+  WeighRowsFrom<W>(c_.theta_lanes_begin, n, lanes, w, weighed, weighted_sum_.data());
+  const int* gather = c_.x_gather.data();
+  for (int k = 0; k < n; ++k) wfx[k] = 0;
+  for (int j = 0; j < c_.x_slots; ++j, gather += n) {
+    for (int k = 0; k < n; ++k) wfx[k] += weighed[gather[k]];
   }
 }
 

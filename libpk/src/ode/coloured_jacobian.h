@@ -42,6 +42,12 @@ struct JacobianColouring {
   /// column with a nonzero, rounded down to even (lanes go two at a time); width when θ has none. On a
   /// chain the x columns take colours 0 and 1, and the sweep skips them.
   int theta_lanes_begin = 0;
+  /// The x columns' nonzeros as Sweep sums them: slot j of column k at x_gather[j·n + k] (the same
+  /// offsets as lane_offset, in row order), a column with fewer than x_slots nonzeros padded with n·width,
+  /// where the sweep keeps a 0. Adding +0 after a sum begun at +0 leaves its bits alone, so the padded
+  /// sums are the unpadded ones, and a slot at a time is a loop without branches over the columns.
+  int x_slots = 0;
+  std::vector<int> x_gather;
 };
 
 /// Lanes of f kept at many stages, for an adjoint that keeps the forward pass's stages instead of
