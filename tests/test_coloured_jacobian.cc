@@ -207,19 +207,21 @@ bool ValidColouring(const pk::internal::JacobianColouring& c) {
 
 // The sweep's table of the x columns' nonzeros: slot j of column k is the j-th of lane_offset's entries
 // for k (rows in order), and padding (n·width, the sweep's 0) after the last; at least one column fills
-// every slot.
+// every slot. And x_lanes_below_theta says whether every x column with a nonzero has a colour below
+// the θ lanes (the sweep then keeps those lanes only in its sum).
 bool ValidGather(const pk::internal::JacobianColouring& c) {
   if (c.x_gather.size() != static_cast<size_t>(c.x_slots) * static_cast<size_t>(c.n)) return false;
-  bool full = c.x_slots == 0;
+  bool full = c.x_slots == 0, below = true;
   for (int k = 0; k < c.n; ++k) {
     const int count = c.column_start[k + 1] - c.column_start[k];
     full = full || count == c.x_slots;
+    if (count > 0 && c.colour[static_cast<size_t>(k)] >= c.theta_lanes_begin) below = false;
     for (int j = 0; j < c.x_slots; ++j) {
       const int expected = j < count ? c.lane_offset[static_cast<size_t>(c.column_start[k] + j)] : c.n * c.width;
       if (c.x_gather[static_cast<size_t>(j * c.n + k)] != expected) return false;
     }
   }
-  return full;
+  return full && below == c.x_lanes_below_theta;
 }
 
 // The pattern by finite differences of f at a generic point: entries that move with the column.
@@ -354,6 +356,7 @@ TEST_CASE("Jacobian colourings: valid, the differenced pattern, 6 lanes for a ch
     models.push_back(pk::MakeModel(name));
     models.push_back(pk::LoadModelFile(std::string(PK_SOURCE_DIR) + "/models/" + name + ".pkm"));
   }
+  int x_lanes_below_theta[2] = {0, 0};  // colourings with the flag false, true (the sweep's two ways)
   for (const auto& model : models) {
     INFO(model->name());
     const auto* ode = dynamic_cast<const pk::OdeModel*>(model.get());
@@ -361,6 +364,7 @@ TEST_CASE("Jacobian colourings: valid, the differenced pattern, 6 lanes for a ch
     const auto c = pk::internal::ColouredJacobian::ColouringOf(*ode);
     CHECK(ValidColouring(*c));
     CHECK(ValidGather(*c));
+    if (c->width > 0) ++x_lanes_below_theta[c->x_lanes_below_theta ? 1 : 0];
     // The pattern holds the differenced one (a structural nonzero may vanish at a point, not the converse).
     const pk::internal::OdeSystem sys(*model);
     Eigen::VectorXd x(sys.n());
@@ -392,6 +396,10 @@ TEST_CASE("Jacobian colourings: valid, the differenced pattern, 6 lanes for a ch
       CHECK(c->width >= c->colours);
     }
   }
+  // Both ways of the sweep occur here (a chain's x lanes are 0 and 1, its θ lanes 2 to 5), and the sweep
+  // tests below run models of both.
+  CHECK(x_lanes_below_theta[0] > 0);
+  CHECK(x_lanes_below_theta[1] > 0);
   // The check can fail: two chain columns that share a row, given one colour.
   auto broken = *pk::internal::ColouredJacobian::ColouringOf(*dynamic_cast<const pk::OdeModel*>(Chain(4).get()));
   broken.colour[1] = broken.colour[0];

@@ -14,23 +14,24 @@ namespace {
 
 constexpr int kMaxModelsKept = 4;  // colourings kept per thread
 
-// One group of V (a vector type of 2 or 4 doubles): weighed = weight · lanes, and sum += weighed unless
-// sum is null.
+// One group of V (a vector type of 2 or 4 doubles): weight · lanes into weighed unless it is null, and
+// added to sum unless that is null.
 template <typename V>
 void Weigh(double weight, const double* lanes, double* weighed, double* sum) {
   V d, s;
   std::memcpy(&d, lanes, sizeof d);
   d *= weight;
-  std::memcpy(weighed, &d, sizeof d);
+  if (weighed != nullptr) std::memcpy(weighed, &d, sizeof d);
   if (sum == nullptr) return;
   std::memcpy(&s, sum, sizeof s);
   s += d;
   std::memcpy(sum, &s, sizeof s);
 }
 
-// Every lane of each of n rows weighed by its row's w_i into weighed, and the θ lanes [B, W) also added
-// to the running sum. B and W are constants, so each row is a few straight-line instructions.
-template <int W, int B>
+// The lanes of each of n rows weighed by its row's w_i into weighed, and the θ lanes [B, W) added to the
+// running sum; when kOnlySummed, no x column reads those, and they are not kept in weighed. B, W and
+// kOnlySummed are constants, so each row is a few straight-line instructions.
+template <int W, int B, bool kOnlySummed>
 void WeighRows(int n, const FixedDual<W>* lanes, const double* w, double* weighed, double* total) {
   for (int i = 0; i < n; ++i) {
     const double* const d = lanes[i].derivatives();
@@ -43,23 +44,26 @@ void WeighRows(int n, const FixedDual<W>* lanes, const double* w, double* weighe
     typedef double Four __attribute__((vector_size(32)));
     typedef double Two __attribute__((vector_size(16)));
     for (; l + 2 <= B; l += 2) Weigh<Two>(wi, d + l, pi + l, nullptr);
-    for (; l + 4 <= W; l += 4) Weigh<Four>(wi, d + l, pi + l, si + l);
-    for (; l + 2 <= W; l += 2) Weigh<Two>(wi, d + l, pi + l, si + l);
+    for (; l + 4 <= W; l += 4) Weigh<Four>(wi, d + l, kOnlySummed ? nullptr : pi + l, si + l);
+    for (; l + 2 <= W; l += 2) Weigh<Two>(wi, d + l, kOnlySummed ? nullptr : pi + l, si + l);
 #endif
     for (; l < W; ++l) {
-      pi[l] = wi * d[l];
-      if (l >= B) si[l] += pi[l];
+      const double product = wi * d[l];
+      if (l < B || !kOnlySummed) pi[l] = product;
+      if (l >= B) si[l] += product;
     }
   }
 }
 
-// WeighRows<W, begin> for an even begin ≤ W known only at run time.
+// WeighRows<W, begin, only_summed> for an even begin ≤ W known only at run time.
 template <int W, int B = 0>
-void WeighRowsFrom(int begin, int n, const FixedDual<W>* lanes, const double* w, double* weighed, double* total) {
+void WeighRowsFrom(int begin, bool only_summed, int n, const FixedDual<W>* lanes, const double* w, double* weighed,
+                   double* total) {
   if constexpr (B < W) {
-    if (begin != B) return WeighRowsFrom<W, B + 2>(begin, n, lanes, w, weighed, total);
+    if (begin != B) return WeighRowsFrom<W, B + 2>(begin, only_summed, n, lanes, w, weighed, total);
   }
-  WeighRows<W, B>(n, lanes, w, weighed, total);
+  if (only_summed) return WeighRows<W, B, true>(n, lanes, w, weighed, total);
+  WeighRows<W, B, false>(n, lanes, w, weighed, total);
 }
 
 // Greedy colouring of the columns in their order: each takes the least colour no column sharing one of
@@ -171,6 +175,12 @@ std::shared_ptr<const JacobianColouring> ColouredJacobian::ColouringOf(const Ode
     for (int p = c->column_start[k]; p < c->column_start[k + 1]; ++p) {
       c->lane_offset.push_back(c->rows[p] * c->width + c->colour[static_cast<size_t>(k)]);
       if (k >= c->n) c->theta_lanes_begin = std::min(c->theta_lanes_begin, c->colour[static_cast<size_t>(k)] & ~1);
+    }
+  }
+  c->x_lanes_below_theta = true;
+  for (int k = 0; k < c->n; ++k) {
+    if (c->column_start[k] < c->column_start[k + 1] && c->colour[static_cast<size_t>(k)] >= c->theta_lanes_begin) {
+      c->x_lanes_below_theta = false;
     }
   }
   for (int k = 0; k < c->n; ++k) c->x_slots = std::max(c->x_slots, c->column_start[k + 1] - c->column_start[k]);
@@ -346,10 +356,17 @@ template <int W>
 void ColouredJacobian::SweepLanes(const FixedDual<W>* lanes, const double* w, double* wfx) {
   const int n = c_.n;
   double* const weighed = weighed_.data();
-  WeighRowsFrom<W>(c_.theta_lanes_begin, n, lanes, w, weighed, weighted_sum_.data());
+  WeighRowsFrom<W>(c_.theta_lanes_begin, c_.x_lanes_below_theta, n, lanes, w, weighed, weighted_sum_.data());
   const int* gather = c_.x_gather.data();
-  for (int k = 0; k < n; ++k) wfx[k] = 0;
-  for (int j = 0; j < c_.x_slots; ++j, gather += n) {
+  if (c_.x_slots == 0) {
+    std::fill(wfx, wfx + n, 0.0);
+    return;
+  }
+  // 0 + the first nonzero, as a sum begun at 0 (a −0 becomes +0); a loop of stores of 0 before was a
+  // call of memset.
+  for (int k = 0; k < n; ++k) wfx[k] = 0.0 + weighed[gather[k]];
+  for (int j = 1; j < c_.x_slots; ++j) {
+    gather += n;
     for (int k = 0; k < n; ++k) wfx[k] += weighed[gather[k]];
   }
 }

@@ -42,6 +42,9 @@ struct JacobianColouring {
   /// column with a nonzero, rounded down to even (lanes go two at a time); width when θ has none. On a
   /// chain the x columns take colours 0 and 1, and the sweep skips them.
   int theta_lanes_begin = 0;
+  /// Every x column with a nonzero has a colour below theta_lanes_begin: the sweep keeps the weighed
+  /// lanes [theta_lanes_begin, width) only in the running sum.
+  bool x_lanes_below_theta = false;
   /// The x columns' nonzeros as Sweep sums them: slot j of column k at x_gather[j·n + k] (the same
   /// offsets as lane_offset, in row order), a column with fewer than x_slots nonzeros padded with n·width,
   /// where the sweep keeps a 0. Adding +0 after a sum begun at +0 leaves its bits alone, so the padded
