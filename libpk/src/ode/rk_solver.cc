@@ -487,10 +487,11 @@ struct RkSolver::Impl {
   // proposal. Only a stored segment may carry a step over: its steps are kept, never replayed. Steps
   // stay within kStableStep / ‖f_x‖∞ (see there: the adjoint differentiates these steps' map).
   void FixedEndSteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps, double* carry = nullptr) {
+    const bool with_u = !in.u.isZero(0.0);  // as Advance and StagesAgain add u
     const Rhs rhs = [&](const State& z, State& dz, double) {
       ++stats.rhs_evaluations;
-      sys.Rhs(z, in.theta, &f_buf);
-      dz = f_buf + in.u;
+      sys.Rhs(z, in.theta, &dz);
+      if (with_u) dz += in.u;
     };
     // Kept stages: f on the lanes at every stage the stepper evaluates, the step's stage i into slot
     // base + i. Odeint's FSAL stepper evaluates stage 0 once, at its first step; then each try evaluates
@@ -516,7 +517,7 @@ struct RkSolver::Impl {
       first_evaluated = true;
       dz.resize(n);
       lanes->RecordSlot(&slots, slot, limit, z, dz.data());
-      dz += in.u;  // as rhs adds it
+      if (with_u) dz += in.u;  // as rhs adds it
     };
     // One stepper for every segment, reset to evaluate its first slope again: a new one a segment
     // allocated its ten work vectors each time.
@@ -828,6 +829,14 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   // The state: x, then the continuous loss and ∫∂L/∂t, then ∫ y_auc dt.
   State z = State::Zero(n + (with_loss ? 2 : 0) + (with_auc ? 1 : 0));
   z.head(n) = *x;
+  // The state alone: f straight into dz, u added where there is one (copies of the state and of f
+  // through scratch vectors were a sixth of a plain segment's time).
+  const bool with_u = !in.u.isZero(0.0);
+  const Rhs state_rhs = [&](const State& zz, State& dz, double) {
+    ++d.stats.rhs_evaluations;
+    d.sys.Rhs(zz, in.theta, &dz);
+    if (with_u) dz += in.u;
+  };
   const Rhs rhs = [&](const State& zz, State& dz, double t) {
     ++d.stats.rhs_evaluations;
     Eigen::VectorXd& xs = d.x_buf;
@@ -844,7 +853,7 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   };
   const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
   try {
-    d.Integrate(in, rhs, in.h, continues, &z);
+    d.Integrate(in, with_loss || with_auc ? rhs : state_rhs, in.h, continues, &z);
   } catch (const StiffSegment&) {  // x is as it was: Integrate writes z only at its end
     d.StiffAdvance(in, x, with_loss || with_auc, loss, auc, loss_time);
     return;
