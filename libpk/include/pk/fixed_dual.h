@@ -21,7 +21,8 @@ namespace internal {
 // FixedDual's numbers: its value and W lanes, copied as a whole up to 64 bytes. A larger struct GCC
 // copies in 16-byte pieces, and a copy of a result the operators had just stored 32 bytes at a time
 // then waits for stores it cannot forward from: a model's temporaries (a chain's inflow = out) made f
-// on 8 lanes five times as slow as on 6. From 8 lanes the copy goes in the operators' groups.
+// on 8 lanes five times as slow as on 6. From 8 lanes the copy goes in the operators' 32-byte groups
+// (four lanes an instruction in the AVX2 clone).
 template <int W, bool kByGroups = (W >= 8)>
 struct DualNumbers {
   double v_;
@@ -30,8 +31,8 @@ struct DualNumbers {
 template <int W>
 struct DualNumbers<W, true> {
   DualNumbers() = default;
-  DualNumbers(const DualNumbers& o) { Copy(o); }
-  DualNumbers& operator=(const DualNumbers& o) {
+  DualNumbers(const DualNumbers& o) noexcept { Copy(o); }
+  DualNumbers& operator=(const DualNumbers& o) noexcept {
     Copy(o);
     return *this;
   }

@@ -135,7 +135,9 @@ class ColouredJacobian {
   Lanes<8> lanes8_;
   int stages_ = 0;
   std::vector<double> weighted_sum_;  // n × width: w_i times lane l of f_i, summed over every stage swept
-  std::vector<double> weighed_;       // n × width: the stage being swept's w_i times lane l of f_i
+  // n × width + 1: the stage being swept's w_i times lane l of f_i, then a 0 that is never written
+  // (JacobianColouring::x_gather's padding).
+  std::vector<double> weighed_;
   std::vector<double> row_sums_;      // StateRowSumNorm's
 };
 

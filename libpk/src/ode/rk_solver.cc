@@ -118,6 +118,7 @@ void StageAdjointOf(Eigen::Index n, double h, const double* __restrict lambda, c
 
 void StagePoint(int i, double h, const Eigen::VectorXd& x, const Eigen::MatrixXd& k, Eigen::VectorXd* point) {
   const Eigen::Index n = x.size();
+  eigen_assert(k.rows() == n && k.cols() >= kStages - 1);  // what Eigen's sums checked
   point->resize(n);
   const double *const xs = x.data(), *const ks = k.data();
   double* const out = point->data();
@@ -135,6 +136,7 @@ void StagePoint(int i, double h, const Eigen::VectorXd& x, const Eigen::MatrixXd
 
 void StageAdjoint(int i, double h, const Eigen::VectorXd& lambda, const Eigen::MatrixXd& xi, Eigen::VectorXd* kappa) {
   const Eigen::Index n = lambda.size();
+  eigen_assert(xi.rows() == n && xi.cols() == kStages);
   kappa->resize(n);
   const double *const ls = lambda.data(), *const xs = xi.data();
   double* const out = kappa->data();
