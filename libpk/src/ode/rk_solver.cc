@@ -8,6 +8,7 @@
 #include <limits>
 #include <memory>
 #include <string>
+#include <type_traits>
 
 #include <unistd.h>
 
@@ -116,22 +117,27 @@ void StageAdjointOf(Eigen::Index n, double h, const double* __restrict lambda, c
   }
 }
 
+// f(std::integral_constant<int, i>()) for a stage 0 ≤ i < kStages known at run time (the loops above
+// take it as a constant).
+template <typename F>
+void ForStage(int i, const F& f) {
+  switch (i) {
+    case 0: return f(std::integral_constant<int, 0>());
+    case 1: return f(std::integral_constant<int, 1>());
+    case 2: return f(std::integral_constant<int, 2>());
+    case 3: return f(std::integral_constant<int, 3>());
+    case 4: return f(std::integral_constant<int, 4>());
+    default: return f(std::integral_constant<int, 5>());
+  }
+}
+
 void StagePoint(int i, double h, const Eigen::VectorXd& x, const Eigen::MatrixXd& k, Eigen::VectorXd* point) {
   const Eigen::Index n = x.size();
   eigen_assert(k.rows() == n && k.cols() >= kStages - 1);  // what Eigen's sums checked
   point->resize(n);
   const double *const xs = x.data(), *const ks = k.data();
   double* const out = point->data();
-  CallOnLanes([&] {
-    switch (i) {
-      case 0: StagePointOf<0>(n, h, xs, ks, out); break;
-      case 1: StagePointOf<1>(n, h, xs, ks, out); break;
-      case 2: StagePointOf<2>(n, h, xs, ks, out); break;
-      case 3: StagePointOf<3>(n, h, xs, ks, out); break;
-      case 4: StagePointOf<4>(n, h, xs, ks, out); break;
-      default: StagePointOf<5>(n, h, xs, ks, out); break;
-    }
-  });
+  CallOnLanes([&] { ForStage(i, [&](auto stage) { StagePointOf<decltype(stage)::value>(n, h, xs, ks, out); }); });
 }
 
 void StageAdjoint(int i, double h, const Eigen::VectorXd& lambda, const Eigen::MatrixXd& xi, Eigen::VectorXd* kappa) {
@@ -140,16 +146,7 @@ void StageAdjoint(int i, double h, const Eigen::VectorXd& lambda, const Eigen::M
   kappa->resize(n);
   const double *const ls = lambda.data(), *const xs = xi.data();
   double* const out = kappa->data();
-  CallOnLanes([&] {
-    switch (i) {
-      case 5: StageAdjointOf<5>(n, h, ls, xs, out); break;
-      case 4: StageAdjointOf<4>(n, h, ls, xs, out); break;
-      case 3: StageAdjointOf<3>(n, h, ls, xs, out); break;
-      case 2: StageAdjointOf<2>(n, h, ls, xs, out); break;
-      case 1: StageAdjointOf<1>(n, h, ls, xs, out); break;
-      default: StageAdjointOf<0>(n, h, ls, xs, out); break;
-    }
-  });
+  CallOnLanes([&] { ForStage(i, [&](auto stage) { StageAdjointOf<decltype(stage)::value>(n, h, ls, xs, out); }); });
 }
 
 // The reverse of one step of length h, from λ_{n+1} to λ_n (Impl::Backward's recursion): κ_i, then
