@@ -10,7 +10,8 @@
 //      with saturable transfer (m = 2n): a plain forward solve against the
 //      loss + gradient by (a) CVODES forward sensitivities and (b) the CVODES
 //      adjoint, with the adjoint's stored bytes; then the adjoint's time and
-//      storage against the checkpoint interval.
+//      storage against the checkpoint interval; the same through Dormand–Prince (rk),
+//      and a chain with first-order losses too, whose f runs on 8 lanes.
 //   5. Fits of catalogue ODE models on bundled data (LM with forward
 //      sensitivities through CVODES), per subject and in total.
 //   6. Simulation throughput: 10^5 subjects x 100 samples of 2cmt_oral (10^4 with --quick),
@@ -192,6 +193,33 @@ std::shared_ptr<const pk::OdeModel> Chain(int n, double vmax_scale = 1.0) {
   return pk::MakeOdeModel(spec, SaturableChain{n});
 }
 
+// The chain with a first-order loss from each compartment as well, K_i x_i: θ = (VMAX, KM, K), 7 colours,
+// so f runs on 8 lanes (FixedDual<8>, copied in groups: pk/fixed_dual.h).
+struct LeakyChain {
+  int n;
+  template <typename T>
+  void Rhs(const T* x, const T* p, T* dxdt) const {
+    T inflow(0.0);
+    for (int i = 0; i < n; ++i) {
+      const T out = p[i] * x[i] / (p[n + i] + x[i]);
+      dxdt[i] = inflow - out - p[2 * n + i] * x[i];
+      inflow = out;
+    }
+  }
+  template <typename T>
+  T Output(int, const T* x, const T*) const { return x[n - 1]; }
+};
+
+std::shared_ptr<const pk::OdeModel> Leaky(int n) {
+  pk::OdeModelSpec spec;
+  spec.name = "leaky" + std::to_string(n);
+  for (int i = 1; i <= n; ++i) spec.compartments.push_back("X" + std::to_string(i));
+  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"VMAX" + std::to_string(i), 40.0 + i});
+  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"KM" + std::to_string(i), 5.0 + 0.1 * i});
+  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"K" + std::to_string(i), 0.01 * i});
+  spec.central = n;
+  return pk::MakeOdeModel(spec, LeakyChain{n});
+}
 
 namespace {
 
@@ -747,6 +775,24 @@ int main(int argc, char** argv) {
       }
       std::printf("\n");
     }
+    // A model on 8 lanes: the rk adjoint's cost where f runs on FixedDual<8>.
+    std::printf("== the first chain with a first-order loss too (m = 3n, 7 colours: f on 8 lanes), rk, rtol 1e-8 ==\n");
+    std::printf("%4s %4s %14s %14s %16s\n", "n", "m", "rk solve (ms)", "(b) / solve", "(b) stored bytes");
+    for (int n : {8, 16, 32}) {
+      pk::ObjectiveOptions rk_options;
+      rk_options.propagator = pk::Propagator::kRungeKutta;
+      const pk::Objective rk(Leaky(n), OneDose("1", 100), 0, rk_options);
+      const Eigen::VectorXd v = rk.DefaultValues();
+      std::vector<int> free;
+      for (int i = 0; i < 3 * n; ++i) free.push_back(i);
+      const auto adj = Checked(rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint), "the rk adjoint");
+      const Timing t = Interleaved({[&] { g_sink = rk.Evaluate(v, free, Need::kValue).value; },
+                                    [&] { g_sink = rk.Evaluate(v, free, Need::kGradient, Route::kAdjoint).value; }});
+      std::printf("%4d %4d %14.3f %14.2f %16ld\n", n, 3 * n, t.base_seconds * 1e3, t.ratios[1],
+                  adj.ode_statistics.peak_adjoint_bytes);
+      std::fflush(stdout);
+    }
+    std::printf("\n");
     // The same choice on catalogue models and bundled data (first four
     // subjects, all model parameters free): what pk::kOdeAdjointThreshold rests on.
     std::printf("== catalogue ODE models on bundled data: gradient by (a) forward sensitivities over (b) the adjoint ==\n");
