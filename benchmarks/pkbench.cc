@@ -167,15 +167,19 @@ std::shared_ptr<const pk::LinearModel> Mammillary(int k_peripherals) {
 }  // namespace
 
 // A chain of n compartments: x_i flows to x_{i+1} at VMAX_i x_i/(KM_i + x_i),
-// and the last one is eliminated the same way. θ = (VMAX_1..n, KM_1..n).
+// and the last one is eliminated the same way. θ = (VMAX_1..n, KM_1..n). When leaky, each compartment
+// also loses K_i x_i, θ = (VMAX, KM, K): 7 colours, so f runs on 8 lanes (FixedDual<8>, copied in
+// groups: pk/fixed_dual.h).
 struct SaturableChain {
   int n;
+  bool leaky = false;
   template <typename T>
   void Rhs(const T* x, const T* p, T* dxdt) const {
     T inflow(0.0);
     for (int i = 0; i < n; ++i) {
       const T out = p[i] * x[i] / (p[n + i] + x[i]);
       dxdt[i] = inflow - out;
+      if (leaky) dxdt[i] -= p[2 * n + i] * x[i];
       inflow = out;
     }
   }
@@ -183,42 +187,25 @@ struct SaturableChain {
   T Output(int, const T* x, const T*) const { return x[n - 1]; }
 };
 
-std::shared_ptr<const pk::OdeModel> Chain(int n, double vmax_scale = 1.0) {
+// A chain's compartments X1…Xn and its parameters VMAX_i, KM_i, observed in Xn.
+pk::OdeModelSpec ChainSpec(const std::string& name, int n, double vmax_scale) {
   pk::OdeModelSpec spec;
-  spec.name = "chain" + std::to_string(n);
+  spec.name = name + std::to_string(n);
   for (int i = 1; i <= n; ++i) spec.compartments.push_back("X" + std::to_string(i));
   for (int i = 1; i <= n; ++i) spec.parameters.push_back({"VMAX" + std::to_string(i), vmax_scale * (40.0 + i)});
   for (int i = 1; i <= n; ++i) spec.parameters.push_back({"KM" + std::to_string(i), 5.0 + 0.1 * i});
   spec.central = n;
-  return pk::MakeOdeModel(spec, SaturableChain{n});
+  return spec;
 }
 
-// The chain with a first-order loss from each compartment as well, K_i x_i: θ = (VMAX, KM, K), 7 colours,
-// so f runs on 8 lanes (FixedDual<8>, copied in groups: pk/fixed_dual.h).
-struct LeakyChain {
-  int n;
-  template <typename T>
-  void Rhs(const T* x, const T* p, T* dxdt) const {
-    T inflow(0.0);
-    for (int i = 0; i < n; ++i) {
-      const T out = p[i] * x[i] / (p[n + i] + x[i]);
-      dxdt[i] = inflow - out - p[2 * n + i] * x[i];
-      inflow = out;
-    }
-  }
-  template <typename T>
-  T Output(int, const T* x, const T*) const { return x[n - 1]; }
-};
+std::shared_ptr<const pk::OdeModel> Chain(int n, double vmax_scale = 1.0) {
+  return pk::MakeOdeModel(ChainSpec("chain", n, vmax_scale), SaturableChain{n});
+}
 
 std::shared_ptr<const pk::OdeModel> Leaky(int n) {
-  pk::OdeModelSpec spec;
-  spec.name = "leaky" + std::to_string(n);
-  for (int i = 1; i <= n; ++i) spec.compartments.push_back("X" + std::to_string(i));
-  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"VMAX" + std::to_string(i), 40.0 + i});
-  for (int i = 1; i <= n; ++i) spec.parameters.push_back({"KM" + std::to_string(i), 5.0 + 0.1 * i});
+  pk::OdeModelSpec spec = ChainSpec("leaky", n, 1.0);
   for (int i = 1; i <= n; ++i) spec.parameters.push_back({"K" + std::to_string(i), 0.01 * i});
-  spec.central = n;
-  return pk::MakeOdeModel(spec, LeakyChain{n});
+  return pk::MakeOdeModel(spec, SaturableChain{n, true});
 }
 
 namespace {

@@ -18,18 +18,15 @@
 namespace pk {
 namespace internal {
 
-// FixedDual's numbers: its value and W lanes, copied as a whole up to 64 bytes. A larger struct GCC
-// copies in 16-byte pieces, and a copy of a result the operators had just stored 32 bytes at a time
-// then waits for stores it cannot forward from: a model's temporaries (a chain's inflow = out) made f
-// on 8 lanes five times as slow as on 6. From 8 lanes the copy goes in the operators' 32-byte groups
-// (four lanes an instruction in the AVX2 clone).
-template <int W, bool kByGroups = (W >= 8)>
-struct DualNumbers {
-  double v_;
-  double d_[W];
-};
+// FixedDual's numbers: its value and W lanes, copied in the groups the operators store them in (the
+// value, four lanes, two lanes). GCC copies a struct in 16-byte pieces, and a copy of a result the
+// operators had just stored 32 bytes at a time (or the value and the first lane, stored apart) then
+// waits for stores it cannot forward from: a model's temporaries (a chain's inflow = out) made f on 8
+// lanes five times as slow as on 6, and on 6 lanes twice as slow in a model with a loop-invariant
+// branch (`if (leaky) dxdt[i] -= …`) compiled at -O3. Copied by groups, each load matches a store (four
+// lanes an instruction in the AVX2 clone).
 template <int W>
-struct DualNumbers<W, true> {
+struct DualNumbers {
   DualNumbers() = default;
   DualNumbers(const DualNumbers& o) noexcept { Copy(o); }
   DualNumbers& operator=(const DualNumbers& o) noexcept {
@@ -45,8 +42,14 @@ struct DualNumbers<W, true> {
     int j = 0;
 #if defined(__GNUC__)
     typedef double Four __attribute__((vector_size(32)));
+    typedef double Two __attribute__((vector_size(16)));
     for (; j + 4 <= W; j += 4) {
       Four lanes;
+      std::memcpy(&lanes, o.d_ + j, sizeof lanes);
+      std::memcpy(d_ + j, &lanes, sizeof lanes);
+    }
+    for (; j + 2 <= W; j += 2) {
+      Two lanes;
       std::memcpy(&lanes, o.d_ + j, sizeof lanes);
       std::memcpy(d_ + j, &lanes, sizeof lanes);
     }
