@@ -16,61 +16,26 @@
 #include <cstring>
 
 namespace pk {
-namespace internal {
-
-// FixedDual's numbers: its value and W lanes, copied in the groups the operators store them in (the
-// value, four lanes, two lanes). GCC copies a struct in 16-byte pieces, and a copy of a result the
-// operators had just stored 32 bytes at a time (or the value and the first lane, stored apart) then
-// waits for stores it cannot forward from: a model's temporaries (a chain's inflow = out) made f on 8
-// lanes five times as slow as on 6, and on 6 lanes twice as slow in a model with a loop-invariant
-// branch (`if (leaky) dxdt[i] -= …`) compiled at -O3. Copied by groups, each load matches a store (four
-// lanes an instruction in the AVX2 clone).
-template <int W>
-struct DualNumbers {
-  DualNumbers() = default;
-  DualNumbers(const DualNumbers& o) noexcept { Copy(o); }
-  DualNumbers& operator=(const DualNumbers& o) noexcept {
-    Copy(o);
-    return *this;
-  }
-  double v_;
-  double d_[W];
-
- private:
-  void Copy(const DualNumbers& o) {
-    v_ = o.v_;
-    int j = 0;
-#if defined(__GNUC__)
-    typedef double Four __attribute__((vector_size(32)));
-    typedef double Two __attribute__((vector_size(16)));
-    for (; j + 4 <= W; j += 4) {
-      Four lanes;
-      std::memcpy(&lanes, o.d_ + j, sizeof lanes);
-      std::memcpy(d_ + j, &lanes, sizeof lanes);
-    }
-    for (; j + 2 <= W; j += 2) {
-      Two lanes;
-      std::memcpy(&lanes, o.d_ + j, sizeof lanes);
-      std::memcpy(d_ + j, &lanes, sizeof lanes);
-    }
-#endif
-    for (; j < W; ++j) d_[j] = o.d_[j];
-  }
-};
-
-}  // namespace internal
 
 template <int W>
-class FixedDual : private internal::DualNumbers<W> {
-  using internal::DualNumbers<W>::v_;
-  using internal::DualNumbers<W>::d_;
-
+class FixedDual {
  public:
   static_assert(W > 0, "FixedDual needs at least one lane");
   FixedDual() : FixedDual(0.0) {}
-  FixedDual(double value) {  // NOLINT: constants convert implicitly
-    v_ = value;
+  FixedDual(double value) : v_(value) {  // NOLINT: constants convert implicitly
     for (int j = 0; j < W; ++j) d_[j] = 0;
+  }
+  // Copied in the groups the operators store the lanes in (Lanewise). GCC copies a struct in 16-byte
+  // pieces, and a copy of a result the operators had just stored 32 bytes at a time (or the value and
+  // the first lane, stored apart) then waits for stores it cannot forward from: a model's temporaries
+  // (a chain's inflow = out) made f on 8 lanes five times as slow as on 6, and on 6 lanes twice as slow
+  // in a model with a loop-invariant branch (`if (leaky) dxdt[i] -= …`) compiled at -O3. Copied by
+  // groups, each load matches a store.
+  FixedDual(const FixedDual& o) noexcept : v_(o.v_) { CopyLanes(o); }
+  FixedDual& operator=(const FixedDual& o) noexcept {
+    v_ = o.v_;
+    CopyLanes(o);
+    return *this;
   }
 
   double value() const { return v_; }
@@ -147,6 +112,9 @@ class FixedDual : private internal::DualNumbers<W> {
   }
 
  private:
+  void CopyLanes(const FixedDual& o) {
+    Lanewise(this, o, o, [](auto& z, const auto& x, const auto&) { z = x; });
+  }
   static double Times(double partial, double tangent) { return tangent == 0 ? 0.0 : partial * tangent; }
   // r's lanes f(a_j, b_j), f generic in its arguments' type: two lanes at once where the compiler has
   // vector types (GCC and clang; SSE2 on every x86-64), each the same IEEE operations as on double, so
@@ -172,7 +140,9 @@ class FixedDual : private internal::DualNumbers<W> {
     std::memcpy(r, &z, sizeof z);
   }
   struct Uninitialised {};
-  FixedDual(Uninitialised, double value) { v_ = value; }  // every lane written by the caller
+  FixedDual(Uninitialised, double value) : v_(value) {}  // every lane written by the caller
+  double v_;
+  double d_[W];
 };
 
 template <int W>

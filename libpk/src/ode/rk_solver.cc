@@ -95,7 +95,7 @@ constexpr double kB[kStages] = {35.0 / 384, 0, 500.0 / 1113, 125.0 / 192, -2187.
 template <int I>
 void StagePointOf(Eigen::Index n, double h, const double* __restrict x, const double* __restrict k,
                   double* __restrict point) {
-  double c[kStages > 1 ? kStages : 1];
+  double c[kStages];
   for (int j = 0; j < I; ++j) c[j] = h * kA[I][j];
   for (Eigen::Index r = 0; r < n; ++r) {
     double sum = x[r];
@@ -485,13 +485,19 @@ struct RkSolver::Impl {
   // (what stepping through the sample would do), and *carry is left with this segment's last
   // proposal. Only a stored segment may carry a step over: its steps are kept, never replayed. Steps
   // stay within kStableStep / ‖f_x‖∞ (see there: the adjoint differentiates these steps' map).
-  void FixedEndSteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps, double* carry = nullptr) {
-    const bool with_u = !in.u.isZero(0.0);  // as Advance and StagesAgain add u
-    const Rhs rhs = [&](const State& z, State& dz, double) {
+  // The segment's right-hand side on the state alone: f straight into the slope, u added where there is
+  // one (copies of the state and of f through scratch vectors were a sixth of a plain segment's time).
+  Rhs StateRhs(const SegmentInput& in) {
+    const bool with_u = !in.u.isZero(0.0);
+    return [this, &in, with_u](const State& z, State& dz, double) {
       ++stats.rhs_evaluations;
       sys.Rhs(z, in.theta, &dz);
       if (with_u) dz += in.u;
     };
+  }
+  void FixedEndSteps(const SegmentInput& in, Eigen::VectorXd* x, StoredSteps* steps, double* carry = nullptr) {
+    const bool with_u = !in.u.isZero(0.0);  // as StateRhs and StagesAgain add u
+    const Rhs rhs = StateRhs(in);
     // Kept stages: f on the lanes at every stage the stepper evaluates, the step's stage i into slot
     // base + i. Odeint's FSAL stepper evaluates stage 0 once, at its first step; then each try evaluates
     // stages 1…5 and the next step's stage 0 (slots base + 1 … base + 6), and a rejected try is
@@ -828,14 +834,6 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   // The state: x, then the continuous loss and ∫∂L/∂t, then ∫ y_auc dt.
   State z = State::Zero(n + (with_loss ? 2 : 0) + (with_auc ? 1 : 0));
   z.head(n) = *x;
-  // The state alone: f straight into dz, u added where there is one (copies of the state and of f
-  // through scratch vectors were a sixth of a plain segment's time).
-  const bool with_u = !in.u.isZero(0.0);
-  const Rhs state_rhs = [&](const State& zz, State& dz, double) {
-    ++d.stats.rhs_evaluations;
-    d.sys.Rhs(zz, in.theta, &dz);
-    if (with_u) dz += in.u;
-  };
   const Rhs rhs = [&](const State& zz, State& dz, double t) {
     ++d.stats.rhs_evaluations;
     Eigen::VectorXd& xs = d.x_buf;
@@ -852,7 +850,11 @@ void RkSolver::Advance(const SegmentInput& in, Eigen::VectorXd* x, double* loss,
   };
   const bool continues = !with_loss && !with_auc && d.last.Continues(in, z, -1);
   try {
-    d.Integrate(in, with_loss || with_auc ? rhs : state_rhs, in.h, continues, &z);
+    if (with_loss || with_auc) {
+      d.Integrate(in, rhs, in.h, continues, &z);
+    } else {
+      d.Integrate(in, d.StateRhs(in), in.h, continues, &z);
+    }
   } catch (const StiffSegment&) {  // x is as it was: Integrate writes z only at its end
     d.StiffAdvance(in, x, with_loss || with_auc, loss, auc, loss_time);
     return;
